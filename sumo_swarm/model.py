@@ -1,0 +1,77 @@
+"""Plain value objects shared by every stage of the control loop (no SUMO import).
+
+Coordinates
+-----------
+``s_m``
+    Distance of the vehicle's *front bumper* along its route [m] (SUMO's convention for
+    ``lanePosition``, accumulated over the route's edges).
+``lane``
+    Lane index, 0 = rightmost lane (SUMO's convention). Grid columns use the same index.
+``lat_m``
+    Lateral offset of the vehicle centre from the centre of its lane [m], left positive.
+``y_m``
+    Lateral position of the vehicle centre measured from the centre of lane 0 [m], left
+    positive: ``road.lane_centre_y(lane) + lat_m``. Planner and trajectory use this.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleState:
+    """Snapshot of one vehicle at one instant."""
+
+    vehicle_id: str
+    s_m: float  # front bumper along the route [m]
+    lane: int  # 0 = rightmost
+    lat_m: float  # centre offset from the lane centre [m], left positive
+    speed_mps: float
+    length_m: float
+    accel_mps2: float = 0.0
+    is_cav: bool = False
+
+    @property
+    def rear_s_m(self) -> float:
+        """Position of the rear bumper along the route [m]."""
+        return self.s_m - self.length_m
+
+    @property
+    def centre_s_m(self) -> float:
+        """Position of the vehicle centre along the route [m]."""
+        return self.s_m - 0.5 * self.length_m
+
+
+@dataclass(frozen=True, slots=True)
+class RoadSection:
+    """Cross-section of the road where the swarm drives.
+
+    ``lane_widths_m[q]`` is the width of lane ``q`` (0 = rightmost) [m]. ``curvature_1pm``
+    is the curvature of the road's reference line at the swarm [1/m], left turns positive.
+    """
+
+    lane_widths_m: tuple[float, ...]
+    curvature_1pm: float = 0.0
+
+    @property
+    def n_lanes(self) -> int:
+        return len(self.lane_widths_m)
+
+    def lane_centre_y(self, lane: int) -> float:
+        """Lateral position of the centre of ``lane`` measured from the centre of lane 0 [m]."""
+        widths = self.lane_widths_m
+        return sum(widths[:lane]) + 0.5 * widths[lane] - 0.5 * widths[0]
+
+    def y_of(self, lane: int, lat_m: float) -> float:
+        """Lateral position [m] (from the centre of lane 0) of a point ``lat_m`` off ``lane``'s centre."""
+        return self.lane_centre_y(lane) + lat_m
+
+    def lane_of_y(self, y_m: float) -> int:
+        """Lane index whose band contains the lateral position ``y_m`` (clipped to the road)."""
+        edge = -0.5 * self.lane_widths_m[0]
+        for lane, width in enumerate(self.lane_widths_m):
+            edge += width
+            if y_m < edge:
+                return lane
+        return self.n_lanes - 1
