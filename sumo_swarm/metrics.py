@@ -240,9 +240,10 @@ def gaps(df: pd.DataFrame) -> pd.DataFrame:
         Same index and row order as ``df``, with columns
         ``time_s, vehicle, kind, lane`` (copied from ``df``),
         ``leader`` (vehicle id, missing when nobody is ahead in the lane), ``leader_kind``,
-        ``gap_m`` (bumper to bumper ``leader.s_m - leader.length_m - s_m`` [m]; NaN without a
-        leader), ``headway_s`` (``gap_m / speed_mps`` [s], negative when overlapping; ``inf`` when the
-        follower is stopped, ``speed_mps <= STOPPED_MPS``; NaN without a leader),
+        ``gap_m`` (bumper to bumper ``leader.s_m - leader.length_m - s_m`` [m], negative when
+        the two overlap; NaN without a leader),
+        ``headway_s`` (``gap_m / speed_mps`` [s]; ``inf`` when the follower is stopped,
+        ``speed_mps <= STOPPED_MPS``; NaN without a leader),
         ``closing_speed_mps`` (``speed_mps - leader speed`` [m/s], positive when closing in),
         ``ttc_s`` (time to collision ``max(gap_m, 0) / closing_speed_mps`` [s] when closing
         faster than ``CLOSING_MPS``, else ``inf``; NaN without a leader).
