@@ -422,7 +422,7 @@ def hard_brakes(
 
 def upstream_impact(
     df: pd.DataFrame,
-    ref_time_s: float,
+    ref_time_s: float | None,
     *,
     swarm_kind: str = CAV,
     n_rank: int = 5,
@@ -432,11 +432,11 @@ def upstream_impact(
     """Speed and following distance of the vehicles upstream of the swarm (paper's Fig. 12).
 
     Selection, at the reference step (the first recorded step at or after ``ref_time_s``, the
-    start of the manoeuvre): the swarm's rear is the smallest rear bumper (``s_m - length_m``)
-    of the vehicles of ``swarm_kind``; the upstream vehicles are the other vehicles whose front
-    bumper is behind it (``s_m <`` swarm rear). In each lane (the lane at the reference step),
-    they are ranked nearest first (largest ``s_m``; rank 1 = right behind the swarm), up to
-    ``n_rank`` per lane.
+    start of the manoeuvre; the table's first step when None): the swarm's rear is the smallest
+    rear bumper (``s_m - length_m``) of the vehicles of ``swarm_kind``; the upstream vehicles
+    are the other vehicles whose front bumper is behind it (``s_m <`` swarm rear). In each lane
+    (the lane at the reference step), they are ranked nearest first (largest ``s_m``; rank 1 =
+    right behind the swarm), up to ``n_rank`` per lane.
 
     Measures of each, over ``window`` (default: from the reference step to the end of the
     table), whatever lane it drives in then:
@@ -461,7 +461,7 @@ def upstream_impact(
         raise ConfigError(f"n_rank must be at least 1, got {n_rank}")
     _require(df, ["time_s", "vehicle", "kind", "lane", "s_m", "speed_mps", "length_m"])
     times = df["time_s"].to_numpy(dtype=float)
-    later = times[times >= ref_time_s - TIME_TOLERANCE_S]
+    later = times if ref_time_s is None else times[times >= ref_time_s - TIME_TOLERANCE_S]
     if later.size == 0:
         return []
     t_ref = float(later.min())

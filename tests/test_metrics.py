@@ -487,6 +487,8 @@ def test_upstream_reference_step_is_the_first_at_or_after_ref_time(upstream_tabl
     assert h1["undisturbed_speed_mps"] == pytest.approx(18.0)  # speed at t = 1
     assert h1["speed_reduction_pct"] == 0.0  # window t = 1..2: min 18
     assert metrics.upstream_impact(upstream_table, ref_time_s=5.0) == []
+    from_start = metrics.upstream_impact(upstream_table, ref_time_s=None)
+    assert from_start == metrics.upstream_impact(upstream_table, ref_time_s=0.0)
 
 
 def test_upstream_without_swarm_is_empty(upstream_table):
