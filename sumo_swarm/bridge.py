@@ -1,0 +1,272 @@
+"""The SUMO bridge: the only module that imports libsumo (or traci, for users of sumo-gui).
+
+It starts and stops SUMO, reads every vehicle's state in bulk through subscriptions, counts
+collisions and teleports, and applies the controllers' commands.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
+
+from sumo_swarm.errors import SimulationError
+from sumo_swarm.model import RoadSection, VehicleState
+
+log = logging.getLogger(__name__)
+
+# Lane-change mode 0: no autonomous lane changes and no safety vetoes of our own sublane moves;
+# the planner and its validator own lateral safety (SUMO's safe-speed check stays on, below).
+LC_MODE_CONTROLLED = 0
+# Speed mode 31 (SUMO's default): commanded speeds still respect the safe speed towards the
+# vehicle ahead and the vType's accel/decel limits. A last safety net under our controllers.
+SPEED_MODE_SAFE = 31
+
+
+def sumo_binary(gui: bool = False) -> str:
+    """Path of the sumo (or sumo-gui) binary shipped with the eclipse-sumo package."""
+    import sumo
+
+    name = "sumo-gui" if gui else "sumo"
+    return str(Path(sumo.SUMO_HOME) / "bin" / name)
+
+
+def _api(use_traci: bool) -> ModuleType:
+    if use_traci:
+        import traci
+
+        return traci
+    import libsumo
+
+    return libsumo
+
+
+@dataclass
+class Collision:
+    time_s: float
+    collider: str
+    victim: str
+    kind: str
+
+
+@dataclass
+class StepRecord:
+    """Columns of the trajectory table, appended once per vehicle per step."""
+
+    columns: dict[str, list] = field(
+        default_factory=lambda: {
+            k: []
+            for k in (
+                "time_s", "vehicle", "kind", "edge", "lane", "x_m", "y_m", "s_m", "lat_m",
+                "speed_mps", "accel_mps2", "length_m",
+            )
+        }
+    )  # fmt: skip
+
+
+class SumoSession:
+    """A running SUMO simulation.
+
+    Use as a context manager::
+
+        with SumoSession(["-c", "scenario.sumocfg"]) as sumo:
+            while sumo.time_s < end:
+                sumo.step()
+                states = sumo.states
+
+    ``route_edges`` defines the route coordinate ``s_m`` (the edges' lengths accumulated);
+    ``cav_ids`` (or ``is_cav``) tells which vehicles are CAVs.
+    """
+
+    VARS = ("ROAD_ID", "LANE_INDEX", "LANEPOSITION", "LANEPOSITION_LAT", "POSITION", "SPEED",
+            "ACCELERATION")  # fmt: skip
+
+    def __init__(
+        self,
+        args: list[str],
+        *,
+        route_edges: Iterable[str] = (),
+        is_cav=None,
+        use_traci: bool = False,
+        gui: bool = False,
+        label: str | None = None,
+    ) -> None:
+        self.args = list(args)
+        self.use_traci = use_traci or gui
+        self.gui = gui
+        self.label = label
+        self.api = _api(self.use_traci)
+        self._vars = [getattr(self.api.constants, f"VAR_{v}") for v in self.VARS]
+        self._edge_offset: dict[str, float] = {}
+        self._route_edges = list(route_edges)
+        self._is_cav = is_cav or (lambda vid, type_id: False)
+        self.kinds: dict[str, str] = {}
+        self.lengths: dict[str, float] = {}
+        self.types: dict[str, str] = {}
+        self.states: dict[str, VehicleState] = {}
+        self.positions: dict[str, tuple[float, float]] = {}
+        self.edges: dict[str, str] = {}
+        self.collisions: list[Collision] = []
+        self.teleports: int = 0
+        self.departed: list[str] = []
+        self.arrived: list[str] = []
+        self.time_s = 0.0
+        self.step_length_s = 0.0
+        self.record = StepRecord()
+        self.recording = True
+        self._open = False
+
+    # ------------------------------------------------------------------ life cycle
+    def __enter__(self) -> SumoSession:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def start(self) -> None:
+        cmd = [sumo_binary(self.gui), *self.args]
+        try:
+            if self.use_traci:
+                self.api.start(cmd, label=self.label) if self.label else self.api.start(cmd)
+            else:
+                self.api.start(cmd)
+        except Exception as exc:  # SUMO refuses its input: report it as a simulation error
+            raise SimulationError(f"SUMO did not start: {exc}") from None
+        self._open = True
+        self.step_length_s = self.api.simulation.getDeltaT()
+        self.time_s = self.api.simulation.getTime()
+        net_edges = self._route_edges
+        offset = 0.0
+        for edge in net_edges:
+            self._edge_offset[edge] = offset
+            offset += self.api.lane.getLength(f"{edge}_0")
+
+    def close(self) -> None:
+        if self._open:
+            self._open = False
+            try:
+                self.api.close()
+            except Exception as exc:  # already gone: nothing left to release
+                log.debug("closing SUMO: %s", exc)
+
+    # ------------------------------------------------------------------ stepping
+    def step(self) -> None:
+        """Advance SUMO by one step and refresh :attr:`states` (bulk, by subscription)."""
+        api = self.api
+        try:
+            api.simulation.step()
+        except Exception as exc:
+            raise SimulationError(f"SUMO stopped at t = {self.time_s:.2f} s: {exc}") from None
+        self.time_s = api.simulation.getTime()
+        self.departed = list(api.simulation.getDepartedIDList())
+        self.arrived = list(api.simulation.getArrivedIDList())
+        for vid in self.departed:
+            api.vehicle.subscribe(vid, self._vars)
+            type_id = api.vehicle.getTypeID(vid)
+            self.types[vid] = type_id
+            self.lengths[vid] = api.vehicle.getLength(vid)
+            self.kinds[vid] = "cav" if self._is_cav(vid, type_id) else "hv"
+        for c in api.simulation.getCollisions():
+            self.collisions.append(Collision(self.time_s, c.collider, c.victim, c.type))
+        self.teleports += api.simulation.getStartingTeleportNumber()
+        self._read(api.vehicle.getAllSubscriptionResults())
+
+    def _read(self, results: dict) -> None:
+        c = self.api.constants
+        previous = self.states
+        states: dict[str, VehicleState] = {}
+        positions: dict[str, tuple[float, float]] = {}
+        edges: dict[str, str] = {}
+        rec = self.record.columns if self.recording else None
+        dt = self.step_length_s
+        for vid, r in results.items():
+            edge = r[c.VAR_ROAD_ID]
+            lane = r[c.VAR_LANE_INDEX]
+            pos = r[c.VAR_LANEPOSITION]
+            offset = self._edge_offset.get(edge)
+            speed = r[c.VAR_SPEED]
+            if offset is not None:
+                s = offset + pos
+            elif vid in previous:  # on an internal (junction) edge: integrate the speed
+                s = previous[vid].s_m + speed * dt
+            else:
+                s = pos
+            lat = r[c.VAR_LANEPOSITION_LAT]
+            kind = self.kinds.get(vid, "hv")
+            length = self.lengths.get(vid, 5.0)
+            state = VehicleState(
+                vid, s, lane, lat, speed, length, r[c.VAR_ACCELERATION], kind == "cav"
+            )
+            states[vid] = state
+            x, y = r[c.VAR_POSITION]
+            positions[vid] = (x, y)
+            edges[vid] = edge
+            if rec is not None:
+                rec["time_s"].append(self.time_s)
+                rec["vehicle"].append(vid)
+                rec["kind"].append(kind)
+                rec["edge"].append(edge)
+                rec["lane"].append(lane)
+                rec["x_m"].append(x)
+                rec["y_m"].append(y)
+                rec["s_m"].append(s)
+                rec["lat_m"].append(lat)
+                rec["speed_mps"].append(speed)
+                rec["accel_mps2"].append(state.accel_mps2)
+                rec["length_m"].append(length)
+        self.states = states
+        self.positions = positions
+        self.edges = edges
+
+    def has_vehicles_to_come(self) -> bool:
+        return self.api.simulation.getMinExpectedNumber() > 0
+
+    # ------------------------------------------------------------------ road
+    def road_section(self, edge: str) -> RoadSection:
+        """Lane widths of ``edge`` (0 = rightmost) and its curvature (0 for straight edges)."""
+        n = self.api.edge.getLaneNumber(edge)
+        widths = tuple(self.api.lane.getWidth(f"{edge}_{i}") for i in range(n))
+        return RoadSection(widths, 0.0)
+
+    # ------------------------------------------------------------------ commands
+    def set_speed(self, vid: str, speed_mps: float) -> None:
+        self.api.vehicle.setSpeed(vid, max(0.0, speed_mps))
+
+    def release_speed(self, vid: str) -> None:
+        """Hand the speed back to SUMO's car-following model."""
+        self.api.vehicle.setSpeed(vid, -1.0)
+
+    def change_sublane(self, vid: str, lateral_m: float) -> None:
+        """Move ``vid`` sideways by ``lateral_m`` (left positive), within maxSpeedLat per second."""
+        if abs(lateral_m) > 1e-4:
+            self.api.vehicle.changeSublane(vid, lateral_m)
+
+    def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> None:
+        if speed_mode is not None:
+            self.api.vehicle.setSpeedMode(vid, speed_mode)
+        if lane_change_mode is not None:
+            self.api.vehicle.setLaneChangeMode(vid, lane_change_mode)
+
+    def set_color(self, vid: str, rgba: tuple[int, int, int, int]) -> None:
+        self.api.vehicle.setColor(vid, rgba)
+
+    def exists(self, vid: str) -> bool:
+        return vid in self.states
+
+    # ------------------------------------------------------------------ helpers
+    def leader_gap(self, vid: str) -> tuple[str, float] | None:
+        """SUMO's own leader lookup: (leader id, gap incl. minGap removed) or None."""
+        res = self.api.vehicle.getLeader(vid, 200.0)
+        if not res or not res[0]:
+            return None
+        return res[0], res[1] + self.api.vehicle.getMinGap(vid)
+
+
+def finite_or_none(value: float | None) -> float | None:
+    if value is None or not math.isfinite(value):
+        return None
+    return float(value)

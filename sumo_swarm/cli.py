@@ -1,0 +1,106 @@
+"""The ``sumo-swarm`` command.
+
+Exit status: 0 success, 2 bad input (one line on stderr naming the problem, no traceback),
+1 anything else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from sumo_swarm import __version__
+from sumo_swarm.controllers import CONTROLLERS
+from sumo_swarm.errors import ConfigError, SimulationError
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports usage errors as bad input (exit 2) in one line."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise ConfigError(f"{self.prog}: {message}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="sumo-swarm", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"sumo-swarm {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    run = sub.add_parser("run", help="one headless run of a scenario file")
+    run.add_argument("scenario", nargs="?", type=Path, help="scenario TOML file")
+    run.add_argument("--sumocfg", type=Path, help="a SUMO configuration to run as it is")
+    run.add_argument("--cav-type", help="with --sumocfg: the vType whose vehicles form the swarm")
+    run.add_argument("--controller", default="swarm", choices=CONTROLLERS)
+    run.add_argument("--seed", type=int, default=None)
+    run.add_argument("--out", type=Path, default=Path("out"))
+    run.add_argument("--fcd", action="store_true", help="also write SUMO's fcd-output (fcd.xml)")
+    run.add_argument("--gui", action="store_true", help="watch the run in sumo-gui (traci)")
+
+    rep = sub.add_parser("reproduce", help="the paper's evaluation (Section IV), report and figures")
+    rep.add_argument("--out", type=Path, default=Path("reproduce"))
+    rep.add_argument("--scenario", type=Path, default=None, help="default: the paper scenario")
+    return parser
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from sumo_swarm.config import load_scenario
+    from sumo_swarm.runner import run_scenario
+
+    if args.sumocfg is not None:
+        raise ConfigError("--sumocfg runs are not available yet in this version")
+    if args.scenario is None:
+        raise ConfigError("run: give a scenario file (or --sumocfg FILE --cav-type TYPE)")
+    scenario = load_scenario(args.scenario)
+    summary = run_scenario(
+        scenario, args.controller, args.out, seed=args.seed, fcd=args.fcd, gui=args.gui
+    )
+    cav = summary["cav"]
+    ot = summary["overtake"]
+    print(
+        f"{summary['scenario']}/{summary['controller']}: CAV mean speed "
+        f"{cav['mean_speed_mps']:.2f} m/s, min gap {cav['gap_min_m']:.2f} m, "
+        f"overtake completed={ot['completed']} regrouped={ot['regrouped']}, "
+        f"collisions={summary['safety']['collisions']}, "
+        f"hard brakes={summary['safety']['hard_brakes']}, "
+        f"wall {summary['timing']['wall_s']:.1f} s -> {args.out}"
+    )
+    return EXIT_OK
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from sumo_swarm.reproduce import reproduce
+
+    reproduce(args.out, scenario_path=args.scenario)
+    return EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        logging.basicConfig(
+            level=logging.INFO if args.verbose else logging.WARNING,
+            format="%(levelname)s %(name)s: %(message)s",
+        )
+        if args.command == "run":
+            return _cmd_run(args)
+        if args.command == "reproduce":
+            return _cmd_reproduce(args)
+        raise ConfigError(f"unknown command {args.command}")
+    except ConfigError as exc:
+        print(f"sumo-swarm: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except SimulationError as exc:
+        print(f"sumo-swarm: simulation failed: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        print("sumo-swarm: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,462 @@
+"""Scenario configuration: TOML in, typed and validated dataclasses out.
+
+Every section of a scenario file is a frozen dataclass. :func:`from_mapping` builds one from a
+TOML table and refuses, with a :class:`~sumo_swarm.errors.ConfigError` naming the key and the
+file, any unknown key, wrong type or out-of-range value (ranges are checked by each dataclass's
+``__post_init__``). Nothing is silently ignored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, TypeVar
+
+from sumo_swarm.errors import ConfigError
+from sumo_swarm.grid import GridSettings
+from sumo_swarm.planner import PlannerSettings
+from sumo_swarm.tracking import LateralSettings, LongitudinalSettings
+
+T = TypeVar("T")
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def check_positive(owner: object, *names: str) -> None:
+    """Raise ConfigError unless every named field of ``owner`` is a finite number > 0."""
+    for name in names:
+        value = getattr(owner, name)
+        if value is None:
+            continue
+        if not math.isfinite(value) or value <= 0:
+            raise ConfigError(f"{name} must be > 0, got {value!r}")
+
+
+def check_non_negative(owner: object, *names: str) -> None:
+    """Raise ConfigError unless every named field of ``owner`` is a finite number >= 0."""
+    for name in names:
+        value = getattr(owner, name)
+        if value is None:
+            continue
+        if not math.isfinite(value) or value < 0:
+            raise ConfigError(f"{name} must be >= 0, got {value!r}")
+
+
+# --------------------------------------------------------------------------- sections
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """How SUMO runs."""
+
+    network: str = "../networks/highway3.net.xml"  # relative to the scenario file
+    step_length_s: float = 0.03  # paper IV-C: time step 0.03 s
+    duration_s: float = 80.0
+    seed: int = 42
+    lateral_resolution_m: float = 0.5  # sublane model; 0.5 m on 3 m lanes = 6 sublanes per lane
+    route_edges: tuple[str, ...] = ("hwy",)
+
+    def __post_init__(self) -> None:
+        check_positive(self, "step_length_s", "duration_s", "lateral_resolution_m")
+        if self.step_length_s > 1.0:
+            raise ConfigError(f"step_length_s must be <= 1 s, got {self.step_length_s}")
+        if not self.route_edges:
+            raise ConfigError("route_edges must name at least one edge")
+
+
+@dataclass(frozen=True)
+class EvaluationSettings:
+    """The window over which mobility and safety are measured (paper Section IV-E)."""
+
+    start_s: float = 0.0
+    end_s: float = 60.0
+    travel_distance_m: float = 1000.0  # travel time = time for a CAV to cover this distance
+    upstream_ranks: int = 5
+
+    def __post_init__(self) -> None:
+        check_non_negative(self, "start_s")
+        check_positive(self, "end_s", "travel_distance_m", "upstream_ranks")
+        if self.end_s <= self.start_s:
+            raise ConfigError(f"end_s ({self.end_s}) must be after start_s ({self.start_s})")
+
+
+@dataclass(frozen=True)
+class CavSettings:
+    """The CAVs and the swarm's set points (paper IV-C)."""
+
+    count: int = 6
+    length_m: float = 5.0
+    width_m: float = 1.8
+    cruising_speed_mps: float = 20.0
+    max_speed_mps: float = 25.0
+    min_gap_m: float = 5.0  # minimum safety distance between CAVs
+    desired_gap_m: float = 10.0  # desired safety distance between CAVs
+    accel_min_mps2: float = -4.0
+    accel_max_mps2: float = 3.0
+    # Paper IV-C: "front wheel angle [-450 deg, 450 deg]" is evidently the steering-wheel range;
+    # with a steering ratio of 15 that is +-30 deg at the wheels (see tracking.LateralSettings).
+    steering_wheel_range_deg: float = 450.0
+    steering_ratio: float = 15.0
+    max_lateral_speed_mps: float = 2.0  # SUMO vType maxSpeedLat
+    wheelbase_m: float = 2.8
+
+    def __post_init__(self) -> None:
+        if self.count < 1:
+            raise ConfigError(f"count must be >= 1 CAV, got {self.count}")
+        check_positive(
+            self,
+            "length_m",
+            "width_m",
+            "cruising_speed_mps",
+            "max_speed_mps",
+            "min_gap_m",
+            "desired_gap_m",
+            "accel_max_mps2",
+            "steering_wheel_range_deg",
+            "steering_ratio",
+            "max_lateral_speed_mps",
+            "wheelbase_m",
+        )
+        if self.accel_min_mps2 >= 0:
+            raise ConfigError(f"accel_min_mps2 must be < 0, got {self.accel_min_mps2}")
+        if self.desired_gap_m < self.min_gap_m:
+            raise ConfigError(
+                f"desired_gap_m ({self.desired_gap_m}) must be >= min_gap_m ({self.min_gap_m})"
+            )
+        if self.max_speed_mps < self.cruising_speed_mps:
+            raise ConfigError(
+                f"max_speed_mps ({self.max_speed_mps}) must be >= cruising_speed_mps "
+                f"({self.cruising_speed_mps})"
+            )
+
+    @property
+    def wheel_angle_max_rad(self) -> float:
+        return math.radians(self.steering_wheel_range_deg / self.steering_ratio)
+
+
+@dataclass(frozen=True)
+class IdmSettings:
+    """Human-driven vehicles: SUMO's IDM with the parameters of Treiber, Hennecke & Helbing (2000).
+
+    Treiber, Hennecke, Helbing, "Congested traffic states in empirical observations and microscopic
+    simulations", Phys. Rev. E 62 (2000), Table I (highway): a = 0.73 m/s^2, b = 1.67 m/s^2,
+    s0 = 2 m, delta = 4, v0 = 120 km/h. Its T = 1.6 s is replaced by the paper's "minimum
+    car-following headway" of 1.2 s (IV-C), which is also what reproduces the paper's upstream
+    gaps (23.9 m at 17.15 m/s, IV-E-4); set ``headway_s = 1.6`` for Treiber's value.
+    """
+
+    length_m: float = 5.0
+    width_m: float = 1.8
+    accel_mps2: float = 0.73  # a
+    decel_mps2: float = 1.67  # b (comfortable deceleration)
+    emergency_decel_mps2: float = 9.0
+    headway_s: float = 1.2  # T
+    min_gap_m: float = 2.0  # s0
+    delta: float = 4.0
+    desired_speed_mps: float = 33.33  # v0 = 120 km/h, for HVs that follow others
+    lane_changes: bool = False  # paper: HVs keep their lanes
+
+    def __post_init__(self) -> None:
+        check_positive(
+            self,
+            "length_m",
+            "width_m",
+            "accel_mps2",
+            "decel_mps2",
+            "emergency_decel_mps2",
+            "headway_s",
+            "delta",
+            "desired_speed_mps",
+        )
+        check_non_negative(self, "min_gap_m")
+
+
+@dataclass(frozen=True)
+class HvPlacement:
+    """One explicitly placed human-driven vehicle."""
+
+    id: str
+    lane: int
+    front_m: float  # front bumper along the route at t = 0 [m]
+    speed_mps: float = 17.5
+    desired_speed_mps: float | None = None  # None: IDM v0 of the HV settings
+    length_m: float | None = None
+    role: Literal["target", "adjacent", "other"] = "other"
+
+    def __post_init__(self) -> None:
+        if not self.id:
+            raise ConfigError("id must not be empty")
+        check_non_negative(self, "lane", "front_m", "speed_mps")
+        check_positive(self, "desired_speed_mps", "length_m")
+
+
+@dataclass(frozen=True)
+class SceneSettings:
+    """The scene of the paper's Figure 6 (all positions at t = 0, front bumpers along the route).
+
+    The platoon drives in ``platoon_lane`` behind the slow ``target`` HV. HVs listed in ``hv``
+    stand beside it; ``upstream_per_lane`` HVs follow, in every lane, the last vehicle of that
+    lane at ``upstream_gap_m`` (paper IV-C: initial following distance of the upstream HVs 25 m).
+    """
+
+    platoon_lane: int = 1
+    leader_front_m: float = 300.0
+    initial_speed_mps: float = 17.5  # paper IV-C: speed of HVs 17.5 m/s
+    initial_gap_m: float = 10.0  # CAV to CAV, and leader to the target HV
+    upstream_per_lane: int = 5
+    upstream_gap_m: float = 25.0
+    upstream_speed_mps: float = 17.5
+    hv: tuple[HvPlacement, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_non_negative(self, "platoon_lane", "upstream_per_lane")
+        check_positive(self, "leader_front_m", "initial_gap_m", "upstream_gap_m")
+        check_non_negative(self, "initial_speed_mps", "upstream_speed_mps")
+        ids = [h.id for h in self.hv]
+        if len(set(ids)) != len(ids):
+            raise ConfigError(f"hv ids must be unique, got {ids}")
+        if sum(h.role == "target" for h in self.hv) > 1:
+            raise ConfigError("at most one hv may have role = 'target'")
+
+
+@dataclass(frozen=True)
+class CellLengthSettings:
+    """Which rule sets the grid's cell length (the paper is inconsistent here).
+
+    Paper II-B-1 sets l_cell = l_CAV + d_safe; its IV-C lists l_cell = 5 m, the vehicle length
+    alone, which would put CAVs in adjacent rows bumper to bumper. Default: ``vehicle+desired_gap``
+    (5 + 10 = 15 m), so a platoon in consecutive rows keeps the desired 10 m gap and tracking
+    errors of a few metres still leave the 5 m minimum. ``vehicle+min_gap`` gives 10 m;
+    ``fixed`` uses ``cell_length_m`` as given (5.0 is the paper's IV-C value).
+    """
+
+    rule: Literal["vehicle+desired_gap", "vehicle+min_gap", "fixed"] = "vehicle+desired_gap"
+    cell_length_m: float = 5.0
+
+    def __post_init__(self) -> None:
+        check_positive(self, "cell_length_m")
+
+    def resolve(self, cav: CavSettings) -> float:
+        if self.rule == "vehicle+desired_gap":
+            return cav.length_m + cav.desired_gap_m
+        if self.rule == "vehicle+min_gap":
+            return cav.length_m + cav.min_gap_m
+        return self.cell_length_m
+
+
+@dataclass(frozen=True)
+class CaccSettings:
+    """The longitudinal CACC law shared by the ``cacc`` baseline and the swarm's cruise mode.
+
+    a = k_gap * (gap - d) + k_speed * (v_ahead - v) + k_accel * a_ahead, with
+    d = desired_gap_m + time_gap_s * v, limited by the free-road law k_cruise * (v_cruise - v).
+    """
+
+    k_gap: float = 0.45
+    k_speed: float = 1.1
+    k_accel: float = 0.3
+    k_cruise: float = 0.6
+    time_gap_s: float = 0.0
+    hv_time_gap_s: float = 0.0  # extra time gap when the vehicle ahead is human-driven
+
+    def __post_init__(self) -> None:
+        check_positive(self, "k_gap", "k_speed", "k_cruise")
+        check_non_negative(self, "k_accel", "time_gap_s", "hv_time_gap_s")
+
+
+@dataclass(frozen=True)
+class SwarmSettings:
+    """When the swarm decides to overtake, and how it tracks its plan."""
+
+    trigger_speed_ratio: float = 0.95  # leader held below this share of the cruising speed...
+    trigger_after_s: float = 2.0  # ...for this long, by a slower vehicle ahead: overtake
+    detect_range_m: float = 60.0  # the slower vehicle must be within this gap of the leader
+    start_after_s: float = 1.0  # no overtaking decision before this time
+    control_interval_steps: int = 1  # MPC re-solve period in SUMO steps
+    drift_rows: float = 0.75  # replan when a CAV is this many cells off its reference
+    regroup_lane: int | None = None  # None: the platoon's original lane
+
+    def __post_init__(self) -> None:
+        check_positive(self, "trigger_speed_ratio", "detect_range_m", "control_interval_steps")
+        check_non_negative(self, "trigger_after_s", "start_after_s", "drift_rows")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A whole scenario file."""
+
+    name: str
+    path: Path
+    simulation: SimulationSettings = field(default_factory=SimulationSettings)
+    evaluation: EvaluationSettings = field(default_factory=EvaluationSettings)
+    cav: CavSettings = field(default_factory=CavSettings)
+    hv: IdmSettings = field(default_factory=IdmSettings)
+    scene: SceneSettings = field(default_factory=SceneSettings)
+    cell: CellLengthSettings = field(default_factory=CellLengthSettings)
+    grid: GridSettings = field(default_factory=GridSettings)
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    cacc: CaccSettings = field(default_factory=CaccSettings)
+    swarm: SwarmSettings = field(default_factory=SwarmSettings)
+    longitudinal: LongitudinalSettings = field(default_factory=LongitudinalSettings)
+    lateral: LateralSettings = field(default_factory=LateralSettings)
+
+    @property
+    def network_path(self) -> Path:
+        return (self.path.parent / self.simulation.network).resolve()
+
+    @property
+    def cell_length_m(self) -> float:
+        return self.cell.resolve(self.cav)
+
+
+SECTIONS = {
+    name: tp for name, tp in typing.get_type_hints(Scenario).items() if name not in ("name", "path")
+}
+
+
+# --------------------------------------------------------------------------- loader
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(value: Any, tp: Any, key: str) -> Any:
+    """Check ``value`` against the annotation ``tp`` and convert it (TOML -> dataclass field)."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return _convert(value, arg, key)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        raise ConfigError(errors[0] if errors else f"{key}: unexpected value {value!r}")
+    if origin is Literal:
+        if value not in args:
+            choices = ", ".join(repr(a) for a in args)
+            raise ConfigError(f"{key}: must be one of {choices}, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{key}: expected a list, got {type(value).__name__}")
+        item_tp = args[0] if args else Any
+        return tuple(_convert(v, item_tp, f"{key}[{i}]") for i, v in enumerate(value))
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a table, got {type(value).__name__}")
+        return from_mapping(tp, value, prefix=key)
+    if tp is Any:
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    if isinstance(tp, type) and isinstance(value, tp):
+        return value
+    raise ConfigError(f"{key}: expected {_type_name(tp)}, got {value!r}")
+
+
+def from_mapping(cls: type[T], data: dict[str, Any], prefix: str = "") -> T:
+    """Build dataclass ``cls`` from ``data``: unknown keys, wrong types and bad values raise.
+
+    ``prefix`` is the dotted key path of ``data`` in its file, used in error messages.
+    """
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    dotted = f"{prefix}." if prefix else ""
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        known = ", ".join(sorted(fields))
+        raise ConfigError(f"unknown key '{dotted}{unknown[0]}' (known: {known})")
+    kwargs = {name: _convert(value, hints[name], f"{dotted}{name}") for name, value in data.items()}
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:
+        raise ConfigError(f"{prefix or cls.__name__}: {exc}") from None
+    except TypeError as exc:  # a required field is missing
+        raise ConfigError(f"{prefix or cls.__name__}: {exc}") from None
+
+
+def load_scenario(path: str | Path, overrides: dict[str, dict[str, Any]] | None = None) -> Scenario:
+    """Load and validate a scenario TOML file.
+
+    ``overrides`` maps section names to key/value pairs applied over the file (used by sweeps).
+    Any problem raises ConfigError whose message names the key and the file.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"scenario file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read scenario file {path}: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    for section, values in (overrides or {}).items():
+        data.setdefault(section, {}).update(values)
+    try:
+        name = data.pop("name", path.stem)
+        if not isinstance(name, str) or not name:
+            raise ConfigError("name: expected a non-empty string")
+        unknown = sorted(set(data) - set(SECTIONS))
+        if unknown:
+            raise ConfigError(
+                f"unknown section '[{unknown[0]}]' (known: {', '.join(sorted(SECTIONS))})"
+            )
+        sections = {
+            key: _convert(value, SECTIONS[key], key) for key, value in data.items()
+        }
+        scenario = Scenario(name=name, path=path.resolve(), **sections)
+        _check_consistency(scenario)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    if not scenario.network_path.is_file():
+        raise ConfigError(f"{path}: simulation.network: file not found: {scenario.network_path}")
+    return scenario
+
+
+def _check_consistency(sc: Scenario) -> None:
+    """Cross-section checks that no single section can make."""
+    if sc.cell_length_m < sc.cav.length_m:
+        raise ConfigError(
+            f"cell.cell_length_m: a cell ({sc.cell_length_m} m) must be at least as long as a "
+            f"CAV ({sc.cav.length_m} m)"
+        )
+    if sc.evaluation.end_s > sc.simulation.duration_s:
+        raise ConfigError(
+            f"evaluation.end_s ({sc.evaluation.end_s}) is after simulation.duration_s "
+            f"({sc.simulation.duration_s})"
+        )
+    interval = sc.planner.behaving_interval_s
+    steps = interval / sc.simulation.step_length_s
+    if abs(steps - round(steps)) > 1e-6:
+        raise ConfigError(
+            f"planner.behaving_interval_s ({interval}) must be a whole number of "
+            f"simulation.step_length_s ({sc.simulation.step_length_s})"
+        )

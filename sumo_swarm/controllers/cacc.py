@@ -1,0 +1,93 @@
+"""The paper's baseline: a longitudinal-only CACC platoon (never changes lane).
+
+The same law drives the swarm's cruise mode. It is a constant-spacing CACC with feedforward of
+the predecessor's acceleration, bounded by the free-road law towards the cruising speed.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sumo_swarm.bridge import LC_MODE_CONTROLLED, SPEED_MODE_SAFE
+from sumo_swarm.config import CaccSettings, CavSettings
+from sumo_swarm.controllers.base import RunContext
+from sumo_swarm.neighbours import vehicle_ahead
+
+
+def cacc_accel(
+    speed_mps: float,
+    gap_m: float | None,
+    ahead_speed_mps: float,
+    ahead_accel_mps2: float,
+    cav: CavSettings,
+    law: CaccSettings,
+    *,
+    ahead_is_cav: bool = True,
+    cruising_speed_mps: float | None = None,
+) -> float:
+    """Commanded acceleration [m/s^2] of a CACC vehicle.
+
+    ``gap_m`` is the bumper-to-bumper gap to the vehicle ahead (None: free road). The desired
+    gap is ``cav.desired_gap_m + time_gap * v``; the result is the smaller of the following
+    law and the cruise law, clipped to ``[cav.accel_min_mps2, cav.accel_max_mps2]``.
+    """
+    v_cruise = cav.cruising_speed_mps if cruising_speed_mps is None else cruising_speed_mps
+    accel = law.k_cruise * (v_cruise - speed_mps)
+    if gap_m is not None:
+        time_gap = law.time_gap_s + (0.0 if ahead_is_cav else law.hv_time_gap_s)
+        desired = cav.desired_gap_m + time_gap * speed_mps
+        follow = (
+            law.k_gap * (gap_m - desired)
+            + law.k_speed * (ahead_speed_mps - speed_mps)
+            + (law.k_accel * ahead_accel_mps2 if ahead_is_cav else 0.0)
+        )
+        # Below the minimum gap, close no further whatever the feedforward says.
+        if gap_m < cav.min_gap_m:
+            follow = min(follow, ahead_speed_mps - speed_mps - 0.5)
+        accel = min(accel, follow)
+    return min(max(accel, cav.accel_min_mps2), cav.accel_max_mps2)
+
+
+class CaccController:
+    """Every CAV follows the vehicle ahead in its lane with :func:`cacc_accel`."""
+
+    name = "cacc"
+
+    def __init__(self) -> None:
+        self.ctx: RunContext | None = None
+        self._configured: set[str] = set()
+
+    def attach(self, ctx: RunContext) -> None:
+        self.ctx = ctx
+
+    def _configure_new(self) -> None:
+        ctx = self.ctx
+        for vid in ctx.cav_ids:
+            if vid in ctx.session.states and vid not in self._configured:
+                ctx.session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_CONTROLLED)
+                self._configured.add(vid)
+
+    def control(self, t_s: float) -> None:
+        ctx = self.ctx
+        self._configure_new()
+        states = ctx.session.states
+        others = list(states.values())
+        sc = ctx.scenario
+        dt = ctx.dt_s
+        for vid in ctx.cav_ids:
+            ego = states.get(vid)
+            if ego is None:
+                continue
+            ahead = vehicle_ahead(ego, others, ctx.road)
+            if ahead is None:
+                a = cacc_accel(ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc)
+            else:
+                lead, gap = ahead
+                a = cacc_accel(
+                    ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav, sc.cacc,
+                    ahead_is_cav=lead.is_cav,
+                )  # fmt: skip
+            ctx.session.set_speed(vid, ego.speed_mps + a * dt)
+
+    def summary(self) -> dict[str, Any]:
+        return {}

@@ -1,0 +1,229 @@
+"""Turn a :class:`~sumo_swarm.config.Scenario` into SUMO input: vehicle types, routes, a sumocfg.
+
+Pure file generation (no SUMO import). The same traffic is written for every controller; only
+the CAVs' vehicle type differs, so that the baselines are judged on the same scene and seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from sumo_swarm.config import Scenario
+
+ROUTE_ID = "main"
+CAV_TYPE = "cav"
+
+
+@dataclass(frozen=True)
+class PlacedVehicle:
+    """A vehicle of the scene at t = 0."""
+
+    id: str
+    kind: str  # "cav" or "hv"
+    type_id: str
+    lane: int
+    front_m: float
+    speed_mps: float
+    length_m: float
+    role: str = "other"  # "cav", "target", "adjacent", "upstream", "other"
+
+
+@dataclass(frozen=True)
+class Scene:
+    vehicles: tuple[PlacedVehicle, ...]
+    hv_types: dict[str, float]  # HV vType id -> desired speed [m/s]
+
+    @property
+    def cav_ids(self) -> tuple[str, ...]:
+        """CAV ids, leader first."""
+        return tuple(v.id for v in self.vehicles if v.kind == "cav")
+
+    @property
+    def target_id(self) -> str | None:
+        return next((v.id for v in self.vehicles if v.role == "target"), None)
+
+    def front_at_start(self) -> dict[str, float]:
+        return {v.id: v.front_m for v in self.vehicles}
+
+
+def _hv_type(desired_speed: float, types: dict[str, float]) -> str:
+    type_id = f"hv_v{desired_speed:g}".replace(".", "_")
+    types[type_id] = desired_speed
+    return type_id
+
+
+def build_scene(sc: Scenario) -> Scene:
+    """Place every vehicle of the scenario (paper Figure 6)."""
+    scene = sc.scene
+    cav = sc.cav
+    hv = sc.hv
+    types: dict[str, float] = {}
+    vehicles: list[PlacedVehicle] = []
+    for i in range(cav.count):
+        front = scene.leader_front_m - i * (cav.length_m + scene.initial_gap_m)
+        vehicles.append(
+            PlacedVehicle(
+                f"cav{i}", "cav", CAV_TYPE, scene.platoon_lane, front,
+                scene.initial_speed_mps, cav.length_m, "cav",
+            )
+        )  # fmt: skip
+    placed = list(scene.hv)
+    if not any(p.role == "target" for p in placed):
+        # The slow vehicle ahead of the platoon, driving at the initial speed.
+        from sumo_swarm.config import HvPlacement
+
+        placed.insert(
+            0,
+            HvPlacement(
+                id="hv_target",
+                lane=scene.platoon_lane,
+                front_m=scene.leader_front_m + scene.initial_gap_m + hv.length_m,
+                speed_mps=scene.initial_speed_mps,
+                desired_speed_mps=scene.initial_speed_mps,
+                role="target",
+            ),
+        )
+    for p in placed:
+        desired = p.desired_speed_mps or hv.desired_speed_mps
+        vehicles.append(
+            PlacedVehicle(
+                p.id, "hv", _hv_type(desired, types), p.lane, p.front_m, p.speed_mps,
+                p.length_m or hv.length_m, p.role,
+            )
+        )  # fmt: skip
+    n_lanes = 1 + max(v.lane for v in vehicles)
+    n_lanes = max(n_lanes, 1)
+    upstream_type = _hv_type(hv.desired_speed_mps, types)
+    for lane in range(n_lanes):
+        in_lane = [v for v in vehicles if v.lane == lane]
+        if not in_lane:
+            continue
+        rear = min(v.front_m - v.length_m for v in in_lane)
+        for rank in range(1, scene.upstream_per_lane + 1):
+            front = rear - scene.upstream_gap_m
+            if front - hv.length_m < 0:
+                break
+            vehicles.append(
+                PlacedVehicle(
+                    f"up{lane}_{rank}", "hv", upstream_type, lane, front,
+                    scene.upstream_speed_mps, hv.length_m, "upstream",
+                )
+            )  # fmt: skip
+            rear = front - hv.length_m
+    return Scene(tuple(vehicles), types)
+
+
+def cav_vtype_xml(sc: Scenario, controller: str) -> str:
+    """The CAVs' vType for one controller (the only thing that differs between runs)."""
+    cav = sc.cav
+    common = (
+        f'id="{CAV_TYPE}" vClass="passenger" length="{cav.length_m}" width="{cav.width_m}" '
+        f'accel="{cav.accel_max_mps2}" decel="{-cav.accel_min_mps2}" emergencyDecel="9.0" '
+        f'maxSpeedLat="{cav.max_lateral_speed_mps}" latAlignment="center" speedDev="0" '
+        'color="0,160,255"'
+    )
+    # Both SUMO baselines are parametrised so that their equilibrium gap at the initial speed
+    # is the paper's desired gap (10 m at 17.5 m/s): minGap + tau * v = desired_gap_m. With
+    # SUMO's defaults (tau 1 s) they brake hard at t = 0 in the paper's scene.
+    min_gap = 2.5
+    v0 = max(sc.scene.initial_speed_mps, 1.0)
+    time_gap = max(cav.desired_gap_m - min_gap, 0.5) / v0
+    if controller == "sumo-cacc":
+        # SUMO's own CACC (Milanes & Shladover); the cruising speed is its maxSpeed.
+        return (
+            f'<vType {common} maxSpeed="{cav.cruising_speed_mps}" carFollowModel="CACC" '
+            f'tau="{time_gap:.3f}" minGap="{min_gap}"/>'
+        )
+    if controller == "sumo-lc":
+        # Ordinary SUMO vehicles: Krauss without dawdling, SUMO's sublane lane changing.
+        return (
+            f'<vType {common} maxSpeed="{cav.cruising_speed_mps}" carFollowModel="Krauss" '
+            f'sigma="0" tau="{0.92 * time_gap:.3f}" minGap="{min_gap}"/>'
+        )
+    # Our controllers command the speed every step; SUMO's Krauss model with a short tau stays
+    # on as a last safety net (speed mode keeps the safe-speed check). With tau 0.2 s and
+    # minGap 0.5 m it binds only within about 3 m of a vehicle ahead at 17.5 m/s (measured: with
+    # tau 0.5 s and minGap 2 m it already capped a CAV 10 m behind the slow HV at 17.35 m/s).
+    return (
+        f'<vType {common} maxSpeed="{cav.max_speed_mps}" carFollowModel="Krauss" sigma="0" '
+        f'tau="0.2" minGap="0.5"/>'
+    )
+
+
+def routes_xml(sc: Scenario, scene: Scene, controller: str) -> str:
+    hv = sc.hv
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', "<routes>"]
+    lines.append("    " + cav_vtype_xml(sc, controller))
+    # Paper: HVs keep their lanes. SUMO's lane-change eagerness parameters at these values
+    # switch off strategic, cooperative, speed-gain, keep-right and sublane manoeuvres.
+    lc_off = (
+        ' lcStrategic="-1" lcCooperative="-1" lcSpeedGain="0" lcKeepRight="0" lcSublane="0"'
+        if not hv.lane_changes
+        else ""
+    )
+    for type_id, desired in sorted(scene.hv_types.items()):
+        lines.append(
+            f'    <vType id="{type_id}" vClass="passenger" length="{hv.length_m}" '
+            f'width="{hv.width_m}" carFollowModel="IDM" accel="{hv.accel_mps2}" '
+            f'decel="{hv.decel_mps2}" emergencyDecel="{hv.emergency_decel_mps2}" '
+            f'tau="{hv.headway_s}" minGap="{hv.min_gap_m}" delta="{hv.delta}" '
+            f'maxSpeed="{desired}" speedDev="0" latAlignment="center" color="200,200,200"'
+            f"{lc_off}/>"
+        )
+    edges = " ".join(sc.simulation.route_edges)
+    lines.append(f'    <route id="{ROUTE_ID}" edges="{edges}"/>')
+    # All vehicles depart at t = 0 at their exact places; insertion checks are off so the scene
+    # is exactly the one configured (the scene itself is checked for overlaps in build_scene).
+    for v in sorted(scene.vehicles, key=lambda v: -v.front_m):
+        lines.append(
+            f"    <vehicle id={quoteattr(v.id)} type={quoteattr(v.type_id)} "
+            f'route="{ROUTE_ID}" depart="0" departLane="{v.lane}" '
+            f'departPos="{v.front_m:.3f}" departSpeed="{v.speed_mps}" '
+            f'insertionChecks="none"/>'
+        )
+    lines.append("</routes>")
+    return "\n".join(lines) + "\n"
+
+
+def sumo_options(sc: Scenario) -> list[str]:
+    """SUMO options every run uses (collisions are physical overlaps, counted, never hidden)."""
+    sim = sc.simulation
+    return [
+        "--step-length", f"{sim.step_length_s}",
+        "--lateral-resolution", f"{sim.lateral_resolution_m}",
+        "--seed", str(sim.seed),
+        "--end", f"{sim.duration_s}",
+        "--collision.mingap-factor", "0",
+        "--collision.action", "warn",
+        "--collision.check-junctions", "true",
+        "--time-to-teleport", "-1",
+        "--default.speeddev", "0",
+        # SUMO forbids passing on the right by default (a European rule): an HV in the right lane
+        # would then brake to stay behind CAVs in the middle lane. The paper's highway has no
+        # such rule, and the swarm passes the slow vehicle on both sides.
+        "--lanechange.overtake-right", "true",
+        "--no-step-log", "true",
+        "--no-warnings", "true",
+    ]  # fmt: skip
+
+
+def write_sumo_inputs(sc: Scenario, controller: str, folder: Path) -> tuple[Path, Scene]:
+    """Write ``routes.rou.xml`` and ``scenario.sumocfg`` into ``folder``; return the sumocfg."""
+    folder.mkdir(parents=True, exist_ok=True)
+    scene = build_scene(sc)
+    routes = folder / "routes.rou.xml"
+    routes.write_text(routes_xml(sc, scene, controller), encoding="utf-8")
+    cfg = folder / "scenario.sumocfg"
+    opts = sumo_options(sc)
+    pairs = [(opts[i].removeprefix("--"), opts[i + 1]) for i in range(0, len(opts), 2)]
+    body = "\n".join(f"        <{k} value={quoteattr(v)}/>" for k, v in pairs)
+    cfg.write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<configuration>\n    <input>\n'
+        f"        <net-file value={quoteattr(str(sc.network_path))}/>\n"
+        f'        <route-files value="{routes.name}"/>\n    </input>\n'
+        f"    <processing>\n{body}\n    </processing>\n</configuration>\n",
+        encoding="utf-8",
+    )
+    return cfg, scene
