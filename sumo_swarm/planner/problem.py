@@ -1,0 +1,434 @@
+"""Planner settings and the cell-level planning problem (paper Sec. II-B-2).
+
+A :class:`PlanningProblem` is pure cell arithmetic: grid size, horizon, start cells, the cells
+HVs block at each step, the target HV's rows (for the goal region and the paper's delta),
+the regroup lane, blocker assignments and weights. :func:`build_problem` derives it from
+vehicle states and a :class:`~sumo_swarm.grid.MovingGrid`.
+
+Steps are numbered ``k = 0 .. n_steps - 1`` here; step 0 is the paper's ``k = 1`` (the
+initial cells, eqs. (18)-(19)).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+
+from sumo_swarm.errors import ConfigError
+from sumo_swarm.grid import (
+    Cell,
+    ConstantSpeedPredictor,
+    GridSettings,
+    HvPredictor,
+    MovingGrid,
+    cav_cell,
+    hv_blocked_cells,
+    hv_blocked_rows,
+    hv_columns,
+)
+from sumo_swarm.model import VehicleState
+
+BACKENDS = ("cp-sat", "scip")
+TARGET_FORMS = ("paper", "distance")
+DELTA_MODES = ("swarm", "cav")
+
+
+class PlanStatus(str, Enum):  # noqa: UP042 - the integrator asked for str + Enum
+    """Outcome of one planner call."""
+
+    OPTIMAL = "optimal"
+    FEASIBLE = "feasible"
+    INFEASIBLE = "infeasible"
+    TIMEOUT = "timeout"
+    ERROR = "error"
+
+
+@dataclass(frozen=True)
+class PlannerWeights:
+    """Weights of the objective, eq. (5) (dimensionless cost per step or per move).
+
+    ``w_tar`` is charged per CAV per step spent behind the goal region (or per row behind it,
+    ``target_form="distance"``); a move of one row costs ``2 * w_lon`` and a move of one
+    column ``2 * w_lat`` (the one-hot squared differences of eq. (5) sum to 2 per move); a CAV
+    ``d`` columns off the regroup lane costs ``w_lat * d**2`` per step once no CAV is impeded.
+    """
+
+    w_tar: float = 10.0
+    w_lon: float = 1.0
+    w_lat: float = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("w_tar", "w_lon", "w_lat"):
+            value = getattr(self, name)
+            if (
+                not isinstance(value, int | float)
+                or isinstance(value, bool)
+                or not math.isfinite(value)
+                or value < 0
+            ):
+                raise ConfigError(
+                    f"PlannerWeights.{name} must be a finite number >= 0, got {value!r}"
+                )
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Settings of the cell planner, checked once at set-up.
+
+    Attributes
+    ----------
+    n_steps
+        Horizon N in behaving steps, the initial step included.
+    behaving_interval_s
+        Duration of one behaving step, Delta T [s].
+    backend
+        ``"cp-sat"`` (OR-Tools CP-SAT) or ``"scip"`` (OR-Tools linear solver, SCIP).
+    time_limit_s
+        Wall-clock limit of one solve [s].
+    weights
+        :class:`PlannerWeights`, or a mapping with keys ``w_tar``, ``w_lon``, ``w_lat``.
+    regroup_lane
+        Lane ``l_index`` to regroup in; ``None`` = the target HV's lane (the lane where the
+        platoon was impeded, i.e. its original lane).
+    target_form
+        ``"paper"``: ``w_tar`` per step behind the goal region (eq. (5)); ``"distance"``:
+        ``w_tar`` per row behind it.
+    delta_mode
+        ``"swarm"``: the paper's delta, 1 at a step while any CAV is impeded; ``"cav"``: each
+        CAV's own (it pays the regroup term once it is past, whatever the others do).
+    block_steps
+        Steps (from step 1) a blocker holds its blocking cell, eqs. (16)-(17) (paper: 1).
+    max_blockers
+        How many front CAVs may be assigned as blockers (one per adjacent lane).
+    num_workers
+        CP-SAT search workers (keep 1 on a shared machine).
+    """
+
+    n_steps: int = 14
+    behaving_interval_s: float = 3.0
+    backend: str = "cp-sat"
+    time_limit_s: float = 1.0
+    weights: PlannerWeights = field(default_factory=PlannerWeights)
+    regroup_lane: int | None = None
+    target_form: str = "distance"
+    delta_mode: str = "swarm"
+    block_steps: int = 1
+    max_blockers: int = 2
+    num_workers: int = 1
+
+    def __post_init__(self) -> None:
+        if isinstance(self.weights, Mapping):
+            unknown = set(self.weights) - {"w_tar", "w_lon", "w_lat"}
+            if unknown:
+                raise ConfigError(f"PlannerSettings.weights: unknown keys {sorted(unknown)}")
+            object.__setattr__(self, "weights", PlannerWeights(**self.weights))
+        elif not isinstance(self.weights, PlannerWeights):
+            raise ConfigError(
+                f"PlannerSettings.weights must be PlannerWeights or a mapping, "
+                f"got {type(self.weights).__name__}"
+            )
+        _require_int("n_steps", self.n_steps, minimum=2)
+        _require_int("block_steps", self.block_steps, minimum=1)
+        _require_int("max_blockers", self.max_blockers, minimum=0)
+        _require_int("num_workers", self.num_workers, minimum=1)
+        if self.block_steps >= self.n_steps:
+            raise ConfigError(
+                f"PlannerSettings.block_steps must be < n_steps ({self.n_steps}), "
+                f"got {self.block_steps}"
+            )
+        for name in ("behaving_interval_s", "time_limit_s"):
+            value = getattr(self, name)
+            if (
+                not isinstance(value, int | float)
+                or isinstance(value, bool)
+                or not math.isfinite(value)
+                or value <= 0
+            ):
+                raise ConfigError(f"PlannerSettings.{name} must be a number > 0, got {value!r}")
+        if self.backend not in BACKENDS:
+            raise ConfigError(
+                f"PlannerSettings.backend must be one of {BACKENDS}, got {self.backend!r}"
+            )
+        if self.target_form not in TARGET_FORMS:
+            raise ConfigError(
+                f"PlannerSettings.target_form must be one of {TARGET_FORMS}, "
+                f"got {self.target_form!r}"
+            )
+        if self.delta_mode not in DELTA_MODES:
+            raise ConfigError(
+                f"PlannerSettings.delta_mode must be one of {DELTA_MODES}, got {self.delta_mode!r}"
+            )
+        if self.regroup_lane is not None:
+            _require_int("regroup_lane", self.regroup_lane, minimum=0)
+
+
+def _require_int(name: str, value: object, minimum: int) -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+        raise ConfigError(f"PlannerSettings.{name} must be an integer >= {minimum}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Blocker:
+    """A CAV told to block an HV: in ``cell`` at steps ``1 .. hold_steps`` (eqs. (16)-(17))."""
+
+    cav_index: int
+    cav_id: str
+    hv_id: str
+    cell: Cell
+    hold_steps: int = 1
+
+
+@dataclass(frozen=True)
+class PlanningProblem:
+    """The cell MIP's data, independent of vehicles and solvers.
+
+    Attributes
+    ----------
+    n_rows, n_cols, n_steps
+        Grid size and horizon (steps ``0 .. n_steps - 1``, 0 = initial).
+    cav_ids, start_cells
+        CAVs leader first and their cells at step 0 (eqs. (18)-(19)).
+    blocked
+        Per step, cells HVs claim (eq. (15)); step 0 is informative only, not enforced.
+    goal_rows
+        Per step, the first row ahead of the target HV's footprint, clipped to
+        ``[0, n_rows]``; a CAV below it is *impeded* (the paper's delta) and pays ``w_tar``.
+    regroup_lane
+        ``l_index`` of eq. (5).
+    """
+
+    n_rows: int
+    n_cols: int
+    n_steps: int
+    cav_ids: tuple[str, ...]
+    start_cells: tuple[Cell, ...]
+    blocked: tuple[frozenset[Cell], ...]
+    goal_rows: tuple[int, ...]
+    regroup_lane: int
+    weights: PlannerWeights = field(default_factory=PlannerWeights)
+    target_form: str = "distance"
+    delta_mode: str = "swarm"
+    blockers: tuple[Blocker, ...] = ()
+    hv_ids: tuple[str, ...] = ()
+    target_id: str | None = None
+    target_col: int | None = None
+    t0_s: float = 0.0
+    behaving_interval_s: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.n_rows < 1 or self.n_cols < 1 or self.n_steps < 2:
+            raise ConfigError(
+                f"PlanningProblem: need n_rows, n_cols >= 1 and n_steps >= 2, got "
+                f"{self.n_rows}, {self.n_cols}, {self.n_steps}"
+            )
+        if not self.cav_ids or len(self.cav_ids) != len(self.start_cells):
+            raise ConfigError("PlanningProblem: one start cell per CAV, at least one CAV")
+        if len(set(self.cav_ids)) != len(self.cav_ids):
+            raise ConfigError("PlanningProblem: duplicate CAV ids")
+        for cav_id, (row, col) in zip(self.cav_ids, self.start_cells, strict=True):
+            if not (0 <= row < self.n_rows and 0 <= col < self.n_cols):
+                raise ConfigError(
+                    f"PlanningProblem: CAV {cav_id} starts outside the grid at {(row, col)}"
+                )
+        if len(self.blocked) != self.n_steps or len(self.goal_rows) != self.n_steps:
+            raise ConfigError("PlanningProblem: blocked and goal_rows need one entry per step")
+        if not 0 <= self.regroup_lane < self.n_cols:
+            raise ConfigError(f"PlanningProblem: regroup_lane {self.regroup_lane} not a column")
+        if self.target_form not in TARGET_FORMS:
+            raise ConfigError(f"PlanningProblem: target_form {self.target_form!r} unknown")
+        if self.delta_mode not in DELTA_MODES:
+            raise ConfigError(f"PlanningProblem: delta_mode {self.delta_mode!r} unknown")
+        for blocker in self.blockers:
+            if blocker.hold_steps >= self.n_steps:
+                raise ConfigError("PlanningProblem: blocker hold_steps must be < n_steps")
+
+    @property
+    def n_cavs(self) -> int:
+        return len(self.cav_ids)
+
+    def with_blockers(self, blockers: Sequence[Blocker]) -> PlanningProblem:
+        """The same problem with other blocker assignments (e.g. none)."""
+        from dataclasses import replace
+
+        return replace(self, blockers=tuple(blockers))
+
+
+def target_cost(problem: PlanningProblem, row: int, k: int) -> float:
+    """Forward-target cost of one CAV in ``row`` at step ``k`` (first term of eq. (5))."""
+    behind = problem.goal_rows[k] - row
+    if behind <= 0:
+        return 0.0
+    w_tar = problem.weights.w_tar
+    return w_tar if problem.target_form == "paper" else w_tar * behind
+
+
+def step_impeded(problem: PlanningProblem, cells_at_k: Sequence[Cell], k: int) -> bool:
+    """The paper's delta at step ``k``: is any CAV still behind the target's footprint?"""
+    goal = problem.goal_rows[k]
+    return any(row < goal for row, _ in cells_at_k)
+
+
+def evaluate_objective(problem: PlanningProblem, cells: Sequence[Sequence[Cell]]) -> float:
+    """Objective (5) of a plan, as the solvers define it (initial-step constants omitted).
+
+    ``cells[i][k]`` is CAV ``i``'s cell at step ``k``. Terms: target cost at steps ``1..N-1``;
+    ``2 w_lon`` per row moved; ``2 w_lat delta_k`` per column moved from step ``k`` to
+    ``k + 1``; ``(1 - delta_k) w_lat (l_index - col)^2`` at steps ``1..N-1``.
+    """
+    weights = problem.weights
+    total = 0.0
+    for k in range(problem.n_steps):
+        at_k = [path[k] for path in cells]
+        swarm_delta = step_impeded(problem, at_k, k)
+        for i, (row, col) in enumerate(at_k):
+            delta = swarm_delta if problem.delta_mode == "swarm" else row < problem.goal_rows[k]
+            if k >= 1:
+                total += target_cost(problem, row, k)
+                if not delta:
+                    total += weights.w_lat * (problem.regroup_lane - col) ** 2
+            if k + 1 < problem.n_steps:
+                next_row, next_col = cells[i][k + 1]
+                total += 2 * weights.w_lon * abs(next_row - row)
+                if delta:
+                    total += 2 * weights.w_lat * abs(next_col - col)
+    return total
+
+
+def _goal_row(grid: MovingGrid, target: VehicleState, t_s: float, gs: GridSettings) -> int:
+    rows = hv_blocked_rows(grid, target, t_s, gs)
+    top = rows[-1] if rows else grid.row_of(target.centre_s_m, t_s)
+    return min(max(top + 1, 0), grid.n_rows)
+
+
+def build_problem(
+    grid: MovingGrid,
+    cavs: Sequence[VehicleState],
+    hvs: Sequence[VehicleState],
+    target: VehicleState,
+    now_s: float,
+    settings: PlannerSettings,
+    grid_settings: GridSettings,
+    predictor: HvPredictor | None = None,
+) -> PlanningProblem:
+    """Turn vehicle states into a :class:`PlanningProblem` (CAVs ordered leader first).
+
+    HVs are predicted at ``now_s + k * behaving_interval_s`` with ``predictor`` (default
+    constant speed); the target HV blocks cells whether or not it is in ``hvs``. HVs that
+    claim no in-grid cell over the horizon are left out of ``hv_ids``. CAVs outside the grid
+    raise :class:`ConfigError` (build the grid from the same CAVs).
+    """
+    predictor = predictor or ConstantSpeedPredictor()
+    n_steps = settings.n_steps
+    times = [now_s + k * settings.behaving_interval_s for k in range(n_steps)]
+    all_hvs = {hv.vehicle_id: hv for hv in hvs}
+    all_hvs[target.vehicle_id] = target
+
+    blocked_steps: list[set[Cell]] = [set() for _ in range(n_steps)]
+    in_grid_hvs: list[str] = []
+    predicted: dict[str, list[VehicleState]] = {}
+    for hv_id, hv in all_hvs.items():
+        states = [predictor.predict(hv, now_s, t) for t in times]
+        predicted[hv_id] = states
+        seen = False
+        for k, (state, t) in enumerate(zip(states, times, strict=True)):
+            cells = hv_blocked_cells(grid, state, t, grid_settings)
+            if cells:
+                blocked_steps[k] |= cells
+                seen = True
+        if seen:
+            in_grid_hvs.append(hv_id)
+
+    goal_rows = tuple(
+        _goal_row(grid, state, t, grid_settings)
+        for state, t in zip(predicted[target.vehicle_id], times, strict=True)
+    )
+    start_cells = tuple(cav_cell(grid, cav, grid.road, now_s) for cav in cavs)
+    target_col = hv_columns(grid, target, grid_settings)[0]
+    regroup_lane = settings.regroup_lane if settings.regroup_lane is not None else target_col
+    if regroup_lane >= grid.n_cols:
+        raise ConfigError(
+            f"PlannerSettings.regroup_lane {regroup_lane} is not a lane of a "
+            f"{grid.n_cols}-lane road"
+        )
+    problem = PlanningProblem(
+        n_rows=grid.n_rows,
+        n_cols=grid.n_cols,
+        n_steps=n_steps,
+        cav_ids=tuple(cav.vehicle_id for cav in cavs),
+        start_cells=start_cells,
+        blocked=tuple(frozenset(cells) for cells in blocked_steps),
+        goal_rows=goal_rows,
+        regroup_lane=regroup_lane,
+        weights=settings.weights,
+        target_form=settings.target_form,
+        delta_mode=settings.delta_mode,
+        hv_ids=tuple(sorted(in_grid_hvs)),
+        target_id=target.vehicle_id,
+        target_col=target_col,
+        t0_s=now_s,
+        behaving_interval_s=settings.behaving_interval_s,
+    )
+    blockers = assign_blockers(
+        problem,
+        grid,
+        [all_hvs[h] for h in in_grid_hvs if h != target.vehicle_id],
+        now_s,
+        grid_settings,
+        settings,
+    )
+    return problem.with_blockers(blockers)
+
+
+def assign_blockers(
+    problem: PlanningProblem,
+    grid: MovingGrid,
+    hvs: Sequence[VehicleState],
+    now_s: float,
+    grid_settings: GridSettings,
+    settings: PlannerSettings,
+) -> tuple[Blocker, ...]:
+    """Space making, eqs. (16)-(17): front CAVs block HVs in the lanes beside the platoon.
+
+    Only while some CAV is impeded. For each lane next to the platoon's lane (the regroup
+    lane) take the frontmost HV whose centre row is at or behind the leader's row; lanes are
+    served frontmost HV first, each by the frontmost unassigned CAV (among the first
+    ``max_blockers``) that sits next to that lane, ahead of the HV's footprint, and whose
+    lateral move into it, keeping its row, lands on a cell that no HV claims while it holds
+    it and no other CAV starts in.
+    """
+    if settings.max_blockers == 0 or not step_impeded(problem, problem.start_cells, 0):
+        return ()
+    lane = problem.regroup_lane
+    leader_row = problem.start_cells[0][0]
+    frontmost: dict[int, VehicleState] = {}
+    for hv in hvs:
+        col = hv_columns(grid, hv, grid_settings)[0]
+        if abs(col - lane) != 1 or grid.row_of(hv.centre_s_m, now_s) > leader_row:
+            continue
+        if col not in frontmost or hv.s_m > frontmost[col].s_m:
+            frontmost[col] = hv
+    # Frontmost HV first; on a tie the left lane first (the paper's leader blocks left).
+    order = sorted(frontmost.items(), key=lambda item: (-item[1].s_m, -item[0]))
+    hv_top_row = {}
+    for _, hv in order:
+        rows = hv_blocked_rows(grid, hv, now_s, grid_settings)
+        hv_top_row[hv.vehicle_id] = rows[-1] if rows else grid.row_of(hv.centre_s_m, now_s)
+    candidates = list(range(min(settings.max_blockers, problem.n_cavs)))
+    start_cells = set(problem.start_cells)
+    blockers: list[Blocker] = []
+    for col, hv in order:
+        for i in candidates:
+            row, cav_col = problem.start_cells[i]
+            cell = (row, col)
+            if abs(cav_col - col) != 1 or cell in start_cells or row <= hv_top_row[hv.vehicle_id]:
+                continue
+            if any(cell in problem.blocked[k] for k in range(1, settings.block_steps + 1)):
+                continue
+            blockers.append(
+                Blocker(i, problem.cav_ids[i], hv.vehicle_id, cell, settings.block_steps)
+            )
+            candidates.remove(i)
+            break
+    return tuple(blockers)
