@@ -41,7 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--fcd", action="store_true", help="also write SUMO's fcd-output (fcd.xml)")
     run.add_argument("--gui", action="store_true", help="watch the run in sumo-gui (traci)")
 
-    rep = sub.add_parser("reproduce", help="the paper's evaluation (Section IV), report and figures")
+    rep = sub.add_parser(
+        "reproduce", help="the paper's evaluation (Section IV), report and figures"
+    )
     rep.add_argument("--out", type=Path, default=Path("reproduce"))
     rep.add_argument("--scenario", type=Path, default=None, help="default: the paper scenario")
     return parser

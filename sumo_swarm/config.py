@@ -429,9 +429,7 @@ def load_scenario(path: str | Path, overrides: dict[str, dict[str, Any]] | None 
             raise ConfigError(
                 f"unknown section '[{unknown[0]}]' (known: {', '.join(sorted(SECTIONS))})"
             )
-        sections = {
-            key: _convert(value, SECTIONS[key], key) for key, value in data.items()
-        }
+        sections = {key: _convert(value, SECTIONS[key], key) for key, value in data.items()}
         scenario = Scenario(name=name, path=path.resolve(), **sections)
         _check_consistency(scenario)
     except ConfigError as exc:

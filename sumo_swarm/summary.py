@@ -42,8 +42,9 @@ def overtake_progress(
     wide = df.pivot_table(index="time_s", columns="vehicle", values="s_m", observed=True)
     present = [c for c in cav_ids if c in wide.columns]
     if len(present) < len(cav_ids):
-        missing = pd.DataFrame(np.nan, index=wide.index, columns=[c for c in cav_ids
-                                                                  if c not in wide.columns])
+        missing = pd.DataFrame(
+            np.nan, index=wide.index, columns=[c for c in cav_ids if c not in wide.columns]
+        )
         wide = pd.concat([wide, missing], axis=1)
     lengths = df.groupby("vehicle", observed=True)["length_m"].first()
     cav_s = wide[list(cav_ids)]
@@ -54,8 +55,9 @@ def overtake_progress(
         past = pd.Series(False, index=wide.index)
     in_lane = df[df["vehicle"].isin(cav_ids)].copy()
     in_lane["ok"] = (in_lane["lane"] == lane) & (in_lane["lat_m"].abs() < REGROUP_LAT_TOL_M)
-    ok_all = in_lane.pivot_table(index="time_s", columns="vehicle", values="ok",
-                                 aggfunc="first", observed=True)
+    ok_all = in_lane.pivot_table(
+        index="time_s", columns="vehicle", values="ok", aggfunc="first", observed=True
+    )
     ok_all = ok_all.reindex(index=wide.index, columns=list(cav_ids)).fillna(False).astype(bool)
     lane_ok = ok_all.all(axis=1)
     ordered = np.sort(cav_s.to_numpy(dtype=float), axis=1)
@@ -67,7 +69,9 @@ def overtake_progress(
     head = cav_s.max(axis=1)
     tail = cav_s.min(axis=1)
     intruders = hv.join(head.rename("head"), on="time_s").join(tail.rename("tail"), on="time_s")
-    intruded = intruders[(intruders["s_m"] > intruders["tail"]) & (intruders["s_m"] < intruders["head"])]
+    intruded = intruders[
+        (intruders["s_m"] > intruders["tail"]) & (intruders["s_m"] < intruders["head"])
+    ]
     clean = ~wide.index.isin(intruded["time_s"].unique())
     platoon = lane_ok & pd.Series(gaps_ok & clean, index=wide.index)
     return pd.DataFrame({"past": past.astype(bool), "platoon": platoon.astype(bool)})

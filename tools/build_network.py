@@ -41,7 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("names", nargs="*", help="network names (default: all)")
     args = parser.parse_args(argv)
-    names = args.names or sorted(p.name.removesuffix(".nod.xml") for p in NETWORKS.glob("*.nod.xml"))
+    names = args.names or sorted(
+        p.name.removesuffix(".nod.xml") for p in NETWORKS.glob("*.nod.xml")
+    )
     for name in names:
         print(f"built {build(name)}")
     return 0

@@ -1,0 +1,77 @@
+"""Every kind of configuration error is refused with the key and the file named."""
+
+from __future__ import annotations
+
+import pytest
+
+from sumo_swarm.config import load_scenario
+from sumo_swarm.errors import ConfigError
+
+
+def test_paper_scenario_holds_section_iv_c(paper_path):
+    sc = load_scenario(paper_path)
+    assert sc.name == "paper"
+    assert sc.cav.count == 6
+    assert sc.cav.length_m == 5.0
+    assert sc.cav.cruising_speed_mps == 20.0
+    assert sc.cav.min_gap_m == 5.0 and sc.cav.desired_gap_m == 10.0
+    assert (sc.cav.accel_min_mps2, sc.cav.accel_max_mps2) == (-4.0, 3.0)
+    assert sc.simulation.step_length_s == 0.03
+    assert sc.planner.behaving_interval_s == 3.0
+    assert sc.scene.upstream_gap_m == 25.0
+    assert sc.hv.headway_s == 1.2
+    # l_CAV + desired safety distance (paper II-B-1), not IV-C's 5 m: see scenarios/paper.toml
+    assert sc.cell_length_m == 15.0
+    assert sc.network_path.is_file()
+
+
+@pytest.mark.parametrize(
+    ("body", "expected"),
+    [
+        ('[cav]\ncount = 6\ncolour = "red"\n', "unknown key 'cav.colour'"),
+        ("[cav]\ncount = 6.5\n", "cav.count: expected an integer"),
+        ('[cav]\nlength_m = "long"\n', "cav.length_m: expected a number"),
+        ("[cav]\nlength_m = -5.0\n", "length_m must be > 0"),
+        ("[cav]\ncount = 0\n", "count must be >= 1"),
+        ("[simulation]\nstep_length_s = 0.0\n", "step_length_s must be > 0"),
+        ("[cav]\nmin_gap_m = 12.0\n", "desired_gap_m (10.0) must be >= min_gap_m"),
+        ("[hv]\nlane_changes = 1\n", "hv.lane_changes: expected true or false"),
+        ('[cell]\nrule = "tiny"\n', "cell.rule: must be one of"),
+        ('[cell]\nrule = "fixed"\ncell_length_m = 2.0\n', "must be at least as long as a CAV"),
+        ("[bogus]\nx = 1\n", "unknown section '[bogus]'"),
+        ("[evaluation]\nend_s = 500.0\n", "is after simulation.duration_s"),
+        ("[planner]\nbehaving_interval_s = 0.1\n", "whole number of"),
+        ("[planner]\nn_steps = 1\n", "n_steps"),
+        ('[simulation]\nnetwork = "nowhere.net.xml"\n', "simulation.network: file not found"),
+        ('[[scene.hv]]\nid = "a"\nlane = 1\nfront_m = 10.0\nspeed = 3.0\n', "unknown key"),
+    ],
+)
+def test_bad_values_are_refused_naming_key_and_file(scenario_file, body, expected):
+    head = '[simulation]\nnetwork = "@NET@"\n' if "[simulation]" not in body else ""
+    text = head + body
+    if "[simulation]" in body and "network" not in body:
+        text = body.replace("[simulation]\n", '[simulation]\nnetwork = "@NET@"\n')
+    path = scenario_file(text)
+    with pytest.raises(ConfigError) as err:
+        load_scenario(path)
+    message = str(err.value)
+    assert expected in message
+    assert str(path) in message
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match="scenario file not found"):
+        load_scenario(tmp_path / "nope.toml")
+
+
+def test_malformed_toml(scenario_file):
+    path = scenario_file("[cav\ncount = 3\n")
+    with pytest.raises(ConfigError, match="malformed TOML"):
+        load_scenario(path)
+
+
+def test_overrides_are_validated_too(paper_path):
+    sc = load_scenario(paper_path, overrides={"cav": {"count": 4}})
+    assert sc.cav.count == 4
+    with pytest.raises(ConfigError, match="unknown key 'cav.cnt'"):
+        load_scenario(paper_path, overrides={"cav": {"cnt": 4}})
