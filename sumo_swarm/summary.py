@@ -69,9 +69,8 @@ def overtake_progress(
     head = cav_s.max(axis=1)
     tail = cav_s.min(axis=1)
     intruders = hv.join(head.rename("head"), on="time_s").join(tail.rename("tail"), on="time_s")
-    intruded = intruders[
-        (intruders["s_m"] > intruders["tail"]) & (intruders["s_m"] < intruders["head"])
-    ]
+    between = (intruders["s_m"] > intruders["tail"]) & (intruders["s_m"] < intruders["head"])
+    intruded = intruders[between]
     clean = ~wide.index.isin(intruded["time_s"].unique())
     platoon = lane_ok & pd.Series(gaps_ok & clean, index=wide.index)
     return pd.DataFrame({"past": past.astype(bool), "platoon": platoon.astype(bool)})

@@ -73,5 +73,5 @@ def test_malformed_toml(scenario_file):
 def test_overrides_are_validated_too(paper_path):
     sc = load_scenario(paper_path, overrides={"cav": {"count": 4}})
     assert sc.cav.count == 4
-    with pytest.raises(ConfigError, match="unknown key 'cav.cnt'"):
+    with pytest.raises(ConfigError, match=r"unknown key 'cav\.cnt'"):
         load_scenario(paper_path, overrides={"cav": {"cnt": 4}})

@@ -1,4 +1,4 @@
-"""Controllers of the CAVs: the swarm (the paper's method) and the baselines it is judged against."""
+"""Controllers of the CAVs: the swarm (the paper's method) and the baselines it is judged by."""
 
 from __future__ import annotations
 
