@@ -40,7 +40,7 @@ With ``s_now`` (and optionally ``v_now``, ``a_now``) at ``t_now``, the offset fr
 path ``e(t)`` decays to zero along a quintic in time matching position, speed and
 acceleration at ``t_now``. Its duration is the shortest on a candidate list (1 s to 60 s) for
 which the total speed, acceleration and jerk (``2 * j_max``) stay within bounds (checked on a
-0.02 s grid), so a replan never makes the reference jump.
+0.05 s grid), so a replan never makes the reference jump.
 
 Lateral design (spatial domain)
 -------------------------------
@@ -57,17 +57,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.model import RoadSection
 
-_BLEND_DURATIONS_S = np.concatenate([np.arange(1.0, 10.0, 0.25), np.arange(10.0, 61.0, 1.0)])
-_CHECK_DT_S = 0.02  # grid on which blend candidates are checked against the bounds [s]
+_BLEND_DURATIONS_S = np.concatenate([np.arange(1.0, 10.0, 0.25), np.arange(10.0, 61.0, 2.0)])
+_CHECK_DT_S = 0.05  # grid on which blend candidates are checked against the bounds [s]
+_ALL_ORDERS = (0, 1, 2, 3, 4, 5)
+# _FALLING[n][m] = m! / (m - n)!: coefficient of the n-th derivative of x^m
+_FALLING = [[math.perm(m, n) if m >= n else 0 for m in range(6)] for n in range(6)]
+_FALLING_ARRAY = np.array(_FALLING, dtype=float)
 _CHECK_MARGIN = 1e-3  # bounds are tightened by this on the check grid: peaks fall between points
+_SMOOTHSTEP = np.array([0.0, 0.0, 0.0, 10.0, -15.0, 6.0])  # 10x^3 - 15x^4 + 6x^5
 _SMOOTHSTEP_PEAK_SLOPE = 1.875  # max of d/dx (10x^3 - 15x^4 + 6x^5)
 _SMOOTHSTEP_PEAK_CURVATURE = 10.0 / math.sqrt(3.0)  # max |d2/dx2| of the same
 
@@ -154,6 +159,104 @@ def waypoint_error_m(du_mps: float, accel_limit_mps2: float, jerk_limit_mps3: fl
 
 
 @dataclass(frozen=True, eq=False)
+class _Piecewise:
+    """Piecewise polynomial of degree <= 5, stored as Taylor coefficients about one point per
+    piece: evaluation costs a ``searchsorted`` and a Horner loop, whatever the plan length.
+
+    Piece ``i`` covers ``[breaks[i-1], breaks[i])`` (``i = 0``: everything before the first
+    break, the last: everything after the last break).
+    """
+
+    breaks: np.ndarray  # (n,)
+    centres: np.ndarray  # (n+1,)
+    coeffs: np.ndarray  # (n+1, 6): f^(m)(centre) / m!
+
+    @classmethod
+    def compile(
+        cls,
+        derivatives: Callable[[np.ndarray, tuple[int, ...]], list[np.ndarray]],
+        breaks: np.ndarray,
+    ) -> _Piecewise:
+        """Sample an exact piecewise function (polynomial between ``breaks``) once per piece."""
+        breaks = np.unique(np.asarray(breaks, dtype=float))
+        if len(breaks) == 0:
+            centres = np.zeros(1)
+        else:
+            inner = 0.5 * (breaks[:-1] + breaks[1:])
+            centres = np.concatenate([[breaks[0] - 1.0], inner, [breaks[-1] + 1.0]])
+        values = derivatives(centres, _ALL_ORDERS)
+        coeffs = np.column_stack([v / math.factorial(m) for m, v in enumerate(values)])
+        return cls(breaks, centres, coeffs)
+
+    def evaluate(self, x: np.ndarray, orders: tuple[int, ...]) -> list[np.ndarray]:
+        """Derivatives ``orders`` (each <= 5) at ``x`` (shape (M,))."""
+        piece = np.searchsorted(self.breaks, x, side="right")
+        h = x - self.centres[piece]
+        c = self.coeffs[piece]
+        values = []
+        for order in orders:
+            value = c[:, 5] * _FALLING[order][5]
+            for m in range(4, order - 1, -1):
+                value = value * h + c[:, m] * _FALLING[order][m]
+            values.append(value)
+        return values
+
+
+@dataclass(frozen=True, eq=False)
+class _SpeedProfile:
+    """Exact grid-frame position ``p(t) = p0 + sum_j du_j ramp_j(t) + blend(t)``."""
+
+    p0_m: float
+    centres_s: np.ndarray
+    du_mps: np.ndarray
+    b1_s: np.ndarray
+    b2_s: np.ndarray
+    blend_start_s: float = 0.0
+    blend_coeffs: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    blend_duration_s: float = 0.0
+
+    def derivatives(self, t: np.ndarray, orders: tuple[int, ...]) -> list[np.ndarray]:
+        ramps = _smoothed_ramp(
+            t[:, None] - self.centres_s[None, :], self.b1_s[None, :], self.b2_s[None, :], orders
+        )
+        blends = _blend(t - self.blend_start_s, self.blend_coeffs, self.blend_duration_s, orders)
+        values = []
+        for order, ramp, blend in zip(orders, ramps, blends, strict=True):
+            value = ramp @ self.du_mps + blend
+            values.append(value + self.p0_m if order == 0 else value)
+        return values
+
+    def breaks(self) -> np.ndarray:
+        opens = self.centres_s - 0.5 * (self.b1_s + self.b2_s)
+        knots = [opens, opens + self.b1_s, opens + self.b2_s, opens + self.b1_s + self.b2_s]
+        if self.blend_duration_s > 0.0:
+            blend = self.blend_start_s + np.array([0.0, self.blend_duration_s])
+            knots.append(blend)
+        return np.concatenate(knots)
+
+
+@dataclass(frozen=True, eq=False)
+class _LateralProfile:
+    """Exact ``y(s) = y0 + sum_j dy_j smoothstep((s - start_j) / length_j)``."""
+
+    y0_m: float
+    starts_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lengths_m: np.ndarray = field(default_factory=lambda: np.ones(0))
+    dys_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def derivatives(self, s: np.ndarray, orders: tuple[int, ...]) -> list[np.ndarray]:
+        x = (s[:, None] - self.starts_m[None, :]) / self.lengths_m[None, :]
+        values = []
+        for order, step in zip(orders, _smoothstep(x, orders), strict=True):
+            value = step @ (self.dys_m / self.lengths_m**order)
+            values.append(value + self.y0_m if order == 0 else value)
+        return values
+
+    def breaks(self) -> np.ndarray:
+        return np.concatenate([self.starts_m, self.starts_m + self.lengths_m])
+
+
+@dataclass(frozen=True, eq=False)
 class Reference:
     """Smooth reference of one CAV: ``s(t)`` along the route and ``y(s)`` across it.
 
@@ -171,25 +274,17 @@ class Reference:
         Time from which the reference is meant to be tracked [s] (``t_now`` or ``t0``).
     t_end_s
         Time of the last behaving step ``t0 + (N-1) dT`` [s]: the plan is executed.
+    blend_duration_s
+        Duration of the blend from the vehicle's state into the cell path [s] (0: none).
     """
 
     frame: GridFrame
     cells: tuple[tuple[int, int], ...]
     start_time_s: float
     t_end_s: float
-    # longitudinal, grid frame: p(t) = p0 + sum_j du_j * ramp_j(t) + blend(t)
-    _p0_m: float
-    _trans_centre_s: np.ndarray
-    _trans_du_mps: np.ndarray
-    _trans_b1_s: np.ndarray
-    _trans_b2_s: np.ndarray
-    _blend_coeffs: np.ndarray  # quintic in (t - start_time_s), highest power last
-    _blend_duration_s: float
-    # lateral: y(s) = y0 + sum_j dy_j * smoothstep((s - s_j) / len_j) + lateral blend
-    _y0_m: float
-    _lc_start_m: np.ndarray
-    _lc_length_m: np.ndarray
-    _lc_dy_m: np.ndarray
+    blend_duration_s: float
+    _longitudinal: _Piecewise  # grid-frame position p(t)
+    _lateral: _Piecewise  # y(s)
 
     # ----------------------------------------------------------------- longitudinal
     def s_at(self, t_s: float) -> float:
@@ -205,16 +300,16 @@ class Reference:
         return float(self.evaluate_time(np.array([t_s]))[2][0])
 
     def evaluate_time(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Vectorised ``(s [m], v [m/s], a [m/s^2])`` at the times ``t_s`` (any shape (M,))."""
+        """Vectorised ``(s [m], v [m/s], a [m/s^2])`` at the times ``t_s`` (shape (M,))."""
         t = np.asarray(t_s, dtype=float)
-        p, dp, ddp = (self._relative(t, order) for order in (0, 1, 2))
+        p, dp, ddp = self._longitudinal.evaluate(t, (0, 1, 2))
         frame = self.frame
         s = frame.origin_s_m + frame.speed_mps * (t - frame.t0_s) + p
         return s, frame.speed_mps + dp, ddp
 
     def jerk_at(self, t_s: np.ndarray) -> np.ndarray:
-        """Vectorised jerk at the times ``t_s`` [m/s^3] (piecewise constant)."""
-        return self._relative(np.asarray(t_s, dtype=float), 3)
+        """Vectorised jerk at the times ``t_s`` [m/s^3] (piecewise smooth)."""
+        return self._longitudinal.evaluate(np.asarray(t_s, dtype=float), (3,))[0]
 
     def sample_time(
         self, t0_s: float, dt_s: float, n_steps: int
@@ -240,12 +335,7 @@ class Reference:
 
     def evaluate_space(self, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Vectorised ``(y [m], dy/ds [-], d2y/ds2 [1/m])`` at the positions ``s_m``."""
-        s = np.asarray(s_m, dtype=float)
-        x = (s[:, None] - self._lc_start_m[None, :]) / self._lc_length_m[None, :]
-        s0, s1, s2 = _smoothstep(x)
-        y = self._y0_m + s0 @ self._lc_dy_m
-        dy = s1 @ (self._lc_dy_m / self._lc_length_m)
-        ddy = s2 @ (self._lc_dy_m / self._lc_length_m**2)
+        y, dy, ddy = self._lateral.evaluate(np.asarray(s_m, dtype=float), (0, 1, 2))
         return y, dy, ddy
 
     def sample_space(
@@ -257,22 +347,6 @@ class Reference:
         s = s0_m + ds_m * np.arange(n_steps + 1)
         y, dy, ddy = self.evaluate_space(s)
         return s, y, dy, ddy
-
-    # ----------------------------------------------------------------------- private
-    def _relative(self, t: np.ndarray, order: int) -> np.ndarray:
-        """``d^order p / dt^order`` of the grid-frame position, vectorised over ``t``."""
-        ramps = _smoothed_ramp(
-            t[:, None] - self._trans_centre_s[None, :],
-            self._trans_b1_s[None, :],
-            self._trans_b2_s[None, :],
-            order,
-        )
-        value = ramps @ self._trans_du_mps
-        if order == 0:
-            value = value + self._p0_m
-        return value + _blend(
-            t - self.start_time_s, self._blend_coeffs, self._blend_duration_s, order
-        )
 
 
 def reference_from_cells(
@@ -351,31 +425,33 @@ def reference_from_cells(
     accel_limit = np.where(du > 0.0, a_max, -a_min) * profile_accel_fraction
     b1, b2 = _transition_widths(np.abs(du[moving]), accel_limit[moving], max_jerk_mps3)
 
+    speed = _SpeedProfile(
+        p0_m=float(waypoints[0]),
+        centres_s=step_t[moving],
+        du_mps=du[moving],
+        b1_s=np.asarray(b1, dtype=float),
+        b2_s=np.asarray(b2, dtype=float),
+    )
     start_time = frame.t0_s if t_now is None else float(t_now)
+    if s_now is not None:
+        limits = {"a_min": a_min, "a_max": a_max, "v_max": v_max, "max_jerk_mps3": max_jerk_mps3}
+        speed = _with_longitudinal_blend(frame, speed, start_time, s_now, v_now, a_now, limits)
+    straight = _LateralProfile(y0_m=road.lane_centre_y(cells[0][1]))
     ref = Reference(
         frame=frame,
         cells=cells,
         start_time_s=start_time,
         t_end_s=float(step_t[-1]),
-        _p0_m=float(waypoints[0]),
-        _trans_centre_s=step_t[moving],
-        _trans_du_mps=du[moving],
-        _trans_b1_s=np.asarray(b1, dtype=float),
-        _trans_b2_s=np.asarray(b2, dtype=float),
-        _blend_coeffs=np.zeros(6),
-        _blend_duration_s=0.0,
-        _y0_m=road.lane_centre_y(cells[0][1]),
-        _lc_start_m=np.zeros(0),
-        _lc_length_m=np.ones(0),
-        _lc_dy_m=np.zeros(0),
+        blend_duration_s=speed.blend_duration_s,
+        _longitudinal=_Piecewise.compile(speed.derivatives, speed.breaks()),
+        _lateral=_Piecewise.compile(straight.derivatives, straight.breaks()),
     )
-    if s_now is not None:
-        limits = {"a_min": a_min, "a_max": a_max, "v_max": v_max, "max_jerk_mps3": max_jerk_mps3}
-        ref = _with_longitudinal_blend(ref, s_now, v_now, a_now, limits)
-    ref = _with_lane_changes(ref, road, max_lat_speed_mps, max_lat_accel_mps2)
+    lateral = _lane_changes(ref, road, max_lat_speed_mps, max_lat_accel_mps2)
     if y_now is not None:
-        ref = _with_lateral_blend(ref, y_now, max_lat_speed_mps, max_lat_accel_mps2)
-    return ref
+        lateral = _with_lateral_blend(ref, lateral, y_now, max_lat_speed_mps, max_lat_accel_mps2)
+    return dataclasses.replace(
+        ref, _lateral=_Piecewise.compile(lateral.derivatives, lateral.breaks())
+    )
 
 
 # --------------------------------------------------------------------------- building blocks
@@ -413,52 +489,76 @@ def _transition_widths(
 
 
 def _smoothed_ramp(
-    tau_from_centre: np.ndarray, b1: np.ndarray, b2: np.ndarray, order: int
-) -> np.ndarray:
-    """Derivative ``order`` of ``max(t, 0)`` smoothed by two boxes of widths b1, b2 centred on 0.
+    tau_from_centre: np.ndarray, b1: np.ndarray, b2: np.ndarray, orders: tuple[int, ...]
+) -> list[np.ndarray]:
+    """Derivatives ``orders`` of ``max(t, 0)`` smoothed by two boxes of widths b1, b2 centred
+    on 0 (broadcast shapes).
 
     Order 0: position (equals ``max(t, 0)`` outside the window), 1: speed (0 -> 1),
-    2: acceleration (trapezoid, plateau ``1/max(b1, b2)``), 3: jerk.
+    2: acceleration (trapezoid, plateau ``1/max(b1, b2)``), 3: jerk, 4 and 5: zero (it is
+    piecewise cubic).
     """
     width = b1 + b2
     tau = tau_from_centre + 0.5 * width  # time since the window opened
     inside = np.clip(tau, 0.0, width)  # small numbers: the 4-term difference stays accurate
-    power = 3 - order
-
-    def trunc(x: np.ndarray) -> np.ndarray:
-        if power == 0:
-            return (x > 0.0).astype(float)
-        return np.maximum(x, 0.0) ** power / math.factorial(power)
-
-    value = (trunc(inside) - trunc(inside - b1) - trunc(inside - b2) + trunc(inside - width)) / (
-        b1 * b2
-    )
     after = tau >= width
-    if order == 0:
-        return np.where(after, tau_from_centre, value)
-    if order == 1:
-        return np.where(after, 1.0, value)
-    return np.where(after, 0.0, value)
+    values = []
+    for order in orders:
+        power = 3 - order
+        if power < 0:
+            values.append(np.zeros(np.broadcast(tau, width).shape))
+            continue
+
+        def truncated(x: np.ndarray, power: int = power) -> np.ndarray:
+            if power == 0:
+                return (x > 0.0).astype(float)
+            return np.maximum(x, 0.0) ** power / math.factorial(power)
+
+        value = (
+            truncated(inside)
+            - truncated(inside - b1)
+            - truncated(inside - b2)
+            + truncated(inside - width)
+        ) / (b1 * b2)
+        after_value = tau_from_centre if order == 0 else (1.0 if order == 1 else 0.0)
+        values.append(np.where(after, after_value, value))
+    return values
 
 
-def _blend(tau: np.ndarray, coeffs: np.ndarray, duration: float, order: int) -> np.ndarray:
-    """Derivative ``order`` of the quintic blend ``sum_i c_i tau^i`` on ``[0, duration]``,
+def _blend(
+    tau: np.ndarray, coeffs: np.ndarray, duration: float, orders: tuple[int, ...]
+) -> list[np.ndarray]:
+    """Derivatives ``orders`` of the quintic blend ``sum_i c_i tau^i`` on ``[0, duration]``,
     zero after, extrapolated at constant rate before ``tau = 0``."""
     if duration <= 0.0:
-        return np.zeros_like(tau)
+        return [np.zeros_like(tau) for _ in orders]
     x = np.clip(tau, 0.0, duration)
-    value = np.polynomial.polynomial.polyval(x, _polyder(coeffs, order))
-    value = np.where(tau >= duration, 0.0, value)
-    before = tau < 0.0
-    if order == 0:
-        return np.where(before, coeffs[0] + coeffs[1] * tau, value)
-    if order == 1:
-        return np.where(before, coeffs[1], value)
-    return np.where(before, 0.0, value)
+    after, before = tau >= duration, tau < 0.0
+    values = []
+    for order in orders:
+        value = _polyval(x, _polyder(coeffs, order))
+        value = np.where(after, 0.0, value)
+        if order == 0:
+            value = np.where(before, coeffs[0] + coeffs[1] * tau, value)
+        elif order == 1:
+            value = np.where(before, coeffs[1], value)
+        else:
+            value = np.where(before, 0.0, value)
+        values.append(value)
+    return values
 
 
 def _polyder(coeffs: np.ndarray, order: int) -> np.ndarray:
-    return np.polynomial.polynomial.polyder(coeffs, order) if order else coeffs
+    """Coefficients (lowest power first) of the ``order``-th derivative of a quintic."""
+    return coeffs[order:] * _FALLING_ARRAY[order, order:]
+
+
+def _polyval(x: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
+    """Horner evaluation of ``sum_i coeffs[i] x^i``."""
+    value = np.full(np.shape(x), coeffs[-1], dtype=float)
+    for c in coeffs[-2::-1]:
+        value = value * x + c
+    return value
 
 
 def _quintic_to_rest(e0: float, de0: float, dde0: float, duration: float) -> np.ndarray:
@@ -476,46 +576,50 @@ def _quintic_to_rest(e0: float, de0: float, dde0: float, duration: float) -> np.
 
 
 def _with_longitudinal_blend(
-    ref: Reference,
+    frame: GridFrame,
+    speed: _SpeedProfile,
+    t_now: float,
     s_now: float,
     v_now: float | None,
     a_now: float | None,
     limits: dict[str, float],
-) -> Reference:
+) -> _SpeedProfile:
     """Add the shortest quintic blend from the current state that keeps the total speed in
     ``[0, v_max]``, acceleration in ``[a_min, a_max]`` and jerk within ``2 * max_jerk``."""
-    t_now = ref.start_time_s
-    s_base, v_base, a_base = (x[0] for x in ref.evaluate_time(np.array([t_now])))
+    p_base, dp_base, ddp_base = (x[0] for x in speed.derivatives(np.array([t_now]), (0, 1, 2)))
+    s_base = frame.origin_s_m + frame.speed_mps * (t_now - frame.t0_s) + p_base
     e0 = float(s_now) - s_base
-    de0 = 0.0 if v_now is None else float(v_now) - v_base
-    dde0 = 0.0 if a_now is None else float(a_now) - a_base
+    de0 = 0.0 if v_now is None else float(v_now) - (frame.speed_mps + dp_base)
+    dde0 = 0.0 if a_now is None else float(a_now) - ddp_base
     if e0 == 0.0 and de0 == 0.0 and dde0 == 0.0:
-        return ref
+        return speed
     tau_grid = np.arange(0.0, _BLEND_DURATIONS_S[-1] + _CHECK_DT_S, _CHECK_DT_S)
-    _, v_grid, a_grid = ref.evaluate_time(t_now + tau_grid)
-    j_grid = ref.jerk_at(t_now + tau_grid)
+    dp_grid, a_grid, j_grid = speed.derivatives(t_now + tau_grid, (1, 2, 3))
+    v_grid = frame.speed_mps + dp_grid
     lower = np.array([0.0, limits["a_min"], -2.0 * limits["max_jerk_mps3"]]) + _CHECK_MARGIN
     upper = np.array([limits["v_max"], limits["a_max"], 2.0 * limits["max_jerk_mps3"]])
     upper = upper - _CHECK_MARGIN
-    best_coeffs, best_duration, best_violation = np.zeros(6), 0.0, math.inf
-    for duration in _BLEND_DURATIONS_S:
-        coeffs = _quintic_to_rest(e0, de0, dde0, duration)
-        upto = tau_grid <= duration
-        tau = tau_grid[upto]
-        total = np.stack(
-            [
-                base[upto] + np.polynomial.polynomial.polyval(tau, _polyder(coeffs, order))
-                for order, base in ((1, v_grid), (2, a_grid), (3, j_grid))
-            ]
-        )
-        violation = max(
-            float(np.max(total - upper[:, None])), float(np.max(lower[:, None] - total)), 0.0
-        )
-        if violation < best_violation:
-            best_coeffs, best_duration, best_violation = coeffs, float(duration), violation
-        if violation == 0.0:
-            break
-    return dataclasses.replace(ref, _blend_coeffs=best_coeffs, _blend_duration_s=best_duration)
+
+    # All candidates at once: rows = candidate durations, columns = the check grid. Longer is
+    # not always gentler (a speed offset integrates into a larger position swing), so take
+    # the shortest feasible candidate, or the least violating one if none is feasible.
+    durations = _BLEND_DURATIONS_S
+    coeffs = np.stack([_quintic_to_rest(e0, de0, dde0, d) for d in durations])  # (C, 6)
+    powers = tau_grid[None, :] ** np.arange(6)[:, None]  # (6, G)
+    active = tau_grid[None, :] <= durations[:, None]  # (C, G)
+    violation = np.zeros(len(durations))
+    for row, (order, base) in enumerate(((1, v_grid), (2, a_grid), (3, j_grid))):
+        blend = (coeffs[:, order:] * _FALLING_ARRAY[order, order:]) @ powers[: 6 - order]
+        total = np.where(active, base[None, :] + blend, base[None, :])
+        excess = np.maximum(total - upper[row], lower[row] - total)
+        violation = np.maximum(violation, np.max(np.where(active, excess, -np.inf), axis=1))
+    feasible = np.flatnonzero(violation <= 0.0)
+    best = int(feasible[0]) if len(feasible) else int(np.argmin(violation))
+    best_duration = float(durations[best])
+    best_coeffs = coeffs[best]
+    return dataclasses.replace(
+        speed, blend_start_s=t_now, blend_coeffs=best_coeffs, blend_duration_s=best_duration
+    )
 
 
 def _lane_change_length(
@@ -530,9 +634,9 @@ def _lane_change_length(
     ``nominal_m``, longer if the lateral speed or acceleration would exceed the limits."""
     length = max(nominal_m, 1e-6)
     s_from = ref.s_at(t_from)
+    t_grid = np.linspace(t_from, t_from + 4.0 * ref.frame.behaving_interval_s, 400)
+    s_grid, v_grid, _ = ref.evaluate_time(t_grid)
     for _ in range(3):  # the speed over a longer window may differ: refine twice
-        t_grid = np.linspace(t_from, t_from + 2.0 * ref.frame.behaving_interval_s + 1.0, 200)
-        s_grid, v_grid, _ = ref.evaluate_time(t_grid)
         in_window = s_grid <= s_from + length
         v_hi = float(np.max(v_grid[in_window])) if np.any(in_window) else float(v_grid[0])
         needed = max(
@@ -546,9 +650,9 @@ def _lane_change_length(
     return length
 
 
-def _with_lane_changes(
+def _lane_changes(
     ref: Reference, road: RoadSection, max_lat_speed: float, max_lat_accel: float
-) -> Reference:
+) -> _LateralProfile:
     """One smoothstep in ``s`` per column change, from ``s(t_k)`` to ``s(t_{k+1})``."""
     frame = ref.frame
     starts, lengths, dys = [], [], []
@@ -562,41 +666,46 @@ def _with_lane_changes(
         starts.append(s_from)
         lengths.append(_lane_change_length(ref, t_from, dy, nominal, max_lat_speed, max_lat_accel))
         dys.append(dy)
-    return dataclasses.replace(
-        ref,
-        _lc_start_m=np.array(starts, dtype=float),
-        _lc_length_m=np.array(lengths, dtype=float),
-        _lc_dy_m=np.array(dys, dtype=float),
+    return _LateralProfile(
+        y0_m=road.lane_centre_y(ref.cells[0][1]),
+        starts_m=np.array(starts, dtype=float),
+        lengths_m=np.array(lengths, dtype=float),
+        dys_m=np.array(dys, dtype=float),
     )
 
 
 def _with_lateral_blend(
-    ref: Reference, y_now: float, max_lat_speed: float, max_lat_accel: float
-) -> Reference:
+    ref: Reference,
+    lateral: _LateralProfile,
+    y_now: float,
+    max_lat_speed: float,
+    max_lat_accel: float,
+) -> _LateralProfile:
     """Start the lateral path at ``y_now`` and fade the offset out with a smoothstep."""
     s_now = ref.s_at(ref.start_time_s)
-    offset = float(y_now) - ref.y_at_s(s_now)
+    offset = float(y_now) - lateral.derivatives(np.array([s_now]), (0,))[0][0]
     if offset == 0.0:
-        return ref
-    # A blend is a lane change of -offset starting at s_now, on top of y0 + offset.
+        return lateral
+    # The blend is a lane change of -offset starting at s_now, on top of y0 + offset.
     nominal = ref.s_at(ref.start_time_s + ref.frame.behaving_interval_s) - s_now
     length = _lane_change_length(
         ref, ref.start_time_s, offset, nominal, max_lat_speed, max_lat_accel
     )
-    return dataclasses.replace(
-        ref,
-        _y0_m=ref._y0_m + offset,
-        _lc_start_m=np.append(ref._lc_start_m, s_now),
-        _lc_length_m=np.append(ref._lc_length_m, length),
-        _lc_dy_m=np.append(ref._lc_dy_m, -offset),
+    return _LateralProfile(
+        y0_m=lateral.y0_m + offset,
+        starts_m=np.append(lateral.starts_m, s_now),
+        lengths_m=np.append(lateral.lengths_m, length),
+        dys_m=np.append(lateral.dys_m, -offset),
     )
 
 
-def _smoothstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Quintic smoothstep ``10x^3 - 15x^4 + 6x^5`` clamped to [0, 1] and its two derivatives."""
-    xc = np.clip(x, 0.0, 1.0)
+def _smoothstep(x: np.ndarray, orders: tuple[int, ...]) -> list[np.ndarray]:
+    """Derivatives ``orders`` of the quintic smoothstep ``10x^3 - 15x^4 + 6x^5``, clamped to
+    0 before ``x = 0`` and 1 after ``x = 1``."""
     inside = (x > 0.0) & (x < 1.0)
-    value = xc**3 * (10.0 + xc * (-15.0 + 6.0 * xc))
-    slope = np.where(inside, 30.0 * xc**2 * (1.0 - xc) ** 2, 0.0)
-    curvature = np.where(inside, 60.0 * xc * (1.0 - xc) * (1.0 - 2.0 * xc), 0.0)
-    return value, slope, curvature
+    xc = np.clip(x, 0.0, 1.0)
+    values = []
+    for order in orders:
+        value = _polyval(xc, _polyder(_SMOOTHSTEP, order))
+        values.append(value if order == 0 else np.where(inside, value, 0.0))
+    return values

@@ -220,3 +220,22 @@ def test_bad_input_is_rejected_with_the_field_named():
         reference_from_cells([], FRAME)
     with pytest.raises(ValueError, match="column 3"):
         reference_from_cells([(0, 0), (0, 3)], FRAME)
+
+
+def test_derivatives_are_consistent_with_finite_differences():
+    cells = [(0, 1), (1, 1), (2, 1), (2, 2), (2, 2), (1, 2), (1, 1), (1, 0), (2, 0)]
+    ref = reference_from_cells(
+        cells, FRAME, t_now=10.0, s_now=104.0, v_now=18.0, a_now=0.3, y_now=3.0
+    )
+    t = np.random.default_rng(7).uniform(8.0, 50.0, 2000)
+    h = 1e-5
+    s, v, a = ref.evaluate_time(t)
+    s_plus, v_plus, _ = ref.evaluate_time(t + h)
+    s_minus, v_minus, _ = ref.evaluate_time(t - h)
+    np.testing.assert_allclose((s_plus - s_minus) / (2 * h), v, atol=1e-6)
+    np.testing.assert_allclose((v_plus - v_minus) / (2 * h), a, atol=1e-6)
+    _, dy, ddy = ref.evaluate_space(s)
+    y_plus, dy_plus, _ = ref.evaluate_space(s + h)
+    y_minus, dy_minus, _ = ref.evaluate_space(s - h)
+    np.testing.assert_allclose((y_plus - y_minus) / (2 * h), dy, atol=1e-7)
+    np.testing.assert_allclose((dy_plus - dy_minus) / (2 * h), ddy, atol=1e-7)
