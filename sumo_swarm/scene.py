@@ -146,9 +146,14 @@ def cav_vtype_xml(sc: Scenario, controller: str) -> str:
     # on as a last safety net (speed mode keeps the safe-speed check). With tau 0.2 s and
     # minGap 0.5 m it binds only within about 3 m of a vehicle ahead at 17.5 m/s (measured: with
     # tau 0.5 s and minGap 2 m it already capped a CAV 10 m behind the slow HV at 17.35 m/s).
+    # lcAccelLat: the sublane model caps a vehicle's lateral speed at sqrt(2 * lcAccelLat *
+    # remaining distance) so it can stop at its target. With the default 1 m/s^2 a per-step
+    # command of 0.05 m moved the CAV only 0.009 m per step (0.3 m/s, measured), and a 3 m lane
+    # change took 9 s instead of the planned 3 s. At 40 m/s^2 SUMO executes each per-step
+    # command exactly (0.05 -> 0.05 m, 0.003 -> 0.003 m); maxSpeedLat still caps the speed.
     return (
         f'<vType {common} maxSpeed="{cav.max_speed_mps}" carFollowModel="Krauss" sigma="0" '
-        f'tau="0.2" minGap="0.5"/>'
+        f'tau="0.2" minGap="0.5" lcAccelLat="40"/>'
     )
 
 

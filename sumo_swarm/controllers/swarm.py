@@ -1,0 +1,496 @@
+"""The swarm controller: the paper's method closed around SUMO.
+
+Each SUMO step (after the step, acting on the next one):
+
+1. *Cruise* as a CACC platoon until the leader is held below the cruising speed by a slower
+   vehicle ahead for ``swarm.trigger_after_s``: that vehicle becomes the target.
+2. *Overtake*: build the moving grid around the target, solve the cell MIP, validate the plan,
+   turn every CAV's cells into a smooth reference (eqs. 20-22), and track it with the
+   longitudinal (time-domain) and lateral (spatial-domain) MPCs on OSQP. Replan on the events
+   of the paper's Fig. 4 (new HV in the grid, plan executed) and on drift.
+3. When every CAV is past the target and back in the regroup lane, *cruise* again.
+
+Command path (why speed + sublane moves, not moveToXY): ``setSpeed`` makes SUMO integrate the
+CAV's true speed, so IDM followers see a real leader and brake for a CAV that moves in ahead
+of them (that is how blocking works), and ``changeSublane`` moves the CAV sideways through the
+sublane model, so SUMO assigns it to the lanes it overlaps while it moves. ``moveToXY`` teleports
+the vehicle each step and lets SUMO derive a speed from the displacement, which hides the
+commanded speed from the car-following logic for a step and replaces the route when the spot is
+off it. Measured on the paper scene: see docs/closed-loop.md.
+
+Safety layers under the plan, each recorded as an event when it acts:
+* a gap guard caps the tracked acceleration so no CAV closes within ``cav.min_gap_m`` of any
+  vehicle ahead in the lanes it overlaps or is moving into;
+* a lateral guard holds a CAV in its lane while the lane it is moving into has a vehicle
+  closer than the minimum gap ahead or a follower closer than ``guard_headway_s`` behind;
+* SUMO's own safe-speed check stays on (speed mode 31);
+* when the planner fails or times out, the last valid plan is kept while it lasts, else the
+  CAVs fall back to CACC following in their current lanes.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections import Counter
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from sumo_swarm.bridge import LC_MODE_CONTROLLED, SPEED_MODE_SAFE
+from sumo_swarm.controllers.base import RunContext
+from sumo_swarm.controllers.cacc import cacc_accel
+from sumo_swarm.grid import MovingGrid, build_grid, cav_cell
+from sumo_swarm.metrics import lateral_rms, summarise_ms
+from sumo_swarm.model import VehicleState
+from sumo_swarm.neighbours import ordered_platoon, vehicle_ahead, vehicle_behind
+from sumo_swarm.planner import (
+    Plan,
+    ReplanTrigger,
+    build_problem,
+    make_planner,
+    validate_plan,
+)
+from sumo_swarm.tracking import LateralMpc, LongitudinalMpc
+from sumo_swarm.trajectory import GridFrame, Reference, reference_from_cells
+
+log = logging.getLogger(__name__)
+
+CRUISE, OVERTAKE = "cruise", "overtake"
+GUARD_GAP_GAIN = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v)
+GUARD_SPEED_GAIN = 1.5  # [1/s]
+GUARD_HEADWAY_S = 0.6  # lateral guard: follower headway below which a CAV holds its lane [s]
+IN_LANE_TOL_M = 0.3
+RETRY_AFTER_S = 1.0  # after a failed replan, wait this long before the next drift replan [s]
+MARGIN_RELAXATION = (
+    1.0,
+    0.5,
+    0.0,
+)  # HV margin scales tried in turn when a replan is infeasible  # a CAV is "in" a lane when its centre is this close to the lane centre
+
+
+class SwarmController:
+    """The method of the paper: cruise, swarm past a slow vehicle, regroup, cruise."""
+
+    name = "swarm"
+
+    def __init__(self) -> None:
+        self.ctx: RunContext | None = None
+        self.mode = CRUISE
+        self.target_id: str | None = None
+        self.slow_since_s: float | None = None
+        self.plan: Plan | None = None
+        self.grid: MovingGrid | None = None
+        self.references: dict[str, Reference] = {}
+        self.phi: dict[str, float] = {}
+        self.configured: set[str] = set()
+        self.solve_ms: list[float] = []
+        self.statuses: Counter[str] = Counter()
+        self.fallbacks = 0
+        self.lat_errors: list[float] = []
+        self.t_start_s: float | None = None
+        self.t_done_s: float | None = None
+        self.overtakes = 0
+        self._plans_file = None
+        self.replan_not_before_s = -math.inf
+        self.last_plan_s = -math.inf
+
+    # ------------------------------------------------------------------ set-up
+    def attach(self, ctx: RunContext) -> None:
+        self.ctx = ctx
+        sc = ctx.scenario
+        self.grid_settings = replace(
+            sc.grid, cell_length_m=sc.cell_length_m, cav_length_m=sc.cav.length_m
+        )
+        self.planner_settings = sc.planner
+        if sc.swarm.regroup_lane is not None:
+            self.planner_settings = replace(sc.planner, regroup_lane=sc.swarm.regroup_lane)
+        self.planner = make_planner(self.planner_settings)
+        self.trigger = ReplanTrigger(drift_cells=1)
+        self.lon_settings = sc.longitudinal
+        self.lat_settings = sc.lateral
+        self.lon_mpc: dict[str, LongitudinalMpc] = {}
+        self.lat_mpc: dict[str, LateralMpc] = {}
+        if ctx.out_dir is not None:
+            self._plans_file = (ctx.out_dir / "plans.jsonl").open("w", encoding="utf-8")
+
+    def _configure_new(self, states: dict[str, VehicleState]) -> None:
+        ctx = self.ctx
+        for vid in ctx.cav_ids:
+            if vid in states and vid not in self.configured:
+                ctx.session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_CONTROLLED)
+                self.configured.add(vid)
+                self.phi[vid] = 0.0
+                self.lon_mpc[vid] = LongitudinalMpc(self.lon_settings)
+                self.lat_mpc[vid] = LateralMpc(self.lat_settings)
+
+    # ------------------------------------------------------------------ main step
+    def control(self, t_s: float) -> None:
+        ctx = self.ctx
+        states = ctx.session.states
+        self._configure_new(states)
+        platoon = ordered_platoon(states, ctx.cav_ids)
+        if not platoon:
+            return
+        if self.mode == CRUISE:
+            target = self._slow_vehicle_ahead(t_s, states, platoon)
+            if target is not None:
+                self._start_overtake(t_s, target)
+        if self.mode == OVERTAKE:
+            if self.target_id not in states:
+                ctx.event("target_left", target=self.target_id)
+                self._finish(t_s, completed=False)
+            elif self._overtake_done(states, platoon):
+                self._finish(t_s, completed=True)
+            else:
+                self._maybe_replan(t_s, states, platoon)
+        if self.mode == OVERTAKE and self.plan is not None:
+            self._track(t_s, states, platoon)
+        else:
+            self._cruise(states, platoon)
+
+    # ------------------------------------------------------------------ cruise
+    def _slow_vehicle_ahead(
+        self, t_s: float, states: dict[str, VehicleState], platoon: list[str]
+    ) -> VehicleState | None:
+        """The target once the leader has been held back long enough (see SwarmSettings)."""
+        sw = self.ctx.scenario.swarm
+        cav = self.ctx.scenario.cav
+        if self.ctx.road.n_lanes < 2 or t_s < sw.start_after_s:
+            return None
+        leader = states[platoon[0]]
+        ahead = vehicle_ahead(leader, states.values(), self.ctx.road)
+        slow = cav.cruising_speed_mps * sw.trigger_speed_ratio
+        if (
+            ahead is None
+            or ahead[0].is_cav
+            or ahead[1] > sw.detect_range_m
+            or ahead[0].speed_mps >= slow
+            or leader.speed_mps >= slow
+        ):
+            self.slow_since_s = None
+            return None
+        if self.slow_since_s is None:
+            self.slow_since_s = t_s
+        if t_s - self.slow_since_s + 1e-9 < sw.trigger_after_s:
+            return None
+        return ahead[0]
+
+    def _cruise(self, states: dict[str, VehicleState], platoon: list[str]) -> None:
+        """CACC following in the current lane, drifting back to the lane centre."""
+        ctx = self.ctx
+        sc = ctx.scenario
+        others = list(states.values())
+        dt = ctx.dt_s
+        for vid in platoon:
+            ego = states[vid]
+            ahead = vehicle_ahead(ego, others, ctx.road)
+            if ahead is None:
+                a = cacc_accel(ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc)
+            else:
+                lead, gap = ahead
+                a = cacc_accel(
+                    ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav, sc.cacc,
+                    ahead_is_cav=lead.is_cav,
+                )  # fmt: skip
+            ctx.session.set_speed(vid, ego.speed_mps + a * dt)
+            step = sc.cav.max_lateral_speed_mps * dt
+            ctx.session.change_sublane(vid, float(np.clip(-ego.lat_m, -step, step)))
+            self.phi[vid] = 0.0
+
+    # ------------------------------------------------------------------ overtake
+    def _start_overtake(self, t_s: float, target: VehicleState) -> None:
+        self.mode = OVERTAKE
+        self.target_id = target.vehicle_id
+        self.overtakes += 1
+        if self.t_start_s is None:
+            self.t_start_s = t_s
+        self.plan = None
+        self.trigger = ReplanTrigger(drift_cells=1)
+        self.ctx.event("overtake_start", target=target.vehicle_id)
+
+    def _finish(self, t_s: float, completed: bool) -> None:
+        self.mode = CRUISE
+        self.plan = None
+        self.references = {}
+        self.slow_since_s = None
+        if completed and self.t_done_s is None:
+            self.t_done_s = t_s
+        self.ctx.event("overtake_end", target=self.target_id, completed=completed)
+
+    def _overtake_done(self, states: dict[str, VehicleState], platoon: list[str]) -> bool:
+        target = states[self.target_id]
+        road = self.ctx.road
+        lane = self._regroup_lane(target)
+        y_lane = road.lane_centre_y(lane)
+        gap = self.ctx.scenario.cav.min_gap_m
+        for vid in platoon:
+            cav = states[vid]
+            if cav.rear_s_m < target.s_m + gap:
+                return False
+            if abs(road.y_of(cav.lane, cav.lat_m) - y_lane) > IN_LANE_TOL_M:
+                return False
+        return True
+
+    def _regroup_lane(self, target: VehicleState) -> int:
+        lane = self.planner_settings.regroup_lane
+        return target.lane if lane is None else lane
+
+    def _maybe_replan(self, t_s: float, states: dict[str, VehicleState], platoon: list[str]):
+        ctx = self.ctx
+        grid = self.grid
+        hv_ids: list[str] = []
+        cells: dict[str, tuple[int, int]] = {}
+        if grid is not None and self.plan is not None:
+            for vid, st in states.items():
+                if st.is_cav:
+                    continue
+                row = grid.row_of(st.centre_s_m, t_s)
+                if 0 <= row < grid.n_rows:
+                    hv_ids.append(vid)
+            cells = {vid: cav_cell(grid, states[vid], ctx.road, t_s) for vid in platoon}
+        reason = self.trigger.check(t_s, cells, hv_ids) if self.plan is not None else "initial"
+        if self.plan is None and self.trigger.plan is not None and reason is None:
+            return  # the last solve failed; the trigger says when to retry
+        if reason is None or (reason != "initial" and t_s < self.replan_not_before_s):
+            return
+        if reason == "drift" and t_s - self.last_plan_s < self.planner_settings.behaving_interval_s:
+            return  # give the tracker one behaving interval to converge before replanning
+        self._replan(t_s, reason, states, platoon)
+
+    def _replan(self, t_s: float, reason: str, states: dict[str, VehicleState], platoon):
+        ctx = self.ctx
+        sc = ctx.scenario
+        target = states[self.target_id]
+        cavs = [states[v] for v in platoon]
+        hvs = [s for v, s in states.items() if not s.is_cav and v != self.target_id]
+        record: dict[str, Any] = {"time_s": t_s, "trigger": reason}
+        grid = problem = plan = None
+        violations: list[str] = []
+        try:
+            # Mid-manoeuvre a CAV may sit inside an HV's headway margin (it cut in as
+            # planned, and the HV has not fallen back yet), which makes the full-margin problem
+            # infeasible: relax the margins step by step, down to the physical footprint.
+            for level, scale in enumerate(MARGIN_RELAXATION):
+                gs = replace(
+                    self.grid_settings,
+                    headway_s=self.grid_settings.headway_s * scale,
+                    gap_behind_m=self.grid_settings.gap_behind_m * scale,
+                )
+                grid = build_grid(cavs, target, ctx.road, t_s, target.speed_mps, gs)
+                problem = build_problem(grid, cavs, hvs, target, t_s, self.planner_settings, gs)
+                starts = deconflict_start_cells(problem.start_cells, grid.n_rows)
+                if starts != problem.start_cells:
+                    record["deconflicted"] = True
+                    problem = replace(problem, start_cells=starts)
+                plan = self.planner.plan(problem)
+                record["margin_scale"] = scale
+                if plan.ok or plan.status.value != "infeasible":
+                    break
+                if level == 0 and reason == "initial":
+                    break  # the first plan is made with the full margins or not at all
+            violations = validate_plan(problem, plan) if plan.ok else []
+        except Exception as exc:  # a planner bug must never stop the simulation
+            log.exception("planning failed")
+            plan = None
+            record.update(status="error", message=str(exc))
+        if plan is not None:
+            self.solve_ms.append(plan.solve_ms)
+            self.statuses[plan.status.value] += 1
+            record.update(
+                status=plan.status.value, solve_ms=plan.solve_ms, objective=plan.objective,
+                blockers=plan.blockers, violations=violations,
+                cells={c: list(map(list, plan.cells_of(c))) for c in plan.cav_ids}
+                if plan.ok else None,
+                grid={"origin_s_m": grid.origin_s_m, "t0_s": grid.t0_s,
+                      "speed_mps": grid.speed_mps, "cell_length_m": grid.cell_length_m,
+                      "n_rows": grid.n_rows, "n_cols": grid.n_cols},
+            )  # fmt: skip
+        else:
+            self.statuses["error"] += 1
+        self._write_plan(record)
+        if plan is not None and plan.ok and not violations:
+            self.plan, self.grid = plan, grid
+            self.last_plan_s = t_s
+            self.trigger.planned(plan, t_s, problem.hv_ids)
+            frame = GridFrame(
+                grid.origin_s_m, t_s, grid.speed_mps, grid.cell_length_m,
+                self.planner_settings.behaving_interval_s, ctx.road,
+            )  # fmt: skip
+            self.references = {}
+            for vid in platoon:
+                st = states[vid]
+                self.references[vid] = reference_from_cells(
+                    plan.cells_of(vid), frame, ctx.road,
+                    a_min=sc.cav.accel_min_mps2, a_max=sc.cav.accel_max_mps2,
+                    v_max=sc.cav.max_speed_mps,
+                    max_lat_speed_mps=0.9 * sc.cav.max_lateral_speed_mps,
+                    t_now=t_s, s_now=st.centre_s_m, y_now=ctx.road.y_of(st.lane, st.lat_m),
+                    v_now=st.speed_mps, a_now=st.accel_mps2,
+                )  # fmt: skip
+            return
+        # Failed, timed out or invalid: keep the last valid plan while it lasts, else CACC.
+        self.fallbacks += 1
+        self.replan_not_before_s = t_s + RETRY_AFTER_S
+        ctx.event("planner_fallback", trigger=reason, status=record.get("status"),
+                  kept_last_plan=self.plan is not None and reason != "plan_done")  # fmt: skip
+        if self.plan is not None and reason not in ("plan_done",):
+            self.trigger.planned(self.plan, self.trigger.planned_at_s or t_s, hv_ids_of(problem))
+            return
+        self.plan = None
+        failed = plan if plan is not None else None
+        if failed is not None:
+            self.trigger.planned(failed, t_s, ())
+
+    def _write_plan(self, record: dict[str, Any]) -> None:
+        if self._plans_file is not None:
+            self._plans_file.write(json.dumps(record, default=_json_default) + "\n")
+            self._plans_file.flush()
+
+    # ------------------------------------------------------------------ tracking
+    def _track(self, t_s: float, states: dict[str, VehicleState], platoon: list[str]) -> None:
+        ctx = self.ctx
+        sc = ctx.scenario
+        road = ctx.road
+        dt = ctx.dt_s
+        others = list(states.values())
+        lon, lat = self.lon_settings, self.lat_settings
+        for vid in platoon:
+            ego = states[vid]
+            ref = self.references.get(vid)
+            if ref is None:
+                continue
+            centre = ego.centre_s_m
+            y = road.y_of(ego.lane, ego.lat_m)
+            # Longitudinal, time domain.
+            _, s_ref, v_ref, _ = ref.sample_time(t_s, lon.dt_s, lon.horizon)
+            res = self.lon_mpc[vid].solve(centre, ego.speed_mps, s_ref, v_ref)
+            accel = res.u0
+            # Lateral, spatial domain: distance steps from the current speed.
+            ds = max(ego.speed_mps, 1.0) * lat.dt_s
+            _, y_ref, dy_ref, _ = ref.sample_space(centre, ds, lat.horizon)
+            kappa = np.full(lat.horizon, road.curvature_1pm)
+            lres = self.lat_mpc[vid].solve(y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds)
+            delta = lres.u0
+            self.lat_errors.append(y - float(y_ref[0]))
+            # The lateral move of this SUMO step from the kinematic model (eqs. 33-35).
+            ds_step = ego.speed_mps * dt
+            phi = self.phi[vid]
+            proposed = ds_step * math.sin(phi)
+            dlat = self._lateral_guard(ego, y, proposed, others)
+            if dlat != proposed:  # held by the guard: stop turning towards the other lane
+                phi = 0.0
+            else:
+                phi = phi + ds_step * (math.tan(delta) / sc.cav.wheelbase_m - road.curvature_1pm)
+            self.phi[vid] = phi
+            accel = min(accel, self._gap_guard(ego, y, y + dlat, others))
+            accel = min(max(accel, sc.cav.accel_min_mps2), sc.cav.accel_max_mps2)
+            ctx.session.set_speed(vid, ego.speed_mps + accel * dt)
+            ctx.session.change_sublane(vid, dlat)
+
+    def _gap_guard(self, ego: VehicleState, y_now: float, y_next: float, others) -> float:
+        """Largest acceleration that keeps the minimum gap to whatever is ahead [m/s^2]."""
+        cav = self.ctx.scenario.cav
+        limit = math.inf
+        for y in {y_now, y_next}:
+            ahead = vehicle_ahead(ego, others, self.ctx.road, y_m=y)
+            if ahead is None:
+                continue
+            lead, gap = ahead
+            d = cav.min_gap_m + 1.0
+            a = GUARD_GAP_GAIN * (gap - d) + GUARD_SPEED_GAIN * (lead.speed_mps - ego.speed_mps)
+            limit = min(limit, a)
+        return limit
+
+    def _lateral_guard(self, ego: VehicleState, y: float, dlat: float, others) -> float:
+        """Hold the lateral move while the lane it enters is not safe (returns the move)."""
+        road = self.ctx.road
+        if abs(dlat) < 1e-6:
+            return dlat
+        lane_now = road.lane_of_y(y)
+        lane_next = road.lane_of_y(y + dlat + math.copysign(0.9, dlat))
+        if lane_next == lane_now:
+            return dlat
+        y_probe = road.lane_centre_y(lane_next)
+        cav = self.ctx.scenario.cav
+        ahead = vehicle_ahead(ego, others, road, y_m=y_probe)
+        behind = vehicle_behind(ego, others, road, y_m=y_probe)
+        unsafe = ahead is not None and ahead[1] < cav.min_gap_m
+        if behind is not None:
+            follower, gap = behind
+            need = (
+                cav.min_gap_m
+                if follower.is_cav
+                else max(cav.min_gap_m, GUARD_HEADWAY_S * follower.speed_mps)
+            )
+            unsafe = unsafe or gap < need
+        if unsafe:
+            self.ctx.event("lateral_hold", vehicle=ego.vehicle_id, lane=lane_next)
+            return 0.0
+        return dlat
+
+    # ------------------------------------------------------------------ outputs
+    def summary(self) -> dict[str, Any]:
+        if self._plans_file is not None:
+            self._plans_file.close()
+            self._plans_file = None
+        self.replan_not_before_s = -math.inf
+        self.last_plan_s = -math.inf
+        interval = self.planner_settings.behaving_interval_s if self.ctx else 3.0
+        steps = None
+        if self.t_start_s is not None and self.t_done_s is not None:
+            steps = math.ceil((self.t_done_s - self.t_start_s) / interval - 1e-9)
+        return {
+            "overtake": {
+                "triggered": self.t_start_s is not None,
+                "target": self.target_id,
+                "t_start_s": self.t_start_s,
+                "behaving_steps": steps,
+            },
+            "planner": {
+                "solves": len(self.solve_ms),
+                **summarise_ms(self.solve_ms, prefix="solve_ms_"),
+                "statuses": dict(self.statuses),
+                "fallbacks": self.fallbacks,
+            },
+            "lat_error_rms_m": lateral_rms(self.lat_errors),
+        }
+
+
+def deconflict_start_cells(
+    cells: tuple[tuple[int, int], ...], n_rows: int
+) -> tuple[tuple[int, int], ...]:
+    """Give every CAV its own start cell.
+
+    A platoon that closed up below the cell pitch (gaps under one cell length) can put two
+    CAVs into one cell, which makes the MIP infeasible at its initial step. CAVs are served
+    front-most first (``cells`` is ordered leader first); one whose cell is taken gets the
+    nearest free row of its column, behind before ahead. The reference trajectory starts from
+    the true state anyway, so the shift only changes which row the plan starts from.
+    """
+    taken: set[tuple[int, int]] = set()
+    out: list[tuple[int, int]] = []
+    for row, col in cells:
+        chosen = (row, col)
+        for offset in (0, -1, 1, -2, 2, -3, 3):
+            candidate = (row + offset, col)
+            if 0 <= candidate[0] < n_rows and candidate not in taken:
+                chosen = candidate
+                break
+        taken.add(chosen)
+        out.append(chosen)
+    return tuple(out)
+
+
+def hv_ids_of(problem) -> tuple[str, ...]:
+    return tuple(problem.hv_ids) if problem is not None else ()
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, tuple | set | frozenset):
+        return list(obj)
+    return str(obj)
