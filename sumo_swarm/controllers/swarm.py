@@ -62,13 +62,9 @@ CRUISE, OVERTAKE = "cruise", "overtake"
 GUARD_GAP_GAIN = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v)
 GUARD_SPEED_GAIN = 1.5  # [1/s]
 GUARD_HEADWAY_S = 0.6  # lateral guard: follower headway below which a CAV holds its lane [s]
-IN_LANE_TOL_M = 0.3
-RETRY_AFTER_S = 1.0  # after a failed replan, wait this long before the next drift replan [s]
-MARGIN_RELAXATION = (
-    1.0,
-    0.5,
-    0.0,
-)  # HV margin scales tried in turn when a replan is infeasible  # a CAV is "in" a lane when its centre is this close to the lane centre
+IN_LANE_TOL_M = 0.3  # a CAV is "in" a lane when its centre is this close to the lane centre [m]
+RETRY_AFTER_S = 1.0  # after a failed replan, wait this long before the next replan [s]
+MARGIN_RELAXATION = (1.0, 0.5, 0.0)  # HV margin scales tried in turn when a replan is infeasible
 
 
 class SwarmController:
