@@ -55,7 +55,7 @@ class PlannerWeights:
     ``d`` columns off the regroup lane costs ``w_lat * d**2`` per step once no CAV is impeded.
     """
 
-    w_tar: float = 10.0
+    w_tar: float = 30.0
     w_lon: float = 1.0
     w_lat: float = 3.0
 
