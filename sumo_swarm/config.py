@@ -278,7 +278,9 @@ class SwarmSettings:
     trigger_after_s: float = 2.0  # ...for this long, by a slower vehicle ahead: overtake
     detect_range_m: float = 60.0  # the slower vehicle must be within this gap of the leader
     start_after_s: float = 1.0  # no overtaking decision before this time
-    control_interval_steps: int = 1  # MPC re-solve period in SUMO steps
+    # MPC re-solve period in SUMO steps; in between, the solved inputs are applied (zero-order
+    # hold on the MPC's own 0.1 s step). 3 steps = 0.09 s at the paper's 0.03 s step.
+    control_interval_steps: int = 3
     drift_rows: float = 0.75  # replan when a CAV is this many cells off its reference
     regroup_lane: int | None = None  # None: the platoon's original lane
 

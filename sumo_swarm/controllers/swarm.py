@@ -92,6 +92,9 @@ class SwarmController:
         self._plans_file = None
         self.replan_not_before_s = -math.inf
         self.last_plan_s = -math.inf
+        self.inputs: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+        self.mpc_ms: list[float] = []
+        self._step_count = 0
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:
@@ -316,6 +319,7 @@ class SwarmController:
                 self.planner_settings.behaving_interval_s, ctx.road,
             )  # fmt: skip
             self.references = {}
+            self.inputs = {}
             for vid in platoon:
                 st = states[vid]
                 self.references[vid] = reference_from_cells(
@@ -353,6 +357,8 @@ class SwarmController:
         dt = ctx.dt_s
         others = list(states.values())
         lon, lat = self.lon_settings, self.lat_settings
+        solve_now = self._step_count % self.ctx.scenario.swarm.control_interval_steps == 0
+        self._step_count += 1
         for vid in platoon:
             ego = states[vid]
             ref = self.references.get(vid)
@@ -360,17 +366,24 @@ class SwarmController:
                 continue
             centre = ego.centre_s_m
             y = road.y_of(ego.lane, ego.lat_m)
-            # Longitudinal, time domain.
-            _, s_ref, v_ref, _ = ref.sample_time(t_s, lon.dt_s, lon.horizon)
-            res = self.lon_mpc[vid].solve(centre, ego.speed_mps, s_ref, v_ref)
-            accel = res.u0
-            # Lateral, spatial domain: distance steps from the current speed.
-            ds = max(ego.speed_mps, 1.0) * lat.dt_s
-            _, y_ref, dy_ref, _ = ref.sample_space(centre, ds, lat.horizon)
-            kappa = np.full(lat.horizon, road.curvature_1pm)
-            lres = self.lat_mpc[vid].solve(y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds)
-            delta = lres.u0
-            self.lat_errors.append(y - float(y_ref[0]))
+            if solve_now or vid not in self.inputs:
+                # Longitudinal, time domain.
+                _, s_ref, v_ref, _ = ref.sample_time(t_s, lon.dt_s, lon.horizon)
+                res = self.lon_mpc[vid].solve(centre, ego.speed_mps, s_ref, v_ref)
+                # Lateral, spatial domain: distance steps from the current speed.
+                ds = max(ego.speed_mps, 1.0) * lat.dt_s
+                _, y_ref, dy_ref, _ = ref.sample_space(centre, ds, lat.horizon)
+                kappa = np.full(lat.horizon, road.curvature_1pm)
+                lres = self.lat_mpc[vid].solve(
+                    y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds
+                )
+                self.inputs[vid] = (t_s, res.inputs, lres.inputs)
+                self.mpc_ms.append(res.solve_ms + lres.solve_ms)
+            # Between solves, apply the solved input sequences (zero-order hold on dt_s).
+            t_solved, accels, deltas = self.inputs[vid]
+            accel = float(accels[min(int((t_s - t_solved) / lon.dt_s + 1e-9), len(accels) - 1)])
+            delta = float(deltas[min(int((t_s - t_solved) / lat.dt_s + 1e-9), len(deltas) - 1)])
+            self.lat_errors.append(y - ref.y_at_s(centre))
             # The lateral move of this SUMO step from the kinematic model (eqs. 33-35).
             ds_step = ego.speed_mps * dt
             phi = self.phi[vid]
@@ -434,6 +447,9 @@ class SwarmController:
             self._plans_file = None
         self.replan_not_before_s = -math.inf
         self.last_plan_s = -math.inf
+        self.inputs: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+        self.mpc_ms: list[float] = []
+        self._step_count = 0
         interval = self.planner_settings.behaving_interval_s if self.ctx else 3.0
         steps = None
         if self.t_start_s is not None and self.t_done_s is not None:
@@ -452,6 +468,7 @@ class SwarmController:
                 "fallbacks": self.fallbacks,
             },
             "lat_error_rms_m": lateral_rms(self.lat_errors),
+            "mpc": summarise_ms(self.mpc_ms, prefix="solve_ms_per_cav_"),
         }
 
 
