@@ -16,7 +16,7 @@ from tqdm import tqdm
 from sumo_swarm.bridge import SumoSession
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
-from sumo_swarm.controllers.base import RunContext
+from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError, SimulationError
 from sumo_swarm.scene import CAV_TYPE, sumo_options, write_sumo_inputs
 from sumo_swarm.summary import build_summary
@@ -69,17 +69,20 @@ def run_scenario(
     fcd: bool = False,
     progress: bool | None = None,
     gui: bool = False,
+    controller: Controller | None = None,
 ) -> dict[str, Any]:
     """Run ``scenario`` under ``controller_name`` headless; write and return the summary.
 
     Outputs in ``out_dir``: ``summary.json``, ``trajectories.parquet``, ``events.jsonl``, the
     SUMO inputs under ``sumo/`` (open ``sumo/scenario.sumocfg`` in sumo-gui to watch the scene)
-    and, with ``fcd``, SUMO's own ``fcd.xml``.
+    and, with ``fcd``, SUMO's own ``fcd.xml``. ``controller`` replaces the named controller
+    with an object of one's own (e.g. a swarm with another planner); ``controller_name`` still
+    selects the CAVs' vehicle type.
     """
     out = prepare_out_dir(out_dir)
     if seed is not None:
         scenario = replace(scenario, simulation=replace(scenario.simulation, seed=seed))
-    controller = make_controller(controller_name)
+    controller = controller or make_controller(controller_name)
     cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo")
     args = ["-c", str(cfg), *sumo_options(scenario)]
     if fcd:

@@ -47,6 +47,7 @@ from sumo_swarm.metrics import lateral_rms, summarise_ms
 from sumo_swarm.model import VehicleState
 from sumo_swarm.neighbours import ordered_platoon, vehicle_ahead, vehicle_behind
 from sumo_swarm.planner import (
+    CellPlanner,
     Plan,
     ReplanTrigger,
     build_problem,
@@ -72,8 +73,10 @@ class SwarmController:
 
     name = "swarm"
 
-    def __init__(self) -> None:
+    def __init__(self, planner: CellPlanner | None = None) -> None:
+        """``planner`` replaces the planner built from the scenario's ``[planner]`` section."""
         self.ctx: RunContext | None = None
+        self._planner_override = planner
         self.mode = CRUISE
         self.target_id: str | None = None
         self.slow_since_s: float | None = None
@@ -106,7 +109,7 @@ class SwarmController:
         self.planner_settings = sc.planner
         if sc.swarm.regroup_lane is not None:
             self.planner_settings = replace(sc.planner, regroup_lane=sc.swarm.regroup_lane)
-        self.planner = make_planner(self.planner_settings)
+        self.planner = self._planner_override or make_planner(self.planner_settings)
         self.trigger = ReplanTrigger(drift_cells=1)
         self.lon_settings = sc.longitudinal
         self.lat_settings = sc.lateral

@@ -1,0 +1,111 @@
+"""The swarm on the paper scene, through real SUMO: the paper's behaviour, safely."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import pandas as pd
+import pytest
+
+from sumo_swarm.config import load_scenario
+from sumo_swarm.controllers.swarm import SwarmController
+from sumo_swarm.planner import Plan, PlanStatus
+from sumo_swarm.runner import run_scenario
+from tests.conftest import PAPER
+from tests.contract import assert_summary_contract
+
+pytestmark = pytest.mark.sumo
+
+
+@pytest.fixture(scope="module")
+def swarm_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("swarm")
+    summary = run_scenario(load_scenario(PAPER), "swarm", out, progress=False)
+    return summary, out
+
+
+def test_overtakes_and_regroups_in_the_original_lane(swarm_run):
+    summary, out = swarm_run
+    assert_summary_contract(summary)
+    ot = summary["overtake"]
+    assert ot["triggered"] and ot["completed"] and ot["regrouped"]
+    assert ot["target"] == "hv_target"
+    assert ot["t_start_s"] < ot["t_end_s"] <= ot["t_regrouped_s"]
+    assert ot["behaving_steps"] <= 14  # the paper plans the overtake within 14 behaving steps
+    df = pd.read_parquet(out / "trajectories.parquet")
+    end = df[df["time_s"] == df["time_s"].max()]
+    cavs = end[end["kind"] == "cav"]
+    assert set(cavs["lane"]) == {1}
+    assert (cavs["s_m"] - 5.0 > float(end[end["vehicle"] == "hv_target"]["s_m"].iloc[0])).all()
+
+
+def test_swarm_uses_both_adjacent_lanes_and_blocks(swarm_run):
+    _, out = swarm_run
+    df = pd.read_parquet(out / "trajectories.parquet")
+    assert {0, 1, 2} <= set(df[df["kind"] == "cav"]["lane"])
+    first = json.loads((out / "plans.jsonl").read_text().splitlines()[0])
+    assert set(first["blockers"].values()) == {"hv_left", "hv_right"}
+    assert first["status"] == "optimal"
+    assert first["violations"] == []
+
+
+def test_safety_and_tracking(swarm_run):
+    summary, _ = swarm_run
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["hard_brakes"] == 0
+    assert summary["safety"]["teleports"] == 0
+    assert summary["cav"]["gap_min_m"] >= 5.0
+    assert summary["cav"]["lat_error_rms_m"] <= 0.3
+
+
+def test_mobility_target(swarm_run):
+    summary, _ = swarm_run
+    assert summary["cav"]["mean_speed_mps"] >= 19.0  # paper: 19.43 m/s
+    assert summary["planner"]["solves"] >= 1
+    assert summary["planner"]["fallbacks"] == 0
+
+
+class _FailingPlanner:
+    """Stands in for a solver that never finds a plan (infeasible or timed out)."""
+
+    def __init__(self, status: PlanStatus) -> None:
+        self.status = status
+        self.calls = 0
+
+    def plan(self, problem, hint=None) -> Plan:
+        self.calls += 1
+        return Plan(self.status, None, None, 1.0, "test", cav_ids=problem.cav_ids,
+                    message="no plan")  # fmt: skip
+
+
+@pytest.mark.parametrize("status", [PlanStatus.TIMEOUT, PlanStatus.INFEASIBLE])
+def test_planner_failure_falls_back_to_a_safe_platoon(tmp_path, status):
+    sc = load_scenario(PAPER)
+    sc = replace(sc, simulation=replace(sc.simulation, duration_s=30.0),
+                 evaluation=replace(sc.evaluation, end_s=30.0))  # fmt: skip
+    planner = _FailingPlanner(status)
+    summary = run_scenario(
+        sc, "swarm", tmp_path, progress=False, controller=SwarmController(planner=planner)
+    )
+    assert planner.calls >= 2  # retried after the cool-down
+    assert summary["planner"]["fallbacks"] == planner.calls
+    assert summary["planner"]["statuses"] == {status.value: planner.calls}
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["hard_brakes"] == 0
+    assert summary["cav"]["gap_min_m"] >= 5.0
+    assert summary["overtake"]["completed"] is False
+    events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert any(e["event"] == "planner_fallback" for e in events)
+    df = pd.read_parquet(tmp_path / "trajectories.parquet")
+    assert set(df[df["kind"] == "cav"]["lane"]) == {1}  # stayed a platoon in its lane
+
+
+def test_real_solver_time_limit_never_crashes(tmp_path):
+    sc = load_scenario(PAPER, overrides={"planner": {"time_limit_s": 0.001}})
+    sc = replace(sc, simulation=replace(sc.simulation, duration_s=20.0),
+                 evaluation=replace(sc.evaluation, end_s=20.0))  # fmt: skip
+    summary = run_scenario(sc, "swarm", tmp_path, progress=False)
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["hard_brakes"] == 0
+    assert summary["planner"]["solves"] >= 1
