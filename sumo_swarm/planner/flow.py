@@ -98,9 +98,11 @@ def reachable_cells(problem: PlanningProblem) -> list[set[Cell]] | str:
             for cell in layers[k]
             if any(nxt in after for nxt in _neighbours(cell, n_rows, n_cols))
         }
-    for k, layer in enumerate(layers):
-        if len(layer) < problem.n_cavs or (k == 0 and layer != set(problem.start_cells)):
-            return f"no way through the HV-blocked cells at step {k}"
+    if layers[0] != set(problem.start_cells):
+        return "a CAV has no way through the HV-blocked cells"
+    for k, layer in enumerate(layers[1:], start=1):
+        if len(layer) < problem.n_cavs:
+            return f"fewer free reachable cells than CAVs at step {k}"
     return layers
 
 

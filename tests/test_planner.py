@@ -1,0 +1,455 @@
+"""Cell planner: hand-solved grids, brute force, the paper's Figure 7 scene, validator, triggers."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import random
+
+import pytest
+
+from sumo_swarm.errors import ConfigError
+from sumo_swarm.grid import GridSettings, build_grid
+from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.planner import (
+    Blocker,
+    CpSatPlanner,
+    Plan,
+    PlannerSettings,
+    PlannerWeights,
+    PlanningProblem,
+    PlanStatus,
+    ReplanTrigger,
+    ScipPlanner,
+    build_problem,
+    evaluate_objective,
+    make_planner,
+    shift_plan,
+    validate_plan,
+)
+
+W = PlannerWeights(w_tar=10, w_lon=1, w_lat=1)  # integer weights: objectives compare exactly
+
+
+def small_problem(
+    n_rows: int,
+    n_cols: int,
+    n_steps: int,
+    starts: list[tuple[int, int]],
+    goal_row: int,
+    lane: int = 0,
+    blocked: frozenset = frozenset(),
+    **kwargs,
+) -> PlanningProblem:
+    options = {"weights": W, "target_form": "paper", **kwargs}
+    return PlanningProblem(
+        n_rows=n_rows,
+        n_cols=n_cols,
+        n_steps=n_steps,
+        cav_ids=tuple(f"c{i}" for i in range(len(starts))),
+        start_cells=tuple(starts),
+        blocked=(frozenset(),) + (frozenset(blocked),) * (n_steps - 1),
+        goal_rows=(goal_row,) * n_steps,
+        regroup_lane=lane,
+        **options,
+    )
+
+
+def plan_of(problem: PlanningProblem, cells, blockers=None) -> Plan:
+    return Plan(
+        status=PlanStatus.OPTIMAL,
+        cells=tuple(tuple(path) for path in cells),
+        objective=None,
+        solve_ms=0.0,
+        backend="hand",
+        blockers=blockers if blockers is not None else {},
+        cav_ids=problem.cav_ids,
+    )
+
+
+def solve_both(problem: PlanningProblem) -> tuple[Plan, Plan]:
+    plans = CpSatPlanner(10.0).plan(problem), ScipPlanner(10.0).plan(problem)
+    for plan in plans:
+        assert plan.status is PlanStatus.OPTIMAL, plan.message
+        assert validate_plan(problem, plan) == []
+        assert evaluate_objective(problem, plan.cells) == pytest.approx(plan.objective)
+    return plans
+
+
+# ----------------------------------------------------------------------------- hand-solved
+
+
+def test_one_cav_2x2_moves_up():
+    # Start (0,0), goal region = row 1, 3 steps. Best: up at step 1 (2 * w_lon = 2), stay.
+    # Staying costs w_tar = 10 per step below the goal.
+    problem = small_problem(2, 2, 3, [(0, 0)], goal_row=1)
+    for plan in solve_both(problem):
+        assert plan.objective == 2
+        assert plan.cells == (((0, 0), (1, 0), (1, 0)),)
+
+
+def test_one_cav_2x2_lateral_move_is_free_once_past():
+    # Regroup lane 1. Up (2), then right at step 1 -> 2: delta_1 = 0 (nobody impeded) so the
+    # move is free, but at step 1 it pays the regroup cost w_lat * 1^2 = 1. Total 3. Moving
+    # right first costs 2 * w_lat (delta_0 = 1) + 10 (still behind at step 1): worse.
+    problem = small_problem(2, 2, 3, [(0, 0)], goal_row=1, lane=1)
+    for plan in solve_both(problem):
+        assert plan.objective == 3
+        assert plan.cells == (((0, 0), (1, 0), (1, 1)),)
+
+
+def test_two_cavs_3x2_leader_steps_aside():
+    # c0 at (1,0), c1 at (0,0), goal = row 2, lane 0, 3 steps. Best: c0 up (2) then right (2,
+    # delta_1 = 1 as c1 is still behind); c1 up twice (4); c1 pays 10 at step 1; at step 2 all
+    # are past, c0 pays the regroup cost 1. Total 2 + 2 + 4 + 10 + 1 = 19. Leaving c1 behind:
+    # 2 + 2 + 10 + 10 = 24.
+    problem = small_problem(3, 2, 3, [(1, 0), (0, 0)], goal_row=2)
+    for plan in solve_both(problem):
+        assert plan.objective == 19
+        assert plan.cells == (
+            ((1, 0), (2, 0), (2, 1)),
+            ((0, 0), (1, 0), (2, 0)),
+        )
+
+
+def test_distance_form_and_per_cav_delta():
+    # Distance form: a CAV two rows behind pays 2 * w_tar. 1 CAV at (0,0), goal row 2, 3 steps:
+    # up, up: moves 4, target at step 1 = 10 -> 14.
+    problem = small_problem(3, 1, 3, [(0, 0)], goal_row=2, target_form="distance")
+    for plan in solve_both(problem):
+        assert plan.objective == 14
+    # Delta: c0 is past (row 2) but off the regroup lane 0, c1 is behind at (0,0); 2 steps.
+    # c1 stays (paper form: 10 whether 1 or 2 rows behind; moving up adds 2). Swarm delta: c1
+    # is impeded, so c0's lateral move would cost 2 and its regroup cost is waived: c0 stays.
+    # Per-CAV delta: c0 is past, its move is free and saves the regroup cost 1: c0 moves.
+    # Both total 10.
+    swarm = small_problem(3, 2, 2, [(2, 1), (0, 0)], goal_row=2)
+    per_cav = dataclasses.replace(swarm, delta_mode="cav")
+    for plan in solve_both(swarm):
+        assert plan.objective == 10
+        assert plan.cells == (((2, 1), (2, 1)), ((0, 0), (0, 0)))
+    for plan in solve_both(per_cav):
+        assert plan.objective == 10
+        assert plan.cells == (((2, 1), (2, 0)), ((0, 0), (0, 0)))
+
+
+def test_hv_blocked_cells_force_a_detour():
+    # 1 CAV at (0,0), HV claims (1,0) from step 1 on; goal row 2, 4 steps, lane 0.
+    # Path (0,0) -> (0,1) -> (1,1) -> (2,1): lat 2 + lon 2 + lon 2; target 10 + 10 at steps 1, 2;
+    # at step 3 past, off lane: regroup 1. Total 27. (Waiting is worse: 10 per step.)
+    problem = small_problem(3, 2, 4, [(0, 0)], goal_row=2, blocked=frozenset({(1, 0)}))
+    for plan in solve_both(problem):
+        assert plan.objective == 27
+        assert (1, 0) not in plan.cells[0][1:]
+
+
+def test_swap_is_forbidden():
+    # Costs never reward a swap (both cells stay occupied), but a blocker names its CAV: c0
+    # must take c1's cell at step 1. In a 1x2 grid c1 could only leave by swapping: infeasible.
+    # In a 2x2 grid c1 steps up instead.
+    blocker = Blocker(0, "c0", "h", (0, 1))
+    narrow = small_problem(1, 2, 2, [(0, 0), (0, 1)], goal_row=0, blockers=(blocker,))
+    for planner in (CpSatPlanner(1.0, retry_without_blockers=False), ScipPlanner(1.0, False)):
+        assert planner.plan(narrow).status is PlanStatus.INFEASIBLE
+    wide = small_problem(2, 2, 2, [(0, 0), (0, 1)], goal_row=0, blockers=(blocker,))
+    for plan in solve_both(wide):
+        assert plan.cells == (((0, 0), (0, 1)), ((0, 1), (1, 1)))
+
+
+def test_infeasible_grids():
+    # The only cell is claimed from step 1 on.
+    problem = small_problem(1, 1, 3, [(0, 0)], goal_row=1, blocked=frozenset({(0, 0)}))
+    for planner in (CpSatPlanner(1.0), ScipPlanner(1.0)):
+        plan = planner.plan(problem)
+        assert plan.status is PlanStatus.INFEASIBLE
+        assert plan.cells is None
+    # Two CAVs start in the same cell of a 1x1 grid: they cannot separate at step 1.
+    problem = small_problem(1, 1, 2, [(0, 0), (0, 0)], goal_row=0)
+    assert CpSatPlanner(1.0).plan(problem).status is PlanStatus.INFEASIBLE
+
+
+def test_shared_start_cell_splits():
+    # Two CAVs whose centres fall in one cell at step 0 must separate at step 1.
+    problem = small_problem(3, 1, 3, [(0, 0), (0, 0)], goal_row=1)
+    for plan in solve_both(problem):
+        assert {plan.cells[0][1], plan.cells[1][1]} == {(0, 0), (1, 0)}
+
+
+def test_blockers_are_enforced_or_dropped():
+    blocker = Blocker(0, "c0", "h", (1, 1), hold_steps=2)
+    problem = small_problem(3, 2, 4, [(1, 0), (0, 0)], goal_row=2, blockers=(blocker,))
+    for plan in solve_both(problem):
+        assert plan.cells[0][1:3] == ((1, 1), (1, 1))
+        assert plan.blockers == {"c0": "h"}
+    # A blocker whose cell is claimed by an HV: infeasible, then planned without blockers.
+    blocked = small_problem(
+        3, 2, 4, [(1, 0), (0, 0)], goal_row=2, blocked={(1, 1)}, blockers=(blocker,)
+    )
+    assert CpSatPlanner(1.0, retry_without_blockers=False).plan(blocked).status is (
+        PlanStatus.INFEASIBLE
+    )
+    plan = CpSatPlanner(1.0).plan(blocked)
+    assert plan.ok and plan.blockers == {} and "blockers dropped" in plan.message
+
+
+# ----------------------------------------------------------------------------- brute force
+
+
+def brute_force(problem: PlanningProblem) -> float | None:
+    moves = ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))
+    paths_per_cav = []
+    for start in problem.start_cells:
+        paths = []
+        for seq in itertools.product(moves, repeat=problem.n_steps - 1):
+            path = [start]
+            for dr, dc in seq:
+                r, c = path[-1]
+                path.append((r + dr, c + dc))
+            if all(0 <= r < problem.n_rows and 0 <= c < problem.n_cols for r, c in path):
+                if not any(cell in problem.blocked[k] for k, cell in enumerate(path) if k):
+                    paths.append(tuple(path))
+        paths_per_cav.append(paths)
+    best = None
+    for combo in itertools.product(*paths_per_cav):
+        plan = plan_of(problem, combo, {b.cav_id: b.hv_id for b in problem.blockers})
+        if validate_plan(problem, plan):
+            continue
+        value = evaluate_objective(problem, combo)
+        best = value if best is None or value < best else best
+    return best
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_random_small_grids_match_brute_force_and_backends_agree(seed):
+    rng = random.Random(seed)
+    n_rows, n_cols = rng.randint(2, 4), rng.randint(1, 3)
+    n_steps = rng.randint(3, 4)
+    n_cavs = rng.randint(1, 2)
+    cells = [(r, c) for r in range(n_rows) for c in range(n_cols)]
+    starts = rng.sample(cells, n_cavs)
+    free = [cell for cell in cells if cell not in starts]
+    blocked = frozenset(rng.sample(free, rng.randint(0, min(2, len(free)))))
+    problem = small_problem(
+        n_rows,
+        n_cols,
+        n_steps,
+        starts,
+        goal_row=rng.randint(1, n_rows - 1) if n_rows > 1 else 0,
+        lane=rng.randrange(n_cols),
+        blocked=blocked,
+        weights=PlannerWeights(rng.randint(1, 12), rng.randint(0, 3), rng.randint(0, 4)),
+        target_form=rng.choice(["paper", "distance"]),
+        delta_mode=rng.choice(["swarm", "cav"]),
+    )
+    expected = brute_force(problem)
+    plans = [CpSatPlanner(10.0).plan(problem), ScipPlanner(10.0).plan(problem)]
+    for plan in plans:
+        if expected is None:
+            assert plan.status is PlanStatus.INFEASIBLE
+        else:
+            assert plan.status is PlanStatus.OPTIMAL, plan.message
+            assert validate_plan(problem, plan) == []
+            assert plan.objective == pytest.approx(expected)
+
+
+# ----------------------------------------------------------------------------- Figure 7
+
+
+def veh(vid: str, s_m: float, lane: int) -> VehicleState:
+    return VehicleState(vid, float(s_m), lane, 0.0, 17.5, 5.0)
+
+
+def fig7_problem(settings: PlannerSettings | None = None) -> PlanningProblem:
+    road = RoadSection((3.0, 3.0, 3.0))
+    cavs = [dataclasses.replace(veh(f"cav{i}", 300 - 15 * i, 1), is_cav=True) for i in range(6)]
+    target = veh("target", 315, 1)
+    hvs = [target, veh("left", 255, 2), veh("right", 240, 0)]
+    hvs += [veh(f"up1_{s}", s, 1) for s in (195, 165, 135)]
+    hvs += [veh(f"up2_{s}", s, 2) for s in (225, 195)]
+    hvs += [veh(f"up0_{s}", s, 0) for s in (210, 180)]
+    grid_settings = GridSettings()
+    grid = build_grid(cavs, target, road, 0.0, 17.5, grid_settings)
+    settings = settings or PlannerSettings()
+    return build_problem(grid, cavs, hvs, target, 0.0, settings, grid_settings)
+
+
+def test_fig7_problem_data():
+    problem = fig7_problem()
+    assert problem.n_rows == 14 and problem.n_cols == 3 and problem.n_steps == 14
+    assert problem.start_cells == ((5, 1), (4, 1), (3, 1), (2, 1), (1, 1), (0, 1))
+    assert problem.goal_rows == (8,) * 14
+    assert problem.regroup_lane == 1
+    # Hand-computed footprints (see test_grid): target rows 6-7 lane 1; left HV rows 2-3 and
+    # upstream HV (front 225) rows 0-1 in lane 2; right HV rows 1-2 and upstream HV (front 210)
+    # row 0 in lane 0. The lane 1 upstream HVs are behind the grid.
+    expected = {(6, 1), (7, 1), (0, 2), (1, 2), (2, 2), (3, 2), (0, 0), (1, 0), (2, 0)}
+    assert all(step == expected for step in problem.blocked)
+    assert problem.hv_ids == ("left", "right", "target", "up0_210", "up2_225")
+    # Leader blocks the left HV (the frontmost), the second CAV the right HV.
+    assert [(b.cav_id, b.hv_id, b.cell) for b in problem.blockers] == [
+        ("cav0", "left", (5, 2)),
+        ("cav1", "right", (4, 0)),
+    ]
+
+
+@pytest.mark.parametrize("backend", ["cp-sat", "scip"])
+def test_fig7_swarm_overtakes_blocks_and_regroups(backend):
+    problem = fig7_problem()
+    plan = make_planner(PlannerSettings(backend=backend, time_limit_s=30.0)).plan(problem)
+    assert plan.status is PlanStatus.OPTIMAL, plan.message
+    assert validate_plan(problem, plan) == []
+    assert plan.blockers == {"cav0": "left", "cav1": "right"}
+    assert plan.cells_of("cav0")[1] == (5, 2) and plan.cells_of("cav1")[1] == (4, 0)
+    columns_used = {col for path in plan.cells for _, col in path}
+    assert columns_used == {0, 1, 2}
+    # Every CAV passes the target (rows 6-7) within the horizon and ends regrouped in lane 1.
+    final = sorted(path[-1] for path in plan.cells)
+    assert final == [(row, 1) for row in range(8, 14)]
+    assert evaluate_objective(problem, plan.cells) == pytest.approx(plan.objective)
+
+
+def test_fig7_both_backends_same_objective_and_paper_form_reachable():
+    for settings in (PlannerSettings(), PlannerSettings(target_form="paper", delta_mode="cav")):
+        problem = fig7_problem(settings)
+        cp, scip = solve_both(problem)
+        assert cp.objective == scip.objective
+
+
+# ----------------------------------------------------------------------------- robustness
+
+
+def test_too_short_time_limit_never_raises():
+    problem = fig7_problem()
+    for planner in (CpSatPlanner(1e-4), ScipPlanner(1e-4), CpSatPlanner(0.02)):
+        plan = planner.plan(problem)
+        assert plan.status in (PlanStatus.TIMEOUT, PlanStatus.FEASIBLE, PlanStatus.OPTIMAL)
+        if plan.cells is not None:
+            assert validate_plan(problem, plan) == []
+        else:
+            assert plan.status is PlanStatus.TIMEOUT
+
+
+def test_solver_exception_becomes_error_plan(monkeypatch):
+    import sumo_swarm.planner.solvers as solvers
+
+    def boom(problem):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(solvers, "build_flow_model", boom)
+    plan = CpSatPlanner(1.0).plan(small_problem(2, 1, 2, [(0, 0)], goal_row=1))
+    assert plan.status is PlanStatus.ERROR and plan.cells is None and "boom" in plan.message
+
+
+def test_hint_from_shifted_plan_is_accepted():
+    problem = fig7_problem()
+    first = CpSatPlanner(30.0).plan(problem)
+    hint = shift_plan(first, 0)
+    again = CpSatPlanner(30.0).plan(problem, hint=hint)
+    assert again.status is PlanStatus.OPTIMAL and again.objective == first.objective
+
+
+# ----------------------------------------------------------------------------- settings
+
+
+def test_settings_validation():
+    for kwargs, name in [
+        ({"n_steps": 1}, "n_steps"),
+        ({"behaving_interval_s": 0.0}, "behaving_interval_s"),
+        ({"backend": "gurobi"}, "backend"),
+        ({"time_limit_s": -1.0}, "time_limit_s"),
+        ({"weights": {"w_tar": 1, "w_up": 2}}, "weights"),
+        ({"weights": {"w_tar": -1}}, "w_tar"),
+        ({"regroup_lane": -1}, "regroup_lane"),
+        ({"target_form": "sum"}, "target_form"),
+        ({"delta_mode": "any"}, "delta_mode"),
+        ({"block_steps": 14}, "block_steps"),
+    ]:
+        with pytest.raises(ConfigError, match=name):
+            PlannerSettings(**kwargs)
+    assert PlannerSettings(weights={"w_tar": 5}).weights == PlannerWeights(5, 1, 3)
+
+
+# ----------------------------------------------------------------------------- validator
+
+
+def test_validator_rejects_each_broken_constraint():
+    blocker = Blocker(0, "c0", "h", (1, 1))
+    problem = small_problem(
+        4, 3, 3, [(1, 0), (0, 0)], goal_row=2, blocked={(3, 2)}, blockers=(blocker,)
+    )
+    good = [[(1, 0), (1, 1), (2, 1)], [(0, 0), (1, 0), (2, 0)]]
+    blockers = {"c0": "h"}
+    assert validate_plan(problem, plan_of(problem, good, blockers)) == []
+
+    def broken(change, expect, plan_blockers=blockers):
+        cells = [list(path) for path in good]
+        change(cells)
+        errors = validate_plan(problem, plan_of(problem, cells, plan_blockers))
+        assert errors and any(expect in e for e in errors), errors
+
+    broken(lambda c: c[1].__setitem__(0, (0, 1)), "starts in")
+    broken(lambda c: c[1].__setitem__(2, (1, -1)), "outside the grid")
+    broken(lambda c: c[1].__setitem__(2, (2, 1)) or c[0].__setitem__(2, (1, 1)), "jump")
+    broken(lambda c: c[0].__setitem__(2, (3, 1)), "jump")
+    broken(lambda c: c[1].__setitem__(2, (2, 1)), "share")
+    broken(lambda c: c[0].__setitem__(1, (1, 0)) or c[1].__setitem__(1, (0, 0)), "blocker")
+    broken(lambda c: None, "blockers", plan_blockers={})
+    broken(lambda c: c[0].pop(), "steps")
+    assert validate_plan(problem, dataclasses.replace(plan_of(problem, good), cells=None))
+    # HV-claimed cell.
+    hv_problem = dataclasses.replace(problem, blocked=(frozenset(), frozenset(), {(2, 1)}))
+    errors = validate_plan(hv_problem, plan_of(hv_problem, good, blockers))
+    assert any("claimed by an HV" in e for e in errors)
+    # Swap: c0 and c1 trade (1,0) <-> (0,0)... build one on a problem without blockers.
+    plain = dataclasses.replace(problem, blockers=())
+    swap = [[(1, 0), (0, 0), (0, 0)], [(0, 0), (1, 0), (1, 0)]]
+    assert any("swap" in e for e in validate_plan(plain, plan_of(plain, swap)))
+
+
+def test_validator_is_cheap():
+    import time
+
+    problem = fig7_problem()
+    plan = CpSatPlanner(30.0).plan(problem)
+    started = time.perf_counter()
+    for _ in range(100):
+        assert validate_plan(problem, plan) == []
+    assert (time.perf_counter() - started) / 100 < 1e-3
+
+
+# ----------------------------------------------------------------------------- plan helpers
+
+
+def test_shift_plan_and_cells_of():
+    problem = small_problem(3, 1, 3, [(0, 0)], goal_row=2)
+    plan = dataclasses.replace(
+        plan_of(problem, [[(0, 0), (1, 0), (2, 0)]]), t0_s=10.0, behaving_interval_s=3.0
+    )
+    assert plan.cells_of("c0") == ((0, 0), (1, 0), (2, 0))
+    assert plan.cell_at("c0", 7) == (2, 0)
+    with pytest.raises(KeyError):
+        plan.cells_of("nobody")
+    shifted = shift_plan(plan, 1)
+    assert shifted.cells == (((1, 0), (2, 0), (2, 0)),)
+    assert shifted.t0_s == pytest.approx(13.0)
+    assert shift_plan(plan, 0) is plan
+
+
+def test_replan_trigger_reasons():
+    problem = small_problem(4, 2, 4, [(0, 0)], goal_row=3)
+    plan = dataclasses.replace(
+        plan_of(problem, [[(0, 0), (1, 0), (2, 0), (3, 0)]]), t0_s=0.0, behaving_interval_s=3.0
+    )
+    trigger = ReplanTrigger(drift_cells=1)
+    assert trigger.check(0.0, {"c0": (0, 0)}, []) == "initial"
+    trigger.planned(plan, 0.0, ["h1"])
+    assert trigger.check(1.0, {"c0": (0, 0)}, ["h1"]) is None
+    assert trigger.check(1.0, {"c0": (0, 0)}, ["h1", "h2"]) == "new_hv"
+    assert trigger.check(1.0, {"c0": (2, 1)}, ["h1"]) == "drift"  # 2 cells from (1,0)
+    assert trigger.check(4.0, {"c0": (2, 1)}, ["h1"]) is None  # step 1: next cell (2,0)
+    assert trigger.check(4.0, {"x": (0, 0)}, []) == "drift"
+    assert trigger.check(9.0, {"c0": (3, 0)}, ["h1"]) == "plan_done"
+    failed = dataclasses.replace(plan, status=PlanStatus.INFEASIBLE, cells=None)
+    trigger.planned(failed, 10.0, [])
+    assert trigger.check(11.0, {}, []) is None
+    assert trigger.check(13.0, {}, []) == "initial"
