@@ -205,9 +205,9 @@ def brute_force(problem: PlanningProblem) -> float | None:
             for dr, dc in seq:
                 r, c = path[-1]
                 path.append((r + dr, c + dc))
-            if all(0 <= r < problem.n_rows and 0 <= c < problem.n_cols for r, c in path):
-                if not any(cell in problem.blocked[k] for k, cell in enumerate(path) if k):
-                    paths.append(tuple(path))
+            inside = all(0 <= r < problem.n_rows and 0 <= c < problem.n_cols for r, c in path)
+            if inside and not any(cell in problem.blocked[k] for k, cell in enumerate(path) if k):
+                paths.append(tuple(path))
         paths_per_cav.append(paths)
     best = None
     for combo in itertools.product(*paths_per_cav):
