@@ -10,6 +10,9 @@ import logging
 import time
 from typing import Protocol
 
+from ortools.linear_solver import pywraplp
+from ortools.sat.python import cp_model
+
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.planner.flow import FlowModel, build_flow_model, extract_paths, hint_values
 from sumo_swarm.planner.plan import Plan, failed_plan
@@ -116,8 +119,6 @@ class CpSatPlanner(_FlowPlanner):
         self.num_workers = int(num_workers)
 
     def _solve(self, model, time_limit_s, hints):
-        from ortools.sat.python import cp_model
-
         cp = cp_model.CpModel()
         x = [cp.new_bool_var(f"v{v}") for v in range(model.n_vars)]
         for kind, variables, coefs, rhs in model.constraints:
@@ -175,16 +176,12 @@ class ScipPlanner(_FlowPlanner):
 
     def __init__(self, time_limit_s: float = 1.0, retry_without_blockers: bool = True) -> None:
         super().__init__(time_limit_s, retry_without_blockers)
-        from ortools.linear_solver import pywraplp
-
         self._solver_id = "SCIP"
         if pywraplp.Solver.CreateSolver("SCIP") is None:
             self._solver_id = "HIGHS"
         self.backend = self._solver_id.lower()
 
     def _solve(self, model, time_limit_s, hints):
-        from ortools.linear_solver import pywraplp
-
         solver = pywraplp.Solver.CreateSolver(self._solver_id)
         if solver is None:
             return PlanStatus.ERROR, None, 0.0, None, f"{self._solver_id} unavailable"
