@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import random
 import statistics
 import sys
@@ -24,9 +23,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from sumo_swarm.grid import GridSettings, build_grid  # noqa: E402
-from sumo_swarm.model import RoadSection, VehicleState  # noqa: E402
-from sumo_swarm.planner import (  # noqa: E402
+from sumo_swarm.grid import GridSettings, build_grid
+from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.planner import (
     PlannerSettings,
     PlanStatus,
     build_problem,
