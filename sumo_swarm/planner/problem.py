@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 from sumo_swarm.errors import ConfigError
@@ -250,8 +250,6 @@ class PlanningProblem:
 
     def with_blockers(self, blockers: Sequence[Blocker]) -> PlanningProblem:
         """The same problem with other blocker assignments (e.g. none)."""
-        from dataclasses import replace
-
         return replace(self, blockers=tuple(blockers))
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from typing import Protocol
 
 from ortools.linear_solver import pywraplp
@@ -50,7 +51,7 @@ class _FlowPlanner:
                 # Space making is a means, not a goal: plan without blockers rather than not at all.
                 retry = self._plan_once(problem.with_blockers(()), hint, started)
                 if retry.ok:
-                    return _with(retry, message=f"blockers dropped: {result.message}")
+                    return replace(retry, message=f"blockers dropped: {result.message}")
             return result
         except Exception as exc:  # the simulation loop must survive any solver failure
             _LOG.exception("%s planner failed", self.backend)
@@ -99,12 +100,6 @@ class _FlowPlanner:
         self, model: FlowModel, time_limit_s: float, hints: dict[int, int] | None
     ) -> tuple[PlanStatus, list[int] | None, float, float | None, str]:
         raise NotImplementedError
-
-
-def _with(plan: Plan, **changes: object) -> Plan:
-    from dataclasses import replace
-
-    return replace(plan, **changes)
 
 
 class CpSatPlanner(_FlowPlanner):
