@@ -159,5 +159,7 @@ def build_summary(
         },
         "upstream": upstream,
         "planner": planner,
+        # Extra (not in the contract): MPC solve time per CAV per solve, swarm only.
+        "tracking": controller_summary.get("mpc"),
         "timing": {k: _f(v) for k, v in timing.items()},
     }

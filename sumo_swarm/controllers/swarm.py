@@ -448,11 +448,6 @@ class SwarmController:
         if self._plans_file is not None:
             self._plans_file.close()
             self._plans_file = None
-        self.replan_not_before_s = -math.inf
-        self.last_plan_s = -math.inf
-        self.inputs: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
-        self.mpc_ms: list[float] = []
-        self._step_count = 0
         interval = self.planner_settings.behaving_interval_s if self.ctx else 3.0
         steps = None
         if self.t_start_s is not None and self.t_done_s is not None:
