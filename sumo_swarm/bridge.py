@@ -6,6 +6,7 @@ collisions and teleports, and applies the controllers' commands.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from collections.abc import Iterable
@@ -44,6 +45,14 @@ def _api(use_traci: bool) -> ModuleType:
     return libsumo
 
 
+def _constants(api) -> ModuleType:
+    """TraCI's variable ids: the same numbers for libsumo, traci and traci connections."""
+    consts = getattr(api, "constants", None)
+    if consts is None:
+        import traci.constants as consts
+    return consts
+
+
 @dataclass
 class Collision:
     time_s: float
@@ -77,8 +86,12 @@ class SumoSession:
                 sumo.step()
                 states = sumo.states
 
-    ``route_edges`` defines the route coordinate ``s_m`` (the edges' lengths accumulated);
-    ``cav_ids`` (or ``is_cav``) tells which vehicles are CAVs.
+    ``route_edges`` defines the route coordinate ``s_m`` (the edges' lengths accumulated,
+    junctions included); empty: the route of the first CAV that departs. ``is_cav(vehicle_id,
+    type_id)`` tells which vehicles are CAVs; their ids collect in :attr:`cav_ids`.
+
+    :meth:`attached` wraps a simulation someone else started and steps (the plugin API): then
+    call :meth:`refresh` after each step instead of :meth:`step`.
     """
 
     VARS = ("ROAD_ID", "LANE_INDEX", "LANEPOSITION", "LANEPOSITION_LAT", "POSITION", "SPEED",
@@ -99,7 +112,7 @@ class SumoSession:
         self.gui = gui
         self.label = label
         self.api = _api(self.use_traci)
-        self._vars = [getattr(self.api.constants, f"VAR_{v}") for v in self.VARS]
+        self._vars = [getattr(_constants(self.api), f"VAR_{v}") for v in self.VARS]
         self._edge_offset: dict[str, float] = {}
         self._route_edges = list(route_edges)
         self._is_cav = is_cav or (lambda vid, type_id: False)
@@ -117,7 +130,28 @@ class SumoSession:
         self.step_length_s = 0.0
         self.record = StepRecord()
         self.recording = True
+        self.cav_ids: list[str] = []
         self._open = False
+        self._owned = True
+        self._roads: dict[str, RoadSection] = {}
+        self._lanes_ahead: dict[str, list[tuple[float, int]]] = {}
+
+    @classmethod
+    def attached(
+        cls, api: ModuleType, *, route_edges: Iterable[str] = (), is_cav=None
+    ) -> SumoSession:
+        """A session on a simulation that is already running (libsumo module or traci)."""
+        session = cls([], route_edges=route_edges, is_cav=is_cav)
+        session.api = api
+        session._vars = [getattr(_constants(api), f"VAR_{v}") for v in cls.VARS]
+        session._owned = False
+        session._open = True
+        session.step_length_s = api.simulation.getDeltaT()
+        session.time_s = api.simulation.getTime()
+        session._set_route(session._route_edges)
+        for vid in api.vehicle.getIDList():  # vehicles already driving when attached
+            session._register(vid)
+        return session
 
     # ------------------------------------------------------------------ life cycle
     def __enter__(self) -> SumoSession:
@@ -139,14 +173,45 @@ class SumoSession:
         self._open = True
         self.step_length_s = self.api.simulation.getDeltaT()
         self.time_s = self.api.simulation.getTime()
-        net_edges = self._route_edges
+        self._set_route(self._route_edges)
+
+    def _set_route(self, edges: Iterable[str]) -> None:
+        """Offsets of the route coordinate: each edge's start, junction (internal) edges too."""
+        edges = list(edges)
+        self._route_edges = edges
+        self._edge_offset = {}
         offset = 0.0
-        for edge in net_edges:
+        api = self.api
+        for i, edge in enumerate(edges):
             self._edge_offset[edge] = offset
-            offset += self.api.lane.getLength(f"{edge}_0")
+            offset += api.lane.getLength(f"{edge}_0")
+            if i + 1 < len(edges):
+                via_len = 0.0
+                for link in api.lane.getLinks(f"{edge}_0"):
+                    if link[0].rsplit("_", 1)[0] == edges[i + 1] and link[4]:
+                        self._edge_offset[link[4].rsplit("_", 1)[0]] = offset
+                        via_len = api.lane.getLength(link[4])
+                        break
+                offset += via_len
+        # Where lanes end ahead: for each route edge, (offset of the next edge, its lane count).
+        self._route_lanes = [(self._edge_offset[e], api.edge.getLaneNumber(e)) for e in edges]
+
+    @property
+    def route_edges(self) -> list[str]:
+        return list(self._route_edges)
+
+    def lanes_ending(self, s_from_m: float, s_to_m: float, n_lanes: int) -> list[tuple[int, float]]:
+        """Lanes (index, route position where they end) of an ``n_lanes`` road that end
+        between ``s_from_m`` and ``s_to_m`` because a later route edge has fewer lanes."""
+        out: list[tuple[int, float]] = []
+        for start, count in getattr(self, "_route_lanes", []):
+            if s_from_m < start <= s_to_m and count < n_lanes:
+                out.extend((lane, start) for lane in range(count, n_lanes))
+                n_lanes = count
+        return out
 
     def close(self) -> None:
-        if self._open:
+        if self._open and self._owned:
             self._open = False
             try:
                 self.api.close()
@@ -156,27 +221,44 @@ class SumoSession:
     # ------------------------------------------------------------------ stepping
     def step(self) -> None:
         """Advance SUMO by one step and refresh :attr:`states` (bulk, by subscription)."""
-        api = self.api
         try:
-            api.simulation.step()
+            self.api.simulation.step()
         except Exception as exc:
             raise SimulationError(f"SUMO stopped at t = {self.time_s:.2f} s: {exc}") from None
-        self.time_s = api.simulation.getTime()
-        self.departed = list(api.simulation.getDepartedIDList())
-        self.arrived = list(api.simulation.getArrivedIDList())
-        for vid in self.departed:
-            api.vehicle.subscribe(vid, self._vars)
-            type_id = api.vehicle.getTypeID(vid)
-            self.types[vid] = type_id
-            self.lengths[vid] = api.vehicle.getLength(vid)
-            self.kinds[vid] = "cav" if self._is_cav(vid, type_id) else "hv"
-        for c in api.simulation.getCollisions():
-            self.collisions.append(Collision(self.time_s, c.collider, c.victim, c.type))
-        self.teleports += api.simulation.getStartingTeleportNumber()
-        self._read(api.vehicle.getAllSubscriptionResults())
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Read what the last SUMO step did: departures, collisions, every vehicle's state."""
+        api = self.api
+        try:
+            self.time_s = api.simulation.getTime()
+            self.departed = list(api.simulation.getDepartedIDList())
+            self.arrived = list(api.simulation.getArrivedIDList())
+            for vid in self.departed:
+                self._register(vid)
+            for c in api.simulation.getCollisions():
+                self.collisions.append(Collision(self.time_s, c.collider, c.victim, c.type))
+            self.teleports += api.simulation.getStartingTeleportNumber()
+            results = api.vehicle.getAllSubscriptionResults()
+        except Exception as exc:
+            raise SimulationError(f"SUMO stopped at t = {self.time_s:.2f} s: {exc}") from None
+        self._read(results)
+
+    def _register(self, vid: str) -> None:
+        api = self.api
+        api.vehicle.subscribe(vid, self._vars)
+        type_id = api.vehicle.getTypeID(vid)
+        self.types[vid] = type_id
+        self.lengths[vid] = api.vehicle.getLength(vid)
+        is_cav = self._is_cav(vid, type_id)
+        self.kinds[vid] = "cav" if is_cav else "hv"
+        if is_cav:
+            self.cav_ids.append(vid)
+            if not self._route_edges:
+                self._set_route(api.vehicle.getRoute(vid))
 
     def _read(self, results: dict) -> None:
-        c = self.api.constants
+        c = _constants(self.api)
         previous = self.states
         states: dict[str, VehicleState] = {}
         positions: dict[str, tuple[float, float]] = {}
@@ -227,10 +309,19 @@ class SumoSession:
 
     # ------------------------------------------------------------------ road
     def road_section(self, edge: str) -> RoadSection:
-        """Lane widths of ``edge`` (0 = rightmost) and its curvature (0 for straight edges)."""
-        n = self.api.edge.getLaneNumber(edge)
-        widths = tuple(self.api.lane.getWidth(f"{edge}_{i}") for i in range(n))
-        return RoadSection(widths, 0.0)
+        """Lane widths of ``edge`` (0 = rightmost) and its mean curvature [1/m] (left > 0),
+        from the lane geometry. Internal (junction) edges give the previous road section."""
+        road = self._roads.get(edge)
+        if road is not None:
+            return road
+        if edge.startswith(":") and self._roads:
+            return next(reversed(self._roads.values()))
+        api = self.api
+        n = api.edge.getLaneNumber(edge)
+        widths = tuple(api.lane.getWidth(f"{edge}_{i}") for i in range(n))
+        road = RoadSection(widths, lane_curvature(api.lane.getShape(f"{edge}_0")))
+        self._roads[edge] = road
+        return road
 
     # ------------------------------------------------------------------ commands
     def set_speed(self, vid: str, speed_mps: float) -> None:
@@ -251,6 +342,26 @@ class SumoSession:
         if lane_change_mode is not None:
             self.api.vehicle.setLaneChangeMode(vid, lane_change_mode)
 
+    def configure_cav(self, vid: str) -> None:
+        """Hand a CAV to our controllers, whatever vType the user gave it.
+
+        Lane-change mode 0 and speed mode 31 (module constants); lcAccelLat 40 m/s^2 so that
+        per-step sublane moves are executed as commanded (docs/closed-loop.md); tau 0.2 s and
+        minGap 0.5 m so that SUMO's safe-speed check stays a last-resort net that binds only
+        within a few metres of the vehicle ahead.
+        """
+        vehicle = self.api.vehicle
+        vehicle.setSpeedMode(vid, SPEED_MODE_SAFE)
+        vehicle.setLaneChangeMode(vid, LC_MODE_CONTROLLED)
+        vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", "40")
+        vehicle.setTau(vid, 0.2)
+        vehicle.setMinGap(vid, 0.5)
+
+    def road_at(self, vid: str) -> RoadSection | None:
+        """The road section under vehicle ``vid`` (None if it is not in the simulation)."""
+        edge = self.edges.get(vid)
+        return self.road_section(edge) if edge is not None else None
+
     def set_color(self, vid: str, rgba: tuple[int, int, int, int]) -> None:
         self.api.vehicle.setColor(vid, rgba)
 
@@ -264,6 +375,25 @@ class SumoSession:
         if not res or not res[0]:
             return None
         return res[0], res[1] + self.api.vehicle.getMinGap(vid)
+
+
+def lane_curvature(shape) -> float:
+    """Mean curvature of a polyline [1/m]: total heading change over length, left positive."""
+    if len(shape) < 3:
+        return 0.0
+    turn = 0.0
+    length = 0.0
+    prev = None
+    for (x0, y0), (x1, y1) in itertools.pairwise(shape):
+        seg = math.hypot(x1 - x0, y1 - y0)
+        if seg < 1e-9:
+            continue
+        heading = math.atan2(y1 - y0, x1 - x0)
+        if prev is not None:
+            turn += (heading - prev + math.pi) % (2 * math.pi) - math.pi
+        prev = heading
+        length += seg
+    return turn / length if length > 0 else 0.0
 
 
 def finite_or_none(value: float | None) -> float | None:

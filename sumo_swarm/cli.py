@@ -35,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("scenario", nargs="?", type=Path, help="scenario TOML file")
     run.add_argument("--sumocfg", type=Path, help="a SUMO configuration to run as it is")
     run.add_argument("--cav-type", help="with --sumocfg: the vType whose vehicles form the swarm")
+    run.add_argument("--config", type=Path, help="with --sumocfg: swarm settings (TOML)")
     run.add_argument("--controller", default="swarm", choices=CONTROLLERS)
     run.add_argument("--seed", type=int, default=None)
     run.add_argument("--out", type=Path, default=Path("out"))
@@ -46,6 +47,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rep.add_argument("--out", type=Path, default=Path("reproduce"))
     rep.add_argument("--scenario", type=Path, default=None, help="default: the paper scenario")
+
+    bat = sub.add_parser("batch", help="a resumable sweep of runs (docs/batch.md)")
+    bat.add_argument("sweep", type=Path, help="sweep TOML file")
+    bat.add_argument("--out", type=Path, required=True, help="batch folder (resumed if it exists)")
+    bat.add_argument("--workers", type=int, default=None, help="runs at a time (default: CPUs)")
+    bat.add_argument("--ray", metavar="ADDRESS", help="run on Ray: 'auto' or a cluster address")
+    bat.add_argument("--retry-failed", action="store_true", help="run failed runs again")
+    imp = sub.add_parser("impact", help="traffic-impact tables and plots of a batch folder")
+    imp.add_argument("dir", type=Path, help="the --out folder of a batch")
     return parser
 
 
@@ -54,18 +64,29 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from sumo_swarm.runner import run_scenario
 
     if args.sumocfg is not None:
-        raise ConfigError("--sumocfg runs are not available yet in this version")
-    if args.scenario is None:
-        raise ConfigError("run: give a scenario file (or --sumocfg FILE --cav-type TYPE)")
-    scenario = load_scenario(args.scenario)
-    summary = run_scenario(
-        scenario, args.controller, args.out, seed=args.seed, fcd=args.fcd, gui=args.gui
-    )
+        if args.scenario is not None:
+            raise ConfigError("run: give a scenario file or --sumocfg, not both")
+        if not args.cav_type:
+            raise ConfigError("run: --sumocfg needs --cav-type TYPE (the swarm's vType)")
+        from sumo_swarm.runner import run_sumocfg
+
+        summary = run_sumocfg(
+            args.sumocfg, args.cav_type, args.controller, args.out, config=args.config,
+            seed=args.seed, fcd=args.fcd, gui=args.gui,
+            notify=lambda line: print(line, file=sys.stderr),
+        )  # fmt: skip
+    else:
+        if args.scenario is None:
+            raise ConfigError("run: give a scenario file (or --sumocfg FILE --cav-type TYPE)")
+        scenario = load_scenario(args.scenario)
+        summary = run_scenario(
+            scenario, args.controller, args.out, seed=args.seed, fcd=args.fcd, gui=args.gui
+        )
     cav = summary["cav"]
     ot = summary["overtake"]
     print(
         f"{summary['scenario']}/{summary['controller']}: CAV mean speed "
-        f"{cav['mean_speed_mps']:.2f} m/s, min gap {cav['gap_min_m']:.2f} m, "
+        f"{_num(cav['mean_speed_mps'])} m/s, min gap {_num(cav['gap_min_m'])} m, "
         f"overtake completed={ot['completed']} regrouped={ot['regrouped']}, "
         f"collisions={summary['safety']['collisions']}, "
         f"hard brakes={summary['safety']['hard_brakes']}, "
@@ -74,10 +95,32 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _num(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.2f}"
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from sumo_swarm.reproduce import reproduce
 
     reproduce(args.out, scenario_path=args.scenario)
+    return EXIT_OK
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from sumo_swarm.batch import run_batch
+
+    report = run_batch(
+        args.sweep, args.out, workers=args.workers, ray=args.ray, retry_failed=args.retry_failed
+    )
+    print(report.table())
+    print(f"impact tables and plots: {args.out / 'impact' / 'impact.md'}")
+    return EXIT_FAILURE if report.failed else EXIT_OK
+
+
+def _cmd_impact(args: argparse.Namespace) -> int:
+    from sumo_swarm.impact import impact
+
+    print(impact(args.dir))
     return EXIT_OK
 
 
@@ -92,6 +135,10 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_run(args)
         if args.command == "reproduce":
             return _cmd_reproduce(args)
+        if args.command == "batch":
+            return _cmd_batch(args)
+        if args.command == "impact":
+            return _cmd_impact(args)
         raise ConfigError(f"unknown command {args.command}")
     except ConfigError as exc:
         print(f"sumo-swarm: error: {exc}", file=sys.stderr)

@@ -403,11 +403,17 @@ def from_mapping(cls: type[T], data: dict[str, Any], prefix: str = "") -> T:
         raise ConfigError(f"{prefix or cls.__name__}: {exc}") from None
 
 
-def load_scenario(path: str | Path, overrides: dict[str, dict[str, Any]] | None = None) -> Scenario:
+def load_scenario(
+    path: str | Path,
+    overrides: dict[str, dict[str, Any]] | None = None,
+    *,
+    require_network: bool = True,
+) -> Scenario:
     """Load and validate a scenario TOML file.
 
     ``overrides`` maps section names to key/value pairs applied over the file (used by sweeps).
     Any problem raises ConfigError whose message names the key and the file.
+    ``require_network=False`` accepts settings files for the plugin API, which have no network.
     """
     path = Path(path)
     try:
@@ -436,7 +442,7 @@ def load_scenario(path: str | Path, overrides: dict[str, dict[str, Any]] | None 
         _check_consistency(scenario)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    if not scenario.network_path.is_file():
+    if require_network and not scenario.network_path.is_file():
         raise ConfigError(f"{path}: simulation.network: file not found: {scenario.network_path}")
     return scenario
 

@@ -64,7 +64,7 @@ class RoadSection:
         return sum(widths[:lane]) + 0.5 * widths[lane] - 0.5 * widths[0]
 
     def y_of(self, lane: int, lat_m: float) -> float:
-        """Lateral position [m] (from the centre of lane 0) of a point ``lat_m`` off ``lane``'s centre."""
+        """Lateral position [m], from lane 0's centre, of a point ``lat_m`` off a lane centre."""
         return self.lane_centre_y(lane) + lat_m
 
     def lane_of_y(self, y_m: float) -> int:

@@ -18,6 +18,7 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError, SimulationError
+from sumo_swarm.model import RoadSection
 from sumo_swarm.scene import CAV_TYPE, sumo_options, write_sumo_inputs
 from sumo_swarm.summary import build_summary
 
@@ -84,39 +85,139 @@ def run_scenario(
         scenario = replace(scenario, simulation=replace(scenario.simulation, seed=seed))
     controller = controller or make_controller(controller_name)
     cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo")
-    args = ["-c", str(cfg), *sumo_options(scenario)]
-    if fcd:
-        args += ["--fcd-output", str(out / "fcd.xml"), "--fcd-output.acceleration", "true"]
-    cav_ids = scene.cav_ids
+    args = ["-c", str(cfg), *sumo_options(scenario), *_fcd_args(out, fcd)]
     sim = scenario.simulation
-    wall0 = time.perf_counter()
-    sumo_s = 0.0
-    controller_s = 0.0
-    n_steps = round(sim.duration_s / sim.step_length_s)
     session = SumoSession(
         args,
         route_edges=sim.route_edges,
         is_cav=lambda vid, type_id: type_id == CAV_TYPE,
         gui=gui,
     )
+    return _drive(
+        session, scenario, controller, controller_name, out, scene,
+        max_steps=round(sim.duration_s / sim.step_length_s), progress=progress,
+    )  # fmt: skip
+
+
+def run_sumocfg(
+    sumocfg: str | Path,
+    cav_type: str,
+    controller_name: str,
+    out_dir: str | Path,
+    *,
+    config: str | Path | None = None,
+    seed: int | None = None,
+    fcd: bool = False,
+    progress: bool | None = None,
+    gui: bool = False,
+    max_duration_s: float = 3600.0,
+    notify=print,
+) -> dict[str, Any]:
+    """Run a user's SUMO configuration as it is, the vehicles of vType ``cav_type`` forming the
+    swarm. Options the swarm needs that the configuration lacks are added and reported in one
+    line through ``notify``. Outputs as for :func:`run_scenario`. The run ends when SUMO has no
+    vehicle left or at the configuration's end, and after ``max_duration_s`` at the latest.
+    """
+    from sumo_swarm.plugin import default_settings
+    from sumo_swarm.scene import LiveScene
+
+    cfg = Path(sumocfg)
+    options = read_sumocfg_options(cfg)
+    out = prepare_out_dir(out_dir)
+    settings = default_settings(config)
+    settings = replace(settings, name=cfg.stem)
+    added = []
+    if "lateral-resolution" not in options:
+        added += ["--lateral-resolution", "0.5"]
+    # Collisions are physical overlaps, counted and never teleported away (our safety measure).
+    forced = ["--collision.mingap-factor", "0", "--collision.action", "warn"]
+    if seed is not None:
+        forced += ["--seed", str(seed)]
+    if added:
+        notify(f"sumo-swarm: {cfg}: added {' '.join(added)} (the swarm needs SUMO's sublane model)")
+    args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true",
+            *_fcd_args(out, fcd)]  # fmt: skip
+    controller = make_controller(controller_name)
+    session = SumoSession(args, is_cav=lambda vid, type_id: type_id == cav_type, gui=gui)
+    step = float(options.get("step-length", 1.0))
+    settings = replace(settings, simulation=replace(settings.simulation, step_length_s=step))
+    end = float(options.get("end", max_duration_s))
+    begin = float(options.get("begin", 0.0))
+    settings = replace(
+        settings,
+        evaluation=replace(settings.evaluation, start_s=begin, end_s=min(end, max_duration_s)),
+    )
+
+    def check_types(sess: SumoSession) -> None:
+        if cav_type not in sess.api.vehicletype.getIDList():
+            raise ConfigError(f"{cfg}: --cav-type: no vType '{cav_type}' in the configuration")
+
+    return _drive(
+        session, settings, controller, controller_name, out, LiveScene(session, controller),
+        max_steps=round((min(end, max_duration_s) - begin) / step), progress=progress,
+        on_start=check_types, require_cavs=cav_type,
+    )  # fmt: skip
+
+
+def read_sumocfg_options(path: Path) -> dict[str, str]:
+    """The options of a SUMO configuration file (``{name: value}``); ConfigError if unusable."""
+    from sumo_swarm.safexml import parse_xml
+
+    root = parse_xml(path, what="SUMO configuration")
+    options = {}
+    for section in root:
+        for opt in section:
+            if "value" in opt.attrib:
+                options[opt.tag] = opt.attrib["value"]
+    return options
+
+
+def _fcd_args(out: Path, fcd: bool) -> list[str]:
+    if not fcd:
+        return []
+    return ["--fcd-output", str(out / "fcd.xml"), "--fcd-output.acceleration", "true"]
+
+
+def _drive(
+    session: SumoSession,
+    scenario: Scenario,
+    controller: Controller,
+    controller_name: str,
+    out: Path,
+    scene,
+    *,
+    max_steps: int,
+    progress: bool | None,
+    on_start=None,
+    require_cavs: str | None = None,
+) -> dict[str, Any]:
+    """Step SUMO, call the controller after every step, then write every output.
+
+    Whatever happens during the run, the trajectories and events gathered so far are written
+    and the summary is built from them; a SUMO failure is raised after that.
+    """
+    wall0 = time.perf_counter()
+    sumo_s = controller_s = 0.0
     failure: str | None = None
     with session:
-        road = session.road_section(sim.route_edges[0])
-        ctx = RunContext(session, scenario, cav_ids, road, out_dir=out)
+        if on_start is not None:
+            on_start(session)
+        edges = session.route_edges
+        road = session.road_section(edges[0]) if edges else RoadSection((3.2, 3.2))
+        ctx = RunContext(session, scenario, session.cav_ids, road, out_dir=out)
         controller.attach(ctx)
         bar = tqdm(
-            total=n_steps, desc=f"{scenario.name}/{controller_name}", unit="step",
+            total=max_steps, desc=f"{scenario.name}/{controller_name}", unit="step",
             disable=(not progress) if progress is not None else None, leave=False,
         )  # fmt: skip
         try:
-            for _ in range(n_steps):
+            for _ in range(max_steps):
                 t0 = time.perf_counter()
                 session.step()
                 t1 = time.perf_counter()
                 controller.control(session.time_s)
-                t2 = time.perf_counter()
+                controller_s += time.perf_counter() - t1
                 sumo_s += t1 - t0
-                controller_s += t2 - t1
                 bar.update()
                 if not session.has_vehicles_to_come():
                     break
@@ -135,6 +236,14 @@ def run_scenario(
         "controller_s": controller_s,
         "realtime_factor": (session.time_s / wall) if wall > 0 else None,
     }
+    if not df.empty:
+        scenario = replace(
+            scenario,
+            evaluation=replace(
+                scenario.evaluation,
+                end_s=min(scenario.evaluation.end_s, float(df["time_s"].max())),
+            ),
+        )
     summary = build_summary(
         scenario=scenario,
         controller=controller_name,
@@ -147,6 +256,8 @@ def run_scenario(
     write_json_atomic(out / "summary.json", summary)
     if failure is not None:
         raise SimulationError(f"{failure} (outputs so far kept in {out})")
+    if require_cavs is not None and not session.cav_ids:
+        raise ConfigError(f"--cav-type: no vehicle of vType '{require_cavs}' ever departed")
     return summary
 
 

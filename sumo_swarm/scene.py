@@ -232,3 +232,20 @@ def write_sumo_inputs(sc: Scenario, controller: str, folder: Path) -> tuple[Path
         encoding="utf-8",
     )
     return cfg, scene
+
+
+class LiveScene:
+    """The scene as SUMO placed it (a user's configuration, or the plugin API): the CAVs that
+    have departed so far and the target the controller chose."""
+
+    def __init__(self, session, controller) -> None:
+        self._session = session
+        self._controller = controller
+
+    @property
+    def cav_ids(self) -> tuple[str, ...]:
+        return tuple(self._session.cav_ids)
+
+    @property
+    def target_id(self) -> str | None:
+        return getattr(self._controller, "target_id", None)

@@ -103,15 +103,16 @@ def build_summary(
     gap = metrics.cav_gap_stats(df, w)
     cav_ids = scene.cav_ids
     target = scene.target_id
-    progress = overtake_progress(
-        df, cav_ids, target, scenario.scene.platoon_lane, 2.5 * scenario.cav.desired_gap_m
-    )
+    own = controller_summary.get("overtake", {})
+    target = own.get("target") or target
+    lane = own.get("regroup_lane")
+    lane = scenario.scene.platoon_lane if lane is None else lane
+    progress = overtake_progress(df, cav_ids, target, lane, 2.5 * scenario.cav.desired_gap_m)
     t_end = _first_time_holding(progress["past"]) if not progress.empty else None
     t_regroup = None
     if not progress.empty:
         both = progress["past"] & progress["platoon"]
         t_regroup = _first_time_holding(both)
-    own = controller_summary.get("overtake", {})
     t_start = own.get("t_start_s")
     overtake = {
         "triggered": bool(own.get("triggered", t_end is not None)),

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from typing import Any
 
-from sumo_swarm.bridge import LC_MODE_CONTROLLED, SPEED_MODE_SAFE
 from sumo_swarm.config import CaccSettings, CavSettings
 from sumo_swarm.controllers.base import RunContext
 from sumo_swarm.neighbours import vehicle_ahead
@@ -64,7 +63,7 @@ class CaccController:
         ctx = self.ctx
         for vid in ctx.cav_ids:
             if vid in ctx.session.states and vid not in self._configured:
-                ctx.session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_CONTROLLED)
+                ctx.session.configure_cav(vid)
                 self._configured.add(vid)
 
     def control(self, t_s: float) -> None:

@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 
-from sumo_swarm.bridge import LC_MODE_CONTROLLED, SPEED_MODE_SAFE
 from sumo_swarm.controllers.base import RunContext
 from sumo_swarm.controllers.cacc import cacc_accel
 from sumo_swarm.grid import MovingGrid, build_grid, cav_cell
@@ -65,6 +64,7 @@ GUARD_SPEED_GAIN = 1.5  # [1/s]
 GUARD_HEADWAY_S = 0.6  # lateral guard: follower headway below which a CAV holds its lane [s]
 IN_LANE_TOL_M = 0.3  # a CAV is "in" a lane when its centre is this close to the lane centre [m]
 RETRY_AFTER_S = 1.0  # after a failed replan, wait this long before the next replan [s]
+LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane that ends [m]
 MARGIN_RELAXATION = (1.0, 0.5, 0.0)  # HV margin scales tried in turn when a replan is infeasible
 
 
@@ -92,6 +92,7 @@ class SwarmController:
         self.t_start_s: float | None = None
         self.t_done_s: float | None = None
         self.overtakes = 0
+        self.regroup_lane_used: int | None = None
         self._plans_file = None
         self.replan_not_before_s = -math.inf
         self.last_plan_s = -math.inf
@@ -122,7 +123,7 @@ class SwarmController:
         ctx = self.ctx
         for vid in ctx.cav_ids:
             if vid in states and vid not in self.configured:
-                ctx.session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_CONTROLLED)
+                ctx.session.configure_cav(vid)
                 self.configured.add(vid)
                 self.phi[vid] = 0.0
                 self.lon_mpc[vid] = LongitudinalMpc(self.lon_settings)
@@ -136,6 +137,9 @@ class SwarmController:
         platoon = ordered_platoon(states, ctx.cav_ids)
         if not platoon:
             return
+        road = ctx.session.road_at(platoon[0])
+        if road is not None:
+            ctx.road = road
         if self.mode == CRUISE:
             target = self._slow_vehicle_ahead(t_s, states, platoon)
             if target is not None:
@@ -238,7 +242,8 @@ class SwarmController:
 
     def _regroup_lane(self, target: VehicleState) -> int:
         lane = self.planner_settings.regroup_lane
-        return target.lane if lane is None else lane
+        self.regroup_lane_used = target.lane if lane is None else lane
+        return self.regroup_lane_used
 
     def _maybe_replan(self, t_s: float, states: dict[str, VehicleState], platoon: list[str]):
         ctx = self.ctx
@@ -254,6 +259,9 @@ class SwarmController:
                     hv_ids.append(vid)
             cells = {vid: cav_cell(grid, states[vid], ctx.road, t_s) for vid in platoon}
         reason = self.trigger.check(t_s, cells, hv_ids) if self.plan is not None else "initial"
+        if self.plan is not None and set(platoon) != set(self.plan.cav_ids):
+            ctx.event("cav_set_changed", planned=list(self.plan.cav_ids), present=platoon)
+            reason = "cav_set_changed"
         if self.plan is None and self.trigger.plan is not None and reason is None:
             return  # the last solve failed; the trigger says when to retry
         if reason is None or (reason != "initial" and t_s < self.replan_not_before_s):
@@ -268,6 +276,7 @@ class SwarmController:
         target = states[self.target_id]
         cavs = [states[v] for v in platoon]
         hvs = [s for v, s in states.items() if not s.is_cav and v != self.target_id]
+        hvs += self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0)
         record: dict[str, Any] = {"time_s": t_s, "trigger": reason}
         grid = problem = plan = None
         violations: list[str] = []
@@ -346,6 +355,21 @@ class SwarmController:
         failed = plan if plan is not None else None
         if failed is not None:
             self.trigger.planned(failed, t_s, ())
+
+    def _lane_ends(self, s_from_m: float, s_to_m: float) -> list[VehicleState]:
+        """Lanes that end ahead (a later route edge has fewer lanes), as standing obstacles.
+
+        Each is a pseudo-vehicle at speed 0 covering the lane from its end onwards, so the
+        planner keeps CAVs out of the vanishing lane in time and the swarm regroups before it.
+        """
+        road = self.ctx.road
+        out = []
+        for lane, end in self.ctx.session.lanes_ending(s_from_m, s_to_m, road.n_lanes):
+            out.append(
+                VehicleState(f"lane_end:{lane}@{end:.0f}", end + LANE_END_LENGTH_M, lane, 0.0,
+                             0.0, LANE_END_LENGTH_M)
+            )  # fmt: skip
+        return out
 
     def _write_plan(self, record: dict[str, Any]) -> None:
         if self._plans_file is not None:
@@ -454,6 +478,7 @@ class SwarmController:
             steps = math.ceil((self.t_done_s - self.t_start_s) / interval - 1e-9)
         return {
             "overtake": {
+                "regroup_lane": self.regroup_lane_used,
                 "triggered": self.t_start_s is not None,
                 "target": self.target_id,
                 "t_start_s": self.t_start_s,

@@ -1,0 +1,236 @@
+"""The plugin API in SUMO's convention (as SUMO's own simpla): attach to a running simulation.
+
+::
+
+    import libsumo  # or: import traci (then sumo-gui works too)
+    import sumo_swarm
+
+    libsumo.start(["sumo", "-c", "my.sumocfg", "--lateral-resolution", "0.5"])
+    swarm = sumo_swarm.attach(libsumo, cav_type="cav")
+    while libsumo.simulation.getMinExpectedNumber() > 0:
+        libsumo.simulation.step()
+    print(swarm.summary()["overtake"])
+    swarm.detach()
+    libsumo.close()
+
+The swarm runs as a StepListener: after every SUMO step it reads the vehicles and commands the
+CAVs for the next step. CAVs are the vehicles of vType ``cav_type`` or the ids in ``cav_ids``,
+including vehicles that depart later.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import time
+from dataclasses import replace
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from sumo_swarm.bridge import SumoSession
+from sumo_swarm.config import EvaluationSettings, Scenario, load_scenario
+from sumo_swarm.controllers import make_controller
+from sumo_swarm.controllers.base import Controller, RunContext
+from sumo_swarm.errors import ConfigError
+from sumo_swarm.scene import LiveScene
+from sumo_swarm.summary import build_summary
+
+log = logging.getLogger(__name__)
+
+
+def default_settings(config: str | Path | Scenario | None) -> Scenario:
+    """The swarm's settings: a Scenario object, a scenario/settings TOML, or the defaults."""
+    if isinstance(config, Scenario):
+        return config
+    if config is not None:
+        return load_scenario(config, require_network=False)
+    return Scenario(name="attached", path=Path.cwd() / "attached.toml")
+
+
+class SwarmHandle:
+    """A swarm attached to a running simulation; see :func:`attach`."""
+
+    def __init__(
+        self,
+        api: Any,
+        controller: Controller,
+        settings: Scenario,
+        is_cav,
+        cruising_speed_mps: float | None,
+        out_dir: Path | None,
+    ) -> None:
+        self.api = api
+        self.settings = settings
+        self.controller = controller
+        self.session = SumoSession.attached(api, is_cav=is_cav)
+        self._cruising_speed = cruising_speed_mps
+        self.ctx = RunContext(
+            self.session, settings, self.session.cav_ids, _first_road(self.session),
+            out_dir=out_dir,
+        )  # fmt: skip
+        self._attached = False
+        self._controller_attached = False
+        self._wall0 = time.perf_counter()
+        self.controller_s = 0.0
+        base = _step_listener_base(api)
+        handle = self
+
+        class _Listener(base):  # type: ignore[misc, valid-type]
+            def step(self, t: float = 0.0) -> bool:
+                handle._on_step()
+                return True
+
+        self._listener = _Listener()
+        self._listener_id = api.addStepListener(self._listener)
+        self._attached = True
+
+    def _on_step(self) -> None:
+        t0 = time.perf_counter()
+        self.session.refresh()
+        if not self._controller_attached and self.session.cav_ids:
+            self._adopt_cav_settings()
+            self.controller.attach(self.ctx)
+            self._controller_attached = True
+        if self._controller_attached:
+            self.controller.control(self.session.time_s)
+        self.controller_s += time.perf_counter() - t0
+
+    def _adopt_cav_settings(self) -> None:
+        """Take the CAVs' length and cruising speed from their vType where config is silent."""
+        api = self.api
+        first = self.session.cav_ids[0]
+        type_id = self.session.types[first]
+        cav = self.settings.cav
+        cruise = self._cruising_speed
+        if cruise is None:
+            cruise = min(api.vehicletype.getMaxSpeed(type_id), cav.max_speed_mps)
+        length = api.vehicletype.getLength(type_id)
+        cav = replace(
+            cav, cruising_speed_mps=cruise, length_m=length,
+            max_speed_mps=max(cav.max_speed_mps, cruise),
+        )  # fmt: skip
+        self.settings = replace(self.settings, cav=cav)
+        self.ctx.scenario = self.settings
+
+    def summary(self) -> dict[str, Any]:
+        """The summary of ``../shared/contract.md`` for everything seen so far."""
+        from sumo_swarm.runner import trajectory_frame
+
+        df = trajectory_frame(self.session)
+        end = max(float(df["time_s"].max()) if not df.empty else 0.0, 1e-3)
+        start = float(df["time_s"].min()) if not df.empty else 0.0
+        settings = replace(
+            self.settings,
+            evaluation=EvaluationSettings(
+                start_s=start, end_s=max(end, start + 1e-3),
+                travel_distance_m=self.settings.evaluation.travel_distance_m,
+                upstream_ranks=self.settings.evaluation.upstream_ranks,
+            ),
+            simulation=replace(self.settings.simulation, step_length_s=self.session.step_length_s),
+        )  # fmt: skip
+        wall = time.perf_counter() - self._wall0
+        timing = {
+            "wall_s": wall, "sumo_s": max(wall - self.controller_s, 0.0),
+            "controller_s": self.controller_s,
+            "realtime_factor": (end - start) / wall if wall > 0 else None,
+        }  # fmt: skip
+        return build_summary(
+            scenario=settings,
+            controller=self.controller.name,
+            df=df,
+            scene=LiveScene(self.session, self.controller),
+            session=self.session,
+            controller_summary=self.controller.summary() if self._controller_attached else {},
+            timing=timing,
+        )
+
+    def detach(self) -> None:
+        """Stop controlling: remove the listener and hand the CAVs back to SUMO."""
+        if not self._attached:
+            return
+        self._attached = False
+        try:
+            self.api.removeStepListener(self._listener_id)
+        except Exception as exc:  # the simulation may already be closed
+            log.debug("removing the step listener: %s", exc)
+        for vid in list(self.session.cav_ids):
+            if vid in self.session.states:
+                try:
+                    self.session.release_speed(vid)
+                except Exception as exc:
+                    log.debug("releasing %s: %s", vid, exc)
+
+
+def _step_listener_base(api: Any) -> type:
+    if isinstance(api, ModuleType) and api.__name__.startswith("libsumo"):
+        return api.StepListener
+    traci = importlib.import_module("traci")
+    return traci.StepListener
+
+
+def _first_road(session: SumoSession):
+    from sumo_swarm.model import RoadSection
+
+    edges = session.route_edges
+    if edges:
+        return session.road_section(edges[0])
+    return RoadSection((3.2, 3.2))
+
+
+def attach(
+    connection: Any = None,
+    *,
+    cav_type: str | None = None,
+    cav_ids: list[str] | tuple[str, ...] | None = None,
+    config: str | Path | Scenario | None = None,
+    controller: str | Controller = "swarm",
+    cruising_speed_mps: float | None = None,
+    out_dir: str | Path | None = None,
+) -> SwarmHandle:
+    """Attach a swarm to a running SUMO simulation and return its handle.
+
+    Parameters
+    ----------
+    connection
+        ``libsumo`` (default), the ``traci`` module, or a ``traci`` connection object.
+    cav_type, cav_ids
+        The swarm's CAVs: every vehicle of this vType, or these vehicle ids (one is required).
+    config
+        A scenario or settings TOML (its ``[cav]``, ``[planner]``, ``[grid]``, ... sections), or a
+        :class:`~sumo_swarm.config.Scenario`; default settings otherwise.
+    controller
+        ``"swarm"`` (default), a baseline name, or a controller object.
+    cruising_speed_mps
+        The swarm's cruising speed; default: ``[cav] cruising_speed_mps`` of ``config`` when one
+        is given, else the CAV vType's maxSpeed.
+    out_dir
+        Where the swarm writes ``plans.jsonl`` (optional).
+    """
+    if connection is None:
+        connection = importlib.import_module("libsumo")
+    if (cav_type is None) == (cav_ids is None):
+        raise ConfigError("attach: give exactly one of cav_type or cav_ids")
+    settings = default_settings(config)
+    if cruising_speed_mps is None and config is not None:
+        cruising_speed_mps = settings.cav.cruising_speed_mps
+    if cav_ids is not None:
+        wanted = frozenset(cav_ids)
+
+        def is_cav(vid: str, type_id: str) -> bool:
+            return vid in wanted
+    else:
+
+        def is_cav(vid: str, type_id: str) -> bool:
+            return type_id == cav_type
+
+    ctrl = make_controller(controller) if isinstance(controller, str) else controller
+    out = Path(out_dir) if out_dir is not None else None
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    return SwarmHandle(connection, ctrl, settings, is_cav, cruising_speed_mps, out)
+
+
+def detach(handle: SwarmHandle) -> None:
+    """Detach a swarm returned by :func:`attach` (same as ``handle.detach()``)."""
+    handle.detach()
