@@ -134,6 +134,7 @@ class SumoSession:
         self._open = False
         self._owned = True
         self._roads: dict[str, RoadSection] = {}
+        self._lane_ends: list[tuple[int, int, float]] = []
         self._lanes_ahead: dict[str, list[tuple[float, int]]] = {}
 
     @classmethod
@@ -180,35 +181,58 @@ class SumoSession:
         edges = list(edges)
         self._route_edges = edges
         self._edge_offset = {}
+        self._via_end: dict[str, tuple[float, float]] = {}
+        self._lane_ends: list[tuple[int, int, float]] = []  # (route edge index, lane, end s)
         offset = 0.0
         api = self.api
         for i, edge in enumerate(edges):
             self._edge_offset[edge] = offset
             offset += api.lane.getLength(f"{edge}_0")
             if i + 1 < len(edges):
-                via_len = 0.0
-                for link in api.lane.getLinks(f"{edge}_0"):
-                    if link[0].rsplit("_", 1)[0] == edges[i + 1] and link[4]:
-                        self._edge_offset[link[4].rsplit("_", 1)[0]] = offset
-                        via_len = api.lane.getLength(link[4])
-                        break
-                offset += via_len
-        # Where lanes end ahead: for each route edge, (offset of the next edge, its lane count).
-        self._route_lanes = [(self._edge_offset[e], api.edge.getLaneNumber(e)) for e in edges]
+                # Junction lanes into the next route edge: the shortest sets the next edge's
+                # offset; each internal lane is placed so that it ends where that edge starts.
+                vias = {}
+                edge_end = offset
+                for lane in range(api.edge.getLaneNumber(edge)):
+                    continues = False
+                    for link in api.lane.getLinks(f"{edge}_{lane}"):
+                        if link[0].rsplit("_", 1)[0] == edges[i + 1] and link[4]:
+                            vias[link[4]] = api.lane.getLength(link[4])
+                            continues = True
+                    if not continues:  # no connection into the next route edge: it ends
+                        self._lane_ends.append((i, lane, edge_end))
+                offset += min(vias.values(), default=0.0)
+                for via, length in vias.items():
+                    self._via_end[via] = (offset, length)
 
     @property
     def route_edges(self) -> list[str]:
         return list(self._route_edges)
 
-    def lanes_ending(self, s_from_m: float, s_to_m: float, n_lanes: int) -> list[tuple[int, float]]:
-        """Lanes (index, route position where they end) of an ``n_lanes`` road that end
-        between ``s_from_m`` and ``s_to_m`` because a later route edge has fewer lanes."""
-        out: list[tuple[int, float]] = []
-        for start, count in getattr(self, "_route_lanes", []):
-            if s_from_m < start <= s_to_m and count < n_lanes:
-                out.extend((lane, start) for lane in range(count, n_lanes))
-                n_lanes = count
-        return out
+    def lanes_ending(self, edge: str, s_from_m: float, s_to_m: float) -> list[tuple[int, float]]:
+        """Lanes that end between ``s_from_m`` and ``s_to_m`` (no connection into the next route
+        edge), as (lane index on ``edge``, route position of the end).
+
+        Only ends on ``edge`` itself, or on later edges reached without a change in the number
+        of lanes (so the lane indices still mean the same lanes), are reported.
+        """
+        if edge not in self._route_edges:
+            return []
+        first = self._route_edges.index(edge)
+        api = self.api
+        n_lanes = api.edge.getLaneNumber(edge)
+        last = first
+        while (
+            last + 1 < len(self._route_edges)
+            and api.edge.getLaneNumber(self._route_edges[last + 1]) == n_lanes
+            and not any(i == last for i, _, _ in self._lane_ends)
+        ):
+            last += 1
+        return [
+            (lane, end)
+            for i, lane, end in self._lane_ends
+            if first <= i <= last and s_from_m < end <= s_to_m
+        ]
 
     def close(self) -> None:
         if self._open and self._owned:
@@ -271,8 +295,11 @@ class SumoSession:
             pos = r[c.VAR_LANEPOSITION]
             offset = self._edge_offset.get(edge)
             speed = r[c.VAR_SPEED]
+            via = self._via_end.get(f"{edge}_{lane}") if offset is None else None
             if offset is not None:
                 s = offset + pos
+            elif via is not None:  # on a junction lane: measured back from the next edge
+                s = via[0] - (via[1] - pos)
             elif vid in previous:  # on an internal (junction) edge: integrate the speed
                 s = previous[vid].s_m + speed * dt
             else:

@@ -149,6 +149,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("sumo-swarm: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # one line, not a traceback; --verbose logs the traceback
+        logging.getLogger("sumo_swarm").debug("unexpected error", exc_info=True)
+        print(f"sumo-swarm: unexpected error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
 
 
 if __name__ == "__main__":

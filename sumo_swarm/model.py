@@ -59,8 +59,17 @@ class RoadSection:
         return len(self.lane_widths_m)
 
     def lane_centre_y(self, lane: int) -> float:
-        """Lateral position of the centre of ``lane`` measured from the centre of lane 0 [m]."""
+        """Lateral position of the centre of ``lane`` measured from the centre of lane 0 [m].
+
+        Lanes outside the section (a vehicle still on an edge with more lanes) are placed by
+        extending the outermost lane widths.
+        """
         widths = self.lane_widths_m
+        n = len(widths)
+        if lane < 0:
+            return lane * widths[0]
+        if lane >= n:
+            return self.lane_centre_y(n - 1) + (lane - n + 1) * widths[-1]
         return sum(widths[:lane]) + 0.5 * widths[lane] - 0.5 * widths[0]
 
     def y_of(self, lane: int, lat_m: float) -> float:

@@ -224,6 +224,10 @@ def _drive(
         except SimulationError as exc:
             failure = str(exc)
             ctx.event("sumo_failed", message=failure)
+        except Exception as exc:  # a controller bug: keep what was gathered, then report it
+            log.exception("run failed at t = %.2f s", session.time_s)
+            failure = f"{type(exc).__name__} at t = {session.time_s:.2f} s: {exc}"
+            ctx.event("run_failed", message=failure)
         finally:
             bar.close()
     wall = time.perf_counter() - wall0

@@ -33,8 +33,10 @@ def overtake_progress(
     """Per step: whether every CAV is past ``target`` and whether they form one platoon.
 
     *Past*: every CAV's rear bumper is ahead of the target's front bumper. *Platoon*: every CAV
-    in ``lane`` within ``REGROUP_LAT_TOL_M`` of its centre, no other vehicle between the first
-    and the last of them in that lane, and no gap between consecutive CAVs above ``max_gap_m``.
+    in one lane (``lane``, the regroup lane, or, where lane indices change along the route as at
+    a lane drop on the right, the lane of the front-most CAV) within ``REGROUP_LAT_TOL_M`` of its
+    centre, no other vehicle between the first and the last of them in that lane, and no gap
+    between consecutive CAVs above ``max_gap_m``.
     Returns a frame indexed by time with boolean columns ``past`` and ``platoon``.
     """
     if df.empty or not cav_ids:
@@ -54,7 +56,14 @@ def overtake_progress(
     else:
         past = pd.Series(False, index=wide.index)
     in_lane = df[df["vehicle"].isin(cav_ids)].copy()
-    in_lane["ok"] = (in_lane["lane"] == lane) & (in_lane["lat_m"].abs() < REGROUP_LAT_TOL_M)
+    head_lane = in_lane.sort_values("s_m").groupby("time_s", observed=True)["lane"].last()
+    if lane is not None:
+        # The regroup lane where the road keeps its lane numbering, else the head's lane.
+        head_lane = head_lane.where(head_lane != lane, lane)
+    in_lane = in_lane.join(head_lane.rename("head_lane"), on="time_s")
+    in_lane["ok"] = (in_lane["lane"] == in_lane["head_lane"]) & (
+        in_lane["lat_m"].abs() < REGROUP_LAT_TOL_M
+    )
     ok_all = in_lane.pivot_table(
         index="time_s", columns="vehicle", values="ok", aggfunc="first", observed=True
     )
@@ -65,7 +74,8 @@ def overtake_progress(
     gaps = sorted_rear[:, 1:] - ordered[:, :-1]
     gaps_ok = np.all(gaps <= max_gap_m, axis=1) if gaps.shape[1] else np.ones(len(wide), bool)
     # No foreign vehicle between the platoon's tail and head in that lane.
-    hv = df[(~df["vehicle"].isin(cav_ids)) & (df["lane"] == lane)]
+    hv = df[~df["vehicle"].isin(cav_ids)].join(head_lane.rename("head_lane"), on="time_s")
+    hv = hv[hv["lane"] == hv["head_lane"]]
     head = cav_s.max(axis=1)
     tail = cav_s.min(axis=1)
     intruders = hv.join(head.rename("head"), on="time_s").join(tail.rename("tail"), on="time_s")

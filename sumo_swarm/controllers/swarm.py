@@ -131,6 +131,17 @@ class SwarmController:
 
     # ------------------------------------------------------------------ main step
     def control(self, t_s: float) -> None:
+        try:
+            self._control(t_s)
+        except Exception as exc:  # never let a bug of ours crash the user's simulation
+            log.exception("swarm controller failed at t = %.2f s", t_s)
+            self.ctx.event("controller_error", message=f"{type(exc).__name__}: {exc}")
+            if self.mode == OVERTAKE:
+                self._finish(t_s, completed=False)
+            states = self.ctx.session.states
+            self._cruise(states, ordered_platoon(states, self.ctx.cav_ids))
+
+    def _control(self, t_s: float) -> None:
         ctx = self.ctx
         states = ctx.session.states
         self._configure_new(states)
@@ -362,9 +373,11 @@ class SwarmController:
         Each is a pseudo-vehicle at speed 0 covering the lane from its end onwards, so the
         planner keeps CAVs out of the vanishing lane in time and the swarm regroups before it.
         """
-        road = self.ctx.road
+        session = self.ctx.session
+        platoon = ordered_platoon(session.states, self.ctx.cav_ids)
+        edge = session.edges.get(platoon[0]) if platoon else None
         out = []
-        for lane, end in self.ctx.session.lanes_ending(s_from_m, s_to_m, road.n_lanes):
+        for lane, end in session.lanes_ending(edge, s_from_m, s_to_m) if edge else []:
             out.append(
                 VehicleState(f"lane_end:{lane}@{end:.0f}", end + LANE_END_LENGTH_M, lane, 0.0,
                              0.0, LANE_END_LENGTH_M)

@@ -1,0 +1,73 @@
+"""SUMO configurations as a user would have them: networks built here, not the paper's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sumo_swarm.netbuild import HighwaySpec, build_highway, edge_ids
+
+
+def write_user_case(
+    folder: Path,
+    spec: HighwaySpec,
+    *,
+    platoon_lane: int = 1,
+    truck_speed_mps: float = 16.0,
+    cav_count: int = 6,
+    hv_lanes: tuple[int, ...] | None = None,
+    end_s: float = 90.0,
+    lateral_resolution: float | None = None,
+) -> Path:
+    """A sumocfg with a slow truck ahead of ``cav_count`` CAVs of vType ``cav`` and IDM traffic
+    in the other lanes; returns its path."""
+    net = build_highway(spec, folder)
+    edges = " ".join(edge_ids(spec))
+    n_lanes = spec.lanes_of(0)
+    if hv_lanes is None:
+        hv_lanes = tuple(q for q in range(n_lanes) if q != platoon_lane)
+    leader = 300.0
+    lines = [
+        "<routes>",
+        '  <vType id="cav" length="5" maxSpeed="20" accel="3" decel="4" sigma="0" '
+        'color="0,160,255"/>',
+        f'  <vType id="truck" length="12" maxSpeed="{truck_speed_mps:.2f}" vClass="truck" '
+        'carFollowModel="IDM" speedDev="0" lcStrategic="-1" lcSpeedGain="0" lcKeepRight="0" '
+        'lcCooperative="-1"/>',
+        # Cars keep their lanes unless their lane ends (strategic changes stay on).
+        '  <vType id="car" length="4.5" carFollowModel="IDM" tau="1.2" accel="0.73" decel="1.67" '
+        f'maxSpeed="{truck_speed_mps:.2f}" speedDev="0" lcSpeedGain="0" lcKeepRight="0"/>',
+        f'  <route id="r" edges="{edges}"/>',
+        f'  <vehicle id="truck" type="truck" route="r" depart="0" departLane="{platoon_lane}" '
+        f'departPos="{leader + 10 + 12}" departSpeed="{truck_speed_mps}"/>',
+    ]
+    for i in range(cav_count):
+        lines.append(
+            f'  <vehicle id="c{i}" type="cav" route="r" depart="0" departLane="{platoon_lane}" '
+            f'departPos="{leader - 15 * i}" departSpeed="{truck_speed_mps}"/>'
+        )
+    for lane in hv_lanes:
+        for k in range(3):
+            lines.append(
+                f'  <vehicle id="h{lane}_{k}" type="car" route="r" depart="0" '
+                f'departLane="{lane}" departPos="{leader - 40 - 35 * k}" '
+                f'departSpeed="{truck_speed_mps}"/>'
+            )
+    lines.append("</routes>")
+    (folder / "routes.rou.xml").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    lat = (
+        f'    <lateral-resolution value="{lateral_resolution}"/>\n'
+        if lateral_resolution is not None
+        else ""
+    )
+    cfg = folder / "user.sumocfg"
+    cfg.write_text(
+        "<configuration>\n  <input>\n"
+        f'    <net-file value="{net.name}"/>\n    <route-files value="routes.rou.xml"/>\n'
+        "  </input>\n  <time>\n"
+        f'    <step-length value="0.1"/>\n    <end value="{end_s}"/>\n'
+        f"  </time>\n  <processing>\n{lat}"
+        '    <lanechange.overtake-right value="true"/>\n'
+        "  </processing>\n</configuration>\n",
+        encoding="utf-8",
+    )
+    return cfg
