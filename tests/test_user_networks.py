@@ -1,0 +1,113 @@
+"""The swarm on SUMO configurations that are not the paper's, built here as a user would have
+them: a curved three-lane road, a two-lane road, four lanes over two edges, a lane drop ahead.
+Through ``sumo-swarm run --sumocfg`` (libsumo) and through the plugin API (libsumo and traci)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+import sumo
+
+import sumo_swarm
+from sumo_swarm.netbuild import HighwaySpec
+from sumo_swarm.runner import run_sumocfg
+from tests.usercases import write_user_case
+
+pytestmark = pytest.mark.sumo
+
+CASES = {
+    "curved-3-lanes": (HighwaySpec(length_m=2500, lanes=3, radius_m=800), 1),
+    "straight-2-lanes": (HighwaySpec(length_m=2500, lanes=2), 0),
+    "4-lanes-2-edges": (HighwaySpec(length_m=2500, lanes=4, edges=2), 1),
+    "lane-drop-ahead": (HighwaySpec(length_m=2800, lanes=(3, 2, 2, 2), edges=4), 1),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_user_configuration_overtakes_safely_and_beats_sumo_cacc(tmp_path, name):
+    spec, lane = CASES[name]
+    cfg = write_user_case(tmp_path / "net", spec, platoon_lane=lane)
+    notes: list[str] = []
+    swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False,
+                        notify=notes.append)  # fmt: skip
+    assert len(notes) == 1 and "--lateral-resolution" in notes[0]  # added and reported
+    baseline = run_sumocfg(cfg, "cav", "sumo-cacc", tmp_path / "cacc", progress=False,
+                           notify=notes.append)  # fmt: skip
+    assert swarm["cav"]["count"] == 6
+    assert swarm["overtake"]["target"] == "truck"  # found on its own, not configured
+    assert swarm["overtake"]["completed"] and swarm["overtake"]["regrouped"]
+    assert swarm["safety"]["collisions"] == 0
+    assert swarm["safety"]["hard_brakes"] == 0
+    assert swarm["cav"]["gap_min_m"] >= 5.0
+    assert swarm["cav"]["mean_speed_mps"] > baseline["cav"]["mean_speed_mps"]
+    assert json.loads((tmp_path / "swarm" / "summary.json").read_text()) == swarm
+
+
+def test_config_with_lateral_resolution_needs_no_addition(tmp_path):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=1500, lanes=3), end_s=10.0,
+                          lateral_resolution=0.8)  # fmt: skip
+    notes: list[str] = []
+    run_sumocfg(cfg, "cav", "cacc", tmp_path / "o", progress=False, notify=notes.append)
+    assert notes == []
+
+
+def _sumo_cmd(cfg) -> list[str]:
+    binary = os.path.join(sumo.SUMO_HOME, "bin", "sumo")
+    return [binary, "-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
+            "--collision.mingap-factor", "0", "--collision.action", "warn"]  # fmt: skip
+
+
+def test_attach_through_traci(tmp_path):
+    import traci
+
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=2500, lanes=3), end_s=70.0)
+    traci.start(_sumo_cmd(cfg), label="swarm-test")
+    conn = traci.getConnection("swarm-test")
+    try:
+        handle = sumo_swarm.attach(conn, cav_type="cav")
+        while conn.simulation.getMinExpectedNumber() > 0 and conn.simulation.getTime() < 70:
+            conn.simulationStep()
+        summary = handle.summary()
+        handle.detach()
+    finally:
+        conn.close()
+    assert summary["cav"]["count"] == 6
+    assert summary["overtake"]["completed"] and summary["overtake"]["regrouped"]
+    assert summary["safety"]["collisions"] == 0
+    assert summary["cav"]["gap_min_m"] >= 5.0
+
+
+def test_attach_through_libsumo_by_ids_with_a_late_cav(tmp_path):
+    import libsumo
+
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=2500, lanes=3), end_s=60.0)
+    routes = tmp_path / "routes.rou.xml"
+    late = ('  <vehicle id="late" type="cav" route="r" depart="4" departLane="1" '
+            'departPos="60" departSpeed="16"/>\n</routes>')  # fmt: skip
+    routes.write_text(routes.read_text().replace("</routes>", late))
+    libsumo.start(_sumo_cmd(cfg))
+    try:
+        ids = [f"c{i}" for i in range(6)] + ["late"]
+        handle = sumo_swarm.attach(libsumo, cav_ids=ids, cruising_speed_mps=20.0)
+        mid = None
+        while libsumo.simulation.getTime() < 60:
+            libsumo.simulation.step()
+            if mid is None and libsumo.simulation.getTime() >= 10:
+                mid = handle.summary()  # a summary at any time
+        summary = handle.summary()
+        handle.detach()
+    finally:
+        libsumo.close()
+    assert mid["cav"]["count"] == 7
+    assert "late" in handle.session.cav_ids
+    assert summary["safety"]["collisions"] == 0
+    assert summary["overtake"]["triggered"]
+
+
+def test_attach_needs_exactly_one_cav_selector():
+    import libsumo
+
+    with pytest.raises(ValueError, match="exactly one"):
+        sumo_swarm.attach(libsumo)
