@@ -303,10 +303,6 @@ class SwarmController:
                 )
                 grid = build_grid(cavs, target, ctx.road, t_s, target.speed_mps, gs)
                 problem = build_problem(grid, cavs, hvs, target, t_s, self.planner_settings, gs)
-                starts = deconflict_start_cells(problem.start_cells, grid.n_rows)
-                if starts != problem.start_cells:
-                    record["deconflicted"] = True
-                    problem = replace(problem, start_cells=starts)
                 plan = self.planner.plan(problem)
                 record["margin_scale"] = scale
                 if plan.ok or plan.status.value != "infeasible":
@@ -506,31 +502,6 @@ class SwarmController:
             "lat_error_rms_m": lateral_rms(self.lat_errors),
             "mpc": summarise_ms(self.mpc_ms, prefix="solve_ms_per_cav_"),
         }
-
-
-def deconflict_start_cells(
-    cells: tuple[tuple[int, int], ...], n_rows: int
-) -> tuple[tuple[int, int], ...]:
-    """Give every CAV its own start cell.
-
-    A platoon that closed up below the cell pitch (gaps under one cell length) can put two
-    CAVs into one cell, which makes the MIP infeasible at its initial step. CAVs are served
-    front-most first (``cells`` is ordered leader first); one whose cell is taken gets the
-    nearest free row of its column, behind before ahead. The reference trajectory starts from
-    the true state anyway, so the shift only changes which row the plan starts from.
-    """
-    taken: set[tuple[int, int]] = set()
-    out: list[tuple[int, int]] = []
-    for row, col in cells:
-        chosen = (row, col)
-        for offset in (0, -1, 1, -2, 2, -3, 3):
-            candidate = (row + offset, col)
-            if 0 <= candidate[0] < n_rows and candidate not in taken:
-                chosen = candidate
-                break
-        taken.add(chosen)
-        out.append(chosen)
-    return tuple(out)
 
 
 def hv_ids_of(problem) -> tuple[str, ...]:
