@@ -1,0 +1,472 @@
+"""Sweep files: a base scenario, the parameters to vary, seeds and controllers -> run specs.
+
+A sweep file (TOML)::
+
+    name = "demo"                      # optional; default: the file's stem
+    base = "paper.toml"                # the base scenario, relative to this file
+    controllers = ["swarm", "cacc"]    # optional; default: swarm and cacc
+    seeds = [42, 43]                   # optional; default: the base scenario's seed
+
+    [fixed]                            # applied to every run (not a column of the results)
+    "simulation.duration_s" = 60.0
+
+    [grid]                             # cartesian product of these values
+    "scene.upstream_gap_m" = [20.0, 25.0, 30.0]
+
+    [[cases]]                          # and/or a list of cases (each crossed with the grid)
+    "scene.hv.hv_target.speed_mps" = 15.0
+    "scene.hv.hv_target.desired_speed_mps" = 15.0
+
+Runs = cases x grid x seeds x controllers. A parameter is a dotted key of the scenario file:
+``section.key`` (``cav.count``), a key of a nested table (``planner.weights.w_tar``) or a key of
+one item of a list of tables picked by its ``id`` (``scene.hv.hv_target.speed_mps``). Bare
+dotted TOML keys (``scene.initial_speed_mps = [...]``) and quoted ones mean the same. Every
+value of every run is validated by :func:`sumo_swarm.config.load_scenario` before anything runs.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import itertools
+import json
+import re
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sumo_swarm.config import SECTIONS, Scenario, load_scenario
+from sumo_swarm.controllers import CONTROLLERS
+from sumo_swarm.errors import ConfigError
+
+SWEEP_KEYS = ("name", "description", "base", "controllers", "seeds", "fixed", "grid", "cases")
+DEFAULT_CONTROLLERS = ("swarm", "cacc")
+RUN_ID_HASH_CHARS = 12
+RUN_ID_PREFIX_CHARS = 48
+
+
+# --------------------------------------------------------------------------- parameter paths
+
+
+@dataclass(frozen=True)
+class ParamPath:
+    """A dotted key compiled against the scenario's dataclasses.
+
+    ``steps`` walks from the section: ``("field", name)`` selects a field (or a key of a nested
+    table), ``("item", id)`` selects the item with that ``id`` in a list of tables.
+    """
+
+    key: str
+    section: str
+    steps: tuple[tuple[str, str], ...]
+
+    @property
+    def top_field(self) -> str:
+        return self.steps[0][1]
+
+
+def _union_args(tp: Any) -> tuple[Any, ...]:
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return typing.get_args(tp)
+    return (tp,)
+
+
+def _dataclass_of(tp: Any) -> type | None:
+    return next((a for a in _union_args(tp) if dataclasses.is_dataclass(a)), None)
+
+
+def _item_dataclass_of(tp: Any) -> type | None:
+    for arg in _union_args(tp):
+        if typing.get_origin(arg) is tuple:
+            items = typing.get_args(arg)
+            if items and dataclasses.is_dataclass(items[0]):
+                return items[0]
+    return None
+
+
+def _init_fields(cls: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls) if f.init]
+
+
+def compile_key(key: str) -> ParamPath:
+    """Check ``key`` against the scenario's structure; ConfigError names what is wrong."""
+    if key == "simulation.seed":
+        raise ConfigError("'simulation.seed' is not a parameter: list the seeds in seeds = [...]")
+    parts = key.split(".")
+    if len(parts) < 2 or not all(parts):
+        raise ConfigError(f"'{key}': a parameter is a dotted key 'section.key'")
+    section = parts[0]
+    if section not in SECTIONS:
+        raise ConfigError(f"'{key}': unknown section '{section}' (known: {', '.join(SECTIONS)})")
+    cls: type = SECTIONS[section]
+    steps: list[tuple[str, str]] = []
+    i = 1
+    while i < len(parts):
+        name = parts[i]
+        known = _init_fields(cls)
+        if name not in known:
+            where = ".".join(parts[:i])
+            raise ConfigError(f"unknown key '{key}' ({where} has: {', '.join(known)})")
+        steps.append(("field", name))
+        i += 1
+        if i == len(parts):
+            break
+        tp = typing.get_type_hints(cls)[name]
+        nested = _dataclass_of(tp)
+        if nested is not None:
+            cls = nested
+            continue
+        item = _item_dataclass_of(tp)
+        if item is not None and "id" in _init_fields(item):
+            steps.append(("item", parts[i]))
+            i += 1
+            if i == len(parts):
+                raise ConfigError(f"'{key}': name a key of that item, e.g. '{key}.speed_mps'")
+            cls = item
+            continue
+        raise ConfigError(f"'{key}': '{'.'.join(parts[:i])}' has no sub-keys")
+    return ParamPath(key, section, tuple(steps))
+
+
+def _apply(section_table: dict[str, Any], path: ParamPath, value: Any) -> None:
+    """Set ``path`` to ``value`` in a section's raw TOML table (modified in place)."""
+    node: Any = section_table
+    steps = path.steps
+    for j, (kind, name) in enumerate(steps):
+        last = j == len(steps) - 1
+        if kind == "item":
+            matches = [x for x in node if isinstance(x, dict) and x.get("id") == name]
+            if not matches:
+                ids = [x.get("id") for x in node if isinstance(x, dict)]
+                raise ConfigError(
+                    f"'{path.key}': no item with id '{name}' in the base (ids: {ids})"
+                )
+            node = matches[0]
+            continue
+        if last:
+            node[name] = value
+            return
+        child = node.get(name)
+        if steps[j + 1][0] == "item":
+            if not isinstance(child, list):
+                raise ConfigError(f"'{path.key}': the base scenario has no list '{name}'")
+        elif not isinstance(child, dict):
+            child = {}  # a nested table the base leaves at its defaults
+            node[name] = child
+        node = child
+
+
+def _jsonable(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {k: _jsonable(v) for k, v in dataclasses.asdict(value).items()}
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def read_value(scenario: Scenario, path: ParamPath) -> Any:
+    """The value ``path`` has in a loaded (validated, typed) scenario, as plain JSON data."""
+    node: Any = getattr(scenario, path.section)
+    for kind, name in path.steps:
+        if kind == "item":
+            node = next(x for x in node if getattr(x, "id", None) == name)
+        elif isinstance(node, Mapping):
+            node = node[name]
+        else:
+            node = getattr(node, name)
+    return _jsonable(node)
+
+
+# --------------------------------------------------------------------------- bases
+
+
+class TomlBase:
+    """A scenario TOML file as the base of a sweep; parameters are overrides of its keys.
+
+    (A ``.sumocfg`` base, with parameters of the user's own SUMO configuration, would be a
+    second class with the same three methods.)
+    """
+
+    kind = "toml"
+
+    def __init__(self, path: Path) -> None:
+        self.path = path.resolve()
+        self.default = load_scenario(self.path)  # the base must load on its own
+        self.raw = tomllib.loads(self.path.read_text(encoding="utf-8"))
+
+    @property
+    def name(self) -> str:
+        return self.default.name
+
+    def overrides(self, values: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+        """``load_scenario`` overrides (section -> key -> value) setting the dotted ``values``."""
+        data = copy.deepcopy(self.raw)
+        touched: set[tuple[str, str]] = set()
+        for key, value in values.items():
+            path = compile_key(key)
+            section = data.setdefault(path.section, {})
+            if not isinstance(section, dict):
+                raise ConfigError(f"'{key}': [{path.section}] is not a table in the base")
+            _apply(section, path, copy.deepcopy(value))
+            touched.add((path.section, path.top_field))
+        out: dict[str, dict[str, Any]] = {}
+        for section, field in sorted(touched):
+            out.setdefault(section, {})[field] = data[section][field]
+        return out
+
+    def scenario(self, overrides: Mapping[str, Mapping[str, Any]]) -> Scenario:
+        return load_scenario(self.path, overrides={k: dict(v) for k, v in overrides.items()})
+
+
+def load_base(path: Path) -> TomlBase:
+    if path.suffix == ".sumocfg":
+        raise ConfigError(f"{path}: a .sumocfg base is not available yet; use a scenario TOML")
+    if path.suffix != ".toml":
+        raise ConfigError(f"{path}: the base must be a scenario .toml file")
+    if not path.is_file():
+        raise ConfigError(f"base scenario not found: {path}")
+    return TomlBase(path)
+
+
+# --------------------------------------------------------------------------- runs
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a sweep: everything a worker needs (picklable, no open resources)."""
+
+    run_id: str
+    base_path: str  # absolute path of the base scenario file
+    overrides: dict[str, dict[str, Any]]  # load_scenario overrides, fixed values included
+    params: dict[str, Any]  # the swept parameters of this run (dotted key -> value)
+    seed: int
+    controller: str
+
+    def scenario(self) -> Scenario:
+        return load_scenario(self.base_path, overrides=copy.deepcopy(self.overrides))
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A loaded and validated sweep file."""
+
+    path: Path
+    name: str
+    description: str
+    base: TomlBase
+    fixed: dict[str, Any]
+    parameters: tuple[str, ...]  # swept keys, grid first, in file order
+    controllers: tuple[str, ...]
+    seeds: tuple[int, ...]
+    runs: tuple[RunSpec, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "schema": "sumo-swarm/sweep/1",
+            "sweep_file": str(self.path),
+            "name": self.name,
+            "description": self.description,
+            "base": str(self.base.path),
+            "base_name": self.base.name,
+            "fixed": self.fixed,
+            "parameters": list(self.parameters),
+            "controllers": list(self.controllers),
+            "seeds": list(self.seeds),
+            "runs": [r.run_id for r in self.runs],
+        }
+
+
+def canonical_json(data: Any) -> str:
+    return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def make_run_id(
+    base_name: str, values: Mapping[str, Any], params: Mapping[str, Any], seed: int, controller: str
+) -> str:
+    """Stable id: readable prefix + hash of base name, every override, seed and controller.
+
+    ``values`` are all the overrides of the run (fixed and swept), as read back from the
+    validated scenario, so ``20`` and ``20.0`` give the same id.
+    """
+    ident = {"base": base_name, "overrides": dict(values), "seed": seed, "controller": controller}
+    digest = hashlib.sha256(canonical_json(ident).encode()).hexdigest()[:RUN_ID_HASH_CHARS]
+    shown = [f"{v:g}" if isinstance(v, float) else str(v) for v in params.values()]
+    prefix = "-".join([controller, f"s{seed}", *shown])
+    prefix = re.sub(r"[^A-Za-z0-9.=_-]+", "_", prefix)[:RUN_ID_PREFIX_CHARS].rstrip("-_.")
+    return f"{prefix}-{digest}"
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        dotted = f"{prefix}.{key}" if prefix else key
+        if isinstance(value, Mapping):
+            out.update(_flatten(value, dotted))
+        else:
+            out[dotted] = value
+    return out
+
+
+def _str_list(value: Any, key: str) -> list[str]:
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"{key}: expected a non-empty list of strings, got {value!r}")
+    if len(set(value)) != len(value):
+        raise ConfigError(f"{key}: values must be unique, got {value!r}")
+    return value
+
+
+def _int_list(value: Any, key: str) -> list[int]:
+    ok = isinstance(value, list) and value
+    if not ok or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+        raise ConfigError(f"{key}: expected a non-empty list of integers, got {value!r}")
+    if len(set(value)) != len(value):
+        raise ConfigError(f"{key}: values must be unique, got {value!r}")
+    return value
+
+
+def _table(value: Any, key: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{key}: expected a table, got {type(value).__name__}")
+    return _flatten(value)
+
+
+def _strip_base(message: str, base: Path) -> str:
+    for prefix in (f"{base}: ", f"{base.name}: "):
+        if message.startswith(prefix):
+            return message[len(prefix) :]
+    return message
+
+
+def _explain(
+    base: TomlBase, values: Mapping[str, Any], where: Mapping[str, str], exc: Exception
+) -> str:
+    """Name the key that makes a run invalid: the one whose removal makes the run load."""
+    for key, value in values.items():
+        rest = {k: v for k, v in values.items() if k != key}
+        try:
+            base.scenario(base.overrides(rest))
+        except ConfigError:
+            continue
+        return f'{where[key]}."{key}" = {value!r}: {_strip_base(str(exc), base.path)}'
+    return f"the run with {dict(values)}: {_strip_base(str(exc), base.path)}"
+
+
+def load_sweep(path: str | Path) -> Sweep:
+    """Load and validate a sweep file; any problem raises ConfigError naming the key and file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"sweep file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read sweep file {path}: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    try:
+        return _build(path, data)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def _build(path: Path, data: dict[str, Any]) -> Sweep:
+    unknown = sorted(set(data) - set(SWEEP_KEYS))
+    if unknown:
+        raise ConfigError(f"unknown key '{unknown[0]}' (known: {', '.join(SWEEP_KEYS)})")
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"name: expected a non-empty string, got {name!r}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ConfigError(f"description: expected a string, got {description!r}")
+    if "base" not in data:
+        raise ConfigError("base: missing (the base scenario file, relative to the sweep file)")
+    if not isinstance(data["base"], str) or not data["base"]:
+        raise ConfigError(f"base: expected a file name, got {data['base']!r}")
+    try:
+        base = load_base(path.parent / data["base"])
+    except ConfigError as exc:
+        raise ConfigError(f"base: {exc}") from None
+    controllers = _str_list(data.get("controllers", list(DEFAULT_CONTROLLERS)), "controllers")
+    for c in controllers:
+        if c not in CONTROLLERS:
+            known = ", ".join(CONTROLLERS)
+            raise ConfigError(f"controllers: unknown controller '{c}' (known: {known})")
+    seeds = _int_list(data.get("seeds", [base.default.simulation.seed]), "seeds")
+
+    fixed = _table(data.get("fixed", {}), "fixed")
+    grid = _table(data.get("grid", {}), "grid")
+    raw_cases = data.get("cases", [{}])
+    if not isinstance(raw_cases, list) or not raw_cases:
+        raise ConfigError("cases: expected a non-empty array of tables ([[cases]])")
+    cases = [_table(c, f"cases[{i}]") for i, c in enumerate(raw_cases)]
+
+    where: dict[str, str] = {}  # key -> the table it is set in, for messages
+    tables = [("fixed", fixed), ("grid", grid)]
+    tables += [(f"cases[{i}]", c) for i, c in enumerate(cases)]
+    for name_, table in tables:
+        for key in table:
+            try:
+                compile_key(key)
+            except ConfigError as exc:
+                raise ConfigError(f"{name_}: {exc}") from None
+            if where.get(key, name_).split("[")[0] != name_.split("[")[0]:
+                raise ConfigError(f'{name_}."{key}": also set in [{where[key].split("[")[0]}]')
+            where.setdefault(key, name_)
+    for key, values in grid.items():
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f'grid."{key}": expected a non-empty list of values, got {values!r}')
+    case_keys = [k for c in cases for k in c]
+    parameters = tuple(dict.fromkeys([*grid, *case_keys]))
+    paths = {key: compile_key(key) for key in (*fixed, *parameters)}
+
+    runs: list[RunSpec] = []
+    seen: dict[str, dict[str, Any]] = {}
+    points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
+    for i, case in enumerate(cases):
+        for point in points:
+            values = {**fixed, **case, **point}
+            places = {**where, **{k: f"cases[{i}]" for k in case}}
+            try:
+                overrides = base.overrides(values)
+                scenario = base.scenario(overrides)
+            except ConfigError as exc:
+                raise ConfigError(_explain(base, values, places, exc)) from None
+            canonical = {key: read_value(scenario, paths[key]) for key in values}
+            params = {key: read_value(scenario, paths[key]) for key in parameters}
+            for seed in seeds:
+                for controller in controllers:
+                    run_id = make_run_id(base.name, canonical, params, seed, controller)
+                    if run_id in seen:
+                        raise ConfigError(
+                            f"cases[{i}]: the runs of {values} repeat those of {seen[run_id]}"
+                        )
+                    seen[run_id] = values
+                    runs.append(
+                        RunSpec(run_id, str(base.path), overrides, params, seed, controller)
+                    )
+    fixed_scenario = base.scenario(base.overrides(fixed))
+    return Sweep(
+        path=path.resolve(),
+        name=name,
+        description=description,
+        base=base,
+        fixed={key: read_value(fixed_scenario, paths[key]) for key in fixed},
+        parameters=parameters,
+        controllers=tuple(controllers),
+        seeds=tuple(seeds),
+        runs=tuple(runs),
+    )

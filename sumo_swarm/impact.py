@@ -1,0 +1,311 @@
+"""Traffic-impact study of a batch: tables (CSV + markdown) and PNG plots across the sweep.
+
+``impact(DIR)`` reads ``DIR/results.parquet`` and ``DIR/sweep.json`` (written by
+``sumo-swarm batch``) and writes, in ``DIR/impact/``:
+
+* ``runs.csv``: one row per successful run, its parameters, key measures and its gains;
+* ``mobility.csv``: per swept parameter value and controller, the CAVs' mean speed, travel
+  time, share of runs that overtook, and the **mobility gain** over the reference controller
+  (``cacc``, the paper's baseline): ``gain.mean_speed_pct = (v - v_ref) / v_ref * 100`` and
+  ``gain.travel_time_pct = (T_ref - T) / T_ref * 100``, each run compared with the reference
+  run of the same parameters and seed, then averaged;
+* ``upstream.csv``: per value and controller, the upstream influence: HVs influenced, the
+  first follower's speed reduction (means over runs), the smallest gap and headway (minimum);
+* ``safety.csv``: per controller, collisions, hard brakes, teleports (sums), the smallest TTC
+  and CAV gap;
+* ``impact.md`` (the same tables) and the plots ``mobility_vs_<param>.png``,
+  ``upstream_vs_<param>.png`` (one per swept parameter) and ``safety.png``.
+
+Means are over the runs of a group (seeds, and the other parameters' values).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from sumo_swarm.errors import ConfigError
+
+REFERENCE = "cacc"
+ALL = "(all)"  # the parameter name of the one group of a sweep that varies nothing
+
+SPEED, TRAVEL = "cav.mean_speed_mps", "cav.travel_time_s"
+GAIN_SPEED, GAIN_TRAVEL = "gain.mean_speed_pct", "gain.travel_time_pct"
+
+# (column, how runs are aggregated, heading, plotted)
+MOBILITY = (
+    (SPEED, "mean", "CAV mean speed [m/s]", True),
+    (TRAVEL, "mean", "CAV travel time [s]", False),
+    ("overtake.completed", "mean", "overtaken (share of runs)", False),
+    (GAIN_SPEED, "mean", "mobility gain, speed [%]", True),
+    (GAIN_TRAVEL, "mean", "mobility gain, travel time [%]", False),
+)
+UPSTREAM = (
+    ("upstream.hv_influenced", "mean", "upstream HVs influenced", True),
+    ("upstream.first_follower_reduction_pct", "mean", "1st follower's speed reduction [%]", True),
+    ("upstream.max_reduction_pct", "mean", "largest speed reduction [%]", False),
+    ("upstream.min_gap_m", "min", "smallest upstream gap [m]", False),
+    ("upstream.min_headway_s", "min", "smallest upstream headway [s]", True),
+)
+SAFETY = (
+    ("safety.collisions", "sum", "collisions", True),
+    ("safety.hard_brakes", "sum", "hard brakes", True),
+    ("safety.teleports", "sum", "teleports", True),
+    ("safety.min_ttc_s", "min", "smallest TTC [s]", False),
+    ("cav.gap_min_m", "min", "smallest CAV gap [m]", False),
+)
+
+
+# --------------------------------------------------------------------------- tables
+
+
+def _to_float(value: Any) -> float:
+    if value is None or isinstance(value, str):
+        return math.nan
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def numeric(series: pd.Series) -> pd.Series:
+    """A column as floats (booleans as 0/1, missing and text as NaN)."""
+    return series.map(_to_float).astype("float64")
+
+
+def _fmt(value: Any, digits: int) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if isinstance(value, bool | np.bool_):
+        return "yes" if value else "no"
+    if isinstance(value, float | np.floating):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def markdown_table(df: pd.DataFrame, digits: int = 3) -> str:
+    """``df`` as a GitHub markdown table (floats to ``digits`` decimals, missing as ``-``)."""
+    head = "| " + " | ".join(str(c) for c in df.columns) + " |"
+    rule = "| " + " | ".join("---" for _ in df.columns) + " |"
+    body = ["| " + " | ".join(_fmt(v, digits) for v in row) + " |" for row in df.itertuples(False)]
+    return "\n".join([head, rule, *body])
+
+
+def read_batch(batch_dir: str | Path) -> tuple[pd.DataFrame, list[str]]:
+    """``results.parquet`` and the sweep's parameter names; ConfigError if it is no batch."""
+    d = Path(batch_dir)
+    path = d / "results.parquet"
+    if not path.is_file():
+        raise ConfigError(f"{d}: no results.parquet (is it the --out folder of a batch?)")
+    df = pd.read_parquet(path)
+    parameters: list[str] = []
+    sweep = d / "sweep.json"
+    if sweep.is_file():
+        parameters = [p for p in json.loads(sweep.read_text())["parameters"] if p in df.columns]
+    return df, parameters
+
+
+def with_gains(ok: pd.DataFrame, parameters: list[str], reference: str = REFERENCE) -> pd.DataFrame:
+    """``ok`` with the gain columns: each run against the ``reference`` run of the same
+    parameters and seed (NaN where there is none)."""
+    key = [*parameters, "seed"]
+    out = ok.copy()
+    for col in (SPEED, TRAVEL):
+        out[col] = numeric(out[col]) if col in out else math.nan
+    ref = out.loc[out["controller"] == reference, [*key, SPEED, TRAVEL]]
+    ref = ref.drop_duplicates(key).rename(columns={SPEED: "_ref_speed", TRAVEL: "_ref_travel"})
+    out = out.merge(ref, on=key, how="left")
+    out[GAIN_SPEED] = (out[SPEED] - out["_ref_speed"]) / out["_ref_speed"] * 100.0
+    out[GAIN_TRAVEL] = (out["_ref_travel"] - out[TRAVEL]) / out["_ref_travel"] * 100.0
+    return out.drop(columns=["_ref_speed", "_ref_travel"])
+
+
+def _aggregate(df: pd.DataFrame, by: list[str], measures: tuple) -> pd.DataFrame:
+    rows = []
+    for values, group in df.groupby(by, sort=True, dropna=False):
+        values = values if isinstance(values, tuple) else (values,)
+        row: dict[str, Any] = dict(zip(by, values, strict=True))
+        row["runs"] = len(group)
+        for column, how, _, _ in measures:
+            x = numeric(group[column]) if column in group else pd.Series(dtype=float)
+            row[column] = getattr(x, how)() if x.notna().any() else math.nan
+        rows.append(row)
+    return pd.DataFrame(rows, columns=[*by, "runs", *(m[0] for m in measures)])
+
+
+def swept_parameters(df: pd.DataFrame, parameters: list[str]) -> dict[str, list[str]]:
+    """The parameters that vary in ``df``, each with those that move in step with it.
+
+    A parameter whose values split the runs exactly as an earlier one's do (the slow vehicle's
+    speed and desired speed set together) is not studied twice.
+    """
+    swept: dict[str, list[str]] = {}
+    for p in parameters:
+        if df[p].nunique(dropna=False) < 2:
+            continue
+        twin = next((q for q in swept if _same_partition(df[q], df[p])), None)
+        if twin is None:
+            swept[p] = []
+        else:
+            swept[twin].append(p)
+    return swept
+
+
+def _same_partition(a: pd.Series, b: pd.Series) -> bool:
+    pairs = pd.DataFrame({"a": a.astype(str), "b": b.astype(str)}).drop_duplicates()
+    return pairs["a"].is_unique and pairs["b"].is_unique
+
+
+def by_parameter(df: pd.DataFrame, parameters: list[str], measures: tuple) -> pd.DataFrame:
+    """Per swept parameter, per value and controller: ``measures`` aggregated over runs."""
+    swept = list(swept_parameters(df, parameters)) or [ALL]
+    tables = []
+    for p in swept:
+        data = df.assign(**{ALL: ""}) if p == ALL else df
+        t = _aggregate(data, [p, "controller"], measures).rename(columns={p: "value"})
+        t.insert(0, "parameter", p)
+        tables.append(t)
+    return pd.concat(tables, ignore_index=True)
+
+
+def safety_table(df: pd.DataFrame) -> pd.DataFrame:
+    ok = df[df["status"] == "ok"]
+    table = _aggregate(ok, ["controller"], SAFETY) if not ok.empty else pd.DataFrame()
+    failed = df.groupby("controller")["status"].apply(lambda s: int((s != "ok").sum()))
+    if table.empty:
+        return failed.rename("failed").reset_index()
+    table.insert(2, "failed", table["controller"].map(failed).fillna(0).astype(int))
+    runs_hit = ok.groupby("controller")["safety.collisions"].apply(
+        lambda s: int((numeric(s) > 0).sum())
+    )
+    table.insert(4, "runs with a collision", table["controller"].map(runs_hit))
+    return table
+
+
+# --------------------------------------------------------------------------- plots
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_") or "all"
+
+
+def _x_positions(values: pd.Series) -> tuple[np.ndarray, list[str] | None]:
+    x = numeric(values)
+    if x.notna().all():
+        return x.to_numpy(), None
+    labels = sorted(values.astype(str).unique())
+    return values.astype(str).map(labels.index).to_numpy(dtype=float), labels
+
+
+def _line_panels(table: pd.DataFrame, parameter: str, measures: tuple, path: Path) -> None:
+    shown = [m for m in measures if m[3] and table[m[0]].notna().any()]
+    if not shown:
+        return
+    fig = Figure(figsize=(4.2 * len(shown), 3.4), layout="constrained")
+    axes = fig.subplots(1, len(shown), squeeze=False)[0]
+    for ax, (column, _, heading, _) in zip(axes, shown, strict=True):
+        for controller, group in table.groupby("controller", sort=True):
+            if group[column].notna().any():
+                x, labels = _x_positions(group["value"])
+                order = np.argsort(x)
+                ax.plot(x[order], group[column].to_numpy()[order], marker="o", label=controller)
+                if labels:
+                    ax.set_xticks(range(len(labels)), labels)
+        ax.set_xlabel(parameter if parameter != ALL else "")
+        ax.set_ylabel(heading)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="small")
+    fig.savefig(path, dpi=120)
+
+
+def _safety_plot(table: pd.DataFrame, path: Path) -> None:
+    shown = [m for m in SAFETY if m[3] and m[0] in table]
+    if table.empty or not shown:
+        return
+    fig = Figure(figsize=(1.6 + 1.2 * len(table) * len(shown) / 2, 3.4), layout="constrained")
+    ax = fig.subplots()
+    width = 0.8 / len(shown)
+    x = np.arange(len(table))
+    for i, (column, _, heading, _) in enumerate(shown):
+        ax.bar(x + i * width, table[column].fillna(0), width, label=heading)
+    ax.set_xticks(x + width * (len(shown) - 1) / 2, table["controller"])
+    ax.set_ylabel("count over all runs")
+    top = float(np.nanmax(table[[m[0] for m in shown]].to_numpy(dtype=float), initial=0.0))
+    ax.set_ylim(0, max(1.0, top * 1.15))
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize="small")
+    ax.grid(axis="y", alpha=0.3)
+    fig.savefig(path, dpi=120)
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def _headings(table: pd.DataFrame, measures: tuple) -> pd.DataFrame:
+    return table.rename(columns={m[0]: m[2] for m in measures})
+
+
+def impact(
+    batch_dir: str | Path, out_dir: str | Path | None = None, reference: str = REFERENCE
+) -> Path:
+    """Write the impact tables and plots of the batch in ``batch_dir``; returns impact.md."""
+    df, parameters = read_batch(batch_dir)
+    out = Path(out_dir) if out_dir is not None else Path(batch_dir) / "impact"
+    out.mkdir(parents=True, exist_ok=True)
+    ok = df[df["status"] == "ok"]
+    runs = with_gains(ok, parameters, reference)
+    keep = [*parameters, "controller", "seed", "run_id"]
+    keep += [m[0] for m in (*MOBILITY, *UPSTREAM, *SAFETY) if m[0] in runs.columns]
+    runs = runs[list(dict.fromkeys(keep))]
+    mobility = by_parameter(runs, parameters, MOBILITY)
+    upstream = by_parameter(runs, parameters, UPSTREAM)
+    safety = safety_table(df)
+    runs.to_csv(out / "runs.csv", index=False)
+    mobility.to_csv(out / "mobility.csv", index=False)
+    upstream.to_csv(out / "upstream.csv", index=False)
+    safety.to_csv(out / "safety.csv", index=False)
+
+    has_reference = (runs["controller"] == reference).any()
+    lines = [f"# Traffic impact: {Path(batch_dir).resolve().name}", ""]
+    lines.append(
+        f"{len(df)} runs ({int((df['status'] == 'ok').sum())} ok), parameters: "
+        f"{', '.join(f'`{p}`' for p in parameters) or 'none'}. Gains are against "
+        f"`{reference}` runs with the same parameters and seed"
+        + ("." if has_reference else " (none in this batch).")
+    )
+    for p, twins in swept_parameters(runs, parameters).items():
+        if twins:
+            moved = ", ".join(f"`{t}`" for t in twins)
+            lines += ["", f"{moved} moved in step with `{p}`: shown by `{p}` only."]
+    for p, group in mobility.groupby("parameter", sort=False):
+        slug = _slug(p)
+        _line_panels(group, p, MOBILITY, out / f"mobility_vs_{slug}.png")
+        _line_panels(
+            upstream[upstream["parameter"] == p], p, UPSTREAM, out / f"upstream_vs_{slug}.png"
+        )
+    for title, table, measures, stem in (
+        ("Mobility", mobility, MOBILITY, "mobility"),
+        ("Upstream influence", upstream, UPSTREAM, "upstream"),
+    ):
+        lines += ["", f"## {title}", ""]
+        for p, group in table.groupby("parameter", sort=False):
+            lines += [f"By `{p}`:" if p != ALL else "All runs:", ""]
+            lines += [markdown_table(_headings(group.drop(columns="parameter"), measures)), ""]
+            png = out / f"{stem}_vs_{_slug(p)}.png"
+            if png.is_file():
+                lines += [f"![{title} vs {p}]({png.name})", ""]
+    _safety_plot(safety, out / "safety.png")
+    lines += ["", "## Safety", "", markdown_table(_headings(safety, SAFETY)), ""]
+    if (out / "safety.png").is_file():
+        lines += ["![Safety per controller](safety.png)", ""]
+    md = out / "impact.md"
+    md.write_text("\n".join(lines), encoding="utf-8")
+    return md

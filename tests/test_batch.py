@@ -1,0 +1,289 @@
+"""Batch sweeps: sweep files, stable run ids, local and Ray runs, resume after kill -9, failures.
+
+The SUMO tests run short scenes (20-40 s of simulated time) with the fast controllers; one
+swarm run keeps the paper's method in the loop.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from sumo_swarm.batch import load_sweep, run_batch
+from sumo_swarm.cli import main
+from sumo_swarm.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER = (ROOT / "scenarios" / "paper.toml").as_posix()
+
+
+def short(duration_s: float) -> str:
+    return f'[fixed]\n"simulation.duration_s" = {duration_s}\n"evaluation.end_s" = {duration_s}\n'
+
+
+@pytest.fixture
+def sweep_file(tmp_path: Path):
+    def write(body: str, name: str = "sweep.toml") -> Path:
+        path = tmp_path / name
+        path.write_text(f'base = "{PAPER}"\n{body}', encoding="utf-8")
+        return path
+
+    return write
+
+
+def finished_runs(out: Path) -> dict[str, int]:
+    """run id -> mtime (ns) of its `done` marker."""
+    return {
+        d.name: (d / "done").stat().st_mtime_ns
+        for d in (out / "runs").iterdir()
+        if (d / "done").is_file()
+    }
+
+
+def unfinished(out: Path) -> list[str]:
+    return [d.name for d in (out / "runs").iterdir() if d.name.startswith(".")]
+
+
+# --------------------------------------------------------------------------- sweep files
+
+
+@pytest.mark.parametrize(
+    ("body", "fragments"),
+    [
+        ('[grid]\n"scene.initial_sped_mps" = [1.0]\n', ["scene.initial_sped_mps"]),
+        ('[grid]\n"scene.initial_speed_mps" = ["fast"]\n', ["scene.initial_speed_mps", "fast"]),
+        ('[grid]\n"scene.initial_speed_mps" = 3.0\n', ["scene.initial_speed_mps", "list"]),
+        ('[grid]\n"scene.initial_speed_mps" = [-1.0]\n', ["scene.initial_speed_mps", ">= 0"]),
+        ("[[cases]]\nscene.hv.hv_nope.speed_mps = 3.0\n", ["scene.hv.hv_nope.speed_mps"]),
+        ("colour = 1\n", ["colour"]),
+        ('controllers = ["magic"]\n', ["controllers", "magic"]),
+        ("seeds = [1.5]\n", ["seeds"]),
+        ('[fixed]\n"simulation.duration_s" = 20.0\n', ["simulation.duration_s", "end_s"]),
+        ("[grid]\nsimulation.seed = [1]\n", ["simulation.seed"]),
+    ],
+)
+def test_bad_sweep_file_exits_2_naming_key_and_file(sweep_file, tmp_path, capsys, body, fragments):
+    path = sweep_file(body)
+    assert main(["batch", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    for fragment in [str(path), *fragments]:
+        assert fragment in err[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_base_and_missing_sweep(tmp_path, capsys):
+    sweep = tmp_path / "s.toml"
+    sweep.write_text('base = "nope.toml"\n')
+    assert main(["batch", str(sweep), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "base" in err and "nope.toml" in err and str(sweep) in err
+    assert main(["batch", str(tmp_path / "none.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "none.toml" in capsys.readouterr().err
+    assert main(["impact", str(tmp_path)]) == 2
+
+
+def test_runs_are_the_product_with_stable_ids(sweep_file):
+    path = sweep_file(
+        'controllers = ["cacc", "swarm"]\nseeds = [1, 2]\n'
+        '[grid]\n"cav.count" = [4, 6]\n'
+        '[[cases]]\n"scene.hv.hv_target.speed_mps" = 16\n'
+        '"scene.hv.hv_target.desired_speed_mps" = 16\n'
+        "[[cases]]\n"
+    )
+    sweep = load_sweep(path)
+    assert sweep.parameters == (
+        "cav.count", "scene.hv.hv_target.speed_mps", "scene.hv.hv_target.desired_speed_mps",
+    )  # fmt: skip
+    assert len(sweep.runs) == 2 * 2 * 2 * 2
+    assert len({r.run_id for r in sweep.runs}) == len(sweep.runs)
+    # The empty case keeps the base's value, read back from the validated scenario.
+    assert {r.params["scene.hv.hv_target.speed_mps"] for r in sweep.runs} == {16.0, 17.5}
+    target = sweep.runs[0].overrides["scene"]["hv"][0]
+    assert target["id"] == "hv_target" and target["speed_mps"] == 16
+    # Ids depend on the values, not on how they are written (16 and 16.0), nor on file order.
+    again = load_sweep(
+        sweep_file(
+            'seeds = [2, 1]\ncontrollers = ["swarm", "cacc"]\n'
+            "[grid]\ncav.count = [6, 4]\n"
+            '[[cases]]\n"scene.hv.hv_target.desired_speed_mps" = 16.0\n'
+            '"scene.hv.hv_target.speed_mps" = 16.0\n'
+            "[[cases]]\n",
+            name="again.toml",
+        )
+    )
+    assert {r.run_id for r in again.runs} == {r.run_id for r in sweep.runs}
+    assert sweep.runs[0].run_id.startswith("cacc-s1-4-16-16-")
+
+
+def test_repeated_case_is_refused(sweep_file):
+    path = sweep_file('[[cases]]\n"cav.count" = 4\n[[cases]]\n"cav.count" = 4.0\n')
+    with pytest.raises(ConfigError, match="repeat"):
+        load_sweep(path)
+
+
+# --------------------------------------------------------------------------- real runs
+
+
+@pytest.mark.sumo
+def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
+    path = sweep_file(
+        'controllers = ["cacc", "swarm"]\n[grid]\n"scene.initial_speed_mps" = [16.0, 17.5]\n'
+        + short(20.0)
+    )
+    out = tmp_path / "out"
+    report = run_batch(path, out, workers=2, progress=False)
+    assert (report.ran, report.skipped, report.failed) == (4, 0, 0)
+
+    df = pd.read_parquet(out / "results.parquet")
+    assert len(df) == 4 and df["run_id"].is_unique
+    assert list(df.columns[:6]) == ["scene.initial_speed_mps", "controller", "seed", "run_id",
+                                    "status", "error"]  # fmt: skip
+    assert set(df["status"]) == {"ok"} and df["error"].isna().all()
+    assert sorted(df["scene.initial_speed_mps"]) == [16.0, 16.0, 17.5, 17.5]
+    for column in ("cav.mean_speed_mps", "safety.collisions", "overtake.completed",
+                   "upstream.first_follower_reduction_pct", "upstream.hv_influenced",
+                   "timing.wall_s", "run.peak_rss_mb"):  # fmt: skip
+        assert column in df.columns, column
+    swarm = df[df["controller"] == "swarm"]
+    assert "planner.solves" in df.columns and swarm["planner.solves"].notna().all()
+    for run_id in df["run_id"]:
+        folder = out / "runs" / run_id
+        for name in ("done", "record.json", "summary.json", "trajectories.parquet"):
+            assert (folder / name).is_file(), (run_id, name)
+        summary = json.loads((folder / "summary.json").read_text())
+        row = df[df["run_id"] == run_id].iloc[0]
+        assert row["cav.mean_speed_mps"] == pytest.approx(summary["cav"]["mean_speed_mps"])
+    assert len(pd.read_parquet(out / "upstream.parquet")) > 0
+
+    impact = out / "impact"
+    for name in ("impact.md", "mobility.csv", "upstream.csv", "safety.csv", "runs.csv",
+                 "mobility_vs_scene_initial_speed_mps.png",
+                 "upstream_vs_scene_initial_speed_mps.png", "safety.png"):  # fmt: skip
+        assert (impact / name).is_file(), name
+    mobility = pd.read_csv(impact / "mobility.csv")
+    cacc = mobility[mobility["controller"] == "cacc"]
+    assert cacc["gain.mean_speed_pct"].tolist() == pytest.approx([0.0, 0.0])
+    assert mobility[mobility["controller"] == "swarm"]["gain.mean_speed_pct"].notna().all()
+
+    # The same command again: nothing runs, nothing changes.
+    before = finished_runs(out)
+    capsys.readouterr()
+    assert main(["batch", str(path), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "0 run now, 4 skipped" in printed and "| swarm |" in printed
+    assert finished_runs(out) == before
+    assert len(pd.read_parquet(out / "results.parquet")) == 4
+
+
+@pytest.mark.sumo
+def test_resume_after_kill_9_loses_and_duplicates_nothing(sweep_file, tmp_path):
+    path = sweep_file(
+        'controllers = ["cacc", "sumo-cacc"]\n[grid]\n'
+        '"scene.initial_speed_mps" = [16.0, 17.0, 17.5]\n' + short(40.0)
+    )
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sumo_swarm", "batch", str(path), "--out", str(out),
+         "--workers", "2"],
+        start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline:
+            if (out / "runs").is_dir() and finished_runs(out) and unfinished(out):
+                break
+            assert proc.poll() is None, "the batch ended before it could be killed"
+            time.sleep(0.02)
+        else:
+            pytest.fail("no run finished while another was under way")
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the batch and its workers, as in a crash
+        proc.wait()
+    before = finished_runs(out)
+    assert 1 <= len(before) < 6 and unfinished(out)
+
+    report = run_batch(path, out, workers=2, progress=False, impact=False)
+    assert report.skipped == len(before) and report.ran == 6 - len(before)
+    after = finished_runs(out)
+    assert len(after) == 6 and not unfinished(out)
+    assert {k: after[k] for k in before} == before  # finished runs were not redone
+    df = pd.read_parquet(out / "results.parquet")
+    assert len(df) == 6 and df["run_id"].is_unique and set(df["status"]) == {"ok"}
+    assert set(df["run_id"]) == set(after)
+
+
+@pytest.mark.sumo
+def test_failed_run_is_recorded_and_the_batch_goes_on(sweep_file, tmp_path, capsys):
+    # Lane 9 passes the scenario checks (they do not read the network) but SUMO refuses it.
+    path = sweep_file(
+        'controllers = ["cacc"]\n[[cases]]\n"scene.platoon_lane" = 9\n[[cases]]\n' + short(20.0)
+    )
+    out = tmp_path / "out"
+    assert main(["batch", str(path), "--out", str(out)]) == 1
+    df = pd.read_parquet(out / "results.parquet").set_index("scene.platoon_lane")
+    assert df.loc[1, "status"] == "ok" and pd.isna(df.loc[1, "error"])
+    assert df.loc[9, "status"] == "failed"
+    error = df.loc[9, "error"]
+    assert "departLane" in error and "\n" not in error
+    assert "1 failed" in capsys.readouterr().out
+    failed_dir = out / "runs" / df.loc[9, "run_id"]
+    assert "Traceback" in (failed_dir / "worker.log").read_text()
+    # Failed runs count as finished; --retry-failed runs them again.
+    report = run_batch(path, out, progress=False, impact=False)
+    assert (report.ran, report.skipped, report.failed) == (0, 2, 1)
+    report = run_batch(path, out, progress=False, impact=False, retry_failed=True)
+    assert (report.ran, report.skipped, report.failed) == (1, 1, 1)
+
+
+@pytest.mark.sumo
+def test_worker_killed_mid_run_is_a_failed_run(sweep_file, tmp_path):
+    path = sweep_file('controllers = ["cacc", "sumo-cacc"]\n' + short(60.0))
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sumo_swarm", "batch", str(path), "--out", str(out),
+         "--workers", "1"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not ((out / "runs").is_dir() and unfinished(out)):
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.02)
+        worker_pid = int(unfinished(out)[0].split(".")[-2])  # .<run_id>.<host>.<pid>.<token>
+        os.kill(worker_pid, signal.SIGKILL)
+        assert proc.wait(timeout=120) == 1
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    df = pd.read_parquet(out / "results.parquet")
+    assert sorted(df["status"]) == ["failed", "ok"]
+    assert "SIGKILL" in df.loc[df["status"] == "failed", "error"].iloc[0]
+
+
+@pytest.mark.sumo
+def test_ray_backend_on_a_local_instance(sweep_file, tmp_path):
+    import ray
+
+    path = sweep_file(
+        'controllers = ["cacc", "sumo-cacc"]\n[grid]\n"cav.count" = [4]\n' + short(20.0)
+    )
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        report = run_batch(path, tmp_path / "out", ray="auto", progress=False)
+        assert ray.is_initialized()  # the caller's Ray is left as it was
+    finally:
+        ray.shutdown()
+    assert (report.ran, report.failed) == (2, 0)
+    df = pd.read_parquet(tmp_path / "out" / "results.parquet")
+    assert sorted(df["controller"]) == ["cacc", "sumo-cacc"]
+    assert set(df["status"]) == {"ok"} and (df["cav.count"] == 4).all()
+    assert df["run.pid"].nunique() == 2  # a fresh worker process per run
