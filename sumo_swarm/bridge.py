@@ -131,6 +131,7 @@ class SumoSession:
         self.record = StepRecord()
         self.recording = True
         self.cav_ids: list[str] = []
+        self.vanished: list[tuple[float, str]] = []
         self._open = False
         self._owned = True
         self._roads: dict[str, RoadSection] = {}
@@ -351,23 +352,56 @@ class SumoSession:
         return road
 
     # ------------------------------------------------------------------ commands
+    def _command(self, vid: str, call, *args) -> bool:
+        """Send one command; a vehicle SUMO no longer knows is a warning, not a crash.
+
+        It is dropped from :attr:`states` at once (so the controller stops commanding it this
+        step) and listed in :attr:`vanished`. Returns whether the command went through.
+        """
+        try:
+            call(vid, *args)
+        except Exception as exc:
+            if type(exc).__name__ != "TraCIException" or not self._gone(vid):
+                raise
+            log.warning("vehicle %s vanished: %s", vid, exc)
+            self.vanished.append((self.time_s, vid))
+            self.states.pop(vid, None)
+            return False
+        return True
+
+    def _gone(self, vid: str) -> bool:
+        try:
+            return vid not in self.api.vehicle.getIDList()
+        except Exception:
+            return True
+
+    def remove_vehicle(self, vid: str) -> None:
+        """Take ``vid`` out of the simulation.
+
+        Unsubscribes first: with libsumo 1.28, ``vehicle.remove`` on a subscribed vehicle makes
+        the next ``simulation.step()`` fail with "Vehicle ... is not known" (measured).
+        """
+        self.api.vehicle.unsubscribe(vid)
+        self.api.vehicle.remove(vid)
+        self.states.pop(vid, None)
+
     def set_speed(self, vid: str, speed_mps: float) -> None:
-        self.api.vehicle.setSpeed(vid, max(0.0, speed_mps))
+        self._command(vid, self.api.vehicle.setSpeed, max(0.0, speed_mps))
 
     def release_speed(self, vid: str) -> None:
         """Hand the speed back to SUMO's car-following model."""
-        self.api.vehicle.setSpeed(vid, -1.0)
+        self._command(vid, self.api.vehicle.setSpeed, -1.0)
 
     def change_sublane(self, vid: str, lateral_m: float) -> None:
         """Move ``vid`` sideways by ``lateral_m`` (left positive), within maxSpeedLat per second."""
         if abs(lateral_m) > 1e-4:
-            self.api.vehicle.changeSublane(vid, lateral_m)
+            self._command(vid, self.api.vehicle.changeSublane, lateral_m)
 
     def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> None:
         if speed_mode is not None:
-            self.api.vehicle.setSpeedMode(vid, speed_mode)
+            self._command(vid, self.api.vehicle.setSpeedMode, speed_mode)
         if lane_change_mode is not None:
-            self.api.vehicle.setLaneChangeMode(vid, lane_change_mode)
+            self._command(vid, self.api.vehicle.setLaneChangeMode, lane_change_mode)
 
     def configure_cav(self, vid: str) -> None:
         """Hand a CAV to our controllers, whatever vType the user gave it.
@@ -378,11 +412,11 @@ class SumoSession:
         within a few metres of the vehicle ahead.
         """
         vehicle = self.api.vehicle
-        vehicle.setSpeedMode(vid, SPEED_MODE_SAFE)
-        vehicle.setLaneChangeMode(vid, LC_MODE_CONTROLLED)
-        vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", "40")
-        vehicle.setTau(vid, 0.2)
-        vehicle.setMinGap(vid, 0.5)
+        if self._command(vid, vehicle.setSpeedMode, SPEED_MODE_SAFE):
+            vehicle.setLaneChangeMode(vid, LC_MODE_CONTROLLED)
+            vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", "40")
+            vehicle.setTau(vid, 0.2)
+            vehicle.setMinGap(vid, 0.5)
 
     def road_at(self, vid: str) -> RoadSection | None:
         """The road section under vehicle ``vid`` (None if it is not in the simulation)."""

@@ -1,0 +1,163 @@
+"""Injected faults on the paper scene, through real SUMO: no crash, no collision, no CAV
+braking beyond -4 m/s^2, and every fault leaves a trace in the run's outputs."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from sumo_swarm.config import HvPlacement, load_scenario
+from sumo_swarm.controllers.base import RunContext
+from sumo_swarm.controllers.swarm import SwarmController
+from sumo_swarm.errors import SimulationError
+from sumo_swarm.metrics import hard_brake_events
+from sumo_swarm.model import VehicleState
+from sumo_swarm.runner import run_scenario
+from tests.conftest import PAPER
+
+pytestmark = pytest.mark.sumo
+
+
+class Injector:
+    """Wraps a controller; at ``at_s`` runs ``action(ctx)`` once, then carries on."""
+
+    def __init__(self, inner, at_s: float, action: Callable[[RunContext], None]) -> None:
+        self.inner = inner
+        self.name = inner.name
+        self.at_s = at_s
+        self.action = action
+        self.done = False
+
+    def attach(self, ctx: RunContext) -> None:
+        self.ctx = ctx
+        self.inner.attach(ctx)
+
+    def control(self, t_s: float) -> None:
+        if not self.done and t_s >= self.at_s:
+            self.done = True
+            self.action(self.ctx)
+        self.inner.control(t_s)
+
+    def summary(self):
+        return self.inner.summary()
+
+
+def paper(duration_s: float = 60.0, **scene_changes):
+    sc = load_scenario(PAPER)
+    sc = replace(
+        sc,
+        simulation=replace(sc.simulation, duration_s=duration_s),
+        evaluation=replace(sc.evaluation, end_s=duration_s),
+    )
+    if scene_changes:
+        sc = replace(sc, scene=replace(sc.scene, **scene_changes))
+    return sc
+
+
+def assert_safe(summary: dict, out, allow_hv_braking: tuple[str, ...] = ()) -> None:
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["teleports"] == 0
+    df = pd.read_parquet(out / "trajectories.parquet")
+    brakes = hard_brake_events(df)
+    assert brakes[brakes["kind"] == "cav"].empty, brakes
+    others = brakes[~brakes["vehicle"].isin(allow_hv_braking)]
+    assert others.empty, others
+
+
+def test_cav_removed_mid_manoeuvre(tmp_path):
+    def remove(ctx):
+        ctx.session.remove_vehicle("cav2")
+
+    summary = run_scenario(paper(), "swarm", tmp_path, progress=False,
+                           controller=Injector(SwarmController(), 12.0, remove))  # fmt: skip
+    assert_safe(summary, tmp_path)
+    events = [json.loads(x) for x in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert any(e["event"] == "cav_set_changed" for e in events)
+    plans = [json.loads(x) for x in (tmp_path / "plans.jsonl").read_text().splitlines()]
+    assert any(p["trigger"] == "cav_set_changed" and "cav2" not in (p["cells"] or {})
+               for p in plans)  # fmt: skip
+    df = pd.read_parquet(tmp_path / "trajectories.parquet")
+    end = df[df["time_s"] == df["time_s"].max()]
+    assert set(end[end["kind"] == "cav"]["vehicle"]) == {"cav0", "cav1", "cav3", "cav4", "cav5"}
+
+
+def test_hv_braking_hard_in_front_of_a_blocker(tmp_path):
+    # An HV drives in the left lane ahead of where the leader blocks; at 8 s it brakes at
+    # -4 m/s^2 for 2 s (17.5 -> 9.5 m/s), then drives on at 9.5 m/s.
+    sc = load_scenario(PAPER)
+    ahead = HvPlacement(id="hv_ahead", lane=2, front_m=345.0, speed_mps=17.5,
+                        desired_speed_mps=17.5)  # fmt: skip
+    sc = paper(hv=(*sc.scene.hv, ahead))
+
+    def brake(ctx):
+        ctx.session.api.vehicle.slowDown("hv_ahead", 9.5, 2.0)
+
+    summary = run_scenario(sc, "swarm", tmp_path, progress=False,
+                           controller=Injector(SwarmController(), 8.0, brake))  # fmt: skip
+    assert_safe(summary, tmp_path, allow_hv_braking=("hv_ahead",))
+    assert summary["cav"]["gap_min_m"] > 0.0
+
+
+@pytest.mark.parametrize(("vehicle", "speed_mps"), [("hv_left", 21.0), ("hv_target", 15.0)])
+def test_hv_faster_or_slower_than_predicted(tmp_path, vehicle, speed_mps):
+    # From 6 s on the HV heads for another speed than the constant one the planner predicts,
+    # changing speed at 1 m/s^2 (a new maxSpeed alone would make SUMO jump to it in one step).
+    def change(ctx):
+        api = ctx.session.api
+        if speed_mps < api.vehicle.getSpeed(vehicle):
+            api.vehicle.slowDown(vehicle, speed_mps, 17.5 - speed_mps)
+        api.vehicle.setMaxSpeed(vehicle, max(speed_mps, api.vehicle.getSpeed(vehicle)))
+
+    summary = run_scenario(paper(), "swarm", tmp_path, progress=False,
+                           controller=Injector(SwarmController(), 6.0, change))  # fmt: skip
+    assert_safe(summary, tmp_path)
+    assert summary["cav"]["gap_min_m"] > 0.0
+
+
+class NoisySwarm(SwarmController):
+    """The swarm reading noisy states: position sigma 0.3 m, speed 0.2 m/s, lateral 0.05 m."""
+
+    rng = np.random.default_rng(7)
+
+    def control(self, t_s: float) -> None:
+        session = self.ctx.session
+        true_states = session.states
+        noisy = {}
+        for vid, st in true_states.items():
+            e = self.rng.normal(size=3)
+            noisy[vid] = VehicleState(
+                vid, st.s_m + 0.3 * e[0], st.lane, st.lat_m + 0.05 * e[1],
+                max(0.0, st.speed_mps + 0.2 * e[2]), st.length_m, st.accel_mps2, st.is_cav,
+            )  # fmt: skip
+        session.states = noisy
+        try:
+            super().control(t_s)
+        finally:
+            session.states = true_states
+
+
+def test_noise_on_the_states_read(tmp_path):
+    summary = run_scenario(paper(), "swarm", tmp_path, progress=False, controller=NoisySwarm())
+    assert_safe(summary, tmp_path)
+    assert summary["overtake"]["completed"]
+    assert summary["cav"]["gap_min_m"] >= 4.0
+
+
+def test_sumo_exiting_mid_run_keeps_the_outputs(tmp_path):
+    def kill(ctx):
+        ctx.session.api.close()
+
+    with pytest.raises(SimulationError, match="outputs so far kept"):
+        run_scenario(paper(), "cacc", tmp_path, progress=False,
+                     controller=Injector(SwarmController(), 5.0, kill))  # fmt: skip
+    df = pd.read_parquet(tmp_path / "trajectories.parquet")
+    assert df["time_s"].max() == pytest.approx(5.0, abs=0.05)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["sim_end_s"] == pytest.approx(5.0, abs=0.05)
+    events = (tmp_path / "events.jsonl").read_text()
+    assert "sumo_failed" in events or "run_failed" in events
