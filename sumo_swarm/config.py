@@ -442,9 +442,42 @@ def load_scenario(
         _check_consistency(scenario)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    if require_network and not scenario.network_path.is_file():
-        raise ConfigError(f"{path}: simulation.network: file not found: {scenario.network_path}")
+    if require_network:
+        if not scenario.network_path.is_file():
+            raise ConfigError(
+                f"{path}: simulation.network: file not found: {scenario.network_path}"
+            )
+        _check_network(scenario, path)
     return scenario
+
+
+def _check_network(sc: Scenario, path: Path) -> None:
+    """The route's edges exist, have at least two lanes, and hold every lane the scene uses."""
+    from sumo_swarm.safexml import parse_xml
+
+    net = sc.network_path
+    try:
+        root = parse_xml(net, what="SUMO network")
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: simulation.network: {exc}") from None
+    lanes = {
+        e.get("id"): len(e.findall("lane"))
+        for e in root.iter("edge")
+        if e.get("function") != "internal"
+    }
+    for edge in sc.simulation.route_edges:
+        if edge not in lanes:
+            raise ConfigError(f"{path}: simulation.route_edges: no edge '{edge}' in {net}")
+    first = lanes[sc.simulation.route_edges[0]]
+    if first < 2:
+        raise ConfigError(
+            f"{path}: simulation.network: the road has {first} lane; the swarm needs at least 2"
+        )
+    used = [("scene.platoon_lane", sc.scene.platoon_lane)]
+    used += [(f"scene.hv '{h.id}'.lane", h.lane) for h in sc.scene.hv]
+    for key, lane in used:
+        if lane >= first:
+            raise ConfigError(f"{path}: {key} = {lane}, but the road has lanes 0..{first - 1}")
 
 
 def _check_consistency(sc: Scenario) -> None:

@@ -133,8 +133,6 @@ def run_sumocfg(
     forced = ["--collision.mingap-factor", "0", "--collision.action", "warn"]
     if seed is not None:
         forced += ["--seed", str(seed)]
-    if added:
-        notify(f"sumo-swarm: {cfg}: added {' '.join(added)} (the swarm needs SUMO's sublane model)")
     args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true",
             *_fcd_args(out, fcd)]  # fmt: skip
     controller = make_controller(controller_name)
@@ -151,6 +149,10 @@ def run_sumocfg(
     def check_types(sess: SumoSession) -> None:
         if cav_type not in sess.api.vehicletype.getIDList():
             raise ConfigError(f"{cfg}: --cav-type: no vType '{cav_type}' in the configuration")
+        if added:  # reported once SUMO has accepted the run, so bad input stays one line
+            notify(
+                f"sumo-swarm: {cfg}: added {' '.join(added)} (the swarm needs SUMO's sublane model)"
+            )
 
     return _drive(
         session, settings, controller, controller_name, out, LiveScene(session, controller),
