@@ -256,18 +256,21 @@ class CaccSettings:
 
     a = k_gap * (gap - d) + k_speed * (v_ahead - v) + k_accel * a_ahead, with
     d = desired_gap_m + time_gap_s * v, limited by the free-road law k_cruise * (v_cruise - v).
+    Behind another CAV the free-road target rises by k_close * (gap - d) (capped at the CAV's
+    max speed), so a follower that fell back can close up to a platoon cruising at v_cruise.
     """
 
     k_gap: float = 0.45
     k_speed: float = 1.1
     k_accel: float = 0.3
     k_cruise: float = 0.6
+    k_close: float = 0.15  # [1/s] extra free-road speed per metre of excess gap behind a CAV
     time_gap_s: float = 0.0
     hv_time_gap_s: float = 0.0  # extra time gap when the vehicle ahead is human-driven
 
     def __post_init__(self) -> None:
         check_positive(self, "k_gap", "k_speed", "k_cruise")
-        check_non_negative(self, "k_accel", "time_gap_s", "hv_time_gap_s")
+        check_non_negative(self, "k_accel", "time_gap_s", "hv_time_gap_s", "k_close")
 
 
 @dataclass(frozen=True)
@@ -283,6 +286,12 @@ class SwarmSettings:
     control_interval_steps: int = 3
     drift_rows: float = 0.75  # replan when a CAV is this many cells off its reference
     regroup_lane: int | None = None  # None: the platoon's original lane
+    # Grid speed once every CAV is past the target (paper II-B-1 Step 4 sets it to the front HV's
+    # speed while overtaking and to a cruising speed otherwise). "target": keep the target's
+    # speed until the swarm has regrouped (default: regroups on every network we tried);
+    # "cruise": replan in a grid moving at the cruising speed (CAVs keep more speed while they
+    # merge, but on a curved 3-lane road a CAV was left between lanes: see docs/closed-loop.md).
+    regroup_grid_speed: Literal["target", "cruise"] = "target"
 
     def __post_init__(self) -> None:
         check_positive(self, "trigger_speed_ratio", "detect_range_m", "control_interval_steps")

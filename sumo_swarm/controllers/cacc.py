@@ -31,10 +31,14 @@ def cacc_accel(
     law and the cruise law, clipped to ``[cav.accel_min_mps2, cav.accel_max_mps2]``.
     """
     v_cruise = cav.cruising_speed_mps if cruising_speed_mps is None else cruising_speed_mps
-    accel = law.k_cruise * (v_cruise - speed_mps)
+    desired = cav.desired_gap_m
     if gap_m is not None:
         time_gap = law.time_gap_s + (0.0 if ahead_is_cav else law.hv_time_gap_s)
         desired = cav.desired_gap_m + time_gap * speed_mps
+        if ahead_is_cav and gap_m > desired:
+            v_cruise = min(cav.max_speed_mps, v_cruise + law.k_close * (gap_m - desired))
+    accel = law.k_cruise * (v_cruise - speed_mps)
+    if gap_m is not None:
         follow = (
             law.k_gap * (gap_m - desired)
             + law.k_speed * (ahead_speed_mps - speed_mps)

@@ -30,6 +30,7 @@ Safety layers under the plan, each recorded as an event when it acts:
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import math
@@ -63,6 +64,7 @@ GUARD_GAP_GAIN = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v
 GUARD_SPEED_GAIN = 1.5  # [1/s]
 GUARD_HEADWAY_S = 0.6  # lateral guard: follower headway below which a CAV holds its lane [s]
 IN_LANE_TOL_M = 0.3  # a CAV is "in" a lane when its centre is this close to the lane centre [m]
+MAX_LEADER_EASE_MPS = 2.0  # a cruising leader slows by at most this to let the platoon close up
 RETRY_AFTER_S = 1.0  # after a failed replan, wait this long before the next replan [s]
 LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane that ends [m]
 MARGIN_RELAXATION = (1.0, 0.5, 0.0)  # HV margin scales tried in turn when a replan is infeasible
@@ -92,6 +94,7 @@ class SwarmController:
         self.t_start_s: float | None = None
         self.t_done_s: float | None = None
         self.overtakes = 0
+        self.passed = False
         self.regroup_lane_used: int | None = None
         self._plans_file = None
         self.replan_not_before_s = -math.inf
@@ -201,11 +204,25 @@ class SwarmController:
         sc = ctx.scenario
         others = list(states.values())
         dt = ctx.dt_s
+        # A stretched platoon regroups from both ends: followers may exceed the cruising speed
+        # (cacc_accel), and the leader eases off by k_close per metre of excess gap behind it,
+        # which is what closes up a platoon whose CAVs cannot go faster than the cruise speed.
+        stretch = 0.0
+        for front, back in itertools.pairwise(platoon):
+            f, b = states[front], states[back]
+            if f.lane == b.lane:
+                stretch += max(0.0, f.rear_s_m - b.s_m - sc.cav.desired_gap_m)
+        leader_cruise = sc.cav.cruising_speed_mps - min(
+            MAX_LEADER_EASE_MPS, sc.cacc.k_close * stretch
+        )
         for vid in platoon:
             ego = states[vid]
             ahead = vehicle_ahead(ego, others, ctx.road)
             if ahead is None:
-                a = cacc_accel(ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc)
+                a = cacc_accel(
+                    ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc,
+                    cruising_speed_mps=leader_cruise if vid == platoon[0] else None,
+                )  # fmt: skip
             else:
                 lead, gap = ahead
                 a = cacc_accel(
@@ -225,6 +242,7 @@ class SwarmController:
         if self.t_start_s is None:
             self.t_start_s = t_s
         self.plan = None
+        self.passed = False
         self.trigger = ReplanTrigger(drift_cells=1)
         self.ctx.event("overtake_start", target=target.vehicle_id)
 
@@ -251,6 +269,12 @@ class SwarmController:
                 return False
         return True
 
+    def _all_past(self, states: dict[str, VehicleState], platoon: list[str]) -> bool:
+        """Every CAV's rear is ahead of the target's front by the minimum gap."""
+        target = states[self.target_id]
+        gap = self.ctx.scenario.cav.min_gap_m
+        return all(states[v].rear_s_m >= target.s_m + gap for v in platoon)
+
     def _regroup_lane(self, target: VehicleState) -> int:
         lane = self.planner_settings.regroup_lane
         self.regroup_lane_used = target.lane if lane is None else lane
@@ -270,6 +294,14 @@ class SwarmController:
                     hv_ids.append(vid)
             cells = {vid: cav_cell(grid, states[vid], ctx.road, t_s) for vid in platoon}
         reason = self.trigger.check(t_s, cells, hv_ids) if self.plan is not None else "initial"
+        if (
+            self.plan is not None
+            and not self.passed
+            and ctx.scenario.swarm.regroup_grid_speed == "cruise"
+            and self._all_past(states, platoon)
+        ):
+            self.passed = True
+            reason = "passed"  # regroup in a grid moving at the cruising speed (Step 4)
         if self.plan is not None and set(platoon) != set(self.plan.cav_ids):
             ctx.event("cav_set_changed", planned=list(self.plan.cav_ids), present=platoon)
             reason = "cav_set_changed"
@@ -288,7 +320,11 @@ class SwarmController:
         cavs = [states[v] for v in platoon]
         hvs = [s for v, s in states.items() if not s.is_cav and v != self.target_id]
         hvs += self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0)
-        record: dict[str, Any] = {"time_s": t_s, "trigger": reason}
+        # Paper II-B-1, Step 4: the grid moves with the front HV while the swarm overtakes it,
+        # at the cruising speed otherwise (here: once every CAV is past it, to regroup).
+        cruise_grid = sc.swarm.regroup_grid_speed == "cruise" and self._all_past(states, platoon)
+        grid_speed = sc.cav.cruising_speed_mps if cruise_grid else target.speed_mps
+        record: dict[str, Any] = {"time_s": t_s, "trigger": reason, "grid_speed_mps": grid_speed}
         grid = problem = plan = None
         violations: list[str] = []
         try:
@@ -301,7 +337,7 @@ class SwarmController:
                     headway_s=self.grid_settings.headway_s * scale,
                     gap_behind_m=self.grid_settings.gap_behind_m * scale,
                 )
-                grid = build_grid(cavs, target, ctx.road, t_s, target.speed_mps, gs)
+                grid = build_grid(cavs, target, ctx.road, t_s, grid_speed, gs)
                 problem = build_problem(grid, cavs, hvs, target, t_s, self.planner_settings, gs)
                 plan = self.planner.plan(problem)
                 record["margin_scale"] = scale
