@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -223,19 +224,25 @@ def test_resume_after_kill_9_loses_and_duplicates_nothing(sweep_file, tmp_path):
 
 @pytest.mark.sumo
 def test_failed_run_is_recorded_and_the_batch_goes_on(sweep_file, tmp_path, capsys):
-    # Lane 9 passes the scenario checks (they do not read the network) but SUMO refuses it.
+    # A network without lane shapes passes the scenario checks (edges and lane counts are
+    # there) but SUMO cannot build it: the run fails at run time.
+    net = (ROOT / "networks" / "highway3.net.xml").read_text(encoding="utf-8")
+    broken = tmp_path / "broken.net.xml"
+    broken.write_text(re.sub(r' shape="[^"]*"', "", net), encoding="utf-8")
     path = sweep_file(
-        'controllers = ["cacc"]\n[[cases]]\n"scene.platoon_lane" = 9\n[[cases]]\n' + short(20.0)
+        f'controllers = ["cacc"]\n[[cases]]\n"simulation.network" = "{broken.as_posix()}"\n'
+        "[[cases]]\n" + short(20.0)
     )
     out = tmp_path / "out"
     assert main(["batch", str(path), "--out", str(out)]) == 1
-    df = pd.read_parquet(out / "results.parquet").set_index("scene.platoon_lane")
-    assert df.loc[1, "status"] == "ok" and pd.isna(df.loc[1, "error"])
-    assert df.loc[9, "status"] == "failed"
-    error = df.loc[9, "error"]
-    assert "departLane" in error and "\n" not in error
+    df = pd.read_parquet(out / "results.parquet")
+    bad = df["simulation.network"] == broken.as_posix()
+    assert df.loc[~bad, "status"].tolist() == ["ok"] and df.loc[~bad, "error"].isna().all()
+    assert df.loc[bad, "status"].tolist() == ["failed"]
+    error = df.loc[bad, "error"].iloc[0]
+    assert "SUMO did not start" in error and "shape" in error and "\n" not in error
     assert "1 failed" in capsys.readouterr().out
-    failed_dir = out / "runs" / df.loc[9, "run_id"]
+    failed_dir = out / "runs" / df.loc[bad, "run_id"].iloc[0]
     assert "Traceback" in (failed_dir / "worker.log").read_text()
     # Failed runs count as finished; --retry-failed runs them again.
     report = run_batch(path, out, progress=False, impact=False)

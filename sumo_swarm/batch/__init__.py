@@ -38,6 +38,12 @@ KEY_MEASURES = (
 )
 
 
+# results.parquet is rebuilt after a finished run unless that would make rebuilding take more
+# than this share of the batch process's time (large sweeps): then it waits for later runs. The
+# run folders are the record; the table is rebuilt from them whenever a batch starts or ends.
+RESULTS_WRITE_SHARE = 0.05
+
+
 @dataclass
 class BatchReport:
     """What a batch did: counts of this invocation and the results of the whole sweep."""
@@ -152,7 +158,7 @@ def _run_all(
     queue = collections.deque(pending)
     under_way = 0
     failed = 0
-    results = pd.DataFrame()
+    next_write = 0.0  # results.parquet after every run, unless rebuilding it gets costly
     bar = tqdm(
         total=len(pending), desc=f"batch {sweep.name}", unit="run", file=sys.stderr,
         disable=(not progress) if progress is not None else None, dynamic_ncols=True,
@@ -164,13 +170,20 @@ def _run_all(
                 under_way += 1
             outcome = backend.next_completed()
             under_way -= 1
+            if queue:  # start the next run before the bookkeeping, so no worker slot idles
+                backend.submit(queue.popleft())
+                under_way += 1
             record = outcome.record
             if record is None:
                 record = store.fail(outcome.spec, outcome.error or "worker left no record")
             else:
                 store.keep(record)
             records[record["run_id"]] = record
-            results = store.write_results(sweep, records)
+            if time.perf_counter() >= next_write:
+                t_write = time.perf_counter()
+                store.write_results(sweep, records)
+                spent = time.perf_counter() - t_write
+                next_write = t_write + spent * (1.0 + 1.0 / RESULTS_WRITE_SHARE)
             if record["status"] == STATUS_FAILED:
                 failed += 1
                 bar.set_postfix(failed=failed)
@@ -179,6 +192,7 @@ def _run_all(
     finally:
         bar.close()
         backend.close()
+        results = store.write_results(sweep, records)
     return results
 
 

@@ -24,6 +24,7 @@ import json
 import logging
 import math
 import os
+import re
 import resource
 import shutil
 import socket
@@ -69,6 +70,12 @@ def one_line(exc: BaseException | str) -> str:
 def peak_rss_mb() -> float:
     """Peak resident memory of this process [MB] (Linux reports ru_maxrss in KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def cpu_s() -> float:
+    """CPU time (user + system) of this process so far [s]."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 @contextlib.contextmanager
@@ -141,8 +148,11 @@ def execute_run(spec: RunSpec, batch_dir: str | Path) -> dict[str, Any]:
             if partial.is_file():
                 with contextlib.suppress(ValueError, OSError):
                     summary = json.loads(partial.read_text(encoding="utf-8"))
+    if error is not None:
+        error = one_line(f"{error}{_sumo_error(staging / 'worker.log', error)}")
     run = {
         "elapsed_s": time.perf_counter() - t0,
+        "cpu_s": cpu_s(),  # the worker process's, start-up (imports) included
         "peak_rss_mb": peak_rss_mb(),
         "host": socket.gethostname(),
         "pid": os.getpid(),
@@ -154,6 +164,19 @@ def execute_run(spec: RunSpec, batch_dir: str | Path) -> dict[str, Any]:
     if not commit(staging, final):
         return read_record(final)
     return record
+
+
+def _sumo_error(log_file: Path, error: str) -> str:
+    """SUMO's first ``Error:`` line of the run's log, as a suffix for ``error`` (libsumo's
+    exception often says only "Process Error"); empty if none or already in ``error``."""
+    try:
+        text = log_file.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return ""
+    found = re.search(r"^Error: (.+)$", text, re.MULTILINE)
+    if found is None or found.group(1).strip() in error:
+        return ""
+    return f" (SUMO: {found.group(1).strip()})"
 
 
 def commit(staging: Path, final: Path) -> bool:
@@ -256,8 +279,8 @@ class BatchStore:
 
     def fail(self, spec: RunSpec, error: str) -> dict[str, Any]:
         """Record a run whose worker died without a record (crash, out of memory, lost node)."""
-        run = {"elapsed_s": None, "peak_rss_mb": None, "host": None, "pid": None,
-               "finished_at": time.time()}  # fmt: skip
+        run = {"elapsed_s": None, "cpu_s": None, "peak_rss_mb": None, "host": None,
+               "pid": None, "finished_at": time.time()}  # fmt: skip
         record = _record(spec, STATUS_FAILED, one_line(error), None, run)
         self.keep(record)
         return self.finished(spec.run_id) or record

@@ -1,0 +1,186 @@
+"""Benchmark of ``sumo-swarm batch`` (not a test): throughput with 1 vs 2 workers, memory per run.
+
+1. **Throughput.** The same sweep (``--runs`` runs of the paper's scene, ``--duration`` s each,
+   swarm and cacc alternating, slow-vehicle speed varied) runs with 1 worker and then with 2,
+   each into a fresh folder; wall time, runs per hour and the speed-up of 2 workers over 1.
+2. **Memory.** A longer sweep (``--memory-runs`` cacc runs) with 2 workers: the peak resident
+   memory of every run's worker process (``run.peak_rss_mb`` of results.parquet), first runs
+   against last runs, and the batch process's own resident memory before and after.
+
+Usage::
+
+    python tools/bench_batch.py                         # 12 runs x 60 s; 24 runs for memory
+    python tools/bench_batch.py --runs 4 --memory-runs 6 --duration 20 --out /tmp/batch
+
+Writes ``<out>.md`` (summary), ``<out>.csv`` (one row per batch) and ``<out>.runs.csv`` (one row
+per run), default ``docs/bench/batch``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import platform
+import resource
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from sumo_swarm.batch import run_batch
+from sumo_swarm.impact import markdown_table
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER = ROOT / "scenarios" / "paper.toml"
+TARGET_SPEEDUP = 1.7  # 2 workers against 1, on 2 cores
+
+
+def sweep_text(controllers: list[str], n_values: int, duration_s: float) -> str:
+    """A sweep of ``n_values`` slow-vehicle speeds x ``controllers`` (one seed)."""
+    speeds = [round(14.0 + 3.5 * i / max(n_values - 1, 1), 3) for i in range(n_values)]
+    cases = "".join(
+        f'[[cases]]\n"scene.hv.hv_target.speed_mps" = {v}\n'
+        f'"scene.hv.hv_target.desired_speed_mps" = {v}\n'
+        for v in speeds
+    )
+    return (
+        f'base = "{PAPER.as_posix()}"\ncontrollers = {controllers!r}\n'.replace("'", '"')
+        + f'[fixed]\n"simulation.duration_s" = {duration_s}\n"evaluation.end_s" = {duration_s}\n'
+        + cases
+    )
+
+
+def rss_mb() -> float:
+    """This process's current resident memory [MB] (Linux)."""
+    with open("/proc/self/status", encoding="ascii") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _cpu_s() -> float:
+    """CPU time of this process and its finished children (the run workers) [s]."""
+    me, kids = (
+        resource.getrusage(resource.RUSAGE_SELF),
+        resource.getrusage(resource.RUSAGE_CHILDREN),
+    )
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def one_batch(work: Path, name: str, text: str, workers: int) -> tuple[dict, pd.DataFrame]:
+    sweep = work / f"{name}.toml"
+    sweep.write_text(text, encoding="utf-8")
+    driver_before = rss_mb()
+    load_before = os.getloadavg()[0]
+    cpu0 = _cpu_s()
+    t0 = time.perf_counter()
+    report = run_batch(sweep, work / name, workers=workers, progress=True, impact=False)
+    wall = time.perf_counter() - t0
+    cpu = _cpu_s() - cpu0
+    runs = report.results.copy()
+    runs.insert(0, "experiment", name)
+    runs.insert(1, "workers", workers)
+    runs["run_index"] = runs["run.finished_at"].rank(method="first").astype(int)
+    rss = runs["run.peak_rss_mb"]
+    row = {
+        "experiment": name,
+        "workers": workers,
+        "runs": len(runs),
+        "failed": report.failed,
+        "wall_s": round(wall, 2),
+        "runs_per_hour": round(3600.0 * len(runs) / wall, 1),
+        "run_elapsed_mean_s": round(runs["run.elapsed_s"].mean(), 2),
+        "run_cpu_mean_s": round(runs["run.cpu_s"].mean(), 2),
+        # CPU seconds of the batch and its workers per wall second: the cores it got
+        "cores_used": round(cpu / wall, 2),
+        "peak_rss_median_mb": round(rss.median(), 1),
+        "peak_rss_max_mb": round(rss.max(), 1),
+        "driver_rss_before_mb": round(driver_before, 1),
+        "driver_rss_after_mb": round(rss_mb(), 1),
+        "load_avg_1min_before": round(load_before, 2),
+    }
+    return row, runs
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=12, help="runs of the throughput sweep (even)")
+    ap.add_argument("--memory-runs", type=int, default=24, help="runs of the memory sweep")
+    ap.add_argument("--duration", type=float, default=60.0, help="simulated seconds per run")
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "batch")
+    ap.add_argument("--keep", action="store_true", help="keep the batch folders (printed)")
+    args = ap.parse_args()
+
+    work = Path(tempfile.mkdtemp(prefix="bench_batch_"))
+    throughput = sweep_text(["swarm", "cacc"], max(args.runs // 2, 1), args.duration)
+    memory = sweep_text(["cacc"], args.memory_runs, args.duration)
+    rows, runs = [], []
+    try:
+        for name, text, workers in (
+            ("throughput-1w", throughput, 1),
+            ("throughput-2w", throughput, 2),
+            ("memory-2w", memory, 2),
+        ):
+            row, per_run = one_batch(work, name, text, workers)
+            rows.append(row)
+            runs.append(per_run)
+            print(row)
+    finally:
+        if args.keep:
+            print(f"batch folders kept in {work}")
+        else:
+            shutil.rmtree(work, ignore_errors=True)
+
+    speedup = rows[0]["wall_s"] / rows[1]["wall_s"]
+    for row in rows:
+        row["speedup_vs_1w"] = round(rows[0]["wall_s"] / row["wall_s"], 2)
+    mem = runs[2].sort_values("run_index")
+    quarter = max(len(mem) // 4, 1)
+    first = mem["run.peak_rss_mb"].iloc[:quarter].median()
+    last = mem["run.peak_rss_mb"].iloc[-quarter:].median()
+
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with args.out.with_suffix(".csv").open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    per_run = pd.concat(runs, ignore_index=True)
+    keep = ["experiment", "workers", "run_index", "run_id", "controller", "status",
+            "run.elapsed_s", "run.peak_rss_mb", "timing.wall_s"]  # fmt: skip
+    per_run[keep].sort_values(["experiment", "run_index"]).to_csv(
+        args.out.with_name(args.out.name + ".runs.csv"), index=False
+    )
+    verdict = "meets" if speedup >= TARGET_SPEEDUP else "misses"
+    lines = [
+        "# Batch throughput and memory",
+        "",
+        f"Command: `python tools/bench_batch.py --runs {args.runs} --memory-runs "
+        f"{args.memory_runs} --duration {args.duration:g}`. Machine: {platform.machine()}, "
+        f"{os.cpu_count()} cores (shared), Python {platform.python_version()}. Each run: the "
+        f"paper's scene, {args.duration:g} s simulated, its own worker process (spawned for the "
+        "run, ended after it).",
+        "",
+        markdown_table(pd.DataFrame(rows), digits=2),
+        "",
+        f"Throughput: 2 workers run the sweep {speedup:.2f}x as fast as 1 worker (target "
+        f">= {TARGET_SPEEDUP}x: {verdict} it). Memory: peak resident memory per run's worker "
+        f"process, median of the first {quarter} runs {first:.0f} MB, of the last {quarter} "
+        f"{last:.0f} MB (max {mem['run.peak_rss_mb'].max():.0f} MB); the batch process went "
+        f"from {rows[2]['driver_rss_before_mb']:.0f} to {rows[2]['driver_rss_after_mb']:.0f} MB.",
+        "",
+        "Peak RSS per run of the memory sweep, in the order the runs finished [MB]: "
+        + ", ".join(f"{x:.0f}" for x in mem["run.peak_rss_mb"]),
+        "",
+    ]
+    md = args.out.with_suffix(".md")
+    md.write_text("\n".join(lines), encoding="utf-8")
+    print("\n".join(lines))
+    print(f"wrote {md} and {args.out.with_suffix('.csv')}")
+
+
+if __name__ == "__main__":
+    main()
