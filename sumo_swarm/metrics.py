@@ -428,8 +428,15 @@ def upstream_impact(
     n_rank: int = 5,
     window: EvaluationWindow | None = None,
     undisturbed: Mapping[str, float] | None = None,
+    behind_of: str = "rear",
+    exclude: Iterable[str] = (),
 ) -> list[dict[str, object]]:
     """Speed and following distance of the vehicles upstream of the swarm (paper's Fig. 12).
+
+    ``behind_of="front"`` selects the vehicles behind the swarm's *front* (its front-most
+    bumper) instead of its rear: with it the HVs beside the platoon at the reference step, the
+    ones a swarm blocks, are ranked too (nearest the swarm's front first). ``exclude`` leaves
+    vehicles out (e.g. the slow vehicle being overtaken).
 
     Selection, at the reference step (the first recorded step at or after ``ref_time_s``, the
     start of the manoeuvre; the table's first step when None): the swarm's rear is the smallest
@@ -469,8 +476,18 @@ def upstream_impact(
     swarm = at_ref[at_ref["kind"] == swarm_kind]
     if swarm.empty:
         return []
-    swarm_rear = float((swarm["s_m"] - swarm["length_m"]).min())
-    behind = at_ref[(at_ref["kind"] != swarm_kind) & (at_ref["s_m"] < swarm_rear)]
+    if behind_of == "front":
+        limit = float(swarm["s_m"].max())
+    elif behind_of == "rear":
+        limit = float((swarm["s_m"] - swarm["length_m"]).min())
+    else:
+        raise ConfigError(f"behind_of must be 'rear' or 'front', got {behind_of!r}")
+    excluded = {str(v) for v in exclude}
+    behind = at_ref[
+        (at_ref["kind"] != swarm_kind)
+        & (at_ref["s_m"] < limit)
+        & ~at_ref["vehicle"].astype(str).isin(excluded)
+    ]
     behind = behind.assign(vehicle_key=behind["vehicle"].astype(str)).sort_values(
         ["lane", "s_m", "vehicle_key"], ascending=[True, False, True], kind="mergesort"
     )

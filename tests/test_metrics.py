@@ -532,3 +532,25 @@ def test_summarise_ms():
         "solve_ms_max": None,
     }
     assert type(metrics.summarise_ms([1.0])["max"]) is float
+
+
+def test_upstream_behind_the_front_includes_vehicles_beside_the_swarm():
+    # One CAV (front at 100 m, 5 m long) and, in the next lane, an HV beside it (front 98 m)
+    # and one behind (front 60 m); a slow HV ahead of the CAV in its lane is excluded.
+    rows = []
+    for t in (0.0, 1.0):
+        rows += [
+            dict(time_s=t, vehicle="cav", kind="cav", lane=1, s_m=100.0 + 20 * t, speed_mps=20.0),
+            dict(time_s=t, vehicle="beside", kind="hv", lane=2, s_m=98.0 + 19 * t,
+                 speed_mps=20.0 - t),
+            dict(time_s=t, vehicle="behind", kind="hv", lane=2, s_m=60.0 + 20 * t, speed_mps=20.0),
+            dict(time_s=t, vehicle="slow", kind="hv", lane=1, s_m=99.0 + 15 * t, speed_mps=15.0),
+        ]  # fmt: skip
+    df = pd.DataFrame(rows).assign(length_m=5.0)
+    rear = metrics.upstream_impact(df, 0.0)
+    assert [r["vehicle"] for r in rear] == ["behind"]
+    front = metrics.upstream_impact(df, 0.0, behind_of="front", exclude=["slow"])
+    assert [(r["lane"], r["rank"], r["vehicle"]) for r in front] == [
+        (2, 1, "beside"), (2, 2, "behind")
+    ]  # fmt: skip
+    assert front[0]["speed_reduction_pct"] == pytest.approx(5.0)  # 20 -> 19 m/s
