@@ -296,6 +296,8 @@ def impact(
         ("Upstream influence", upstream, UPSTREAM, "upstream"),
     ):
         lines += ["", f"## {title}", ""]
+        if table.empty:
+            lines += ["No successful run.", ""]
         for p, group in table.groupby("parameter", sort=False):
             lines += [f"By `{p}`:" if p != ALL else "All runs:", ""]
             lines += [markdown_table(_headings(group.drop(columns="parameter"), measures)), ""]

@@ -13,10 +13,13 @@ import logging
 import multiprocessing as mp
 import os
 import signal
+import threading
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
 from typing import Any, Protocol
+
+from tqdm import tqdm
 
 from sumo_swarm.batch.store import execute_run, read_record
 from sumo_swarm.batch.sweep import RunSpec
@@ -72,6 +75,9 @@ def _die_with_parent(parent_pid: int) -> None:
 
 def _local_worker(spec: RunSpec, batch_dir: str, parent_pid: int) -> None:
     _die_with_parent(parent_pid)
+    # tqdm would create a multiprocessing lock (a named semaphore) that a run killed mid-way
+    # (Ctrl-C, the batch ending) leaves behind; a thread lock is all one process needs.
+    tqdm.set_lock(threading.RLock())
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     execute_run(spec, batch_dir)
 
