@@ -168,6 +168,9 @@ def build_summary(
         "safety": {
             "collisions": len(collisions),
             "hard_brakes": metrics.hard_brakes(df),
+            # Extra (not in the contract): the same count split by kind.
+            "hard_brakes_cav": metrics.hard_brakes(df[df["kind"] == "cav"]) if len(df) else 0,
+            "hard_brakes_hv": metrics.hard_brakes(df[df["kind"] == "hv"]) if len(df) else 0,
             "teleports": int(session.teleports),
             "min_ttc_s": _f(metrics.min_ttc_s(df, w)),
         },
