@@ -31,7 +31,7 @@ from typing import Any
 from sumo_swarm.bridge import SumoSession
 from sumo_swarm.config import EvaluationSettings, Scenario, load_scenario
 from sumo_swarm.controllers import make_controller
-from sumo_swarm.controllers.base import Controller, RunContext
+from sumo_swarm.controllers.base import Controller, RunContext, close_controller
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.scene import LiveScene
 from sumo_swarm.summary import build_summary
@@ -150,6 +150,7 @@ class SwarmHandle:
         if not self._attached:
             return
         self._attached = False
+        close_controller(self.controller)
         try:
             self.api.removeStepListener(self._listener_id)
         except Exception as exc:  # the simulation may already be closed

@@ -16,7 +16,7 @@ from tqdm import tqdm
 from sumo_swarm.bridge import SumoSession
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
-from sumo_swarm.controllers.base import Controller, RunContext
+from sumo_swarm.controllers.base import Controller, RunContext, close_controller
 from sumo_swarm.errors import ConfigError, SimulationError
 from sumo_swarm.model import RoadSection
 from sumo_swarm.scene import CAV_TYPE, sumo_options, write_sumo_inputs
@@ -232,6 +232,7 @@ def _drive(
             ctx.event("run_failed", message=failure)
         finally:
             bar.close()
+            close_controller(controller)
     wall = time.perf_counter() - wall0
     df = trajectory_frame(session)
     write_parquet_atomic(out / "trajectories.parquet", df)

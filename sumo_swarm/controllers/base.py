@@ -43,4 +43,13 @@ class Controller(Protocol):
         """Read ``ctx.session.states`` and issue commands that act on the next step."""
 
     def summary(self) -> dict[str, Any]:
-        """Blocks of summary.json this controller fills (``overtake``, ``planner``, ...)."""
+        """Blocks of summary.json this controller fills (``overtake``, ``planner``, ...).
+
+        May be called at any time, also while the run goes on."""
+
+
+def close_controller(controller: Controller) -> None:
+    """Let a controller release what it holds open (files), if it has a ``close`` method."""
+    close = getattr(controller, "close", None)
+    if close is not None:
+        close()

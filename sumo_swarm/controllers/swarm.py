@@ -513,10 +513,13 @@ class SwarmController:
         return dlat
 
     # ------------------------------------------------------------------ outputs
-    def summary(self) -> dict[str, Any]:
+    def close(self) -> None:
+        """Close plans.jsonl (the run is over or the swarm was detached)."""
         if self._plans_file is not None:
             self._plans_file.close()
             self._plans_file = None
+
+    def summary(self) -> dict[str, Any]:
         interval = self.planner_settings.behaving_interval_s if self.ctx else 3.0
         steps = None
         if self.t_start_s is not None and self.t_done_s is not None:
