@@ -627,7 +627,9 @@ def figure_upstream(
     path: Path,
 ) -> Path:
     """Speed (top) and following distance (bottom) of the ranked upstream HVs, one column per
-    lane (left lane first); the blocked HVs beside the platoon dashed."""
+    lane (left lane first); the blocked HVs beside the platoon (``adjacent``) dashed, once each
+    whether ranked or not. The distance axis fits the other ranked HVs: a blocked HV's gap
+    grows while the swarm holds it back and would squash them."""
     upstream = summary.get("upstream") or []
     by_lane: dict[int, list[tuple[int, str]]] = {}
     for entry in upstream:
@@ -644,22 +646,33 @@ def figure_upstream(
         ax_v, ax_g = axes[0][j], axes[1][j]
         for ax in (ax_v, ax_g):
             _mark_events(ax, summary, labels=(ax is ax_v and j == 0))
-        for vid in adjacent.get(lane, ()):
+        blocked = set(adjacent.get(lane, ()))
+        ranks = {vid: rank for rank, vid in by_lane.get(lane, [])}
+        for vid in [v for v in adjacent.get(lane, ()) if v not in ranks]:
             for ax, table in ((ax_v, speeds), (ax_g, gap)):
                 if vid in table.columns:
                     ax.plot(table.index, table[vid], color="black", ls="--", lw=1.2,
                             label=f"{vid} (blocked)")  # fmt: skip
         for rank, vid in sorted(by_lane.get(lane, [])):
             colour = RANK_COLOURS[min(rank - 1, len(RANK_COLOURS) - 1)]
+            style = {"ls": "--", "lw": 1.6} if vid in blocked else {"lw": 1.3}
+            label = f"#{rank} {vid}" + (" (blocked)" if vid in blocked else "")
             for ax, table in ((ax_v, speeds), (ax_g, gap)):
                 if vid in table.columns:
-                    ax.plot(table.index, table[vid], color=colour, lw=1.3,
-                            label=f"#{rank} {vid}")  # fmt: skip
-        ranked = [vid for _, vid in by_lane.get(lane, []) if vid in gap.columns]
+                    ax.plot(table.index, table[vid], color=colour, label=label, **style)
+        ranked = [
+            vid for _, vid in by_lane.get(lane, []) if vid in gap.columns and vid not in blocked
+        ]
         if ranked:  # scale to the ranked HVs; a blocked HV's gap may run off the top
             low = float(np.nanmin(gap[ranked].to_numpy()))
             high = float(np.nanmax(gap[ranked].to_numpy()))
             ax_g.set_ylim(min(low, headway_s * v_ref if v_ref else low) - 3.0, high + 8.0)
+            off = [v for v in sorted(blocked) if v in gap.columns and gap[v].max() > high + 8.0]
+            if off:
+                ax_g.text(0.98, 0.96, "\n".join(
+                    f"{v} (blocked): {gap[v].min():.0f}-{gap[v].max():.0f} m, off the scale"
+                    for v in off), transform=ax_g.transAxes, ha="right", va="top", fontsize=8,
+                )  # fmt: skip
         if v_ref is not None:
             ax_g.axhline(headway_s * v_ref, color="#d62728", lw=1.0, ls="-",
                          label=f"{headway_s:g} s headway at {v_ref:.1f} m/s")  # fmt: skip
@@ -670,8 +683,8 @@ def figure_upstream(
     axes[0][0].set_ylabel("speed (m/s)")
     axes[1][0].set_ylabel("following distance (m)")
     fig.suptitle(
-        "Upstream HVs (#1 = first HV behind the swarm at the decision, dashed = the HV "
-        "blocked beside the platoon)",
+        "Upstream HVs (#1 = nearest HV behind the swarm's front at the decision; dashed = the "
+        "HV blocked beside the platoon)",
         fontsize=10,
     )
     return _save(fig, path)

@@ -8,7 +8,10 @@ paper's Section IV-E with the paper's value and one column per controller, then 
 PNG files in ``DIR``.
 
 Every number of the table comes from the runs' ``summary.json`` (the output contract), either
-as it stands or through a stated formula (e.g. the mobility gain over cacc).
+as it stands or through a stated formula (e.g. the mobility gain over cacc), except the upstream
+HVs' speed reductions and influenced counts: those pair each run with the cacc run, HV by HV,
+from the runs' ``trajectories.parquet`` (:func:`paired_upstream`). The summary's own upstream
+numbers, which measure against each HV's speed at the decision, stay in a secondary table.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import logging
 import math
 import multiprocessing
 import os
+import re
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -29,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from tqdm import tqdm
 
 import sumo_swarm
@@ -206,7 +211,11 @@ def _gain_pct(value: float | None, base: float | None) -> float | None:
 
 @dataclass(frozen=True)
 class Measure:
-    """One row of the report: how to read a controller's number from its summary."""
+    """One row of the report: how to read a controller's number from its summary.
+
+    ``basis="paired"`` rows read the same way from ``{"upstream": <the run's paired upstream
+    entries>}`` (see :func:`paired_upstream`) instead of from summary.json.
+    """
 
     key: str
     label: str  # with the unit, e.g. "platoon average speed (m/s)"
@@ -216,14 +225,12 @@ class Measure:
     paper: float | int | bool | None = None
     paper_text: str | None = None  # what the paper says when it gives no single number
     digits: int = 2
+    basis: str = "summary"  # "summary" or "paired"
 
 
 def measures(scenario: Scenario, n_lanes: int, compared_lane: int) -> list[Measure]:
     """The rows of the report, in the order of the paper's Section IV-E."""
-    from sumo_swarm.plots import lane_name
-
     desired = scenario.cav.desired_gap_m
-    ranks = scenario.evaluation.upstream_ranks
     rows = [
         Measure("cav.mean_speed", "platoon average speed (m/s)", "speed",
                 "cav.mean_speed_mps", lambda s, b: _get(s, "cav", "mean_speed_mps"),
@@ -255,39 +262,7 @@ def measures(scenario: Scenario, n_lanes: int, compared_lane: int) -> list[Measu
                 lambda s, b: _gain_pct(_get(s, "cav", "gap_mean_m"), desired),
                 PAPER_GAP_EXCESS_PCT, digits=1),
     ]  # fmt: skip
-    lanes = sorted(range(n_lanes), key=lambda q: (q != compared_lane, -q))
-    for lane in lanes:
-        name = f"{lane_name(lane, n_lanes)} lane ({lane})"
-        for rank in range(1, ranks + 1):
-            paper = None
-            if lane == compared_lane and rank <= len(PAPER_UPSTREAM_REDUCTION_PCT):
-                paper = PAPER_UPSTREAM_REDUCTION_PCT[rank - 1]
-            rows.append(
-                Measure(
-                    f"upstream.reduction.lane{lane}.rank{rank}",
-                    f"speed reduction of upstream HV #{rank}, {name} (%)",
-                    "upstream", f"upstream[lane={lane}, rank={rank}].speed_reduction_pct",
-                    lambda s, b, q=lane, r=rank: _get(upstream_entry(s, q, r),
-                                                      "speed_reduction_pct"),
-                    paper,
-                )
-            )  # fmt: skip
-    for lane in lanes:
-        rows.append(
-            Measure(
-                f"upstream.influenced.lane{lane}",
-                f"upstream HVs slowed > {INFLUENCE_THRESHOLD_PCT:g} %, "
-                f"{lane_name(lane, n_lanes)} lane ({lane}) (count)",
-                "influenced",
-                f"count of upstream[lane={lane}].speed_reduction_pct > "
-                f"{INFLUENCE_THRESHOLD_PCT:g}",
-                lambda s, b, q=lane: (
-                    metrics.influenced_count(_get(s, "upstream"), INFLUENCE_THRESHOLD_PCT).get(q)
-                    if _get(s, "upstream") is not None else None
-                ),
-                PAPER_INFLUENCED if lane == compared_lane else None, digits=0,
-            )
-        )  # fmt: skip
+    rows += upstream_measures(scenario, n_lanes, compared_lane, paired=True)
     rows += [
         Measure("upstream.min_gap", "minimum upstream following distance (m)", "upstream_gap",
                 "min of upstream[].min_gap_m", lambda s, b: _min_of(s, "min_gap_m"),
@@ -325,12 +300,80 @@ def measures(scenario: Scenario, n_lanes: int, compared_lane: int) -> list[Measu
     return rows
 
 
-def definitions(scenario: Scenario, compared_lane: int, n_lanes: int) -> dict[str, str]:
-    """Each measure's definition, stated once (rows point to these by key)."""
+def upstream_measures(
+    scenario: Scenario, n_lanes: int, compared_lane: int, *, paired: bool
+) -> list[Measure]:
+    """Speed reduction per lane and rank, then the influenced count per lane.
+
+    ``paired=True``: the report's rows, each upstream HV against itself in the cacc run, with
+    the paper's numbers; ``paired=False``: the same rows as summary.json measures them (the
+    secondary table, no paper column: the paper's numbers are compared with the paired rows).
+    """
     from sumo_swarm.plots import lane_name
+
+    ranks = scenario.evaluation.upstream_ranks
+    prefix, suffix, basis = ("upstream", "", "paired") if paired else (
+        "upstream.summary", ", summary.json", "summary")  # fmt: skip
+    lanes = sorted(range(n_lanes), key=lambda q: (q != compared_lane, -q))
+    rows = []
+    for lane in lanes:
+        name = f"{lane_name(lane, n_lanes)} lane ({lane})"
+        for rank in range(1, ranks + 1):
+            paper = None
+            if paired and lane == compared_lane and rank <= len(PAPER_UPSTREAM_REDUCTION_PCT):
+                paper = PAPER_UPSTREAM_REDUCTION_PCT[rank - 1]
+            entry = f"upstream[lane={lane}, rank={rank}]"
+            rows.append(
+                Measure(
+                    f"{prefix}.reduction.lane{lane}.rank{rank}",
+                    f"speed reduction of upstream HV #{rank}, {name}{suffix} (%)",
+                    "upstream" if paired else "upstream_summary",
+                    f"paired {entry} of trajectories.parquet against {BASELINE}'s"
+                    if paired else f"{entry}.speed_reduction_pct",
+                    lambda s, b, q=lane, r=rank: _get(upstream_entry(s, q, r),
+                                                      "speed_reduction_pct"),
+                    paper, basis=basis,
+                )
+            )  # fmt: skip
+    for lane in lanes:
+        rows.append(
+            Measure(
+                f"{prefix}.influenced.lane{lane}",
+                f"upstream HVs slowed > {INFLUENCE_THRESHOLD_PCT:g} %, "
+                f"{lane_name(lane, n_lanes)} lane ({lane}){suffix} (count)",
+                "influenced",
+                f"count of {'paired ' if paired else ''}upstream[lane={lane}]"
+                f".speed_reduction_pct > {INFLUENCE_THRESHOLD_PCT:g}",
+                lambda s, b, q=lane: (
+                    metrics.influenced_count(_get(s, "upstream"), INFLUENCE_THRESHOLD_PCT).get(q)
+                    if _get(s, "upstream") is not None else None
+                ),
+                PAPER_INFLUENCED if paired and lane == compared_lane else None, digits=0,
+                basis=basis,
+            )
+        )  # fmt: skip
+    return rows
+
+
+def definitions(
+    scenario: Scenario, compared_lane: int, n_lanes: int, paired_from_s: float | None = None
+) -> dict[str, str]:
+    """Each measure's definition, stated once (rows point to these by key).
+
+    ``paired_from_s``: where the paired upstream window starts (the swarm run's decision) [s],
+    once known.
+    """
+    from sumo_swarm.plots import lane_name
+    from sumo_swarm.scene import build_scene
 
     ev = scenario.evaluation
     interval = scenario.planner.behaving_interval_s
+    blocked = sorted(((v.lane, v.id) for v in build_scene(scenario).vehicles
+                      if v.role == "adjacent"), reverse=True)  # fmt: skip
+    blocked_text = " and ".join(f"{vid} in lane {lane}" for lane, vid in blocked) or "none"
+    platoon_lane = scenario.scene.platoon_lane
+    since = "the swarm run's overtaking decision" + (
+        f" (t = {paired_from_s:g} s)" if paired_from_s is not None else "")  # fmt: skip
     return {
         "speed": (
             f"Platoon average speed = mean of every CAV speed sample (all {scenario.cav.count} "
@@ -355,18 +398,38 @@ def definitions(scenario: Scenario, compared_lane: int, n_lanes: int) -> dict[st
             f"{scenario.cav.desired_gap_m:g} m - 1) x 100 % (the paper: 16.80 m vs 10 m = 68 %)."
         ),
         "upstream": (
-            "Upstream HVs = the HVs whose front bumper is behind the rear bumper of the last CAV "
-            "at the overtaking decision (t_start; at the window start for a controller that "
-            "never decides), ranked per lane nearest first (#1 = the first following HV). Speed "
-            "reduction = drop of the HV's minimum speed (from the decision to the window end) "
-            "below its undisturbed speed, relative to the undisturbed speed, in %; the "
-            "undisturbed speed is the HV's speed at the decision. The paper's four numbers are "
-            f"compared with the {lane_name(compared_lane, n_lanes)} lane (lane {compared_lane}), "
-            "the lane of its Fig. 11, where a CAV blocks an HV to open the cut-through gap."
+            "Upstream HVs = the HVs whose front bumper is behind the front bumper of the "
+            "swarm's leading CAV at the overtaking decision (t_start; at the window start for a "
+            "controller that never decides), the slow HV being overtaken left out, ranked per "
+            f"lane nearest first, at most {ev.upstream_ranks} per lane (summary.json's "
+            "ranking). #1, the first following HV, is thus the HV the swarm blocks beside the "
+            f"platoon in a side lane ({blocked_text}) and the first HV behind the platoon in "
+            f"the platoon's lane (lane {platoon_lane}). Speed reduction, paired with the "
+            f"{BASELINE} run = max(0, (v_{BASELINE} - v_run) / v_{BASELINE} x 100) %, where "
+            f"v_run is the HV's minimum speed in this run and v_{BASELINE} the same HV's "
+            f"minimum speed in the {BASELINE} run (same traffic and seed, no manoeuvre), both "
+            f"from {since} to the window end ({ev.end_s:g} s), for every controller, so the "
+            f"columns compare; the {BASELINE} column is 0 by construction. Computed from the "
+            "runs' trajectories.parquet (summary.json does not hold it). The paper's four "
+            f"numbers are compared with the {lane_name(compared_lane, n_lanes)} lane (lane "
+            f"{compared_lane}), the lane of its Fig. 11, where a CAV blocks an HV to open the "
+            "cut-through gap."
+        ),
+        "upstream_summary": (
+            "summary.json's own upstream speed reduction (secondary table), for the same "
+            "ranked HVs = max(0, (v_ref - v_min) / v_ref x 100) %, where v_ref is the HV's "
+            "speed at the run's reference time (the decision, or the window start for a "
+            "controller that never decides) and v_min its minimum speed from then to the "
+            "window end. The upstream HVs start 25 m apart at the initial speed, which is not "
+            "an IDM equilibrium: in every run they first speed up a little and settle back, "
+            "and a speed taken during that surge adds its overshoot to every reduction of a run "
+            "that decides; a run that never decides is measured from the start, before the "
+            "surge."
         ),
         "influenced": (
             f"Influenced upstream HVs = how many of the ranked upstream HVs of a lane (at most "
-            f"{ev.upstream_ranks}) have a speed reduction above {INFLUENCE_THRESHOLD_PCT:g} %. "
+            f"{ev.upstream_ranks}) have a speed reduction above {INFLUENCE_THRESHOLD_PCT:g} % "
+            "(the paired reduction in the main table, summary.json's in the secondary one). "
             "The paper: within four following HVs (Section IV-E), five (abstract)."
         ),
         "upstream_gap": (
@@ -406,22 +469,34 @@ def build_rows(
     rows: Sequence[Measure],
     summaries: Mapping[str, Mapping[str, Any] | None],
     controllers: Sequence[str],
+    paired: Mapping[str, Sequence[Mapping[str, Any]] | None] | None = None,
 ) -> list[dict[str, Any]]:
-    """One dict per measure: ``measure, paper, <controller>...`` plus key, source, definition."""
+    """One dict per measure: ``measure, paper, <controller>...`` plus key, source, definition.
+
+    ``paired`` holds each controller's :func:`paired_upstream` entries (None where they could
+    not be computed), read by the rows of ``basis="paired"``.
+    """
     base = summaries.get(BASELINE)
+    paired = paired or {}
     out = []
     for m in rows:
+        sources: dict[str, Mapping[str, Any] | None] = {}
+        for c in controllers:
+            if m.basis == "paired":
+                entries = paired.get(c)
+                sources[c] = {"upstream": entries} if entries is not None else None
+            else:
+                sources[c] = summaries.get(c)
         row: dict[str, Any] = {"measure": m.label, "paper": m.paper}
         for c in controllers:
-            s = summaries.get(c)
+            s = sources[c]
             row[c] = _finite(m.value(s, base)) if s is not None else None
         row.update(key=m.key, paper_text=m.paper_text, definition=m.definition,
-                   source=m.source, digits=m.digits)  # fmt: skip
-        if m.key.startswith("upstream.reduction."):
+                   source=m.source, digits=m.digits, basis=m.basis)  # fmt: skip
+        if ".reduction." in m.key:
             lane, rank = _lane_rank(m.key)
             row["vehicles"] = {
-                c: _get(upstream_entry(summaries.get(c), lane, rank), "vehicle")
-                for c in controllers
+                c: _get(upstream_entry(sources[c], lane, rank), "vehicle") for c in controllers
             }
         out.append(row)
     return out
@@ -432,76 +507,121 @@ def _lane_rank(key: str) -> tuple[int, int]:
     return int(lane_part.removeprefix("lane")), int(rank_part.removeprefix("rank"))
 
 
-def targets(
-    rows: Sequence[Mapping[str, Any]], summary: Mapping[str, Any] | None, wall_s: float | None
-) -> list[dict[str, Any]]:
-    """The issue's targets for the swarm, each with its value and whether it is met."""
+def _per_lane(
+    rows: Sequence[Mapping[str, Any]], prefix: str, suffix: str = ""
+) -> dict[int, Mapping[str, Any]]:
+    """The rows whose key is ``<prefix>lane<q><suffix>``, by lane q."""
+    pattern = re.compile(rf"{re.escape(prefix)}lane(\d+){re.escape(suffix)}")
+    return {int(m[1]): r for r in rows if (m := pattern.fullmatch(r["key"]))}
+
+
+def _worst(per_lane: Mapping[int, tuple[Any, str]]) -> tuple[Any, str | None]:
+    """The largest value over the lanes and where it occurs (every lane that ties)."""
+    known = {q: vw for q, vw in sorted(per_lane.items(), reverse=True) if vw[0] is not None}
+    if not known:
+        return None, None
+    top = max(v for v, _ in known.values())
+    return top, "; ".join(where for v, where in known.values() if v == top)
+
+
+def targets(rows: Sequence[Mapping[str, Any]], wall_s: float | None) -> list[dict[str, Any]]:
+    """The issue's targets for the swarm, each with its value, where it is worst, and whether
+    it is met. The upstream targets read the report's (paired) upstream rows."""
     by_key = {r["key"]: r for r in rows}
 
     def value(key: str) -> Any:
         return by_key[key][FOCUS] if key in by_key and FOCUS in by_key[key] else None
 
-    upstream = _get(summary, "upstream")
-    influenced = (
-        max(metrics.influenced_count(upstream, INFLUENCE_THRESHOLD_PCT).values(), default=0)
-        if upstream is not None
-        else None
+    influenced = _worst(
+        {q: (r.get(FOCUS), f"lane {q}") for q, r in _per_lane(rows, "upstream.influenced.").items()}
     )
-    first = [e["speed_reduction_pct"] for e in upstream or [] if e["rank"] == 1]
+    first = _worst(
+        {
+            q: (r.get(FOCUS), f"lane {q}, {r['vehicles'].get(FOCUS)}")
+            for q, r in _per_lane(rows, "upstream.reduction.", ".rank1").items()
+        }
+    )
     checks = [
-        ("mobility gain over cacc >= 10 %", value("cav.mobility_gain"), lambda v: v >= 10.0),
-        ("minimum CAV following distance >= 5 m", value("cav.gap_min"), lambda v: v >= 5.0),
-        ("upstream HVs influenced <= 5 in every lane", influenced, lambda v: v <= 5),
-        ("first following HV's speed reduction <= 5 % in every lane",
-         max(first) if first else None, lambda v: v <= 5.0),
-        ("minimum upstream time headway >= 1.2 s", value("upstream.min_headway"),
+        ("mobility gain over cacc >= 10 %", (value("cav.mobility_gain"), None),
+         lambda v: v >= 10.0),
+        ("minimum CAV following distance >= 5 m", (value("cav.gap_min"), None),
+         lambda v: v >= 5.0),
+        (f"upstream HVs influenced (paired, > {INFLUENCE_THRESHOLD_PCT:g} %) <= 5 in every "
+         "lane", influenced, lambda v: v <= 5),
+        ("first following HV's speed reduction (paired) <= 5 % in every lane", first,
+         lambda v: v <= 5.0),
+        ("minimum upstream time headway >= 1.2 s", (value("upstream.min_headway"), None),
          lambda v: v >= 1.2),
-        ("zero collisions", value("safety.collisions"), lambda v: v == 0),
-        (f"whole reproduction within {WALL_TARGET_S:g} s", wall_s,
+        ("zero collisions", (value("safety.collisions"), None), lambda v: v == 0),
+        (f"whole reproduction within {WALL_TARGET_S:g} s", (wall_s, None),
          lambda v: v <= WALL_TARGET_S),
     ]  # fmt: skip
     return [
-        {"target": text, "value": _finite(v), "met": None if v is None else bool(ok(v))}
-        for text, v, ok in checks
-    ]
+        {"target": text, "value": _finite(v), "where": where,
+         "met": None if v is None else bool(ok(v))}
+        for text, (v, where), ok in checks
+    ]  # fmt: skip
 
 
-def upstream_against_baseline(
-    focus_df, baseline_df, summary: Mapping[str, Any], scenario: Scenario
-) -> list[dict[str, Any]]:
-    """Diagnostic, not a summary number: each upstream HV of the focus run, its speed reduction
-    taken against the same HV's minimum speed in the baseline run (same window), i.e. against
-    the traffic as it would have driven without the manoeuvre; plus the HVs blocked beside
-    the platoon, which the upstream ranking leaves out."""
-    from sumo_swarm.scene import build_scene
+def _slowest_mps(df: pd.DataFrame, window: metrics.EvaluationWindow) -> dict[str, float]:
+    """Each vehicle's minimum speed inside ``window`` [m/s]."""
+    inside = metrics.window(df, window)
+    grouped = inside.groupby(inside["vehicle"].astype(str), observed=True)["speed_mps"]
+    return {str(k): float(v) for k, v in grouped.min().items()}
 
-    t0 = _get(summary, "overtake", "t_start_s")
-    if t0 is None:
-        return []
-    window = metrics.EvaluationWindow(t0, scenario.evaluation.end_s)
-    base = metrics.window(baseline_df, window).groupby("vehicle", observed=True)["speed_mps"]
-    undisturbed = {str(k): float(v) for k, v in base.min().items()}
-    rows = metrics.upstream_impact(
-        focus_df, t0, n_rank=scenario.evaluation.upstream_ranks, window=window,
-        undisturbed=undisturbed,
-    )  # fmt: skip
-    own = {(e["lane"], e["rank"]): e["speed_reduction_pct"] for e in summary["upstream"]}
-    for r in rows:
-        r["summary_reduction_pct"] = own.get((r["lane"], r["rank"]))
-        r["role"] = "upstream"
-    focus = metrics.window(focus_df, window)
-    for v in build_scene(scenario).vehicles:
-        if v.role != "adjacent" or v.id not in undisturbed:
-            continue
-        slowest = float(focus.loc[focus["vehicle"] == v.id, "speed_mps"].min())
-        ref = undisturbed[v.id]
+
+def _paired(vehicle: str, reference: Mapping[str, float], own: Mapping[str, float]) -> dict:
+    undisturbed, slowest = _finite(reference.get(vehicle)), _finite(own.get(vehicle))
+    reduction = None
+    if undisturbed is not None and slowest is not None:
+        reduction = (
+            max(0.0, (undisturbed - slowest) / undisturbed * 100.0) if undisturbed > 0 else 0.0
+        )
+    return {"vehicle": vehicle, "undisturbed_speed_mps": undisturbed,
+            "min_speed_mps": slowest, "speed_reduction_pct": reduction}  # fmt: skip
+
+
+def paired_upstream(
+    summary: Mapping[str, Any] | None,
+    df: pd.DataFrame,
+    baseline_df: pd.DataFrame,
+    window: metrics.EvaluationWindow,
+    blocked: Iterable[str] = (),
+) -> list[dict[str, Any]] | None:
+    """Each ranked upstream HV of a run against the same HV in the baseline run.
+
+    For every entry of the run's ``summary["upstream"]`` (its lane, rank and vehicle):
+    ``undisturbed_speed_mps`` = the HV's minimum speed in ``baseline_df`` over ``window``,
+    ``min_speed_mps`` = its minimum speed in ``df`` over ``window`` [m/s], and
+    ``speed_reduction_pct`` = ``max(0, (undisturbed - min) / undisturbed * 100)`` [%] (None when
+    the HV is missing from either table inside the window). Also ``summary_reduction_pct``
+    (the summary's own number) and ``role``: ``"blocked"`` for the vehicles in ``blocked``
+    (the HVs beside the platoon at the start), else ``"upstream"``. None when the summary has
+    no upstream list.
+    """
+    entries = _get(summary, "upstream")
+    if entries is None:
+        return None
+    reference, own = _slowest_mps(baseline_df, window), _slowest_mps(df, window)
+    blocked = set(blocked)
+    rows = []
+    for e in entries:
+        vid = str(e["vehicle"])
         rows.append({
-            "lane": v.lane, "rank": 0, "vehicle": v.id, "role": "blocked",
-            "undisturbed_speed_mps": ref, "min_speed_mps": slowest,
-            "speed_reduction_pct": max(0.0, (ref - slowest) / ref * 100.0) if ref > 0 else 0.0,
-            "summary_reduction_pct": None,
+            "lane": int(e["lane"]), "rank": int(e["rank"]),
+            "role": "blocked" if vid in blocked else "upstream",
+            **_paired(vid, reference, own),
+            "summary_reduction_pct": e.get("speed_reduction_pct"),
         })  # fmt: skip
-    return sorted(rows, key=lambda r: (-r["lane"], r["rank"]))
+    return rows
+
+
+def paired_vehicle(
+    vehicle: str, df: pd.DataFrame, baseline_df: pd.DataFrame, window: metrics.EvaluationWindow
+) -> dict[str, Any]:
+    """One vehicle's minimum speed against its own in the baseline run, as
+    :func:`paired_upstream` measures an upstream HV (used for the slow HV being overtaken)."""
+    return _paired(vehicle, _slowest_mps(baseline_df, window), _slowest_mps(df, window))
 
 
 def _fmt(value: Any, digits: int = 2) -> str:
@@ -580,36 +700,7 @@ def differences(report: Mapping[str, Any]) -> list[str]:
             f"{PAPER_PASS_S:g} s. Our cells are 15 m long instead of 5 m, so one behaving step "
             "moves a CAV three times as far relative to the slow HV."
         )
-    lane = report["compared_lane"]
-    red = [v(f"upstream.reduction.lane{lane}.rank{k}") for k in range(1, 5)]
-    if all(x is not None for x in red):
-        ours = ", ".join(f"{x:.2f}" for x in red)
-        paper = ", ".join(f"{x:.2f}" for x in PAPER_UPSTREAM_REDUCTION_PCT)
-        lines.append(
-            f"* **Upstream traffic.** Speed reductions of the 1st-4th following HV in lane "
-            f"{lane}: {ours} % (paper {paper} %)."
-        )
-    diag = report.get("upstream_against_baseline") or []
-    if diag:
-        table = ["| lane | # | vehicle | summary's reduction (%) | against the cacc run (%) |",
-                 "| --- | --- | --- | --- | --- |"]  # fmt: skip
-        for d in diag:
-            rank = "blocked" if d["role"] == "blocked" else str(d["rank"])
-            table.append(f"| {d['lane']} | {rank} | {d['vehicle']} | "
-                         f"{_fmt(d['summary_reduction_pct'])} | "
-                         f"{_fmt(d['speed_reduction_pct'])} |")  # fmt: skip
-        lines.append(
-            "  The summary measures a reduction against the HV's speed at the decision. In our "
-            "scene the upstream HVs start 25 m apart at 17.5 m/s, which is not an IDM "
-            "equilibrium (desired speed 33.33 m/s): in every run, the cacc run included, they "
-            "first speed up a little and settle back to 17.5 m/s. The speed at the decision is "
-            "taken during that surge, so part of the summary's reduction is the IDM settling, "
-            "not the swarm. The diagnostic below (computed from the trajectories for this "
-            "section only; it is not in summary.json) takes instead each HV's minimum speed in "
-            "the cacc run over the same window as its undisturbed speed, and adds the HVs the "
-            "CAVs block, which the upstream ranking leaves out because they are beside the "
-            "platoon at the decision:\n\n" + "\n".join("  " + t for t in table)
-        )
+    lines += _upstream_differences(report)
     lines.append(
         "\nWhy our numbers differ (the fixed list):\n\n"
         "1. **Simulator.** SUMO (libsumo, step 0.03 s) instead of the authors' MATLAB platform; "
@@ -637,6 +728,70 @@ def differences(report: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _upstream_differences(report: Mapping[str, Any]) -> list[str]:
+    """The upstream paragraph of "where we differ": the paired numbers of the swarm run."""
+    rows = report["rows"]
+    lane = report["compared_lane"]
+    reduction = _per_lane(rows, "upstream.reduction.", ".rank1")
+    if not reduction or all(r.get(FOCUS) is None for r in reduction.values()):
+        return []
+    by_key = {r["key"]: r for r in rows}
+    summary_rows = {r["key"]: r for r in report.get("upstream_summary_rows", [])}
+    n_paper = len(PAPER_UPSTREAM_REDUCTION_PCT)
+    ranked = [by_key.get(f"upstream.reduction.lane{lane}.rank{k}") for k in range(1, n_paper + 1)]
+    ranked = [r for r in ranked if r is not None and r.get(FOCUS) is not None]
+    window = report.get("upstream_window_s") or [None, None]
+
+    def named(r: Mapping[str, Any]) -> str:
+        return f"{r['vehicles'][FOCUS]} {_fmt(r[FOCUS])} %"
+
+    paper = ", ".join(f"{x:.2f}" for x in PAPER_UPSTREAM_REDUCTION_PCT)
+    text = (
+        f"* **Upstream traffic.** Against the same HVs in the {BASELINE} run (from the decision, "
+        f"t = {_fmt(window[0])} s, to {_fmt(window[1], 0)} s), the 1st-{len(ranked)}th "
+        f"following HVs of lane {lane} (the paper's Fig. 11 lane) slow down by "
+        + ", ".join(named(r) for r in ranked)
+        + f" (paper {paper} %). "
+    )
+    blocked = {
+        e["vehicle"] for e in (report.get("upstream_paired") or {}).get(FOCUS) or []
+        if e["role"] == "blocked"
+    }  # fmt: skip
+    firsts = [
+        f"lane {q}: {r['vehicles'][FOCUS]}"
+        + (" (blocked beside the platoon)" if r["vehicles"][FOCUS] in blocked else "")
+        + f" {_fmt(r[FOCUS])} %"
+        for q, r in sorted(reduction.items(), reverse=True)
+        if r.get(FOCUS) is not None
+    ]
+    text += "The first following HV of each lane: " + "; ".join(firsts) + ". "
+    influenced = _per_lane(rows, "upstream.influenced.")
+    text += (
+        f"HVs slowed by more than {INFLUENCE_THRESHOLD_PCT:g} %: "
+        + ", ".join(f"{_fmt(r.get(FOCUS), 0)} in lane {q}"
+                    for q, r in sorted(influenced.items(), reverse=True))
+        + f" (paper: {PAPER_INFLUENCED}). "
+    )  # fmt: skip
+    target = (report.get("overtaken_paired") or {}).get(FOCUS)
+    if target and target.get("speed_reduction_pct") is not None:
+        text += (
+            f"The slow HV itself ({target['vehicle']}, left out of the ranking) drops to "
+            f"{_fmt(target['min_speed_mps'])} m/s, {_fmt(target['speed_reduction_pct'])} % "
+            "below its speed in the cacc run, as the platoon merges back in front of it; the "
+            "HVs behind it in its lane follow it down. "
+        )
+    old = [summary_rows.get(f"upstream.summary.reduction.lane{lane}.rank{k}")
+           for k in range(1, len(ranked) + 1)]  # fmt: skip
+    if old and all(r is not None and r.get(FOCUS) is not None for r in old):
+        text += (
+            "summary.json's own reductions of the same HVs (secondary table) are "
+            + ", ".join(_fmt(r[FOCUS]) for r in old)
+            + " %: measured against each HV's speed at the decision, they include the "
+            "settling of the upstream HVs' start-up surge, which happens in the cacc run too."
+        )
+    return [text]
+
+
 def render_markdown(report: Mapping[str, Any]) -> str:
     from sumo_swarm.plots import FIGURES
 
@@ -658,27 +813,52 @@ def render_markdown(report: Mapping[str, Any]) -> str:
         r = report["runs"][c]
         out.append(f"| {c} | {r['status']} | {_fmt(r['wall_s'], 1)} | [{r['dir']}]({r['dir']}/) "
                    f"| {r['error'] or ''} |")  # fmt: skip
+
+    def table(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+        lines = ["| measure | paper | " + " | ".join(controllers) + " |",
+                 "| --- | --- |" + " --- |" * len(controllers)]  # fmt: skip
+        for row in rows:
+            if not _ranks_an_hv(row, controllers):
+                continue
+            cells = [_fmt(row[c], row["digits"]) for c in controllers]
+            lines.append(f"| {row['measure']} | {_paper_cell(row)} | " + " | ".join(cells) + " |")
+        return lines
+
+    window = report.get("upstream_window_s") or [None, None]
     out += ["", "## Measures (Section IV-E)", ""]
-    out.append("| measure | paper | " + " | ".join(controllers) + " |")
-    out.append("| --- | --- |" + " --- |" * len(controllers))
-    for row in report["rows"]:
-        cells = [_fmt(row[c], row["digits"]) for c in controllers]
-        out.append(f"| {row['measure']} | {_paper_cell(row)} | " + " | ".join(cells) + " |")
-    out += ["", "The upstream HV each rank refers to, per controller:", ""]
-    reduction_rows = [r for r in report["rows"] if "vehicles" in r]
+    out += [
+        "The upstream HVs' speed reductions pair each run with the cacc run, HV by HV, from "
+        f"the swarm's decision (t = {_fmt(window[0])} s) to {_fmt(window[1], 0)} s (definitions "
+        "below); every other number is read from the runs' summary.json. Upstream ranks no run "
+        "has an HV for are left out here (report.json has every rank).",
+        "",
+    ]
+    out += table(report["rows"])
+    out += ["", "The upstream HV each rank refers to, per controller (both tables):", ""]
     out.append("| measure | " + " | ".join(controllers) + " |")
     out.append("| --- |" + " --- |" * len(controllers))
-    for row in reduction_rows:
+    for row in report["rows"]:
+        if "vehicles" not in row or not _ranks_an_hv(row, controllers):
+            continue
         label = row["measure"].removeprefix("speed reduction of ").removesuffix(" (%)")
         out.append(f"| {label} | " + " | ".join(row["vehicles"][c] or "—" for c in controllers)
                    + " |")  # fmt: skip
+    out += ["", "### Upstream HVs as summary.json measures them (secondary)", ""]
+    out += [
+        "The same HVs, each reduction against the HV's own speed at the run's reference time "
+        "(summary.json's `upstream[].speed_reduction_pct`, definition below). Not the report's "
+        "measure: the upstream HVs' start-up surge inflates it for the runs that decide.",
+        "",
+    ]
+    out += table(report.get("upstream_summary_rows", []))
     out += ["", "### Definitions", ""]
     for text in report["definitions"].values():
         out.append(f"* {text}")
-    out += ["", "### Targets (swarm)", "", "| target | value | met |", "| --- | --- | --- |"]
+    out += ["", "### Targets (swarm)", "", "| target | value | where | met |",
+            "| --- | --- | --- | --- |"]  # fmt: skip
     for t in report["targets"]:
         met = "—" if t["met"] is None else ("yes" if t["met"] else "**no**")
-        out.append(f"| {t['target']} | {_fmt(t['value'])} | {met} |")
+        out.append(f"| {t['target']} | {_fmt(t['value'])} | {t.get('where') or ''} | {met} |")
     out += ["", "## Figures", ""]
     for name, caption in FIGURES.items():
         if name in report["figures"]:
@@ -690,6 +870,12 @@ def render_markdown(report: Mapping[str, Any]) -> str:
     out += ["## Where we differ from the paper and why", ""]
     out += report["differences"]
     return "\n".join(out) + "\n"
+
+
+def _ranks_an_hv(row: Mapping[str, Any], controllers: Sequence[str]) -> bool:
+    """False for an upstream reduction row whose rank holds no HV in any run."""
+    vehicles = row.get("vehicles")
+    return vehicles is None or any(vehicles.get(c) for c in controllers)
 
 
 def _write_text_atomic(path: Path, text: str) -> None:
@@ -758,20 +944,61 @@ def reproduce(
     out = prepare_out_dir(out_dir)
     results = {c: RunResult(c, "pending", out / "runs" / c) for c in controllers}
     from sumo_swarm.plots import FIGURES, RunData, lane_widths_m, make_figures
+    from sumo_swarm.scene import build_scene
 
     n_lanes = len(lane_widths_m(scenario))
     compared_lane = n_lanes - 1  # the left lane, as the paper's Figs. 11-12
     rows_spec = measures(scenario, n_lanes, compared_lane)
+    summary_rows_spec = upstream_measures(scenario, n_lanes, compared_lane, paired=False)
     ev = scenario.evaluation
+    blocked = [v.id for v in build_scene(scenario).vehicles if v.role == "adjacent"]
+    runs: dict[str, RunData] = {}  # finished runs, each trajectory table read once
+
+    def run_data(summaries: Mapping[str, Mapping[str, Any] | None]) -> dict[str, RunData]:
+        for c, s in summaries.items():
+            if s is not None and c not in runs:
+                runs[c] = RunData(c, results[c].folder, s)
+        return {c: runs[c] for c, s in summaries.items() if s is not None}
+
+    def paired_window(
+        summaries: Mapping[str, Mapping[str, Any] | None],
+    ) -> metrics.EvaluationWindow | None:
+        """From the swarm's decision (the window start without a swarm decision); None while
+        the swarm run is still to come."""
+        t_start = _get(summaries.get(FOCUS), "overtake", "t_start_s")
+        if t_start is None and results.get(FOCUS) and results[FOCUS].status == "pending":
+            return None
+        return metrics.EvaluationWindow(ev.start_s if t_start is None else t_start, ev.end_s)
+
+    def paired(
+        summaries: Mapping[str, Mapping[str, Any] | None], w: metrics.EvaluationWindow | None
+    ) -> tuple[dict[str, Any], dict[str, Any], str | None]:
+        upstream: dict[str, Any] = {c: None for c in controllers}
+        target: dict[str, Any] = {c: None for c in controllers}
+        finished = run_data(summaries)
+        if w is None or BASELINE not in finished:
+            return upstream, target, None
+        try:
+            base = finished[BASELINE].df
+            for c, run in finished.items():
+                upstream[c] = paired_upstream(run.summary, run.df, base, w, blocked)
+                slow = _get(run.summary, "overtake", "target")
+                if slow is not None:
+                    target[c] = paired_vehicle(str(slow), run.df, base, w)
+        except Exception as exc:  # the paired rows must never cost the report
+            log.warning("paired upstream measures failed: %s", exc)
+            return upstream, target, f"{type(exc).__name__}: {exc}"
+        return upstream, target, None
 
     def write_report(
         figures: Mapping[str, str] | None = None,
         figure_errors: Mapping[str, str] | None = None,
-        diagnostic: Sequence[Mapping[str, Any]] = (),
         complete: bool = False,
     ) -> dict[str, Any]:
         summaries = {c: _read_summary(r) for c, r in results.items()}
-        rows = build_rows(rows_spec, summaries, controllers)
+        w = paired_window(summaries)
+        upstream_paired, overtaken_paired, paired_error = paired(summaries, w)
+        rows = build_rows(rows_spec, summaries, controllers, upstream_paired)
         wall_s = time.perf_counter() - wall0
         report: dict[str, Any] = {
             "schema": SCHEMA,
@@ -792,11 +1019,20 @@ def reproduce(
             },
             "runs": {c: r.as_json(out) for c, r in results.items()},
             "rows": rows,
-            "definitions": definitions(scenario, compared_lane, n_lanes),
-            "targets": targets(rows, summaries.get(FOCUS), wall_s if complete else None),
+            "upstream_summary_rows": build_rows(summary_rows_spec, summaries, controllers),
+            "definitions": definitions(
+                scenario, compared_lane, n_lanes, w.start_s if w is not None else None
+            ),
+            "targets": targets(rows, wall_s if complete else None),
             "figures": dict(figures or {}),
             "figure_errors": dict(figure_errors or {}),
-            "upstream_against_baseline": list(diagnostic),
+            # Where the paired upstream rows come from: the window [s] and every run's entries.
+            "upstream_window_s": [w.start_s, w.end_s] if w is not None else None,
+            "upstream_paired": upstream_paired,
+            "upstream_paired_error": paired_error,
+            "overtaken_paired": overtaken_paired,
+            # The swarm's paired entries under the name of the earlier diagnostic.
+            "upstream_against_baseline": upstream_paired.get(FOCUS) or [],
         }
         report["differences"] = differences(report)
         write_json_atomic(out / "report.json", report)
@@ -806,11 +1042,7 @@ def reproduce(
     write_report()
     _run_all(scenario, results, workers, on_done=lambda res: write_report(), progress=progress)
 
-    finished = {
-        c: RunData(c, r.folder, s)
-        for c, r in results.items()
-        if (s := _read_summary(r)) is not None
-    }
+    finished = run_data({c: _read_summary(r) for c, r in results.items()})
     paper_speeds = {FOCUS: PAPER_SPEED_MPS, BASELINE: PAPER_CACC_SPEED_MPS}
     with tqdm(total=len(FIGURES), desc="figures", unit="fig", disable=not progress) as bar:
         figures, figure_errors = make_figures(
@@ -818,12 +1050,4 @@ def reproduce(
             paper_speeds={k: v for k, v in paper_speeds.items() if k in finished},
             on_figure=lambda name: bar.update(),
         )  # fmt: skip
-    diagnostic: list[dict[str, Any]] = []
-    if FOCUS in finished and BASELINE in finished:
-        try:
-            diagnostic = upstream_against_baseline(
-                finished[FOCUS].df, finished[BASELINE].df, finished[FOCUS].summary, scenario
-            )
-        except Exception as exc:  # a diagnostic must never cost the report
-            log.warning("upstream diagnostic failed: %s", exc)
-    return write_report(figures, figure_errors, diagnostic, complete=True)
+    return write_report(figures, figure_errors, complete=True)

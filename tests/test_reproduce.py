@@ -7,12 +7,14 @@ import re
 import tomllib
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from sumo_swarm.config import load_scenario
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.metrics import EvaluationWindow
 from sumo_swarm.plots import FIGURES
-from sumo_swarm.reproduce import default_scenario_path, reproduce
+from sumo_swarm.reproduce import default_scenario_path, paired_upstream, reproduce, targets
 from tests.conftest import PAPER, ROOT
 from tests.contract import assert_summary_contract
 
@@ -98,6 +100,16 @@ def test_table_has_the_contract_columns_and_every_measure(reproduction):
     assert paper["cav.mobility_gain"] == 12.04
     assert paper["upstream.reduction.lane2.rank1"] == 2.19
     assert paper["overtake.behaving_steps"] == 14
+    # The report's upstream rows are the paired ones; summary.json's own are the secondary table.
+    basis = {r["key"]: r["basis"] for r in report["rows"]}
+    assert basis["upstream.reduction.lane2.rank1"] == "paired"
+    assert basis["upstream.influenced.lane2"] == "paired"
+    assert basis["cav.mean_speed"] == "summary"
+    secondary = {r["key"]: r for r in report["upstream_summary_rows"]}
+    assert {"upstream.summary.reduction.lane2.rank1", "upstream.summary.influenced.lane2"} <= set(
+        secondary
+    )
+    assert all(r["basis"] == "summary" and r["paper"] is None for r in secondary.values())
 
 
 @pytest.mark.sumo
@@ -105,7 +117,9 @@ def test_numbers_equal_those_in_the_summaries(reproduction):
     out, report = reproduction
     summaries = {c: _summary(out, c) for c in CONTROLLERS}
     checked = 0
-    for row in report["rows"]:
+    for row in report["rows"] + report["upstream_summary_rows"]:
+        if row["basis"] == "paired":  # from the trajectories: see the next test
+            continue
         for c in CONTROLLERS:
             expected = _from_source(row["source"], summaries[c])
             if expected is FORMULA:
@@ -129,7 +143,54 @@ def test_numbers_equal_those_in_the_summaries(reproduction):
         else:
             assert rows["overtake.duration_s"][c] is None
         influenced = sum(e["speed_reduction_pct"] > 0.1 for e in s["upstream"] if e["lane"] == 2)
-        assert rows["upstream.influenced.lane2"][c] == influenced
+        secondary = {r["key"]: r for r in report["upstream_summary_rows"]}
+        assert secondary["upstream.summary.influenced.lane2"][c] == influenced
+
+
+@pytest.mark.sumo
+def test_paired_upstream_rows_equal_a_recomputation_from_the_trajectories(reproduction):
+    """Each upstream HV's minimum speed against its own in the cacc run, read straight from the
+    parquet files, over the swarm's decision to the window end, for every controller."""
+    out, report = reproduction
+    rows = {r["key"]: r for r in report["rows"]}
+    summaries = {c: _summary(out, c) for c in CONTROLLERS}
+    t0, t1 = summaries["swarm"]["overtake"]["t_start_s"], SHORT["evaluation"]["end_s"]
+    assert report["upstream_window_s"] == [t0, t1]
+
+    def slowest(c: str) -> pd.Series:
+        df = pd.read_parquet(out / "runs" / c / "trajectories.parquet")
+        df = df[(df["time_s"] >= t0 - 1e-6) & (df["time_s"] <= t1 + 1e-6)]
+        return df.groupby(df["vehicle"].astype(str))["speed_mps"].min()
+
+    base = slowest("cacc")
+    checked = 0
+    for c in CONTROLLERS:
+        own = slowest(c)
+        per_lane: dict[int, int] = {}
+        for e in summaries[c]["upstream"]:
+            lane, rank, vid = e["lane"], e["rank"], e["vehicle"]
+            expected = max(0.0, (base[vid] - own[vid]) / base[vid] * 100)
+            row = rows[f"upstream.reduction.lane{lane}.rank{rank}"]
+            assert row[c] == pytest.approx(expected, abs=1e-9), (c, vid)
+            assert row["vehicles"][c] == vid
+            per_lane[lane] = per_lane.get(lane, 0) + (expected > 0.1)
+            checked += 1
+        for lane, count in per_lane.items():
+            assert rows[f"upstream.influenced.lane{lane}"][c] == count
+    assert checked >= 4 * 15
+    # The baseline against itself: every paired reduction is 0, nobody is influenced.
+    cacc = [r["cacc"] for k, r in rows.items() if k.startswith("upstream.") and "lane" in k]
+    assert cacc and all(v == 0 for v in cacc if v is not None)
+    # Rank 1 in a side lane is the HV the swarm blocks; the targets read the paired rows.
+    assert rows["upstream.reduction.lane2.rank1"]["vehicles"]["swarm"] == "hv_left"
+    assert rows["upstream.reduction.lane0.rank1"]["vehicles"]["swarm"] == "hv_right"
+    goals = {t["target"]: t for t in report["targets"]}
+    first = max(rows[f"upstream.reduction.lane{q}.rank1"]["swarm"] for q in range(3))
+    assert goals["first following HV's speed reduction (paired) <= 5 % in every lane"][
+        "value"
+    ] == pytest.approx(first)
+    most = max(rows[f"upstream.influenced.lane{q}"]["swarm"] for q in range(3))
+    assert goals["upstream HVs influenced (paired, > 0.1 %) <= 5 in every lane"]["value"] == most
 
 
 @pytest.mark.sumo
@@ -165,6 +226,51 @@ def test_a_failed_run_is_reported_and_the_others_finish(tmp_path):
     md = (tmp_path / "report.md").read_text(encoding="utf-8")
     assert "| sumo-lc | failed |" in md
     assert json.loads((tmp_path / "report.json").read_text())["runs"]["sumo-lc"]["error"]
+
+
+def _frame(samples: list[tuple[float, str, float]]) -> pd.DataFrame:
+    return pd.DataFrame(samples, columns=["time_s", "vehicle", "speed_mps"])
+
+
+def test_paired_upstream_by_hand():
+    summary = {"upstream": [
+        {"lane": 2, "rank": 1, "vehicle": "a", "speed_reduction_pct": 9.0},
+        {"lane": 2, "rank": 2, "vehicle": "b", "speed_reduction_pct": 1.0},
+        {"lane": 0, "rank": 1, "vehicle": "gone", "speed_reduction_pct": 0.0},
+    ]}  # fmt: skip
+    # Baseline: a at 20 m/s, b at 10 m/s (b's 5 m/s sample lies before the window).
+    base = _frame([(0.0, "a", 20.0), (1.0, "a", 20.0), (0.0, "b", 5.0), (1.0, "b", 10.0),
+                   (1.0, "gone", 10.0)])  # fmt: skip
+    # This run: a slows to 19 m/s (5 %), b never below 11 m/s (faster: 0, not negative).
+    run = _frame([(0.0, "a", 1.0), (1.0, "a", 19.0), (2.0, "a", 20.0), (1.0, "b", 11.0)])
+    rows = paired_upstream(summary, run, base, EvaluationWindow(1.0, 2.0), blocked=["a"])
+    assert [(r["lane"], r["rank"], r["vehicle"], r["role"]) for r in rows] == [
+        (2, 1, "a", "blocked"), (2, 2, "b", "upstream"), (0, 1, "gone", "upstream")]  # fmt: skip
+    assert rows[0]["speed_reduction_pct"] == pytest.approx(5.0)
+    assert rows[0]["undisturbed_speed_mps"] == 20.0 and rows[0]["min_speed_mps"] == 19.0
+    assert rows[0]["summary_reduction_pct"] == 9.0
+    assert rows[1]["speed_reduction_pct"] == 0.0
+    assert rows[2]["speed_reduction_pct"] is None  # not in this run's window
+    assert paired_upstream({"upstream": None}, run, base, EvaluationWindow(1.0, 2.0)) is None
+
+
+def test_upstream_targets_take_the_worst_lane():
+    def row(key, value, vehicle=None):
+        r = {"key": key, "swarm": value}
+        return r | {"vehicles": {"swarm": vehicle}} if vehicle else r
+
+    rows = [row("upstream.reduction.lane2.rank1", 0.5, "hv_left"),
+            row("upstream.reduction.lane1.rank1", 1.3, "up1_1"),
+            row("upstream.reduction.lane1.rank10", 9.0, "up1_10"),  # not a first follower
+            row("upstream.influenced.lane2", 6), row("upstream.influenced.lane1", 6),
+            row("upstream.influenced.lane0", 1)]  # fmt: skip
+    goals = {t["target"].split(" (")[0]: t for t in targets(rows, wall_s=None)}
+    first = goals["first following HV's speed reduction"]
+    assert (first["value"], first["where"], first["met"]) == (1.3, "lane 1, up1_1", True)
+    influenced = goals["upstream HVs influenced"]
+    assert (influenced["value"], influenced["where"], influenced["met"]) == (6, "lane 2; lane 1",
+                                                                             False)  # fmt: skip
+    assert goals["whole reproduction within 180 s"]["met"] is None
 
 
 def test_bad_arguments_are_refused_before_any_run(tmp_path):
