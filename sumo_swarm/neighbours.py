@@ -14,6 +14,29 @@ def lateral_overlap(a_y: float, b_y: float, width_m: float = VEHICLE_WIDTH_M) ->
     return abs(a_y - b_y) < width_m
 
 
+def _nearest(
+    ego: VehicleState,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    y_m: float | None,
+    width_m: float,
+    ahead: bool,
+) -> tuple[VehicleState, float] | None:
+    ego_y = road.y_of(ego.lane, ego.lat_m) if y_m is None else y_m
+    best: tuple[VehicleState, float] | None = None
+    for other in others:
+        if other.vehicle_id == ego.vehicle_id or (other.s_m > ego.s_m) != ahead:
+            continue
+        if other.s_m == ego.s_m or not lateral_overlap(
+            ego_y, road.y_of(other.lane, other.lat_m), width_m
+        ):
+            continue
+        gap = other.rear_s_m - ego.s_m if ahead else ego.rear_s_m - other.s_m
+        if best is None or gap < best[1]:
+            best = (other, gap)
+    return best
+
+
 def vehicle_ahead(
     ego: VehicleState,
     others: Iterable[VehicleState],
@@ -26,17 +49,7 @@ def vehicle_ahead(
     ``y_m`` overrides ego's lateral position (e.g. the position it is moving to), so the
     swarm can check the lane it is entering too.
     """
-    ego_y = road.y_of(ego.lane, ego.lat_m) if y_m is None else y_m
-    best: tuple[VehicleState, float] | None = None
-    for other in others:
-        if other.vehicle_id == ego.vehicle_id or other.s_m <= ego.s_m:
-            continue
-        if not lateral_overlap(ego_y, road.y_of(other.lane, other.lat_m), width_m):
-            continue
-        gap = other.rear_s_m - ego.s_m
-        if best is None or gap < best[1]:
-            best = (other, gap)
-    return best
+    return _nearest(ego, others, road, y_m, width_m, ahead=True)
 
 
 def vehicle_behind(
@@ -47,17 +60,7 @@ def vehicle_behind(
     width_m: float = VEHICLE_WIDTH_M,
 ) -> tuple[VehicleState, float] | None:
     """Nearest vehicle behind ``ego`` overlapping it laterally (at ``y_m``), with the gap [m]."""
-    ego_y = road.y_of(ego.lane, ego.lat_m) if y_m is None else y_m
-    best: tuple[VehicleState, float] | None = None
-    for other in others:
-        if other.vehicle_id == ego.vehicle_id or other.s_m >= ego.s_m:
-            continue
-        if not lateral_overlap(ego_y, road.y_of(other.lane, other.lat_m), width_m):
-            continue
-        gap = ego.rear_s_m - other.s_m
-        if best is None or gap < best[1]:
-            best = (other, gap)
-    return best
+    return _nearest(ego, others, road, y_m, width_m, ahead=False)
 
 
 def ordered_platoon(states: Mapping[str, VehicleState], cav_ids: Iterable[str]) -> list[str]:

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sumo_swarm.config import SECTIONS, Scenario, load_scenario
+from sumo_swarm.config import SECTIONS, Scenario, load_scenario, read_toml
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.errors import ConfigError
 
@@ -366,16 +366,7 @@ def _explain(
 def load_sweep(path: str | Path) -> Sweep:
     """Load and validate a sweep file; any problem raises ConfigError naming the key and file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"sweep file not found: {path}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"cannot read sweep file {path}: {exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    data = read_toml(path, "sweep file")
     try:
         return _build(path, data)
     except ConfigError as exc:

@@ -51,6 +51,30 @@ def cacc_accel(
     return min(max(accel, cav.accel_min_mps2), cav.accel_max_mps2)
 
 
+def command_cacc(
+    ctx: RunContext, platoon: list[str], leader_cruise_mps: float | None = None
+) -> None:
+    """Command one CACC step for every CAV of ``platoon`` (front-most first when
+    ``leader_cruise_mps`` is given: that CAV cruises at that speed instead)."""
+    states = ctx.session.states
+    others = list(states.values())
+    sc = ctx.scenario
+    for vid in platoon:
+        ego = states[vid]
+        cruise = leader_cruise_mps if vid == platoon[0] else None
+        ahead = vehicle_ahead(ego, others, ctx.road)
+        if ahead is None:
+            a = cacc_accel(ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc,
+                           cruising_speed_mps=cruise)  # fmt: skip
+        else:
+            lead, gap = ahead
+            a = cacc_accel(
+                ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav, sc.cacc,
+                ahead_is_cav=lead.is_cav, cruising_speed_mps=cruise,
+            )  # fmt: skip
+        ctx.session.set_speed(vid, ego.speed_mps + a * ctx.dt_s)
+
+
 class CaccController:
     """Every CAV follows the vehicle ahead in its lane with :func:`cacc_accel`."""
 
@@ -74,23 +98,7 @@ class CaccController:
         ctx = self.ctx
         self._configure_new()
         states = ctx.session.states
-        others = list(states.values())
-        sc = ctx.scenario
-        dt = ctx.dt_s
-        for vid in ctx.cav_ids:
-            ego = states.get(vid)
-            if ego is None:
-                continue
-            ahead = vehicle_ahead(ego, others, ctx.road)
-            if ahead is None:
-                a = cacc_accel(ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc)
-            else:
-                lead, gap = ahead
-                a = cacc_accel(
-                    ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav, sc.cacc,
-                    ahead_is_cav=lead.is_cav,
-                )  # fmt: skip
-            ctx.session.set_speed(vid, ego.speed_mps + a * dt)
+        command_cacc(ctx, [v for v in ctx.cav_ids if v in states])
 
     def summary(self) -> dict[str, Any]:
         return {}

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from sumo_swarm.controllers.base import RunContext
-from sumo_swarm.controllers.cacc import cacc_accel
+from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.grid import MovingGrid, build_grid, cav_cell
 from sumo_swarm.metrics import lateral_rms, summarise_ms
 from sumo_swarm.model import VehicleState
@@ -202,7 +202,6 @@ class SwarmController:
         """CACC following in the current lane, drifting back to the lane centre."""
         ctx = self.ctx
         sc = ctx.scenario
-        others = list(states.values())
         dt = ctx.dt_s
         # A stretched platoon regroups from both ends: followers may exceed the cruising speed
         # (cacc_accel), and the leader eases off by k_close per metre of excess gap behind it,
@@ -215,21 +214,9 @@ class SwarmController:
         leader_cruise = sc.cav.cruising_speed_mps - min(
             MAX_LEADER_EASE_MPS, sc.cacc.k_close * stretch
         )
+        command_cacc(ctx, platoon, leader_cruise)
         for vid in platoon:
             ego = states[vid]
-            ahead = vehicle_ahead(ego, others, ctx.road)
-            if ahead is None:
-                a = cacc_accel(
-                    ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc,
-                    cruising_speed_mps=leader_cruise if vid == platoon[0] else None,
-                )  # fmt: skip
-            else:
-                lead, gap = ahead
-                a = cacc_accel(
-                    ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav, sc.cacc,
-                    ahead_is_cav=lead.is_cav,
-                )  # fmt: skip
-            ctx.session.set_speed(vid, ego.speed_mps + a * dt)
             step = sc.cav.max_lateral_speed_mps * dt
             ctx.session.change_sublane(vid, float(np.clip(-ego.lat_m, -step, step)))
             self.phi[vid] = 0.0
