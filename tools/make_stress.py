@@ -59,7 +59,9 @@ def case(rng: random.Random) -> dict[str, object]:
         "scene.hv.hv_right.desired_speed_mps": side_speed[1],
         "scene.upstream_gap_m": round(rng.uniform(15.0, 40.0), 1),
         "scene.upstream_per_lane": rng.randint(2, 6),
-        "scene.upstream_speed_mps": round(17.5 * rng.uniform(0.8, 1.2), 2),
+        # Upstream HVs start no faster than the slowest vehicle ahead of them, so that no scene
+        # begins with an HV braking hard behind a slower one (an artefact, not a swarm effect).
+        "scene.upstream_speed_mps": min(target_speed, *side_speed),
         "hv.accel_mps2": round(rng.uniform(0.6, 1.5), 2),
         "hv.decel_mps2": round(rng.uniform(1.5, 2.5), 2),
         "hv.headway_s": round(rng.uniform(1.0, 1.6), 2),

@@ -62,7 +62,12 @@ log = logging.getLogger(__name__)
 CRUISE, OVERTAKE = "cruise", "overtake"
 GUARD_GAP_GAIN = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v)
 GUARD_SPEED_GAIN = 1.5  # [1/s]
-GUARD_HEADWAY_S = 0.6  # lateral guard: follower headway below which a CAV holds its lane [s]
+# Lateral guard: a CAV holds its lane while the follower in the lane it would enter is closer
+# than this headway [s], or would need to brake harder than GUARD_FOLLOWER_DECEL [m/s^2] to
+# keep the minimum gap. An IDM follower with T = 1.6 s brakes at several m/s^2 when a vehicle
+# cuts in 0.6 s ahead (the first setting; the stress sweep showed HV hard brakes from it).
+GUARD_HEADWAY_S = 1.0
+GUARD_FOLLOWER_DECEL = 1.5
 IN_LANE_TOL_M = 0.3  # a CAV is "in" a lane when its centre is this close to the lane centre [m]
 MAX_LEADER_EASE_MPS = 2.0  # a cruising leader slows by at most this to let the platoon close up
 RETRY_AFTER_S = 1.0  # after a failed replan, wait this long before the next replan [s]
@@ -493,7 +498,10 @@ class SwarmController:
                 if follower.is_cav
                 else max(cav.min_gap_m, GUARD_HEADWAY_S * follower.speed_mps)
             )
-            unsafe = unsafe or gap < need
+            closing = follower.speed_mps - ego.speed_mps
+            room = max(gap - cav.min_gap_m, 0.1)
+            too_fast = closing > 0 and closing**2 / (2.0 * room) > GUARD_FOLLOWER_DECEL
+            unsafe = unsafe or gap < need or too_fast
         if unsafe:
             self.ctx.event("lateral_hold", vehicle=ego.vehicle_id, lane=lane_next)
             return 0.0
