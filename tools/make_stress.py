@@ -36,8 +36,12 @@ def case(rng: random.Random) -> dict[str, object]:
     # platoon, in lanes next to it where there are any.
     side_lanes = [rng.choice(others), rng.choice(others)]
     side_front = [round(rng.uniform(tail_front - 40.0, leader - 10.0), 1) for _ in range(2)]
-    if side_lanes[0] == side_lanes[1] and abs(side_front[0] - side_front[1]) < 30.0:
-        side_front[1] = side_front[0] - 30.0
+    if side_lanes[0] == side_lanes[1]:
+        if abs(side_front[0] - side_front[1]) < 30.0:
+            side_front[1] = side_front[0] - 30.0
+        # one lane, one behind the other: the rear one starts no faster than the front one
+        front, rear = (0, 1) if side_front[0] > side_front[1] else (1, 0)
+        side_speed[rear] = min(side_speed[rear], side_speed[front])
     return {
         "simulation.network": f"../networks/highway{lanes}.net.xml",
         "cav.count": n_cav,
