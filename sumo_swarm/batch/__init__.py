@@ -134,6 +134,7 @@ def run_batch(
         skipped = len(records)
         results = store.write_results(sweep, records)
         if pending:
+            pending.sort(key=lambda spec: -spec.cost)  # long runs first (stable otherwise)
             backend = make_backend(out, workers=workers, ray=ray, runs=len(pending))
             results = _run_all(sweep, store, backend, pending, records, progress)
     n_failed = int((results["status"] == STATUS_FAILED).sum()) if not results.empty else 0
