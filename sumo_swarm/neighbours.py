@@ -7,6 +7,11 @@ from collections.abc import Iterable, Mapping
 from sumo_swarm.model import RoadSection, VehicleState
 
 VEHICLE_WIDTH_M = 1.8  # lateral extent used for overlap tests [m]
+# A human-driven vehicle this far off its lane centre is changing lanes [m]; it counts as
+# overlapping over a band CUT_IN_EXTRA_WIDTH_M wider [m], so that a CAV reacts to it before it
+# is in its lane (in the stress sweep HVs cutting in ahead of CAVs made gaps of 2.2 m).
+CUT_IN_LAT_M = 0.3
+CUT_IN_EXTRA_WIDTH_M = 1.2
 
 
 def lateral_overlap(a_y: float, b_y: float, width_m: float = VEHICLE_WIDTH_M) -> bool:
@@ -27,8 +32,10 @@ def _nearest(
     for other in others:
         if other.vehicle_id == ego.vehicle_id or (other.s_m > ego.s_m) != ahead:
             continue
+        drifting = not other.is_cav and abs(other.lat_m) > CUT_IN_LAT_M
+        band = width_m + (CUT_IN_EXTRA_WIDTH_M if drifting else 0.0)
         if other.s_m == ego.s_m or not lateral_overlap(
-            ego_y, road.y_of(other.lane, other.lat_m), width_m
+            ego_y, road.y_of(other.lane, other.lat_m), band
         ):
             continue
         gap = other.rear_s_m - ego.s_m if ahead else ego.rear_s_m - other.s_m
