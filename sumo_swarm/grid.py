@@ -145,16 +145,23 @@ def cav_cell(grid: MovingGrid, cav: VehicleState, road: RoadSection, t_s: float)
 
 
 def hv_blocked_rows(
-    grid: MovingGrid, hv: VehicleState, t_s: float, settings: GridSettings
+    grid: MovingGrid,
+    hv: VehicleState,
+    t_s: float,
+    settings: GridSettings,
+    front_margin_m: float | None = None,
 ) -> range:
     """Rows (unclipped, may lie outside the grid) whose centres an HV claims at ``t_s``.
 
     A CAV centred at ``c`` is too close if its front is within ``gap_behind_m`` of the HV's rear,
-    or its rear within ``headway_s * hv.speed_mps`` of the HV's front; both bounds are open.
+    or its rear within ``front_margin_m`` of the HV's front (default: the paper's constant
+    headway, ``headway_s * hv.speed_mps``); both bounds are open.
     """
+    if front_margin_m is None:
+        front_margin_m = settings.headway_s * max(hv.speed_mps, 0.0)
     half_cav = 0.5 * settings.cav_length_m
     low_s = hv.rear_s_m - settings.gap_behind_m - half_cav
-    high_s = hv.s_m + settings.headway_s * max(hv.speed_mps, 0.0) + half_cav
+    high_s = hv.s_m + min(front_margin_m, 1e4) + half_cav
     origin = grid.origin_at(t_s)
     length = grid.cell_length_m
     # Centre of row r is origin + (r + 0.5) * length; keep rows with low_s < centre < high_s.
@@ -178,10 +185,14 @@ def hv_columns(grid: MovingGrid, hv: VehicleState, settings: GridSettings) -> tu
 
 
 def hv_blocked_cells(
-    grid: MovingGrid, hv: VehicleState, t_s: float, settings: GridSettings
+    grid: MovingGrid,
+    hv: VehicleState,
+    t_s: float,
+    settings: GridSettings,
+    front_margin_m: float | None = None,
 ) -> frozenset[Cell]:
     """In-grid cells where a CAV centre would violate the HV's safety margins at ``t_s``."""
-    rows = hv_blocked_rows(grid, hv, t_s, settings)
+    rows = hv_blocked_rows(grid, hv, t_s, settings, front_margin_m)
     in_grid_rows = range(max(rows.start, 0), min(rows.stop, grid.n_rows))
     return frozenset((r, c) for c in hv_columns(grid, hv, settings) for r in in_grid_rows)
 
@@ -193,6 +204,7 @@ def build_grid(
     t_s: float,
     speed_mps: float,
     settings: GridSettings,
+    target_front_margin_m: float | None = None,
 ) -> MovingGrid:
     """Grid the road around the platoon and the target HV (paper Steps 1-4).
 
@@ -211,7 +223,7 @@ def build_grid(
     # Provisional grid to measure rows; n_rows does not affect row arithmetic.
     probe = MovingGrid(origin, t_s, speed_mps, length, 1, road)
     front_cav_row = max(probe.row_of(cav.centre_s_m, t_s) for cav in cavs)
-    target_rows = hv_blocked_rows(probe, target, t_s, settings)
+    target_rows = hv_blocked_rows(probe, target, t_s, settings, target_front_margin_m)
     # With zero margins a short HV may cover no cell centre; then its own row is its footprint.
     target_top_row = target_rows[-1] if target_rows else probe.row_of(target.centre_s_m, t_s)
     rows_ahead = len(cavs) if settings.rows_ahead is None else settings.rows_ahead

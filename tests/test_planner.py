@@ -284,7 +284,9 @@ def test_fig7_problem_data():
     # row 0 in lane 0. The lane 1 upstream HVs are behind the grid.
     expected = {(6, 1), (7, 1), (0, 2), (1, 2), (2, 2), (3, 2), (0, 0), (1, 0), (2, 0)}
     assert all(step == expected for step in problem.blocked)
-    assert problem.hv_ids == ("left", "right", "target", "up0_210", "up2_225")
+    # hv_ids: the HVs whose centre is in a grid row now (up0_210's centre is behind row 0; its
+    # margin still claims row 0 above), the target always.
+    assert problem.hv_ids == ("left", "right", "target", "up2_225")
     # Leader blocks the left HV (the frontmost), the second CAV the right HV.
     assert [(b.cav_id, b.hv_id, b.cell) for b in problem.blockers] == [
         ("cav0", "left", (5, 2)),

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from sumo_swarm.grid import Cell
-from sumo_swarm.planner.problem import PlanningProblem, target_cost
+from sumo_swarm.planner.problem import PlanningProblem, move_allowed, target_cost
 
 # Constraint kinds: "eq" sum == rhs, "le" sum <= rhs, "ge" sum >= rhs.
 Constraint = tuple[str, list[int], list[int], int]
@@ -83,12 +83,11 @@ def reachable_cells(problem: PlanningProblem) -> list[set[Cell]] | str:
     n_rows, n_cols, n_steps = problem.n_rows, problem.n_cols, problem.n_steps
     layers: list[set[Cell]] = [set(problem.start_cells)]
     for k in range(1, n_steps):
-        blocked = problem.blocked[k]
         layer = {
             nxt
             for cell in layers[-1]
             for nxt in _neighbours(cell, n_rows, n_cols)
-            if nxt not in blocked
+            if move_allowed(problem, k - 1, cell, nxt)
         }
         layers.append(layer)
     for k in range(n_steps - 2, -1, -1):
@@ -96,7 +95,10 @@ def reachable_cells(problem: PlanningProblem) -> list[set[Cell]] | str:
         layers[k] = {
             cell
             for cell in layers[k]
-            if any(nxt in after for nxt in _neighbours(cell, n_rows, n_cols))
+            if any(
+                nxt in after and move_allowed(problem, k, cell, nxt)
+                for nxt in _neighbours(cell, n_rows, n_cols)
+            )
         }
     if layers[0] != set(problem.start_cells):
         return "a CAV has no way through the HV-blocked cells"
@@ -156,7 +158,7 @@ def _add_nodes_and_edges(model: FlowModel, layers: list[set[Cell]]) -> None:
             continue
         for nxt in _neighbours(cell, problem.n_rows, problem.n_cols):
             other = model.node_index.get((k + 1, nxt))
-            if other is None:
+            if other is None or not move_allowed(problem, k, cell, nxt):
                 continue
             edge = len(model.edges)
             model.edges.append((node, other))

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field, replace
 
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.grid import Cell
-from sumo_swarm.planner.problem import PlanningProblem, PlanStatus
+from sumo_swarm.planner.problem import PlanningProblem, PlanStatus, move_allowed
 
 Paths = tuple[tuple[Cell, ...], ...]
 
@@ -120,6 +120,8 @@ def validate_plan(problem: PlanningProblem, plan: Plan) -> list[str]:
             if k >= 1:
                 if cell in problem.blocked[k]:
                     errors.append(f"CAV {cav} step {k}: {cell} is claimed by an HV")
+                elif not move_allowed(problem, k - 1, path[k - 1], cell):
+                    errors.append(f"CAV {cav} step {k}: enters {cell} inside an HV's margin")
                 prev_row, prev_col = path[k - 1]
                 if abs(row - prev_row) + abs(col - prev_col) > 1:
                     errors.append(f"CAV {cav} step {k}: jump {path[k - 1]} -> {cell}")

@@ -12,9 +12,10 @@ initial cells, eqs. (18)-(19)).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from enum import Enum
+from typing import Literal
 
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.grid import (
@@ -99,7 +100,9 @@ class PlannerSettings:
         ``"swarm"``: the paper's delta, 1 at a step while any CAV is impeded; ``"cav"``: each
         CAV's own (it pays the regroup term once it is past, whatever the others do).
     block_steps
-        Steps (from step 1) a blocker holds its blocking cell, eqs. (16)-(17) (paper: 1).
+        Steps (from step 1) a blocker holds its blocking cell, eqs. (16)-(17). ``"auto"``: as
+        many as the cut-through needs, one per CAV between the blocker and the blocked HV (at
+        least 1); the paper holds for one step (``block_steps = 1``).
     max_blockers
         How many front CAVs may be assigned as blockers (one per adjacent lane).
     num_workers
@@ -114,7 +117,7 @@ class PlannerSettings:
     regroup_lane: int | None = None
     target_form: str = "distance"
     delta_mode: str = "swarm"
-    block_steps: int = 1
+    block_steps: int | Literal["auto"] = "auto"
     max_blockers: int = 2
     num_workers: int = 1
 
@@ -130,10 +133,11 @@ class PlannerSettings:
                 f"got {type(self.weights).__name__}"
             )
         _require_int("n_steps", self.n_steps, minimum=2)
-        _require_int("block_steps", self.block_steps, minimum=1)
+        if self.block_steps != "auto":
+            _require_int("block_steps", self.block_steps, minimum=1)
         _require_int("max_blockers", self.max_blockers, minimum=0)
         _require_int("num_workers", self.num_workers, minimum=1)
-        if self.block_steps >= self.n_steps:
+        if self.block_steps != "auto" and self.block_steps >= self.n_steps:
             raise ConfigError(
                 f"PlannerSettings.block_steps must be < n_steps ({self.n_steps}), "
                 f"got {self.block_steps}"
@@ -197,6 +201,11 @@ class PlanningProblem:
         ``[0, n_rows]``; a CAV below it is *impeded* (the paper's delta) and pays ``w_tar``.
     regroup_lane
         ``l_index`` of eq. (5).
+    entry_blocked
+        Per step (empty = none), cells a CAV may not *enter* sideways or from ahead: in front of
+        an HV, farther than its hard margin but closer than the gap at which that HV would
+        brake harder than the safe deceleration (a CAV already there may stay or move on).
+        A lateral move at step ``k -> k + 1`` needs its new cell free of entry at both steps.
     """
 
     n_rows: int
@@ -216,8 +225,11 @@ class PlanningProblem:
     target_col: int | None = None
     t0_s: float = 0.0
     behaving_interval_s: float = 3.0
+    entry_blocked: tuple[frozenset[Cell], ...] = ()
 
     def __post_init__(self) -> None:
+        if self.entry_blocked and len(self.entry_blocked) != self.n_steps:
+            raise ConfigError("PlanningProblem: entry_blocked needs one entry per step")
         if self.n_rows < 1 or self.n_cols < 1 or self.n_steps < 2:
             raise ConfigError(
                 f"PlanningProblem: need n_rows, n_cols >= 1 and n_steps >= 2, got "
@@ -251,6 +263,24 @@ class PlanningProblem:
     def with_blockers(self, blockers: Sequence[Blocker]) -> PlanningProblem:
         """The same problem with other blocker assignments (e.g. none)."""
         return replace(self, blockers=tuple(blockers))
+
+
+def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool:
+    """May a CAV go from ``src`` at step ``k`` to ``dst`` at step ``k + 1``? (eq. (15) and the
+    entry margins in front of HVs; moves of one row or column are checked elsewhere)."""
+    if dst in problem.blocked[k + 1]:
+        return False
+    if not problem.entry_blocked:
+        return True
+    if dst[1] != src[1]:  # sideways: the new cell must be free of HVs over the whole move
+        return not (
+            dst in problem.entry_blocked[k + 1]
+            or dst in problem.entry_blocked[k]
+            or dst in problem.blocked[k]
+        )
+    if dst[0] < src[0]:  # falling back towards an HV behind
+        return dst not in problem.entry_blocked[k + 1]
+    return True
 
 
 def target_cost(problem: PlanningProblem, row: int, k: int) -> float:
@@ -294,10 +324,66 @@ def evaluate_objective(problem: PlanningProblem, cells: Sequence[Sequence[Cell]]
     return total
 
 
-def _goal_row(grid: MovingGrid, target: VehicleState, t_s: float, gs: GridSettings) -> int:
-    rows = hv_blocked_rows(grid, target, t_s, gs)
+def _goal_row(
+    grid: MovingGrid, target: VehicleState, t_s: float, gs: GridSettings, margin: float | None
+) -> int:
+    rows = hv_blocked_rows(grid, target, t_s, gs, margin)
     top = rows[-1] if rows else grid.row_of(target.centre_s_m, t_s)
     return min(max(top + 1, 0), grid.n_rows)
+
+
+# Entry margin of an HV [m]: the gap a CAV needs in front of it, from the HV's predicted state.
+FrontMargin = Callable[[VehicleState], float]
+
+
+def hvs_in_grid(grid: MovingGrid, hvs: Iterable[VehicleState], t_s: float) -> list[str]:
+    """Ids of the vehicles whose centre is in one of the grid's rows at ``t_s``.
+
+    The planner's ``hv_ids`` and the controller's new-HV check both use this, so an HV the
+    planner knows is never reported as new.
+    """
+    return sorted(
+        hv.vehicle_id for hv in hvs if 0 <= grid.row_of(hv.centre_s_m, t_s) < grid.n_rows
+    )
+
+
+@dataclass(frozen=True)
+class _HvCells:
+    blocked: tuple[frozenset[Cell], ...]
+    entry_blocked: tuple[frozenset[Cell], ...]
+    goal_rows: tuple[int, ...]
+
+
+def _hv_cells(
+    grid: MovingGrid,
+    all_hvs: Mapping[str, VehicleState],
+    target: VehicleState,
+    now_s: float,
+    times: Sequence[float],
+    gs: GridSettings,
+    predictor: HvPredictor,
+    front_margin: FrontMargin | None,
+) -> _HvCells:
+    n_steps = len(times)
+    hard: list[set[Cell]] = [set() for _ in range(n_steps)]
+    entry: list[set[Cell]] = [set() for _ in range(n_steps)]
+    goal_rows = []
+    for hv_id, hv in all_hvs.items():
+        for k, t in enumerate(times):
+            state = predictor.predict(hv, now_s, t)
+            if front_margin is None:
+                hard[k] |= hv_blocked_cells(grid, state, t, gs)
+                margin = None
+            else:
+                margin = front_margin(state)
+                hard[k] |= hv_blocked_cells(grid, state, t, gs, gs.gap_behind_m)
+                entry[k] |= hv_blocked_cells(grid, state, t, gs, margin)
+            if hv_id == target.vehicle_id:
+                goal_rows.append(_goal_row(grid, state, t, gs, margin))
+    entry_blocked = () if front_margin is None else tuple(
+        frozenset(e - h) for e, h in zip(entry, hard, strict=True)
+    )
+    return _HvCells(tuple(frozenset(h) for h in hard), entry_blocked, tuple(goal_rows))
 
 
 def build_problem(
@@ -309,39 +395,32 @@ def build_problem(
     settings: PlannerSettings,
     grid_settings: GridSettings,
     predictor: HvPredictor | None = None,
+    *,
+    front_margin: FrontMargin | None = None,
+    blocked_predictor: Callable[[Sequence[Blocker]], HvPredictor] | None = None,
+    block_budget: Mapping[str, int] | None = None,
 ) -> PlanningProblem:
     """Turn vehicle states into a :class:`PlanningProblem` (CAVs ordered leader first).
 
     HVs are predicted at ``now_s + k * behaving_interval_s`` with ``predictor`` (default
-    constant speed); the target HV blocks cells whether or not it is in ``hvs``. HVs that
-    claim no in-grid cell over the horizon are left out of ``hv_ids``. CAVs outside the grid
-    raise :class:`ConfigError` (build the grid from the same CAVs).
+    constant speed); the target HV blocks cells whether or not it is in ``hvs``, and is always
+    in ``hv_ids`` (as is every HV whose centre is in the grid now, see :func:`hvs_in_grid`).
+
+    ``front_margin`` gives each HV's entry margin from its predicted state (the HV model); the
+    HV then claims its footprint plus ``gap_behind_m`` ahead (hard) and, up to the entry margin,
+    cells a CAV may not enter (``entry_blocked``). Without it, the paper's constant headway.
+    ``blocked_predictor`` re-predicts the HVs once blockers are assigned (a blocked HV follows its
+    blocker); ``block_budget`` limits, per HV, the steps it may still be held this manoeuvre.
+    CAVs outside the grid raise :class:`ConfigError` (build the grid from the same CAVs).
     """
     predictor = predictor or ConstantSpeedPredictor()
     n_steps = settings.n_steps
     times = [now_s + k * settings.behaving_interval_s for k in range(n_steps)]
     all_hvs = {hv.vehicle_id: hv for hv in hvs}
     all_hvs[target.vehicle_id] = target
+    cells = _hv_cells(grid, all_hvs, target, now_s, times, grid_settings, predictor, front_margin)
+    in_grid = set(hvs_in_grid(grid, all_hvs.values(), now_s)) | {target.vehicle_id}
 
-    blocked_steps: list[set[Cell]] = [set() for _ in range(n_steps)]
-    in_grid_hvs: list[str] = []
-    predicted: dict[str, list[VehicleState]] = {}
-    for hv_id, hv in all_hvs.items():
-        states = [predictor.predict(hv, now_s, t) for t in times]
-        predicted[hv_id] = states
-        seen = False
-        for k, (state, t) in enumerate(zip(states, times, strict=True)):
-            cells = hv_blocked_cells(grid, state, t, grid_settings)
-            if cells:
-                blocked_steps[k] |= cells
-                seen = True
-        if seen:
-            in_grid_hvs.append(hv_id)
-
-    goal_rows = tuple(
-        _goal_row(grid, state, t, grid_settings)
-        for state, t in zip(predicted[target.vehicle_id], times, strict=True)
-    )
     start_cells = tuple(cav_cell(grid, cav, grid.road, now_s) for cav in cavs)
     target_col = hv_columns(grid, target, grid_settings)[0]
     regroup_lane = settings.regroup_lane if settings.regroup_lane is not None else target_col
@@ -356,27 +435,43 @@ def build_problem(
         n_steps=n_steps,
         cav_ids=tuple(cav.vehicle_id for cav in cavs),
         start_cells=start_cells,
-        blocked=tuple(frozenset(cells) for cells in blocked_steps),
-        goal_rows=goal_rows,
+        blocked=cells.blocked,
+        goal_rows=cells.goal_rows,
         regroup_lane=regroup_lane,
         weights=settings.weights,
         target_form=settings.target_form,
         delta_mode=settings.delta_mode,
-        hv_ids=tuple(sorted(in_grid_hvs)),
+        hv_ids=tuple(sorted(in_grid)),
         target_id=target.vehicle_id,
         target_col=target_col,
         t0_s=now_s,
         behaving_interval_s=settings.behaving_interval_s,
+        entry_blocked=cells.entry_blocked,
     )
+    side_hvs = [all_hvs[h] for h in sorted(in_grid) if h != target.vehicle_id]
     blockers = assign_blockers(
-        problem,
-        grid,
-        [all_hvs[h] for h in in_grid_hvs if h != target.vehicle_id],
-        now_s,
-        grid_settings,
-        settings,
+        problem, grid, side_hvs, now_s, grid_settings, settings, block_budget
     )
+    if blockers and blocked_predictor is not None:
+        cells = _hv_cells(
+            grid, all_hvs, target, now_s, times, grid_settings, blocked_predictor(blockers),
+            front_margin,
+        )  # fmt: skip
+        problem = replace(
+            problem,
+            blocked=cells.blocked,
+            entry_blocked=cells.entry_blocked,
+            goal_rows=cells.goal_rows,
+        )
+        blockers = tuple(b for b in blockers if _blocker_free(problem, b))
     return problem.with_blockers(blockers)
+
+
+def _blocker_free(problem: PlanningProblem, blocker: Blocker) -> bool:
+    """The blocker can move into its cell at step 1 and hold it (eqs. (16)-(17))."""
+    start = problem.start_cells[blocker.cav_index]
+    path = [start] + [blocker.cell] * blocker.hold_steps
+    return all(move_allowed(problem, k, path[k], path[k + 1]) for k in range(len(path) - 1))
 
 
 def assign_blockers(
@@ -386,6 +481,7 @@ def assign_blockers(
     now_s: float,
     grid_settings: GridSettings,
     settings: PlannerSettings,
+    block_budget: Mapping[str, int] | None = None,
 ) -> tuple[Blocker, ...]:
     """Space making, eqs. (16)-(17): front CAVs block HVs in the lanes beside the platoon.
 
@@ -394,7 +490,9 @@ def assign_blockers(
     served frontmost HV first, each by the frontmost unassigned CAV (among the first
     ``max_blockers``) that sits next to that lane, ahead of the HV's footprint, and whose
     lateral move into it, keeping its row, lands on a cell that no HV claims while it holds
-    it and no other CAV starts in.
+    it (nor inside an HV's entry margin) and no other CAV starts in. It holds the cell for
+    ``block_steps`` steps (``"auto"``: one per CAV between it and the HV), at most what is left
+    of the HV's ``block_budget``; an HV with no budget left is not blocked again.
     """
     if settings.max_blockers == 0 or not step_impeded(problem, problem.start_cells, 0):
         return ()
@@ -417,16 +515,24 @@ def assign_blockers(
     start_cells = set(problem.start_cells)
     blockers: list[Blocker] = []
     for col, hv in order:
+        budget = (block_budget or {}).get(hv.vehicle_id)
+        if budget is not None and budget <= 0:
+            continue
         for i in candidates:
             row, cav_col = problem.start_cells[i]
             cell = (row, col)
             if abs(cav_col - col) != 1 or cell in start_cells or row <= hv_top_row[hv.vehicle_id]:
                 continue
-            if any(cell in problem.blocked[k] for k in range(1, settings.block_steps + 1)):
+            if settings.block_steps == "auto":
+                between = sum(hv_top_row[hv.vehicle_id] < r < row for r, _ in problem.start_cells)
+                hold = max(1, between)
+            else:
+                hold = settings.block_steps
+            hold = min(hold, problem.n_steps - 1, budget if budget is not None else hold)
+            blocker = Blocker(i, problem.cav_ids[i], hv.vehicle_id, cell, hold)
+            if not _blocker_free(problem, blocker):
                 continue
-            blockers.append(
-                Blocker(i, problem.cav_ids[i], hv.vehicle_id, cell, settings.block_steps)
-            )
+            blockers.append(blocker)
             candidates.remove(i)
             break
     return tuple(blockers)
