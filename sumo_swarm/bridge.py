@@ -418,6 +418,11 @@ class SumoSession:
             vehicle.setTau(vid, 0.2)
             vehicle.setMinGap(vid, 0.5)
 
+    def speed_limits(self, vid: str) -> tuple[float, float]:
+        """(vType maxSpeed, speed allowed on its lane with its speedFactor) of a vehicle [m/s]."""
+        vehicle = self.api.vehicle
+        return vehicle.getMaxSpeed(vid), vehicle.getAllowedSpeed(vid)
+
     def road_at(self, vid: str) -> RoadSection | None:
         """The road section under vehicle ``vid`` (None if it is not in the simulation)."""
         edge = self.edges.get(vid)

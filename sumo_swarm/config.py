@@ -284,7 +284,9 @@ class SwarmSettings:
     # MPC re-solve period in SUMO steps; in between, the solved inputs are applied (zero-order
     # hold on the MPC's own 0.1 s step). 3 steps = 0.09 s at the paper's 0.03 s step.
     control_interval_steps: int = 3
-    drift_rows: float = 0.75  # replan when a CAV is this many cells off its reference
+    # Replan when a CAV is more than this many cells (rows + columns) away from both its planned
+    # cell of the current behaving step and of the next one.
+    drift_rows: float = 1.0
     regroup_lane: int | None = None  # None: the platoon's original lane
     # Grid speed once every CAV is past the target (paper II-B-1 Step 4 sets it to the front HV's
     # speed while overtaking and to a cruising speed otherwise). "target": keep the target's
@@ -292,10 +294,68 @@ class SwarmSettings:
     # "cruise": replan in a grid moving at the cruising speed (CAVs keep more speed while they
     # merge, but on a curved 3-lane road a CAV was left between lanes: see docs/closed-loop.md).
     regroup_grid_speed: Literal["target", "cruise"] = "target"
+    # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
+    # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
+    # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
+    min_speed_gain_mps: float = 2.0
+    # "drivable": each behaving interval lasts at least one cell length at (cap - speed_margin -
+    # grid speed), so a one-row move per interval never needs a speed above the cap (issue 11);
+    # "fixed": the configured planner.behaving_interval_s always (the paper's 3 s, whatever the
+    # speeds it needs: 15 m cells in 3 s need 5 m/s above the target).
+    interval_rule: Literal["drivable", "fixed"] = "drivable"
+    speed_margin_mps: float = 0.3  # room under the cap for tracking [m/s]
+    # At most one replan per this long [s] unless a safety check demands one (a CAV left or
+    # appeared, a new HV whose cells conflict with the plan, the plan ran out); None = one
+    # behaving interval.
+    replan_min_interval_s: float | None = None
+    retry_after_s: float = 1.0  # after a failed replan, wait this long before the next [s]
+    # A manoeuvre with no progress (CAVs past the target, rows gained) for this many behaving
+    # intervals, or without a usable plan for give_up_no_plan_s, is given up: the CAVs re-form a
+    # platoon and follow; no new decision for cooldown_s.
+    give_up_no_progress_intervals: int = 6
+    give_up_no_plan_s: float = 10.0
+    cooldown_s: float = 15.0
+    max_leader_ease_mps: float = 2.0  # a cruising leader slows by at most this to close up [m/s]
+    in_lane_tolerance_m: float = 0.3  # a CAV is "in" a lane within this of its centre [m]
 
     def __post_init__(self) -> None:
         check_positive(self, "trigger_speed_ratio", "detect_range_m", "control_interval_steps")
-        check_non_negative(self, "trigger_after_s", "start_after_s", "drift_rows")
+        check_non_negative(
+            self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
+            "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
+            "cooldown_s", "max_leader_ease_mps", "in_lane_tolerance_m",
+        )  # fmt: skip
+        if self.give_up_no_progress_intervals < 1:
+            raise ConfigError(
+                f"give_up_no_progress_intervals must be >= 1, got {self.give_up_no_progress_intervals}"
+            )
+
+
+@dataclass(frozen=True)
+class HvModelSettings:
+    """How the swarm models the human drivers around it: one model for the planner's HV cells
+    (eq. 15 and the blocking of eqs. 16-17), the HV prediction and the lateral guard.
+
+    Each HV's car-following parameters are read from SUMO (accel, decel, tau, minGap, IDM's
+    delta; a conservative bound for models other than IDM and Krauss), see
+    :mod:`sumo_swarm.hvmodel`. A CAV may enter a lane in front of an HV only where that HV,
+    reacting by its own model, brakes no harder than ``b_safe_mps2`` (MOBIL's b_safe, well inside
+    the 4 m/s^2 hard-brake line). The planner plans against ``planner_share * b_safe_mps2`` so that
+    the guard, which checks the true speeds against ``b_safe_mps2``, rarely has to refuse.
+
+    ``margin_rule = "headway"`` keeps the paper's constant headway instead (grid.headway_s).
+    """
+
+    b_safe_mps2: float = 2.0
+    planner_share: float = 0.7
+    margin_rule: Literal["model", "headway"] = "model"
+    predictor: Literal["car-following", "constant-speed"] = "car-following"
+    prediction_dt_s: float = 0.25
+
+    def __post_init__(self) -> None:
+        check_positive(self, "b_safe_mps2", "planner_share", "prediction_dt_s")
+        if self.planner_share > 1.0:
+            raise ConfigError(f"planner_share must be <= 1, got {self.planner_share}")
 
 
 @dataclass(frozen=True)
@@ -314,8 +374,23 @@ class Scenario:
     planner: PlannerSettings = field(default_factory=PlannerSettings)
     cacc: CaccSettings = field(default_factory=CaccSettings)
     swarm: SwarmSettings = field(default_factory=SwarmSettings)
+    hvmodel: HvModelSettings = field(default_factory=HvModelSettings)
     longitudinal: LongitudinalSettings = field(default_factory=LongitudinalSettings)
     lateral: LateralSettings = field(default_factory=LateralSettings)
+
+    def __post_init__(self) -> None:
+        # One source for each physical quantity: the cell length comes from [cell], the CAV
+        # length, wheelbase and steering range from [cav] (the planner's grid and the lateral
+        # MPC read them from here; the loader refuses them in [grid] and [lateral]).
+        grid = dataclasses.replace(
+            self.grid, cell_length_m=self.cell_length_m, cav_length_m=self.cav.length_m
+        )
+        delta = self.cav.wheel_angle_max_rad
+        lateral = dataclasses.replace(
+            self.lateral, wheelbase_m=self.cav.wheelbase_m, delta_min=-delta, delta_max=delta
+        )
+        object.__setattr__(self, "grid", grid)
+        object.__setattr__(self, "lateral", lateral)
 
     @property
     def network_path(self) -> Path:
@@ -330,6 +405,16 @@ SECTIONS = {
     name: tp for name, tp in typing.get_type_hints(Scenario).items() if name not in ("name", "path")
 }
 
+
+# Keys of the shared settings classes that a scenario sets elsewhere (one source for each).
+DERIVED_KEYS = {
+    "grid": {"cell_length_m": "[cell] (rule, cell_length_m)", "cav_length_m": "cav.length_m"},
+    "lateral": {
+        "wheelbase_m": "cav.wheelbase_m",
+        "delta_min": "cav.steering_wheel_range_deg / cav.steering_ratio",
+        "delta_max": "cav.steering_wheel_range_deg / cav.steering_ratio",
+    },
+}
 
 # --------------------------------------------------------------------------- loader
 
@@ -451,6 +536,10 @@ def load_scenario(
             raise ConfigError(
                 f"unknown section '[{unknown[0]}]' (known: {', '.join(sorted(SECTIONS))})"
             )
+        for section, keys in DERIVED_KEYS.items():
+            for key, source in keys.items():
+                if key in data.get(section, {}):
+                    raise ConfigError(f"{section}.{key} is not set here: it comes from {source}")
         sections = {key: _convert(value, SECTIONS[key], key) for key, value in data.items()}
         scenario = Scenario(name=name, path=path.resolve(), **sections)
         _check_consistency(scenario)

@@ -133,7 +133,14 @@ def build_summary(
         "t_end_s": _f(t_end),
         "t_regrouped_s": _f(t_regroup),
         "behaving_steps": own.get("behaving_steps"),
+        "aborted": int(own.get("aborted", 0)),
+        "abort_reasons": dict(own.get("abort_reasons", {})),
+        "lateral_holds": int(own.get("lateral_holds", 0)),
+        "blocked_hv_min_accel_mps2": _f(own.get("blocked_hv_min_accel_mps2")),
     }
+    for key in ("manoeuvres", "behaving_interval_s", "lateral_holds_per_manoeuvre", "blocked_hvs"):
+        if key in own:  # extra (not in the contract): the swarm's own bookkeeping
+            overtake[key] = own[key]
     ref_time = t_start if t_start is not None else ev.start_s
     # The HVs behind the swarm's front at the decision: those beside the platoon, which the
     # swarm blocks, rank first in their lanes; the slow vehicle itself is left out.
@@ -178,5 +185,7 @@ def build_summary(
         "planner": planner,
         # Extra (not in the contract): MPC solve time per CAV per solve, swarm only.
         "tracking": controller_summary.get("mpc"),
+        # Extra: the speeds the swarm used and where they came from.
+        "speeds": controller_summary.get("speeds"),
         "timing": {k: _f(v) for k, v in timing.items()},
     }

@@ -1,0 +1,95 @@
+"""Safety checks applied to every command of the swarm, whatever the plan says (pure).
+
+Both guards look at the lanes a CAV overlaps now and the one it is moving into, through the
+shared neighbour look-up (:mod:`sumo_swarm.neighbours`), so an HV that is changing lanes
+towards a CAV counts early.
+
+* :func:`gap_accel_limit` caps the acceleration so that no CAV closes within its minimum gap
+  of whatever is ahead.
+* :func:`lateral_refusal` holds a lateral move into another lane while the vehicle ahead there
+  is closer than the minimum gap, or the follower there would have to brake harder than
+  ``b_safe`` by its own car-following model (:mod:`sumo_swarm.hvmodel`): the same model the
+  planner uses for its entry margins, so the guard refuses only what the plan did not foresee.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+
+from sumo_swarm.hvmodel import DriverModel, accepts_entry
+from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.neighbours import vehicle_ahead, vehicle_behind
+
+GAP_GAIN = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v)
+SPEED_GAIN = 1.5  # [1/s]
+GAP_GUARD_EXTRA_M = 1.0  # the gap guard aims this far beyond the minimum gap [m]
+LANE_PROBE_M = 0.9  # a move is "into the next lane" once the CAV's side would cross into it [m]
+
+
+def gap_accel_limit(
+    ego: VehicleState,
+    y_now: float,
+    y_next: float,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    min_gap_m: float,
+    width_m: float,
+) -> float:
+    """Largest acceleration [m/s^2] that keeps ``min_gap_m`` to whatever is ahead at ``y_now``
+    or ``y_next`` (``math.inf`` with nothing ahead)."""
+    others = list(others)
+    limit = math.inf
+    for y in {y_now, y_next}:
+        ahead = vehicle_ahead(ego, others, road, y_m=y, width_m=width_m)
+        if ahead is None:
+            continue
+        lead, gap = ahead
+        d = min_gap_m + GAP_GUARD_EXTRA_M
+        limit = min(limit, GAP_GAIN * (gap - d) + SPEED_GAIN * (lead.speed_mps - ego.speed_mps))
+    return limit
+
+
+def lateral_refusal(
+    ego: VehicleState,
+    y: float,
+    dlat: float,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    *,
+    min_gap_m: float,
+    width_m: float,
+    model_of: Callable[[str], DriverModel],
+    b_safe_mps2: float,
+    step_s: float,
+) -> str | None:
+    """Why the lateral move ``dlat`` [m] from ``y`` [m] must be held, or ``None`` if it is safe.
+
+        Reasons: ``"leader"`` (the vehicle ahead in the new lane is closer than ``min_gap_m``),
+        ``"follower_gap"`` (the follower there, a CAV or an HV, is closer than ``min_gap_m``),
+        ``"follower_brake"`` (the HV following there would brake harder than ``b_safe_mps2`` at
+    some point of its reaction, :func:`sumo_swarm.hvmodel.accepts_entry`).
+    """
+    if abs(dlat) < 1e-6:
+        return None
+    lane_now = road.lane_of_y(y)
+    lane_next = road.lane_of_y(y + dlat + math.copysign(LANE_PROBE_M, dlat))
+    if lane_next == lane_now:
+        return None
+    others = list(others)
+    y_probe = road.lane_centre_y(lane_next)
+    ahead = vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m)
+    if ahead is not None and ahead[1] < min_gap_m:
+        return "leader"
+    behind = vehicle_behind(ego, others, road, y_m=y_probe, width_m=width_m)
+    if behind is None:
+        return None
+    follower, gap = behind
+    if gap < min_gap_m:
+        return "follower_gap"
+    if follower.is_cav:
+        return None
+    model = model_of(follower.vehicle_id)
+    if accepts_entry(model, follower.speed_mps, ego.speed_mps, gap, b_safe_mps2, step_s):
+        return None
+    return "follower_brake"

@@ -1,0 +1,153 @@
+"""The swarm controller's parts, without SUMO: decision, guards, progress, plan log."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from sumo_swarm.hvmodel import DriverModel, braking_needed
+from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.swarming.decision import (
+    Progress,
+    TargetWatch,
+    behaving_interval_s,
+    slow_vehicle_ahead,
+    speed_cap_mps,
+    stopped_blocking,
+)
+from sumo_swarm.swarming.guards import GAP_GAIN, SPEED_GAIN, gap_accel_limit, lateral_refusal
+from sumo_swarm.swarming.planlog import PlanLog
+
+ROAD = RoadSection((3.2, 3.2, 3.2))
+IDM = DriverModel(model="IDM", accel_mps2=1.0, decel_mps2=2.0, tau_s=1.0, min_gap_m=2.0,
+                  desired_speed_mps=30.0)  # fmt: skip
+
+
+def car(vid, s, lane, v, *, cav=False, lat=0.0, length=5.0):
+    return VehicleState(vid, s, lane, lat, v, length, 0.0, cav)
+
+
+def find(leader, others, **kw):
+    args = dict(slow_below_mps=19.0, detect_range_m=60.0, cap_mps=25.0, min_gain_mps=2.0,
+                width_m=1.8)  # fmt: skip
+    args.update(kw)
+    return slow_vehicle_ahead(leader, others, ROAD, **args)
+
+
+def test_target_is_the_slow_hv_ahead_in_the_leaders_own_lane():
+    leader = car("c0", 100.0, 1, 15.0, cav=True)
+    truck = car("truck", 130.0, 1, 15.0)
+    beside = car("side", 110.0, 2, 12.0)  # slower, but in the neighbouring lane
+    assert find(leader, [leader, truck, beside]).vehicle_id == "truck"
+    assert find(leader, [leader, beside]) is None
+
+
+def test_no_target_when_it_does_not_pay_or_is_far_or_a_cav():
+    leader = car("c0", 100.0, 1, 15.0, cav=True)
+    truck = car("truck", 130.0, 1, 15.0)
+    assert find(leader, [leader, truck], cap_mps=16.5) is None  # 1.5 m/s to gain < 2
+    assert find(leader, [leader, truck], detect_range_m=20.0) is None  # gap 25 m
+    assert find(leader, [leader, car("c9", 130.0, 1, 15.0, cav=True)]) is None
+    fast_leader = car("c0", 100.0, 1, 19.5, cav=True)  # not held back
+    assert find(fast_leader, [fast_leader, truck]) is None
+
+
+def test_target_watch_needs_persistence_and_respects_cool_down():
+    watch = TargetWatch(trigger_after_s=2.0)
+    truck = car("truck", 130.0, 1, 15.0)
+    assert watch.update(0.0, truck) is None
+    assert watch.update(1.9, truck) is None
+    assert watch.update(2.0, truck) is truck
+    other = car("van", 130.0, 1, 15.0)
+    assert watch.update(2.1, other) is None  # a new candidate starts its own clock
+    watch.cool_down(until_s=10.0)
+    assert watch.update(9.0, truck) is None
+    assert watch.update(10.0, truck) is None  # the clock starts after the cool-down
+    assert watch.update(12.0, truck) is truck
+
+
+def test_speed_cap_and_drivable_interval():
+    assert speed_cap_mps([25.0, 44.4, 22.2, math.inf]) == 22.2
+    # 15 m cells, target at 17.5, cap 20, margin 0.5: 2 m/s of room -> 7.5 s per row.
+    assert behaving_interval_s(3.0, 15.0, 17.5, 20.0, 0.5, "drivable") == pytest.approx(7.5)
+    assert behaving_interval_s(3.0, 15.0, 17.5, 25.0, 0.5, "drivable") == pytest.approx(3.0)
+    assert behaving_interval_s(3.0, 15.0, 17.5, 20.0, 0.5, "fixed") == 3.0
+    assert behaving_interval_s(3.0, 15.0, 19.8, 20.0, 0.5, "drivable") == math.inf
+
+
+def test_target_stops_blocking():
+    platoon = [car("c0", 100.0, 1, 15.0, cav=True)]
+    kw = dict(slow_below_mps=19.0, any_past=False)
+    assert stopped_blocking(None, platoon, ROAD, 1, **kw) == "target_left"
+    moved = car("truck", 130.0, 0, 15.0)
+    assert stopped_blocking(moved, platoon, ROAD, 1, **kw) == "target_changed_lane"
+    fast = car("truck", 130.0, 1, 20.0)
+    assert stopped_blocking(fast, platoon, ROAD, 1, **kw) == "target_sped_up"
+    assert stopped_blocking(car("truck", 130.0, 1, 15.0), platoon, ROAD, 1, **kw) is None
+    # Once CAVs are past, the manoeuvre goes on (they regroup wherever they planned).
+    assert stopped_blocking(moved, platoon, ROAD, 1, slow_below_mps=19.0, any_past=True) is None
+
+
+def test_progress_and_giving_up():
+    p = Progress(started_s=0.0)
+    truck = car("truck", 200.0, 1, 15.0)
+    behind = [car("c0", 180.0, 1, 15.0, cav=True), car("c1", 165.0, 1, 15.0, cav=True)]
+    p.update(1.0, truck, behind, 5.0)
+    assert p.give_up_reason(10.0, no_progress_s=18.0, no_plan_s=20.0, has_plan=True) is None
+    assert p.give_up_reason(19.5, 18.0, 20.0, True) == "no_progress"
+    ahead = [car("c0", 215.0, 1, 20.0, cav=True), car("c1", 165.0, 1, 15.0, cav=True)]
+    p.update(19.0, truck, ahead, 5.0)  # one CAV past: progress
+    assert p.give_up_reason(19.5, 18.0, 20.0, True) is None
+    assert p.give_up_reason(25.0, 18.0, 5.0, has_plan=False) == "no_feasible_plan"
+
+
+def test_gap_guard_hand_computed():
+    ego = car("c0", 100.0, 1, 20.0, cav=True)
+    lead = car("h", 120.0, 1, 18.0)  # bumper gap 15 m
+    y1 = ROAD.lane_centre_y(1)
+    limit = gap_accel_limit(ego, y1, y1, [ego, lead], ROAD, min_gap_m=5.0, width_m=1.8)
+    assert limit == pytest.approx(GAP_GAIN * (15.0 - 6.0) + SPEED_GAIN * (18.0 - 20.0))
+    assert gap_accel_limit(ego, y1, y1, [ego], ROAD, 5.0, 1.8) == math.inf
+
+
+def refusal(ego, others, dlat=0.3):
+    y = ROAD.y_of(ego.lane, ego.lat_m)
+    return lateral_refusal(
+        ego, y, dlat, [ego, *others], ROAD, min_gap_m=5.0, width_m=1.8,
+        model_of=lambda vid: IDM, b_safe_mps2=2.0, step_s=0.1,
+    )  # fmt: skip
+
+
+def test_lateral_guard_uses_the_followers_own_model():
+    ego = car("c0", 100.0, 1, 17.5, cav=True, lat=1.0)  # moving left, about to cross
+    # A follower at the same speed 40 m back: IDM brakes gently, the move goes ahead.
+    assert braking_needed(IDM, 17.5, 17.5, 40.0) < 2.0
+    assert refusal(ego, [car("h", 55.0, 2, 17.5)]) is None
+    # A follower 24 m back closing at 6.5 m/s: IDM would brake hard; the move is held.
+    assert braking_needed(IDM, 24.0, 17.5, 24.0) > 2.0
+    assert refusal(ego, [car("h", 71.0, 2, 24.0)]) == "follower_brake"
+    assert refusal(ego, [car("h", 93.0, 2, 17.5)]) == "follower_gap"  # 2 m gap
+    assert refusal(ego, [car("h", 108.0, 2, 17.5)]) == "leader"  # 3 m ahead
+    assert refusal(ego, [car("h", 71.0, 2, 24.0)], dlat=0.0) is None
+    # Moving within its own lane is never held.
+    centred = car("c0", 100.0, 1, 17.5, cav=True)
+    assert refusal(centred, [car("h", 71.0, 2, 24.0)], dlat=0.05) is None
+
+
+def test_plan_log_writes_lines_and_drops_a_failing_listener(tmp_path):
+    log = PlanLog(tmp_path)
+    seen = []
+    log.listeners.append(seen.append)
+
+    def broken(record):
+        raise RuntimeError("boom")
+
+    log.listeners.append(broken)
+    log.write({"time_s": 1.0, "cells": (1, 2)})
+    log.write({"time_s": 2.0})
+    log.close()
+    lines = [json.loads(x) for x in (tmp_path / "plans.jsonl").read_text().splitlines()]
+    assert [r["time_s"] for r in lines] == [1.0, 2.0] and lines[0]["cells"] == [1, 2]
+    assert len(seen) == 2 and broken not in log.listeners
