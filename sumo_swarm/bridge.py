@@ -6,6 +6,7 @@ collisions and teleports, and applies the controllers' commands.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import math
@@ -15,6 +16,7 @@ from pathlib import Path
 from types import ModuleType
 
 from sumo_swarm.errors import SimulationError
+from sumo_swarm.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
 from sumo_swarm.model import RoadSection, VehicleState
 
 log = logging.getLogger(__name__)
@@ -137,6 +139,8 @@ class SumoSession:
         self._roads: dict[str, RoadSection] = {}
         self._lane_ends: list[tuple[int, int, float]] = []
         self._lanes_ahead: dict[str, list[tuple[float, int]]] = {}
+        self._driver_types: dict[str, DriverModel] = {}
+        self._driver_models: dict[str, tuple[str, DriverModel]] = {}
 
     @classmethod
     def attached(
@@ -434,6 +438,59 @@ class SumoSession:
     def exists(self, vid: str) -> bool:
         return vid in self.states
 
+    # ------------------------------------------------------------------ driver models
+    def driver_model(self, vehicle_id: str) -> DriverModel:
+        """How ``vehicle_id`` drives: its car-following model and parameters.
+
+        Read once per vType (a vehicle whose parameters were changed has its own copy, e.g.
+        ``hv@x``) and once per vehicle for its speedFactor. ``desired_speed_mps`` is SUMO's
+        vehicle maxSpeed; on a lane SUMO takes ``min(maxSpeed, limit * speedFactor)``
+        (:meth:`DriverModel.desired_speed_on`).
+        """
+        vehicle = self.api.vehicle
+        type_id = vehicle.getTypeID(vehicle_id)
+        cached = self._driver_models.get(vehicle_id)
+        if cached is not None and cached[0] == type_id:
+            return cached[1]
+        base = self._driver_types.get(type_id)
+        if base is None:
+            base = self._read_driver_type(vehicle_id)
+            self._driver_types[type_id] = base
+        model = dataclasses.replace(
+            base,
+            desired_speed_mps=vehicle.getMaxSpeed(vehicle_id),
+            speed_factor=vehicle.getSpeedFactor(vehicle_id),
+        )
+        self._driver_models[vehicle_id] = (type_id, model)
+        return model
+
+    def _read_driver_type(self, vid: str) -> DriverModel:
+        """Parameters through TraCI; the model's name by experiment.
+
+        TraCI does not tell the car-following model (libsumo 1.28: ``getParameter`` of
+        ``carFollowModel.*`` keys returns ""). SUMO's own ``getFollowSpeed`` does answer
+        with the vehicle's model, so a few probe situations are compared with our IDM
+        (its delta fitted on a free-road probe) and Krauss formulas: "IDM" or "Krauss" when
+        every probe agrees to 1e-6 m/s, "unknown" (conservative bound) otherwise.
+        """
+        veh = self.api.vehicle
+        m = DriverModel(
+            model="unknown",
+            accel_mps2=veh.getAccel(vid),
+            decel_mps2=veh.getDecel(vid),
+            emergency_decel_mps2=veh.getEmergencyDecel(vid),
+            tau_s=veh.getTau(vid),
+            min_gap_m=veh.getMinGap(vid),
+            desired_speed_mps=veh.getMaxSpeed(vid),
+            length_m=veh.getLength(vid),
+            sigma=max(0.0, veh.getImperfection(vid)),  # -1: the model has no sigma
+        )
+        try:
+            return _identify_model(m, vid, veh, self.api.simulation.getDeltaT())
+        except Exception as exc:  # a vehicle TraCI cannot probe: keep the conservative bound
+            log.warning("car-following model of %s not identified: %s", vid, exc)
+            return m
+
     # ------------------------------------------------------------------ helpers
     def leader_gap(self, vid: str) -> tuple[str, float] | None:
         """SUMO's own leader lookup: (leader id, gap incl. minGap removed) or None."""
@@ -441,6 +498,57 @@ class SumoSession:
         if not res or not res[0]:
             return None
         return res[0], res[1] + self.api.vehicle.getMinGap(vid)
+
+
+def _identify_model(m: DriverModel, vid: str, veh, step_s: float) -> DriverModel:
+    """``m`` named "IDM" (with its delta) or "Krauss" if SUMO's followSpeed of ``vid``
+    matches that model in every probe, else ``m`` unchanged ("unknown")."""
+    v0 = veh.getAllowedSpeed(vid)  # the desired speed SUMO's followSpeed uses on this lane
+
+    def sumo(v: float, gap_m: float, v_lead: float) -> float:
+        # TraCI's gap has minGap removed; ours is the bumper gap
+        return veh.getFollowSpeed(vid, v, gap_m - m.min_gap_m, v_lead, m.decel_mps2, "")
+
+    probes = [(0.6 * v0, 20.0, 0.4 * v0), (0.3 * v0, 8.0, 0.3 * v0 + 2.0),
+              (0.9 * v0, 60.0, 0.8 * v0), (0.5 * v0, 3.0, 0.2 * v0)]  # fmt: skip
+    answers = [sumo(*p) for p in probes]
+
+    def matches(follow) -> bool:
+        return all(
+            abs(follow(*p) - a) <= 1e-6 * max(1.0, a) for p, a in zip(probes, answers, strict=True)
+        )
+
+    idm = _fit_idm_delta(dataclasses.replace(m, model="IDM"), sumo, v0, step_s)
+    if idm is not None and matches(lambda v, g, vl: idm_follow_speed(idm, v, vl, g, step_s, v0)):
+        return idm
+    krauss = dataclasses.replace(m, model="Krauss")
+    if matches(lambda v, g, vl: krauss_follow_speed(krauss, v, vl, g, step_s)):
+        return krauss
+    return m
+
+
+def _fit_idm_delta(m: DriverModel, sumo, v0: float, step_s: float) -> DriverModel | None:
+    """IDM's delta from SUMO's free-road speed at half the desired speed (it rises with delta);
+    None if no delta in [0.1, 50] gives it."""
+    v = 0.5 * v0
+    target = sumo(v, 1e5, v)
+
+    def speed(delta: float) -> float:
+        return idm_follow_speed(dataclasses.replace(m, delta=delta), v, v, 1e5, step_s, v0)
+
+    lo, hi = 0.1, 50.0
+    if not speed(lo) - 1e-6 <= target <= speed(hi) + 1e-6:
+        return None
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if speed(mid) < target:
+            lo = mid
+        else:
+            hi = mid
+    delta = 0.5 * (lo + hi)
+    # SUMO reads delta from XML as a decimal; a value within 1e-6 of a round one is that one.
+    rounded = round(delta, 6)
+    return dataclasses.replace(m, delta=rounded if abs(rounded - delta) < 1e-6 else delta)
 
 
 def lane_curvature(shape) -> float:
