@@ -444,3 +444,60 @@ class CarFollowingPredictor:
             for vid, tr in self._tracks.items()
             if vid in actual
         }
+
+
+# ---------------------------------------------------------------------- blocking
+def peak_braking_behind_slowing(
+    m: DriverModel,
+    v_mps: float,
+    v_lead_mps: float,
+    v_final_mps: float,
+    lead_decel_mps2: float,
+    gap_m: float,
+    step_s: float = 0.1,
+    horizon_s: float = 20.0,
+) -> float:
+    """Strongest deceleration [m/s^2, >= 0] of this driver behind a leader that enters at
+    bumper gap ``gap_m`` driving ``v_lead_mps`` and then slows at ``lead_decel_mps2`` to
+    ``v_final_mps`` (a blocker: it matches the lane's speed, then brings the lane down to the
+    swarm's speed gently)."""
+    v, v_lead, gap = max(0.0, v_mps), max(0.0, v_lead_mps), gap_m
+    sim_dt = max(step_s, 0.1)
+    peak = 0.0
+    for _ in range(max(2, round(horizon_s / sim_dt))):
+        acc = model_accel(m, v, v_lead, gap, step_s)
+        braking = max(0.0, -acc)
+        peak = max(peak, braking)
+        if v_lead <= v_final_mps and v <= v_lead and braking <= lead_decel_mps2 * 0.5:
+            break  # the lane has come down to the final speed and the driver has settled
+        v = max(0.0, v + acc * sim_dt)
+        v_lead = max(v_final_mps, v_lead - lead_decel_mps2 * sim_dt)
+        gap += (v_lead - v) * sim_dt
+    return peak
+
+
+def min_block_gap(
+    m: DriverModel,
+    v_mps: float,
+    v_lead_mps: float,
+    v_final_mps: float,
+    lead_decel_mps2: float,
+    b_safe_mps2: float,
+    step_s: float = 0.1,
+    *,
+    tol_m: float = 0.05,
+    max_gap_m: float = 500.0,
+) -> float:
+    """Smallest bumper gap [m] at which a blocker entering ahead (see
+    :func:`peak_braking_behind_slowing`) makes this driver brake no harder than
+    ``b_safe_mps2``; ``math.inf`` if none up to ``max_gap_m``."""
+
+    def ok(gap: float) -> bool:
+        return (
+            peak_braking_behind_slowing(
+                m, v_mps, v_lead_mps, v_final_mps, lead_decel_mps2, gap, step_s
+            )
+            <= b_safe_mps2
+        )
+
+    return _smallest_ok(ok, 0.0, tol_m, max_gap_m, max(4.0 * m.min_gap_m, 1.0))

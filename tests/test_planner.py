@@ -269,7 +269,7 @@ def fig7_problem(settings: PlannerSettings | None = None) -> PlanningProblem:
     hvs += [veh(f"up0_{s}", s, 0) for s in (210, 180)]
     grid_settings = GridSettings()
     grid = build_grid(cavs, target, road, 0.0, 17.5, grid_settings)
-    settings = settings or PlannerSettings()
+    settings = settings or PlannerSettings(block_steps=1)  # the paper's blockers hold one step
     return build_problem(grid, cavs, hvs, target, 0.0, settings, grid_settings)
 
 

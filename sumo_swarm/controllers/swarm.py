@@ -40,7 +40,7 @@ from sumo_swarm.grid import MovingGrid, cav_cell, hv_blocked_cells
 from sumo_swarm.hvmodel import DriverModel
 from sumo_swarm.metrics import lateral_rms, summarise_ms
 from sumo_swarm.model import VehicleState
-from sumo_swarm.neighbours import ordered_platoon
+from sumo_swarm.neighbours import ordered_platoon, vehicle_ahead
 from sumo_swarm.planner import CellPlanner, Plan, ReplanTrigger, make_planner, shift_plan
 from sumo_swarm.planner.problem import hvs_in_grid
 from sumo_swarm.swarming.decision import (
@@ -53,7 +53,12 @@ from sumo_swarm.swarming.decision import (
     speed_cap_mps,
     stopped_blocking,
 )
-from sumo_swarm.swarming.guards import gap_accel_limit, lateral_refusal
+from sumo_swarm.swarming.guards import (
+    gap_accel_limit,
+    gentle_for_follower,
+    lane_speed_match,
+    lateral_refusal,
+)
 from sumo_swarm.swarming.manoeuvre import ManoeuvrePlanner, ManoeuvreSettings
 from sumo_swarm.swarming.planlog import PlanLog
 from sumo_swarm.swarming.tracker import Tracker
@@ -63,6 +68,8 @@ log = logging.getLogger(__name__)
 
 LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane that ends [m]
 # Replans that a safety check demands: they are not rate-limited.
+LOOKAHEAD_S = 2.0  # a CAV matches the speed of the lane its reference enters this far ahead [s]
+HOLD_EPISODE_S = 1.0  # holds of one CAV closer together than this are one episode [s]
 URGENT_TRIGGERS = frozenset({"initial", "cav_set_changed", "plan_done", "conflict"})
 
 
@@ -94,7 +101,7 @@ class SwarmController:
         self.aborts: Counter[str] = Counter()
         self.lateral_holds = 0
         self.holds_per_manoeuvre: list[int] = []
-        self._holding: set[str] = set()
+        self._holding: dict[str, float] = {}
         self.regroup_lane_used: int | None = None
         self.replan_not_before_s = -math.inf
         self.last_plan_s = -math.inf
@@ -127,9 +134,10 @@ class SwarmController:
                 max_lateral_speed_mps=sc.cav.max_lateral_speed_mps,
             ),
         )  # fmt: skip
-        self.tracker = self._tracker_override or Tracker(
-            sc.longitudinal, sc.lateral, sc.swarm.control_interval_steps
+        steps = sc.swarm.control_interval_steps or max(
+            1, round(sc.swarm.control_interval_s / ctx.dt_s)
         )
+        self.tracker = self._tracker_override or Tracker(sc.longitudinal, sc.lateral, steps)
         self.trigger = self._new_trigger()
         self.watch = TargetWatch(sc.swarm.trigger_after_s)
         self.planlog = PlanLog(ctx.out_dir)
@@ -327,11 +335,26 @@ class SwarmController:
             hvs = [s for s in states.values() if not s.is_cav]
             cells = {vid: cav_cell(grid, states[vid], ctx.road, t_s) for vid in platoon}
             reason = self.trigger.check(t_s, cells, hvs_in_grid(grid, hvs, t_s))
-            if reason == "new_hv" and self._new_hv_conflicts(t_s, states, hvs):
-                reason = "conflict"
+            if reason == "new_hv":
+                # Every HV around was predicted when the plan was made, inside the grid or not:
+                # one entering the grid matters only if it claims a cell a CAV is planned in.
+                if self._new_hv_conflicts(t_s, states, hvs):
+                    reason = "conflict"
+                else:
+                    self.trigger.known_hvs = frozenset(hvs_in_grid(grid, hvs, t_s))
+                    reason = None
             if set(platoon) != set(self.plan.cav_ids):
                 ctx.event("cav_set_changed", planned=list(self.plan.cav_ids), present=platoon)
                 reason = "cav_set_changed"
+            every = ctx.scenario.swarm.replan_every_intervals
+            if (
+                reason is None
+                and every
+                and t_s - self.last_plan_s >= every * (self.interval_s or 0.0) - 1e-9
+                and not all_past(states[self.target_id], {v: states[v] for v in platoon},
+                                 ctx.scenario.cav.min_gap_m)
+            ):  # fmt: skip
+                reason = "periodic"
         elif self.plan is None and self.trigger.plan is not None:
             reason = self.trigger.check(t_s, {}, ())  # "initial" once the retry time has passed
         if reason is None or t_s < self.replan_not_before_s:
@@ -371,6 +394,9 @@ class SwarmController:
             target, {v: states[v] for v in platoon}, sc.cav.min_gap_m
         )
         grid_speed = sc.cav.cruising_speed_mps if cruise_grid else max(target.speed_mps, 0.0)
+        if not cruise_grid and self.grid is not None and self._cav_ahead_of(target, states):
+            # CAVs just ahead of the target set its pace: never let them pull the grid down.
+            grid_speed = max(grid_speed, self.grid.speed_mps)
         cap = self._speed_cap(platoon)
         interval = behaving_interval_s(
             self.planner_settings.behaving_interval_s, sc.cell_length_m, grid_speed, cap,
@@ -395,10 +421,6 @@ class SwarmController:
             obstacles=self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0),
             model_of=self.model_of, grid_speed_mps=grid_speed, cap_mps=cap, interval_s=interval,
             step_s=ctx.dt_s, block_budget=budget, hint=hint,
-            # A manoeuvre starts within the guard's margins or not at all; mid-manoeuvre a CAV
-            # may sit inside an HV's margin (it cut in as planned, the HV has not fallen back
-            # yet), so later replans may go down to the hard margins.
-            relax_to="guard" if self.plan is None and reason == "initial" else "hard",
         )  # fmt: skip
         record = outcome.record
         if self.prediction is not None and hasattr(self.prediction[1], "error_against"):
@@ -434,6 +456,12 @@ class SwarmController:
         for blocker in outcome.problem.blockers:
             if blocker.hv_id not in self.blocked_until_s:
                 self.blocked_until_s[blocker.hv_id] = t_s + (blocker.hold_steps + 1) * interval
+
+    def _cav_ahead_of(self, target: VehicleState, states: dict[str, VehicleState]) -> bool:
+        """Is a CAV the vehicle right ahead of the target, within three cells?"""
+        sc = self.ctx.scenario
+        ahead = vehicle_ahead(target, list(states.values()), self.ctx.road, width_m=sc.cav.width_m)
+        return ahead is not None and ahead[0].is_cav and ahead[1] < 3 * sc.cell_length_m
 
     def _fail(self, t_s: float, reason: str, record: dict[str, Any] | None) -> None:
         """Failed, timed out or invalid: keep the last valid plan while it lasts, else CACC."""
@@ -481,6 +509,7 @@ class SwarmController:
         others = list(states.values())
         solve = self.tracker.tick()
         cap = self.cap_mps if math.isfinite(self.cap_mps) else sc.cav.max_speed_mps
+        gentle = sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
         for vid in platoon:
             ego = states[vid]
             ref = self.references.get(vid)
@@ -495,24 +524,29 @@ class SwarmController:
                 b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt,
             )  # fmt: skip
             dlat = 0.0 if refusal else cmd.dlat_m
-            self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m))
+            self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)
             self.tracker.commit(ego, cmd, refusal is not None, road, dt)
+            accel = cmd.accel_mps2
+            # Into a faster lane at that lane's speed (up to the cap); with an HV close behind,
+            # slow down only gently (that is how a blocker brings a lane down to its speed).
+            lane_to = road.lane_of_y(ref.y_at_s(ego.centre_s_m + LOOKAHEAD_S * ego.speed_mps))
+            accel = max(accel, lane_speed_match(ego, lane_to, others, road, sc.cav.width_m, cap))
+            accel = max(accel, gentle_for_follower(ego, others, road, sc.cav.width_m, gentle))
             limit = gap_accel_limit(
                 ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m
             )
-            accel = min(max(min(cmd.accel_mps2, limit), sc.cav.accel_min_mps2),
-                        sc.cav.accel_max_mps2)  # fmt: skip
+            accel = min(max(min(accel, limit), sc.cav.accel_min_mps2), sc.cav.accel_max_mps2)
             ctx.session.set_speed(vid, min(max(ego.speed_mps + accel * dt, 0.0), cap))
             ctx.session.change_sublane(vid, dlat)
 
-    def _count_hold(self, vid: str, refusal: str | None, lane: int) -> None:
-        """One ``lateral_hold`` per episode (a CAV held until it may move again)."""
+    def _count_hold(self, vid: str, refusal: str | None, lane: int, t_s: float) -> None:
+        """One ``lateral_hold`` per episode: a CAV held, not held again within HOLD_EPISODE_S."""
         if refusal is None:
-            self._holding.discard(vid)
             return
-        if vid in self._holding:
+        last = self._holding.get(vid)
+        self._holding[vid] = t_s
+        if last is not None and t_s - last <= HOLD_EPISODE_S:
             return
-        self._holding.add(vid)
         self.lateral_holds += 1
         if self.holds_per_manoeuvre:
             self.holds_per_manoeuvre[-1] += 1

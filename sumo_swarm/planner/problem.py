@@ -101,8 +101,8 @@ class PlannerSettings:
         CAV's own (it pays the regroup term once it is past, whatever the others do).
     block_steps
         Steps (from step 1) a blocker holds its blocking cell, eqs. (16)-(17). ``"auto"``: as
-        many as the cut-through needs, one per CAV between the blocker and the blocked HV (at
-        least 1); the paper holds for one step (``block_steps = 1``).
+        many as the cut-through needs, one per CAV behind the blocker that is not a blocker
+        itself (at least 1); the paper holds for one step (``block_steps = 1``).
     max_blockers
         How many front CAVs may be assigned as blockers (one per adjacent lane).
     num_workers
@@ -226,6 +226,9 @@ class PlanningProblem:
     t0_s: float = 0.0
     behaving_interval_s: float = 3.0
     entry_blocked: tuple[frozenset[Cell], ...] = ()
+    # Moves (step, from, to) exempt from the entry margins: a blocker's move in front of the
+    # HV it blocks, checked against the blocking margin instead (it matches the lane's speed).
+    exempt_moves: frozenset[tuple[int, Cell, Cell]] = frozenset()
 
     def __post_init__(self) -> None:
         if self.entry_blocked and len(self.entry_blocked) != self.n_steps:
@@ -270,7 +273,7 @@ def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool
     entry margins in front of HVs; moves of one row or column are checked elsewhere)."""
     if dst in problem.blocked[k + 1]:
         return False
-    if not problem.entry_blocked:
+    if not problem.entry_blocked or (k, src, dst) in problem.exempt_moves:
         return True
     if dst[1] != src[1]:  # sideways: the new cell must be free of HVs over the whole move
         return not (
@@ -332,8 +335,9 @@ def _goal_row(
     return min(max(top + 1, 0), grid.n_rows)
 
 
-# Entry margin of an HV [m]: the gap a CAV needs in front of it, from the HV's predicted state.
-FrontMargin = Callable[[VehicleState], float]
+# Margins of an HV [m] from its predicted state: (hard, entry). No CAV may be within the hard
+# margin in front of it; no CAV may move into the entry margin (it may stay there).
+FrontMargin = Callable[[VehicleState], tuple[float, float]]
 
 
 def hvs_in_grid(grid: MovingGrid, hvs: Iterable[VehicleState], t_s: float) -> list[str]:
@@ -342,9 +346,7 @@ def hvs_in_grid(grid: MovingGrid, hvs: Iterable[VehicleState], t_s: float) -> li
     The planner's ``hv_ids`` and the controller's new-HV check both use this, so an HV the
     planner knows is never reported as new.
     """
-    return sorted(
-        hv.vehicle_id for hv in hvs if 0 <= grid.row_of(hv.centre_s_m, t_s) < grid.n_rows
-    )
+    return sorted(hv.vehicle_id for hv in hvs if 0 <= grid.row_of(hv.centre_s_m, t_s) < grid.n_rows)
 
 
 @dataclass(frozen=True)
@@ -352,6 +354,9 @@ class _HvCells:
     blocked: tuple[frozenset[Cell], ...]
     entry_blocked: tuple[frozenset[Cell], ...]
     goal_rows: tuple[int, ...]
+    # Per HV, its entry cells at steps 0 and 1 (to check a blocker against the others).
+    early_entry: dict[str, tuple[frozenset[Cell], frozenset[Cell]]]
+    early_states: dict[str, tuple[VehicleState, VehicleState]]
 
 
 def _hv_cells(
@@ -368,22 +373,40 @@ def _hv_cells(
     hard: list[set[Cell]] = [set() for _ in range(n_steps)]
     entry: list[set[Cell]] = [set() for _ in range(n_steps)]
     goal_rows = []
+    early_entry: dict[str, tuple[frozenset[Cell], frozenset[Cell]]] = {}
+    early_states: dict[str, tuple[VehicleState, VehicleState]] = {}
     for hv_id, hv in all_hvs.items():
+        first: list[frozenset[Cell]] = []
+        first_states: list[VehicleState] = []
         for k, t in enumerate(times):
             state = predictor.predict(hv, now_s, t)
             if front_margin is None:
                 hard[k] |= hv_blocked_cells(grid, state, t, gs)
                 margin = None
             else:
-                margin = front_margin(state)
-                hard[k] |= hv_blocked_cells(grid, state, t, gs, gs.gap_behind_m)
-                entry[k] |= hv_blocked_cells(grid, state, t, gs, margin)
+                hard_margin, margin = front_margin(state)
+                hard[k] |= hv_blocked_cells(grid, state, t, gs, hard_margin)
+                cells = hv_blocked_cells(grid, state, t, gs, margin)
+                entry[k] |= cells
+                if k < 2:
+                    first.append(cells)
+            if k < 2:
+                first_states.append(state)
             if hv_id == target.vehicle_id:
                 goal_rows.append(_goal_row(grid, state, t, gs, margin))
-    entry_blocked = () if front_margin is None else tuple(
-        frozenset(e - h) for e, h in zip(entry, hard, strict=True)
+        if len(first) == 2:
+            early_entry[hv_id] = (first[0], first[1])
+        if len(first_states) == 2:
+            early_states[hv_id] = (first_states[0], first_states[1])
+    entry_blocked = (
+        ()
+        if front_margin is None
+        else tuple(frozenset(e - h) for e, h in zip(entry, hard, strict=True))
     )
-    return _HvCells(tuple(frozenset(h) for h in hard), entry_blocked, tuple(goal_rows))
+    return _HvCells(
+        tuple(frozenset(h) for h in hard), entry_blocked, tuple(goal_rows), early_entry,
+        early_states,
+    )  # fmt: skip
 
 
 def build_problem(
@@ -399,6 +422,7 @@ def build_problem(
     front_margin: FrontMargin | None = None,
     blocked_predictor: Callable[[Sequence[Blocker]], HvPredictor] | None = None,
     block_budget: Mapping[str, int] | None = None,
+    block_margin: Callable[[VehicleState], float] | None = None,
 ) -> PlanningProblem:
     """Turn vehicle states into a :class:`PlanningProblem` (CAVs ordered leader first).
 
@@ -406,11 +430,14 @@ def build_problem(
     constant speed); the target HV blocks cells whether or not it is in ``hvs``, and is always
     in ``hv_ids`` (as is every HV whose centre is in the grid now, see :func:`hvs_in_grid`).
 
-    ``front_margin`` gives each HV's entry margin from its predicted state (the HV model); the
-    HV then claims its footprint plus ``gap_behind_m`` ahead (hard) and, up to the entry margin,
-    cells a CAV may not enter (``entry_blocked``). Without it, the paper's constant headway.
+    ``front_margin`` gives each HV's (hard, entry) margins from its predicted state (the HV
+    model); the HV then claims its footprint plus the hard margin ahead and, up to the entry
+    margin, cells a CAV may not enter (``entry_blocked``). Without it, the paper's constant
+    headway.
     ``blocked_predictor`` re-predicts the HVs once blockers are assigned (a blocked HV follows its
-    blocker); ``block_budget`` limits, per HV, the steps it may still be held this manoeuvre.
+    blocker); ``block_budget`` limits, per HV, the steps it may still be held this manoeuvre;
+    ``block_margin`` gives the gap a blocker needs in front of an HV when it enters at that HV's
+    speed (then slows gently): its entry is checked against that instead of the entry margin.
     CAVs outside the grid raise :class:`ConfigError` (build the grid from the same CAVs).
     """
     predictor = predictor or ConstantSpeedPredictor()
@@ -450,8 +477,10 @@ def build_problem(
     )
     side_hvs = [all_hvs[h] for h in sorted(in_grid) if h != target.vehicle_id]
     blockers = assign_blockers(
-        problem, grid, side_hvs, now_s, grid_settings, settings, block_budget
-    )
+        problem, grid, side_hvs, now_s, grid_settings, settings, block_budget,
+        _blocker_entry_check(grid, cells, times, grid_settings, block_margin),
+    )  # fmt: skip
+    problem = replace(problem, exempt_moves=_exempt(problem, blockers))
     if blockers and blocked_predictor is not None:
         cells = _hv_cells(
             grid, all_hvs, target, now_s, times, grid_settings, blocked_predictor(blockers),
@@ -459,12 +488,46 @@ def build_problem(
         )  # fmt: skip
         problem = replace(
             problem,
+            exempt_moves=_exempt(problem, blockers),
             blocked=cells.blocked,
             entry_blocked=cells.entry_blocked,
             goal_rows=cells.goal_rows,
         )
         blockers = tuple(b for b in blockers if _blocker_free(problem, b))
     return problem.with_blockers(blockers)
+
+
+def _exempt(
+    problem: PlanningProblem, blockers: Sequence[Blocker]
+) -> frozenset[tuple[int, Cell, Cell]]:
+    if not problem.entry_blocked:
+        return frozenset()
+    return frozenset((0, problem.start_cells[b.cav_index], b.cell) for b in blockers)
+
+
+def _blocker_entry_check(
+    grid: MovingGrid,
+    cells: _HvCells,
+    times: Sequence[float],
+    gs: GridSettings,
+    block_margin: Callable[[VehicleState], float] | None,
+) -> Callable[[str, Cell], bool] | None:
+    """Whether a blocker may move into ``cell`` in front of HV ``hv_id`` at step 0 -> 1: clear
+    of every other HV's entry margin and of that HV's blocking margin at steps 0 and 1."""
+    if block_margin is None or not cells.entry_blocked:
+        return None
+
+    def check(hv_id: str, cell: Cell) -> bool:
+        for other, early in cells.early_entry.items():
+            if other != hv_id and (cell in early[0] or cell in early[1]):
+                return False
+        for k, state in enumerate(cells.early_states.get(hv_id, ())):
+            rows = hv_blocked_rows(grid, state, times[k], gs, block_margin(state))
+            if cell[0] in rows:
+                return False
+        return True
+
+    return check
 
 
 def _blocker_free(problem: PlanningProblem, blocker: Blocker) -> bool:
@@ -482,6 +545,7 @@ def assign_blockers(
     grid_settings: GridSettings,
     settings: PlannerSettings,
     block_budget: Mapping[str, int] | None = None,
+    entry_check: Callable[[str, Cell], bool] | None = None,
 ) -> tuple[Blocker, ...]:
     """Space making, eqs. (16)-(17): front CAVs block HVs in the lanes beside the platoon.
 
@@ -491,7 +555,7 @@ def assign_blockers(
     ``max_blockers``) that sits next to that lane, ahead of the HV's footprint, and whose
     lateral move into it, keeping its row, lands on a cell that no HV claims while it holds
     it (nor inside an HV's entry margin) and no other CAV starts in. It holds the cell for
-    ``block_steps`` steps (``"auto"``: one per CAV between it and the HV), at most what is left
+    ``block_steps`` steps (``"auto"``: one per CAV behind it that is no blocker), at most what is left
     of the HV's ``block_budget``; an HV with no budget left is not blocked again.
     """
     if settings.max_blockers == 0 or not step_impeded(problem, problem.start_cells, 0):
@@ -524,13 +588,20 @@ def assign_blockers(
             if abs(cav_col - col) != 1 or cell in start_cells or row <= hv_top_row[hv.vehicle_id]:
                 continue
             if settings.block_steps == "auto":
-                between = sum(hv_top_row[hv.vehicle_id] < r < row for r, _ in problem.start_cells)
-                hold = max(1, between)
+                # One step per CAV that has yet to cut through behind the blocker.
+                hold = max(1, sum(r < row for r, _ in problem.start_cells) - len(blockers) - 1)
             else:
                 hold = settings.block_steps
             hold = min(hold, problem.n_steps - 1, budget if budget is not None else hold)
             blocker = Blocker(i, problem.cav_ids[i], hv.vehicle_id, cell, hold)
-            if not _blocker_free(problem, blocker):
+            if entry_check is not None:
+                free = entry_check(hv.vehicle_id, cell) and _blocker_free(
+                    replace(problem, exempt_moves=frozenset({(0, problem.start_cells[i], cell)})),
+                    blocker,
+                )
+            else:
+                free = _blocker_free(problem, blocker)
+            if not free:
                 continue
             blockers.append(blocker)
             candidates.remove(i)

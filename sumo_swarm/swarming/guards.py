@@ -93,3 +93,43 @@ def lateral_refusal(
     if accepts_entry(model, follower.speed_mps, ego.speed_mps, gap, b_safe_mps2, step_s):
         return None
     return "follower_brake"
+
+
+MATCH_GAIN = 1.0  # [1/s] speed matching: a = k (v_lane - v)
+FOLLOWER_RANGE_M = 60.0  # an HV within this gap behind a CAV makes it slow down gently [m]
+
+
+def lane_speed_match(
+    ego: VehicleState,
+    lane: int,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    width_m: float,
+    cap_mps: float,
+) -> float:
+    """Acceleration [m/s^2] towards the speed of the HV that will follow ``ego`` in ``lane``
+    (up to ``cap_mps``), when ``ego`` is about to move into that lane in front of a faster HV;
+    ``-inf`` (no demand) otherwise. A CAV that enters at the lane's speed needs a much smaller
+    gap than one that enters slower (:func:`sumo_swarm.hvmodel.min_block_gap`)."""
+    if lane == road.lane_of_y(road.y_of(ego.lane, ego.lat_m)):
+        return -math.inf
+    behind = vehicle_behind(ego, others, road, y_m=road.lane_centre_y(lane), width_m=width_m)
+    if behind is None or behind[0].is_cav or behind[0].speed_mps <= ego.speed_mps:
+        return -math.inf
+    return MATCH_GAIN * (min(behind[0].speed_mps, cap_mps) - ego.speed_mps)
+
+
+def gentle_for_follower(
+    ego: VehicleState,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    width_m: float,
+    decel_mps2: float,
+) -> float:
+    """Lowest acceleration [m/s^2] allowed with an HV close behind in ``ego``'s lane:
+    ``-decel_mps2`` (so it brakes gently too), ``-inf`` with no such HV. The gap guard, for
+    what is ahead, still overrides it."""
+    behind = vehicle_behind(ego, others, road, width_m=width_m)
+    if behind is None or behind[0].is_cav or behind[1] > FOLLOWER_RANGE_M:
+        return -math.inf
+    return -decel_mps2

@@ -13,8 +13,8 @@ Pure: vehicle states, the road, the HVs' driver models and the settings in; a
   blocker as the leader of the HV it blocks (holding its cell, then leaving at the cap), so the
   space a blocker makes is in the plan.
 
-When a replan is infeasible the margins are relaxed (``RELAXATION``: the guard's own b_safe,
-then the hard margins only); the record and an event say so, and the target stays in the
+When a replan is infeasible the entry margins are relaxed to the guard's own b_safe
+(``RELAXATION``), never further; the record and an event say so, and the target stays in the
 problem at every level.
 """
 
@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sumo_swarm.grid import GridSettings, MovingGrid, build_grid
-from sumo_swarm.hvmodel import CarFollowingPredictor, DriverModel, min_entry_gap
+from sumo_swarm.hvmodel import CarFollowingPredictor, DriverModel, min_block_gap, min_entry_gap
 from sumo_swarm.model import RoadSection, VehicleState
 from sumo_swarm.planner import (
     CellPlanner,
@@ -43,11 +43,11 @@ from sumo_swarm.trajectory import GridFrame, Reference, reference_from_cells
 
 log = logging.getLogger(__name__)
 
-# Margin levels tried in turn when a replan is infeasible: the planner's share of b_safe, the
-# guard's b_safe itself, then no entry margin (footprint plus gap_behind_m only).
-RELAXATION = ("planner", "guard", "hard")
-# With margin_rule = "headway", the levels scale the headway and the gap behind instead.
-HEADWAY_SCALE = {"planner": 1.0, "guard": 0.5, "hard": 0.0}
+# Margin levels tried in turn when a replan is infeasible: the planner's share of b_safe, then
+# the guard's b_safe itself. Never less: a plan the guard would refuse is no plan.
+RELAXATION = ("planner", "guard")
+# With margin_rule = "headway", the levels scale the paper's headway instead.
+HEADWAY_SCALE = {"planner": 1.0, "guard": 0.5}
 
 
 @dataclass(frozen=True)
@@ -105,6 +105,30 @@ def entry_gap(
     )
 
 
+BLOCK_DECEL_SHARE = 0.7  # a blocker slows the lane at this share of the planner's b_safe
+
+
+@functools.lru_cache(maxsize=8192)
+def _block_gap(
+    model: DriverModel, v_q: int, v_enter_q: int, v_final_q: int, decel: float, b: float,
+    step_s: float,
+) -> float:  # fmt: skip
+    q = SPEED_QUANTUM_MPS
+    return min_block_gap(model, v_q * q, v_enter_q * q, v_final_q * q, decel, b, step_s)
+
+
+def block_gap(
+    model: DriverModel, v_mps: float, v_enter_mps: float, v_final_mps: float, decel: float,
+    b: float, step_s: float,
+) -> float:  # fmt: skip
+    """:func:`~sumo_swarm.hvmodel.min_block_gap`, cached, speeds rounded on the safe side."""
+    q = SPEED_QUANTUM_MPS
+    return _block_gap(
+        model, math.ceil(v_mps / q - 1e-9), math.floor(v_enter_mps / q + 1e-9),
+        math.floor(max(v_final_mps, 0.0) / q + 1e-9), decel, b, step_s,
+    )  # fmt: skip
+
+
 class ManoeuvrePlanner:
     """Builds and solves the cell MIP for the current situation."""
 
@@ -129,7 +153,7 @@ class ManoeuvrePlanner:
         step_s: float,
         block_budget: Mapping[str, int] | None = None,
         hint: Plan | None = None,
-        relax_to: str = "hard",
+        relax_to: str = "guard",
     ) -> PlanOutcome:
         st = self.settings
         target = states[target_id]
@@ -156,7 +180,7 @@ class ManoeuvrePlanner:
         try:
             for level in levels:
                 front_margin = self._front_margin(level, models, grid_speed_mps, step_s)
-                target_margin = front_margin(target) if front_margin else None
+                target_margin = front_margin(target)[1] if front_margin else None
                 gs = st.grid
                 if st.margin_rule == "headway":  # the paper's constant headway, scaled down
                     scale = HEADWAY_SCALE[level]
@@ -172,6 +196,8 @@ class ManoeuvrePlanner:
                     grid, cavs, hvs, target, t_s, settings, gs, predictor,
                     front_margin=front_margin, blocked_predictor=blocked_predictor,
                     block_budget=block_budget,
+                    block_margin=self._block_margin(level, models, grid_speed_mps, cap_mps,
+                                                    step_s),
                 )  # fmt: skip
                 plan = (
                     self.planner.plan(problem, hint=hint)
@@ -189,7 +215,7 @@ class ManoeuvrePlanner:
             grid = outcome.grid
             record.update(
                 status=plan.status.value, solve_ms=plan.solve_ms, objective=plan.objective,
-                blockers=plan.blockers, violations=violations,
+                blockers=plan.blockers, violations=violations, message=plan.message,
                 block_steps={b.cav_id: b.hold_steps for b in outcome.problem.blockers},
                 cells={c: list(map(list, plan.cells_of(c))) for c in plan.cav_ids}
                 if plan.ok else None,
@@ -209,20 +235,44 @@ class ManoeuvrePlanner:
     # ------------------------------------------------------------------ parts
     def _front_margin(
         self, level: str, models: Mapping[str, DriverModel], v_cav: float, step_s: float
-    ) -> Callable[[VehicleState], float] | None:
+    ) -> Callable[[VehicleState], tuple[float, float]] | None:
+        """(hard, entry) margins in front of an HV: the hard one is its own minGap (no CAV is
+        ever planned closer), the entry one the gap at which it would brake at the level's
+        share of b_safe for a CAV entering at the grid's speed."""
         st = self.settings
         if st.margin_rule == "headway":
             return None
-        if level == "hard":
-            return lambda hv: st.grid.gap_behind_m
+        b = st.b_safe_mps2 * (st.planner_share if level == "planner" else 1.0)
+
+        def margin(hv: VehicleState) -> tuple[float, float]:
+            model = models.get(hv.vehicle_id)
+            if model is None:  # a lane end or other standing obstacle
+                return st.grid.gap_behind_m, st.grid.gap_behind_m
+            gap = entry_gap(model, hv.speed_mps, v_cav, b, step_s)
+            return model.min_gap_m, max(gap, model.min_gap_m)
+
+        return margin
+
+    def _block_margin(
+        self, level: str, models: Mapping[str, DriverModel], v_grid: float, cap: float,
+        step_s: float,
+    ) -> Callable[[VehicleState], float] | None:  # fmt: skip
+        """Gap a blocker needs in front of an HV: it enters at the HV's speed (at most the cap)
+        and then slows the lane to the grid's speed at BLOCK_DECEL_SHARE of b."""
+        st = self.settings
+        if st.margin_rule == "headway":
+            return None
         b = st.b_safe_mps2 * (st.planner_share if level == "planner" else 1.0)
 
         def margin(hv: VehicleState) -> float:
             model = models.get(hv.vehicle_id)
-            if model is None:  # a lane end or other standing obstacle
+            if model is None:
                 return st.grid.gap_behind_m
-            gap = entry_gap(model, hv.speed_mps, v_cav, b, step_s)
-            return max(gap, st.grid.gap_behind_m)
+            v_enter = min(hv.speed_mps, cap)
+            if v_enter <= v_grid:
+                return max(entry_gap(model, hv.speed_mps, v_grid, b, step_s), model.min_gap_m)
+            gap = block_gap(model, hv.speed_mps, v_enter, v_grid, BLOCK_DECEL_SHARE * b, b, step_s)
+            return max(gap, model.min_gap_m)
 
         return margin
 
