@@ -265,7 +265,7 @@ def min_entry_gap(
     above its desired speed and slows harder than that on a free road).
 
     The braking falls as the gap grows, so the gap is found by bisection to ``tol_m``; the
-    returned gap is the safe end of the last bracket.
+    returned gap is the safe end of the last bracket, and never below the driver's minGap.
     """
     if b_safe_mps2 < 0.0:
         return math.inf
@@ -278,7 +278,10 @@ def min_entry_gap(
 
     # The peak is at least the braking at entry, and most often equal to it: search with the
     # cheap instantaneous braking first, then go on with the peak only where it is larger.
-    gap = _smallest_ok(instant_ok, 0.0, tol_m, max_gap_m, max(4.0 * m.min_gap_m, 1.0))
+    # Never inside the driver's minGap: there SUMO's models stop being car following (Krauss
+    # brakes only at decel behind a faster leader, at emergencyDecel behind a slower one).
+    lo = max(0.0, m.min_gap_m)
+    gap = _smallest_ok(instant_ok, lo, tol_m, max_gap_m, max(3.0 * lo, 1.0))
     if math.isinf(gap) or peak_ok(gap):
         return gap
     return _smallest_ok(peak_ok, gap, tol_m, max_gap_m, 0.02 * gap + 0.1)
@@ -315,8 +318,9 @@ def accepts_entry(
     step_s: float = 0.1,
 ) -> bool:
     """Whether a vehicle entering ahead at bumper gap ``gap_m`` and speed ``v_lead_mps`` makes
-    this driver brake no harder than ``b_safe_mps2`` over its reaction (:func:`peak_braking`)."""
-    return peak_braking(m, v_mps, v_lead_mps, gap_m, step_s) <= b_safe_mps2
+    this driver brake no harder than ``b_safe_mps2`` over its reaction (:func:`peak_braking`),
+    outside its minGap (as :func:`min_entry_gap`)."""
+    return gap_m >= m.min_gap_m and peak_braking(m, v_mps, v_lead_mps, gap_m, step_s) <= b_safe_mps2
 
 
 # ---------------------------------------------------------------------- prediction
@@ -422,8 +426,8 @@ class CarFollowingPredictor:
             return tr.v_mps[0]
         if t_s >= times[-1]:
             return tr.v_mps[-1]
-        k = bisect.bisect_right(times, t_s) - 1
         # The speed of step k + 1 is the one driven between times k and k + 1 (Euler).
+        k = bisect.bisect_left(times, t_s) - 1
         return tr.v_mps[k + 1]
 
     def predict(self, hv: VehicleState, now_s: float, t_s: float) -> VehicleState:
