@@ -233,19 +233,21 @@ def peak_braking(
     if not math.isfinite(gap_m):
         return braking_needed(m, v_mps, None, None, step_s)
     v, gap = max(0.0, v_mps), gap_m
-    # The entry step is evaluated with SUMO's step; the rest of the reaction advances by at
-    # least 0.1 s per step (the driver's rate of braking held over it) to bound the cost.
+    # The entry step is SUMO's; the rest of the reaction is simulated in steps of at least
+    # 0.1 s to bound the cost, the model evaluated over the same coarser step (holding a
+    # short step's Krauss deceleration for longer would overshoot its safe speed).
     sim_dt = max(step_s, 0.1)
     peak = previous = 0.0
     for k in range(max(2, round(horizon_s / sim_dt))):
-        acc = model_accel(m, v, v_lead_mps, gap, step_s)
+        acc = model_accel(m, v, v_lead_mps, gap, step_s if k == 0 else sim_dt)
         braking = max(0.0, -acc)
         peak = max(peak, braking)
         if k > 0 and v <= v_lead_mps + _CLOSED_MPS and braking <= previous:
             break  # closing in no more and easing off: the strongest braking is behind
         previous = braking
-        v = max(0.0, v + acc * sim_dt)
-        gap += (v_lead_mps - v) * sim_dt
+        dt = step_s if k == 0 else sim_dt
+        v = max(0.0, v + acc * dt)
+        gap += (v_lead_mps - v) * dt
     return peak
 
 
