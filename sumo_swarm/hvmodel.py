@@ -24,6 +24,8 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from sumo_swarm.model import RoadSection, VehicleState
 
 IDM_MODELS = frozenset({"IDM", "EIDM"})
@@ -325,26 +327,138 @@ def accepts_entry(
     return gap_m >= m.min_gap_m and peak_braking(m, v_mps, v_lead_mps, gap_m, step_s) <= b_safe_mps2
 
 
+# ---------------------------------------------------------------------- many drivers at once
+class DriverArrays:
+    """The parameters of many drivers as arrays, for :func:`model_accel_array` (one row per
+    driver, in the order of ``models``)."""
+
+    def __init__(self, models: Sequence[DriverModel]) -> None:
+        def col(name: str) -> np.ndarray:
+            return np.array([getattr(m, name) for m in models], dtype=float)
+
+        names = [m.model for m in models]
+        self.idm = np.array([n not in KRAUSS_MODELS for n in names])  # unknown: both
+        self.krauss = np.array([n not in IDM_MODELS for n in names])
+        self.a = col("accel_mps2")
+        self.b = col("decel_mps2")
+        self.emergency = col("emergency_decel_mps2")
+        self.tau = col("tau_s")
+        self.s0 = col("min_gap_m")
+        self.delta = col("delta")
+        self.v0 = col("desired_speed_mps")
+        self.sigma = np.maximum(col("sigma"), 0.0)
+        self.stepping = col("idm_stepping_s")
+        self.two_sqrt_ab = 2.0 * np.sqrt(self.a * self.b)
+        self.idm_min_decel = np.maximum(self.b, np.minimum(self.emergency, 1.5))
+        self.any_idm = bool(self.idm.any())
+        self.any_krauss = bool(self.krauss.any())
+
+
+def _idm_follow_array(d: DriverArrays, v, v_lead, gap, step_s: float):
+    iterations = np.maximum(1, (step_s / d.stepping + 0.5).astype(int))
+    v0 = np.maximum(_EPS, d.v0)
+    if iterations.max() == 1:  # steps up to 0.375 s: one iteration, no masks (speed)
+        s_star = np.maximum(0.0, v * d.tau + v * (v - v_lead) / d.two_sqrt_ab) + d.s0
+        gap = np.maximum(_EPS, gap)
+        acc = d.a * (1.0 - (v / v0) ** d.delta - (s_star * s_star) / (gap * gap))
+        return np.maximum(0.0, v + acc * step_s)
+    h = step_s / iterations
+    speed = v.copy()
+    gap = gap.copy()
+    for i in range(int(iterations.max())):
+        active = i < iterations
+        s_star = np.maximum(0.0, speed * d.tau + speed * (speed - v_lead) / d.two_sqrt_ab) + d.s0
+        gap = np.maximum(_EPS, gap)
+        acc = d.a * (1.0 - (speed / v0) ** d.delta - (s_star * s_star) / (gap * gap))
+        new = np.maximum(0.0, speed + acc * h)
+        speed = np.where(active, new, speed)
+        gap = gap - np.where(active, np.maximum(0.0, (speed - v_lead) * h), 0.0)
+    return speed
+
+
+def _krauss_follow_array(d: DriverArrays, v, v_lead, gap, step_s: float):
+    b = d.b
+    g = gap - d.s0
+    reduction = b * step_s
+    steps = np.floor(v_lead / reduction)
+    lead_brake = step_s * (steps * v_lead - reduction * steps * (steps + 1) / 2.0)
+    g2 = g + lead_brake - _EPS
+    bs = b * step_s
+    t = d.tau
+    g2_pos = np.maximum(g2, 0.0)  # (g2 < 0: stop at once, below)
+    root = np.sqrt(step_s * step_s + 4.0 * (step_s * (2.0 * g2_pos / bs - t) + t * t))
+    n = np.floor(0.5 - (t - root / 2.0) / step_s)
+    h = 0.5 * n * (n - 1) * bs * step_s + n * bs * t
+    safe = np.where(g2 < 0.0, 0.0, n * bs + (g2 - h) / (n * step_s + t))
+    x = np.where(g >= 0.0, safe, np.maximum(0.0, v - d.emergency * step_s))
+    orig_decel = (v - x) / step_s
+    emergency = (b != d.emergency) & (orig_decel > b + _EPS)
+    if emergency.any():
+        lead_brake_m = 0.5 * v_lead * v_lead / b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            b1 = 0.5 * v * v / (g + lead_brake_m)
+            b2 = 0.5 * (v * v - v_lead * v_lead) / g
+        need = np.where(
+            (g + lead_brake_m > 0.0) & (b1 <= b), b1, np.where(g <= 0.0, d.emergency, b2)
+        )
+        need = np.minimum(np.maximum(_EMERGENCY_AMPLIFIER * need, b), orig_decel)
+        x = np.where(emergency, np.maximum(0.0, v - need * step_s), x)
+    return np.minimum(x, v + d.a * step_s)
+
+
+def model_accel_array(
+    d: DriverArrays,
+    v_mps: np.ndarray,
+    v_lead_mps: np.ndarray,
+    gap_m: np.ndarray,
+    step_s: float,
+    dawdle: float = 1.0,
+) -> np.ndarray:
+    """:func:`model_accel` of many drivers at once [m/s^2], to ~1e-9 m/s^2. A driver without
+    leader has ``gap_m = inf`` (its ``v_lead_mps`` is then ignored)."""
+    v = np.maximum(0.0, v_mps)
+    free = ~np.isfinite(gap_m)
+    v_min_emergency = np.maximum(0.0, v - d.emergency * step_s)
+    v_top = np.minimum(v + d.a * step_s, np.maximum(d.v0, 0.0))
+    v_next = np.full_like(v, np.inf)
+    if d.any_idm:
+        # SUMO takes the lower of the free-road and the following speed; with a leader closer
+        # than its free-road gap (1e6 m) the following speed is the lower (to ~1e-12 m/s).
+        idm_safe = _idm_follow_array(
+            d, v, np.where(free, d.v0, v_lead_mps), np.where(free, _FREE_GAP_M, gap_m), step_s
+        )
+        # SUMO's finalizeSpeed, with IDM's minNextSpeed (at least 1.5 m/s^2)
+        idm_vmin = np.minimum(
+            np.maximum(0.0, v - d.idm_min_decel * step_s), np.maximum(idm_safe, v_min_emergency)
+        )
+        idm_next = np.maximum(idm_vmin, np.minimum(v_top, idm_safe))
+        v_next = np.where(d.idm, idm_next, v_next)
+    if d.any_krauss:
+        krauss_safe = np.where(
+            free, np.inf, _krauss_follow_array(d, v, v_lead_mps, np.where(free, 0.0, gap_m), step_s)
+        )
+        kr_vmin = np.minimum(
+            np.maximum(0.0, v - d.b * step_s), np.maximum(krauss_safe, v_min_emergency)
+        )
+        kr_vmax = np.maximum(kr_vmin, np.minimum(v_top, krauss_safe))
+        slow = d.sigma * dawdle * np.minimum(d.a, kr_vmax) * step_s
+        kr_next = np.maximum(kr_vmin, np.maximum(0.0, kr_vmax - slow))
+        v_next = np.where(d.krauss, np.minimum(v_next, kr_next), v_next)
+    return (v_next - v) / step_s
+
+
 # ---------------------------------------------------------------------- prediction
-@dataclass(slots=True)
-class _Track:
-    """One simulated vehicle: its positions [m] and speeds [m/s] at the predictor's times."""
-
-    state: VehicleState
-    lane: int
-    s_m: list[float]
-    v_mps: list[float]
-
-
 class CarFollowingPredictor:
     """Predicts HVs with their own car-following model over a horizon, lane by lane, with their
     leaders.
 
-    ``states``: every vehicle seen (HVs and CAVs). An HV (id in ``models``) follows the vehicle
-    ahead in its lane by :func:`model_accel` (mean dawdling); CAVs and vehicles without a model
-    keep their speed, unless ``leaders_override`` gives their front position ``s(t)`` [m] as a
-    function of absolute time [s] (e.g. a CAV's planned positions). No lane changes are
-    predicted. The simulation steps ``dt_s``; the car-following formulas use the same step.
+    ``states``: every vehicle seen (HVs and CAVs); a vehicle's lane is the band its centre is
+    in (``road.lane_of_y``). An HV (id in ``models``) follows the vehicle ahead in its lane by
+    :func:`model_accel` (mean dawdling); CAVs and vehicles without a model keep their speed,
+    unless ``leaders_override`` gives their front position ``s(t)`` [m] as a function of
+    absolute time [s] (e.g. a CAV's planned positions). No lane changes are predicted. All
+    vehicles advance together in steps of ``dt_s`` (SUMO's update: new speed, then position);
+    the car-following formulas use the same step.
     """
 
     def __init__(
@@ -363,90 +477,90 @@ class CarFollowingPredictor:
         self.dt_s = dt_s
         n_steps = max(1, math.ceil(horizon_s / dt_s - 1e-9))
         self.times_s = [now_s + k * dt_s for k in range(n_steps + 1)]
-        override = leaders_override or {}
-        tracks = {
-            st.vehicle_id: _Track(st, road.lane_of_y(road.y_of(st.lane, st.lat_m)), [st.s_m],
-                                  [max(0.0, st.speed_mps)])
-            for st in states
-        }  # fmt: skip
-        lanes: dict[int, list[_Track]] = {}
-        for tr in tracks.values():
-            lanes.setdefault(tr.lane, []).append(tr)
+        self._states = {st.vehicle_id: st for st in states}
+        ids = list(self._states)
+        self._column = {vid: j for j, vid in enumerate(ids)}
+        lane = np.array([road.lane_of_y(road.y_of(st.lane, st.lat_m)) for st in states], int)
+        length = np.array([st.length_m for st in states], dtype=float)
+        s = np.array([st.s_m for st in states], dtype=float)
+        v = np.array([max(0.0, st.speed_mps) for st in states], dtype=float)
+        overrides = [(self._column[vid], f) for vid, f in (leaders_override or {}).items()
+                     if vid in self._column]  # fmt: skip
+        driven = np.array(
+            [vid in models and vid not in (leaders_override or {}) for vid in ids], dtype=bool
+        )
+        drivers = DriverArrays([models[vid] for vid, on in zip(ids, driven, strict=True) if on])
+        self._s = np.empty((n_steps + 1, len(ids)))
+        self._v = np.empty((n_steps + 1, len(ids)))
+        self._s[0], self._v[0] = s, v
         for k in range(1, n_steps + 1):
-            t = self.times_s[k]
-            for lane_tracks in lanes.values():
-                self._step_lane(lane_tracks, models, override, t, k)
-        self._tracks = {vid: tr for vid, tr in tracks.items() if vid in models}
+            s, v = self._step(s, v, lane, length, driven, drivers, overrides, self.times_s[k])
+            self._s[k], self._v[k] = s, v
+        self._simulated = [vid for vid, on in zip(ids, driven, strict=True) if on]
+        self._simulated_set = frozenset(self._simulated)
 
-    def _step_lane(self, lane_tracks, models, override, t_s: float, k: int) -> None:
-        """Advance one lane from step k - 1 to step k (time ``t_s``)."""
+    def _step(self, s, v, lane, length, driven, drivers, overrides, t_s: float):
+        """Positions and speeds one step later (time ``t_s``)."""
         dt = self.dt_s
-        # Order by position at step k - 1; the leaders' speeds are those of step k - 1 too.
-        lane_tracks.sort(key=lambda tr: tr.s_m[k - 1])
-        for i, tr in enumerate(lane_tracks):
-            vid = tr.state.vehicle_id
-            s, v = tr.s_m[k - 1], tr.v_mps[k - 1]
-            if vid in override:
-                s_next = override[vid](t_s)
-                tr.s_m.append(s_next)
-                tr.v_mps.append(max(0.0, (s_next - s) / dt))
-                continue
-            m = models.get(vid)
-            if m is None:
-                tr.s_m.append(s + v * dt)
-                tr.v_mps.append(v)
-                continue
-            if i + 1 < len(lane_tracks):
-                lead = lane_tracks[i + 1]
-                gap = lead.s_m[k - 1] - lead.state.length_m - s
-                v_lead = lead.v_mps[k - 1]
-                acc = model_accel(m, v, v_lead, gap, dt, dawdle=0.5)
-            else:
-                acc = model_accel(m, v, None, None, dt, dawdle=0.5)
-            v_next = max(0.0, v + acc * dt)
-            tr.v_mps.append(v_next)
-            tr.s_m.append(s + v_next * dt)  # SUMO's Euler update: the new speed moves it
+        v_next = v.copy()
+        if driven.any():
+            # Leader: the next vehicle ahead in the same lane, at the start of the step.
+            order = np.lexsort((s, lane))
+            leader = np.full(len(s), -1)
+            same_lane = lane[order[1:]] == lane[order[:-1]]
+            leader[order[:-1][same_lane]] = order[1:][same_lane]
+            lead = leader[driven]
+            has_lead = lead >= 0
+            safe_lead = np.where(has_lead, lead, 0)
+            gap = np.where(has_lead, s[safe_lead] - length[safe_lead] - s[driven], np.inf)
+            acc = model_accel_array(drivers, v[driven], v[safe_lead], gap, dt, dawdle=0.5)
+            v_next[driven] = np.maximum(0.0, v[driven] + acc * dt)
+        s_next = s + v_next * dt
+        for j, position in overrides:
+            s_next[j] = position(t_s)
+            v_next[j] = max(0.0, (s_next[j] - s[j]) / dt)
+        return s_next, v_next
 
     @property
     def simulated_ids(self) -> list[str]:
         """Ids of the HVs predicted by their car-following model."""
-        return list(self._tracks)
+        return list(self._simulated)
 
-    def _s_at(self, tr: _Track, t_s: float) -> float:
+    def _s_at(self, j: int, t_s: float) -> float:
         times = self.times_s
         if t_s <= times[0]:
-            return tr.s_m[0] + tr.v_mps[0] * (t_s - times[0])
+            return float(self._s[0, j] + self._v[0, j] * (t_s - times[0]))
         if t_s >= times[-1]:
-            return tr.s_m[-1] + tr.v_mps[-1] * (t_s - times[-1])
+            return float(self._s[-1, j] + self._v[-1, j] * (t_s - times[-1]))
         k = bisect.bisect_right(times, t_s) - 1
         w = (t_s - times[k]) / (times[k + 1] - times[k])
-        return tr.s_m[k] + w * (tr.s_m[k + 1] - tr.s_m[k])
+        return float(self._s[k, j] + w * (self._s[k + 1, j] - self._s[k, j]))
 
-    def _v_at(self, tr: _Track, t_s: float) -> float:
+    def _v_at(self, j: int, t_s: float) -> float:
         times = self.times_s
         if t_s <= times[0]:
-            return tr.v_mps[0]
+            return float(self._v[0, j])
         if t_s >= times[-1]:
-            return tr.v_mps[-1]
+            return float(self._v[-1, j])
         # The speed of step k + 1 is the one driven between times k and k + 1 (Euler).
         k = bisect.bisect_left(times, t_s) - 1
-        return tr.v_mps[k + 1]
+        return float(self._v[k + 1, j])
 
     def predict(self, hv: VehicleState, now_s: float, t_s: float) -> VehicleState:
         """State of ``hv`` at ``t_s``: the simulated displacement from ``now_s`` to ``t_s``
         added to ``hv``'s position (lane kept). An id not simulated: constant speed."""
-        tr = self._tracks.get(hv.vehicle_id)
-        if tr is None:
+        j = self._column.get(hv.vehicle_id)
+        if j is None or hv.vehicle_id not in self._simulated_set:
             return dataclasses.replace(hv, s_m=hv.s_m + hv.speed_mps * (t_s - now_s))
-        ds = self._s_at(tr, t_s) - self._s_at(tr, now_s)
-        v = self._v_at(tr, t_s)
-        acc = (v - self._v_at(tr, t_s - self.dt_s)) / self.dt_s
+        ds = self._s_at(j, t_s) - self._s_at(j, now_s)
+        v = self._v_at(j, t_s)
+        acc = (v - self._v_at(j, t_s - self.dt_s)) / self.dt_s
         return dataclasses.replace(hv, s_m=hv.s_m + ds, speed_mps=v, accel_mps2=acc)
 
     def error_against(self, actual: Mapping[str, VehicleState], t_s: float) -> dict[str, float]:
         """Position error [m] of each simulated HV at ``t_s``: predicted minus ``actual``."""
         return {
-            vid: self._s_at(tr, t_s) - actual[vid].s_m
-            for vid, tr in self._tracks.items()
+            vid: self._s_at(self._column[vid], t_s) - actual[vid].s_m
+            for vid in self._simulated
             if vid in actual
         }

@@ -4,17 +4,21 @@ from __future__ import annotations
 
 import itertools
 import math
+import random
 
+import numpy as np
 import pytest
 
 from sumo_swarm.grid import ConstantSpeedPredictor
 from sumo_swarm.hvmodel import (
     CarFollowingPredictor,
+    DriverArrays,
     DriverModel,
     accepts_entry,
     braking_needed,
     min_entry_gap,
     model_accel,
+    model_accel_array,
     peak_braking,
 )
 from sumo_swarm.model import RoadSection, VehicleState
@@ -167,6 +171,32 @@ def test_peak_braking_sees_late_braking():
     assert not accepts_entry(m, 25.0, 10.0, 300.0, 0.5, 0.1)
 
 
+@pytest.mark.parametrize("step_s", [0.03, 0.2, 1.0])
+def test_array_version_agrees_with_model_accel(step_s):
+    # The predictor's vectorised formulas against the scalar ones checked above, on drivers
+    # and situations drawn widely (overlaps, emergencies, free roads, dawdlers, long steps).
+    rng = random.Random(7)
+    models, v, v_lead, gap = [], [], [], []
+    for _ in range(2000):
+        models.append(
+            DriverModel(
+                rng.choice(["IDM", "Krauss", "W99", "EIDM"]), rng.uniform(0.5, 3.0),
+                rng.uniform(1.0, 5.0), rng.choice([9.0, 5.0, 4.5]), rng.uniform(0.5, 2.0),
+                rng.uniform(1.0, 3.0), rng.uniform(2.0, 6.0), rng.uniform(10.0, 35.0),
+                sigma=rng.choice([0.0, 0.5]),
+            )
+        )  # fmt: skip
+        v.append(rng.uniform(0.0, 35.0))
+        v_lead.append(rng.uniform(0.0, 35.0))
+        gap.append(rng.choice([math.inf, rng.uniform(-3.0, 5.0), rng.uniform(0.0, 150.0)]))
+    got = model_accel_array(
+        DriverArrays(models), np.array(v), np.array(v_lead), np.array(gap), step_s, dawdle=0.5
+    )
+    for i, m in enumerate(models):
+        lead = (v_lead[i], gap[i]) if math.isfinite(gap[i]) else (None, None)
+        assert got[i] == pytest.approx(model_accel(m, v[i], *lead, step_s, dawdle=0.5), abs=1e-9)
+
+
 # ---------------------------------------------------------------------- predictor
 def _state(vid, s, v, lane=0, lat=0.0, is_cav=False, length=5.0):
     return VehicleState(vid, s, lane, lat, v, length, 0.0, is_cav)
@@ -242,3 +272,22 @@ def test_predict_from_a_later_now_and_error_against():
     assert p.predict(at_1, 1.0, 2.0).s_m == pytest.approx(s_2)
     actual = {"hv": _state("hv", s_2 - 0.7, 14.0), "nobody": _state("nobody", 5.0, 1.0)}
     assert p.error_against(actual, 2.0) == {"hv": pytest.approx(0.7)}
+
+
+def test_a_queue_forms_behind_a_slow_vehicle():
+    # IDM behind Krauss behind a slow CAV: each follows its own leader, none overlaps.
+    idm = DriverModel("IDM", 1.0, 1.5, 9.0, 1.2, 2.0, 4.0, 30.0)
+    krauss = DriverModel("Krauss", 2.6, 4.5, 9.0, 1.0, 2.5, desired_speed_mps=30.0, sigma=0.5)
+    cav = _state("cav", 200.0, 10.0, is_cav=True)
+    hv1 = _state("hv1", 160.0, 20.0)
+    hv2 = _state("hv2", 125.0, 20.0)
+    p = CarFollowingPredictor([hv2, cav, hv1], {"hv1": krauss, "hv2": idm}, ROAD, 0.0, 40.0)
+    for k in range(201):
+        t = 0.2 * k
+        s_cav = 200.0 + 10.0 * t
+        s1 = p.predict(hv1, 0.0, t).s_m
+        s2 = p.predict(hv2, 0.0, t).s_m
+        assert s1 <= s_cav - 5.0 - 2.5 + 1e-6  # Krauss keeps its minGap
+        assert s2 < s1 - 5.0
+    assert p.predict(hv1, 0.0, 40.0).speed_mps == pytest.approx(10.0, abs=0.3)
+    assert p.predict(hv2, 0.0, 40.0).speed_mps == pytest.approx(10.0, abs=0.3)
