@@ -10,7 +10,11 @@ semi-implicit Euler update, so that what the planner expects of an HV is what SU
 - Krauss (``MSCFModel_Krauss``): SUMO's safe speed over one step (stop behind the leader even if
   it brakes to a halt, reaction time ``tau``), its emergency-braking correction, the speed bounds,
   and the dawdling ``sigma`` (a random slow-down of up to ``sigma * accel`` per step).
-- Any other model: a conservative bound, the harsher of IDM and Krauss with the vType's values.
+- EIDM is taken as IDM; any other model ("unknown", W99, ACC, ...): a conservative bound, the
+  harsher of IDM and Krauss with the vType's values.
+
+Measured against SUMO 1.28 (tests/test_hvmodel_sumo.py): the braking of an IDM or Krauss HV after
+a cut-in, first step and strongest, agrees bit for bit at SUMO's step.
 
 Gaps are *bumper* gaps [m] (leader's rear minus this vehicle's front), minGap included; SUMO
 subtracts minGap before its car-following call, the formulas here take that into account.
@@ -158,7 +162,9 @@ def _finalize(
     return v_min, max(v_min, v_max)
 
 
-def _idm_next_speed(m, v, v_lead, gap, step_s):
+def _idm_next_speed(
+    m: DriverModel, v: float, v_lead: float | None, gap: float | None, step_s: float
+) -> float:
     v0 = m.desired_speed_mps
     v_safe = idm_follow_speed(m, v, v0, _FREE_GAP_M, step_s, v0)  # SUMO's freeSpeed
     if v_lead is not None and gap is not None:
@@ -168,7 +174,15 @@ def _idm_next_speed(m, v, v_lead, gap, step_s):
     return _finalize(m, v, v_safe, step_s, min_decel)[1]
 
 
-def _krauss_next_speed(m, v, v_lead, gap, step_s, dawdle, lead_decel):
+def _krauss_next_speed(
+    m: DriverModel,
+    v: float,
+    v_lead: float | None,
+    gap: float | None,
+    step_s: float,
+    dawdle: float,
+    lead_decel: float | None,
+) -> float:
     v_safe = math.inf
     if v_lead is not None and gap is not None:
         v_safe = krauss_follow_speed(m, v, v_lead, gap, step_s, lead_decel)
