@@ -10,7 +10,11 @@ semi-implicit Euler update, so that what the planner expects of an HV is what SU
 - Krauss (``MSCFModel_Krauss``): SUMO's safe speed over one step (stop behind the leader even if
   it brakes to a halt, reaction time ``tau``), its emergency-braking correction, the speed bounds,
   and the dawdling ``sigma`` (a random slow-down of up to ``sigma * accel`` per step).
-- Any other model: a conservative bound, the harsher of IDM and Krauss with the vType's values.
+- EIDM is taken as IDM; any other model ("unknown", W99, ACC, ...): a conservative bound, the
+  harsher of IDM and Krauss with the vType's values.
+
+Measured against SUMO 1.28 (tests/test_hvmodel_sumo.py): the braking of an IDM or Krauss HV after
+a cut-in, first step and strongest, agrees bit for bit at SUMO's step.
 
 Gaps are *bumper* gaps [m] (leader's rear minus this vehicle's front), minGap included; SUMO
 subtracts minGap before its car-following call, the formulas here take that into account.
@@ -23,6 +27,8 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+
+import numpy as np
 
 from sumo_swarm.model import RoadSection, VehicleState
 
@@ -156,7 +162,9 @@ def _finalize(
     return v_min, max(v_min, v_max)
 
 
-def _idm_next_speed(m, v, v_lead, gap, step_s):
+def _idm_next_speed(
+    m: DriverModel, v: float, v_lead: float | None, gap: float | None, step_s: float
+) -> float:
     v0 = m.desired_speed_mps
     v_safe = idm_follow_speed(m, v, v0, _FREE_GAP_M, step_s, v0)  # SUMO's freeSpeed
     if v_lead is not None and gap is not None:
@@ -166,7 +174,15 @@ def _idm_next_speed(m, v, v_lead, gap, step_s):
     return _finalize(m, v, v_safe, step_s, min_decel)[1]
 
 
-def _krauss_next_speed(m, v, v_lead, gap, step_s, dawdle, lead_decel):
+def _krauss_next_speed(
+    m: DriverModel,
+    v: float,
+    v_lead: float | None,
+    gap: float | None,
+    step_s: float,
+    dawdle: float,
+    lead_decel: float | None,
+) -> float:
     v_safe = math.inf
     if v_lead is not None and gap is not None:
         v_safe = krauss_follow_speed(m, v, v_lead, gap, step_s, lead_decel)
@@ -233,19 +249,21 @@ def peak_braking(
     if not math.isfinite(gap_m):
         return braking_needed(m, v_mps, None, None, step_s)
     v, gap = max(0.0, v_mps), gap_m
-    # The entry step is evaluated with SUMO's step; the rest of the reaction advances by at
-    # least 0.1 s per step (the driver's rate of braking held over it) to bound the cost.
+    # The entry step is SUMO's; the rest of the reaction is simulated in steps of at least
+    # 0.1 s to bound the cost, the model evaluated over the same coarser step (holding a
+    # short step's Krauss deceleration for longer would overshoot its safe speed).
     sim_dt = max(step_s, 0.1)
     peak = previous = 0.0
     for k in range(max(2, round(horizon_s / sim_dt))):
-        acc = model_accel(m, v, v_lead_mps, gap, step_s)
+        acc = model_accel(m, v, v_lead_mps, gap, step_s if k == 0 else sim_dt)
         braking = max(0.0, -acc)
         peak = max(peak, braking)
         if k > 0 and v <= v_lead_mps + _CLOSED_MPS and braking <= previous:
             break  # closing in no more and easing off: the strongest braking is behind
         previous = braking
-        v = max(0.0, v + acc * sim_dt)
-        gap += (v_lead_mps - v) * sim_dt
+        dt = step_s if k == 0 else sim_dt
+        v = max(0.0, v + acc * dt)
+        gap += (v_lead_mps - v) * dt
     return peak
 
 
@@ -265,7 +283,7 @@ def min_entry_gap(
     above its desired speed and slows harder than that on a free road).
 
     The braking falls as the gap grows, so the gap is found by bisection to ``tol_m``; the
-    returned gap is the safe end of the last bracket.
+    returned gap is the safe end of the last bracket, and never below the driver's minGap.
     """
     if b_safe_mps2 < 0.0:
         return math.inf
@@ -278,7 +296,10 @@ def min_entry_gap(
 
     # The peak is at least the braking at entry, and most often equal to it: search with the
     # cheap instantaneous braking first, then go on with the peak only where it is larger.
-    gap = _smallest_ok(instant_ok, 0.0, tol_m, max_gap_m, max(4.0 * m.min_gap_m, 1.0))
+    # Never inside the driver's minGap: there SUMO's models stop being car following (Krauss
+    # brakes only at decel behind a faster leader, at emergencyDecel behind a slower one).
+    lo = max(0.0, m.min_gap_m)
+    gap = _smallest_ok(instant_ok, lo, tol_m, max_gap_m, max(3.0 * lo, 1.0))
     if math.isinf(gap) or peak_ok(gap):
         return gap
     return _smallest_ok(peak_ok, gap, tol_m, max_gap_m, 0.02 * gap + 0.1)
@@ -315,30 +336,143 @@ def accepts_entry(
     step_s: float = 0.1,
 ) -> bool:
     """Whether a vehicle entering ahead at bumper gap ``gap_m`` and speed ``v_lead_mps`` makes
-    this driver brake no harder than ``b_safe_mps2`` over its reaction (:func:`peak_braking`)."""
-    return peak_braking(m, v_mps, v_lead_mps, gap_m, step_s) <= b_safe_mps2
+    this driver brake no harder than ``b_safe_mps2`` over its reaction (:func:`peak_braking`),
+    outside its minGap (as :func:`min_entry_gap`)."""
+    return gap_m >= m.min_gap_m and peak_braking(m, v_mps, v_lead_mps, gap_m, step_s) <= b_safe_mps2
+
+
+# ---------------------------------------------------------------------- many drivers at once
+class DriverArrays:
+    """The parameters of many drivers as arrays, for :func:`model_accel_array` (one row per
+    driver, in the order of ``models``)."""
+
+    def __init__(self, models: Sequence[DriverModel]) -> None:
+        def col(name: str) -> np.ndarray:
+            return np.array([getattr(m, name) for m in models], dtype=float)
+
+        names = [m.model for m in models]
+        self.idm = np.array([n not in KRAUSS_MODELS for n in names])  # unknown: both
+        self.krauss = np.array([n not in IDM_MODELS for n in names])
+        self.a = col("accel_mps2")
+        self.b = col("decel_mps2")
+        self.emergency = col("emergency_decel_mps2")
+        self.tau = col("tau_s")
+        self.s0 = col("min_gap_m")
+        self.delta = col("delta")
+        self.v0 = col("desired_speed_mps")
+        self.sigma = np.maximum(col("sigma"), 0.0)
+        self.stepping = col("idm_stepping_s")
+        self.two_sqrt_ab = 2.0 * np.sqrt(self.a * self.b)
+        self.idm_min_decel = np.maximum(self.b, np.minimum(self.emergency, 1.5))
+        self.any_idm = bool(self.idm.any())
+        self.any_krauss = bool(self.krauss.any())
+
+
+def _idm_follow_array(d: DriverArrays, v, v_lead, gap, step_s: float):
+    iterations = np.maximum(1, (step_s / d.stepping + 0.5).astype(int))
+    v0 = np.maximum(_EPS, d.v0)
+    if iterations.max() == 1:  # steps up to 0.375 s: one iteration, no masks (speed)
+        s_star = np.maximum(0.0, v * d.tau + v * (v - v_lead) / d.two_sqrt_ab) + d.s0
+        gap = np.maximum(_EPS, gap)
+        acc = d.a * (1.0 - (v / v0) ** d.delta - (s_star * s_star) / (gap * gap))
+        return np.maximum(0.0, v + acc * step_s)
+    h = step_s / iterations
+    speed = v.copy()
+    gap = gap.copy()
+    for i in range(int(iterations.max())):
+        active = i < iterations
+        s_star = np.maximum(0.0, speed * d.tau + speed * (speed - v_lead) / d.two_sqrt_ab) + d.s0
+        gap = np.maximum(_EPS, gap)
+        acc = d.a * (1.0 - (speed / v0) ** d.delta - (s_star * s_star) / (gap * gap))
+        new = np.maximum(0.0, speed + acc * h)
+        speed = np.where(active, new, speed)
+        gap = gap - np.where(active, np.maximum(0.0, (speed - v_lead) * h), 0.0)
+    return speed
+
+
+def _krauss_follow_array(d: DriverArrays, v, v_lead, gap, step_s: float):
+    b = d.b
+    g = gap - d.s0
+    reduction = b * step_s
+    steps = np.floor(v_lead / reduction)
+    lead_brake = step_s * (steps * v_lead - reduction * steps * (steps + 1) / 2.0)
+    g2 = g + lead_brake - _EPS
+    bs = b * step_s
+    t = d.tau
+    g2_pos = np.maximum(g2, 0.0)  # (g2 < 0: stop at once, below)
+    root = np.sqrt(step_s * step_s + 4.0 * (step_s * (2.0 * g2_pos / bs - t) + t * t))
+    n = np.floor(0.5 - (t - root / 2.0) / step_s)
+    h = 0.5 * n * (n - 1) * bs * step_s + n * bs * t
+    safe = np.where(g2 < 0.0, 0.0, n * bs + (g2 - h) / (n * step_s + t))
+    x = np.where(g >= 0.0, safe, np.maximum(0.0, v - d.emergency * step_s))
+    orig_decel = (v - x) / step_s
+    emergency = (b != d.emergency) & (orig_decel > b + _EPS)
+    if emergency.any():
+        lead_brake_m = 0.5 * v_lead * v_lead / b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            b1 = 0.5 * v * v / (g + lead_brake_m)
+            b2 = 0.5 * (v * v - v_lead * v_lead) / g
+        need = np.where(
+            (g + lead_brake_m > 0.0) & (b1 <= b), b1, np.where(g <= 0.0, d.emergency, b2)
+        )
+        need = np.minimum(np.maximum(_EMERGENCY_AMPLIFIER * need, b), orig_decel)
+        x = np.where(emergency, np.maximum(0.0, v - need * step_s), x)
+    return np.minimum(x, v + d.a * step_s)
+
+
+def model_accel_array(
+    d: DriverArrays,
+    v_mps: np.ndarray,
+    v_lead_mps: np.ndarray,
+    gap_m: np.ndarray,
+    step_s: float,
+    dawdle: float = 1.0,
+) -> np.ndarray:
+    """:func:`model_accel` of many drivers at once [m/s^2], to ~1e-9 m/s^2. A driver without
+    leader has ``gap_m = inf`` (its ``v_lead_mps`` is then ignored)."""
+    v = np.maximum(0.0, v_mps)
+    free = ~np.isfinite(gap_m)
+    v_min_emergency = np.maximum(0.0, v - d.emergency * step_s)
+    v_top = np.minimum(v + d.a * step_s, np.maximum(d.v0, 0.0))
+    v_next = np.full_like(v, np.inf)
+    if d.any_idm:
+        # SUMO takes the lower of the free-road and the following speed; with a leader closer
+        # than its free-road gap (1e6 m) the following speed is the lower (to ~1e-12 m/s).
+        idm_safe = _idm_follow_array(
+            d, v, np.where(free, d.v0, v_lead_mps), np.where(free, _FREE_GAP_M, gap_m), step_s
+        )
+        # SUMO's finalizeSpeed, with IDM's minNextSpeed (at least 1.5 m/s^2)
+        idm_vmin = np.minimum(
+            np.maximum(0.0, v - d.idm_min_decel * step_s), np.maximum(idm_safe, v_min_emergency)
+        )
+        idm_next = np.maximum(idm_vmin, np.minimum(v_top, idm_safe))
+        v_next = np.where(d.idm, idm_next, v_next)
+    if d.any_krauss:
+        krauss_safe = np.where(
+            free, np.inf, _krauss_follow_array(d, v, v_lead_mps, np.where(free, 0.0, gap_m), step_s)
+        )
+        kr_vmin = np.minimum(
+            np.maximum(0.0, v - d.b * step_s), np.maximum(krauss_safe, v_min_emergency)
+        )
+        kr_vmax = np.maximum(kr_vmin, np.minimum(v_top, krauss_safe))
+        slow = d.sigma * dawdle * np.minimum(d.a, kr_vmax) * step_s
+        kr_next = np.maximum(kr_vmin, np.maximum(0.0, kr_vmax - slow))
+        v_next = np.where(d.krauss, np.minimum(v_next, kr_next), v_next)
+    return (v_next - v) / step_s
 
 
 # ---------------------------------------------------------------------- prediction
-@dataclass(slots=True)
-class _Track:
-    """One simulated vehicle: its positions [m] and speeds [m/s] at the predictor's times."""
-
-    state: VehicleState
-    lane: int
-    s_m: list[float]
-    v_mps: list[float]
-
-
 class CarFollowingPredictor:
     """Predicts HVs with their own car-following model over a horizon, lane by lane, with their
     leaders.
 
-    ``states``: every vehicle seen (HVs and CAVs). An HV (id in ``models``) follows the vehicle
-    ahead in its lane by :func:`model_accel` (mean dawdling); CAVs and vehicles without a model
-    keep their speed, unless ``leaders_override`` gives their front position ``s(t)`` [m] as a
-    function of absolute time [s] (e.g. a CAV's planned positions). No lane changes are
-    predicted. The simulation steps ``dt_s``; the car-following formulas use the same step.
+    ``states``: every vehicle seen (HVs and CAVs); a vehicle's lane is the band its centre is
+    in (``road.lane_of_y``). An HV (id in ``models``) follows the vehicle ahead in its lane by
+    :func:`model_accel` (mean dawdling); CAVs and vehicles without a model keep their speed,
+    unless ``leaders_override`` gives their front position ``s(t)`` [m] as a function of
+    absolute time [s] (e.g. a CAV's planned positions). No lane changes are predicted. All
+    vehicles advance together in steps of ``dt_s`` (SUMO's update: new speed, then position);
+    the car-following formulas use the same step.
     """
 
     def __init__(
@@ -357,91 +491,91 @@ class CarFollowingPredictor:
         self.dt_s = dt_s
         n_steps = max(1, math.ceil(horizon_s / dt_s - 1e-9))
         self.times_s = [now_s + k * dt_s for k in range(n_steps + 1)]
-        override = leaders_override or {}
-        tracks = {
-            st.vehicle_id: _Track(st, road.lane_of_y(road.y_of(st.lane, st.lat_m)), [st.s_m],
-                                  [max(0.0, st.speed_mps)])
-            for st in states
-        }  # fmt: skip
-        lanes: dict[int, list[_Track]] = {}
-        for tr in tracks.values():
-            lanes.setdefault(tr.lane, []).append(tr)
+        self._states = {st.vehicle_id: st for st in states}
+        ids = list(self._states)
+        self._column = {vid: j for j, vid in enumerate(ids)}
+        lane = np.array([road.lane_of_y(road.y_of(st.lane, st.lat_m)) for st in states], int)
+        length = np.array([st.length_m for st in states], dtype=float)
+        s = np.array([st.s_m for st in states], dtype=float)
+        v = np.array([max(0.0, st.speed_mps) for st in states], dtype=float)
+        overrides = [(self._column[vid], f) for vid, f in (leaders_override or {}).items()
+                     if vid in self._column]  # fmt: skip
+        driven = np.array(
+            [vid in models and vid not in (leaders_override or {}) for vid in ids], dtype=bool
+        )
+        drivers = DriverArrays([models[vid] for vid, on in zip(ids, driven, strict=True) if on])
+        self._s = np.empty((n_steps + 1, len(ids)))
+        self._v = np.empty((n_steps + 1, len(ids)))
+        self._s[0], self._v[0] = s, v
         for k in range(1, n_steps + 1):
-            t = self.times_s[k]
-            for lane_tracks in lanes.values():
-                self._step_lane(lane_tracks, models, override, t, k)
-        self._tracks = {vid: tr for vid, tr in tracks.items() if vid in models}
+            s, v = self._step(s, v, lane, length, driven, drivers, overrides, self.times_s[k])
+            self._s[k], self._v[k] = s, v
+        self._simulated = [vid for vid, on in zip(ids, driven, strict=True) if on]
+        self._simulated_set = frozenset(self._simulated)
 
-    def _step_lane(self, lane_tracks, models, override, t_s: float, k: int) -> None:
-        """Advance one lane from step k - 1 to step k (time ``t_s``)."""
+    def _step(self, s, v, lane, length, driven, drivers, overrides, t_s: float):
+        """Positions and speeds one step later (time ``t_s``)."""
         dt = self.dt_s
-        # Order by position at step k - 1; the leaders' speeds are those of step k - 1 too.
-        lane_tracks.sort(key=lambda tr: tr.s_m[k - 1])
-        for i, tr in enumerate(lane_tracks):
-            vid = tr.state.vehicle_id
-            s, v = tr.s_m[k - 1], tr.v_mps[k - 1]
-            if vid in override:
-                s_next = override[vid](t_s)
-                tr.s_m.append(s_next)
-                tr.v_mps.append(max(0.0, (s_next - s) / dt))
-                continue
-            m = models.get(vid)
-            if m is None:
-                tr.s_m.append(s + v * dt)
-                tr.v_mps.append(v)
-                continue
-            if i + 1 < len(lane_tracks):
-                lead = lane_tracks[i + 1]
-                gap = lead.s_m[k - 1] - lead.state.length_m - s
-                v_lead = lead.v_mps[k - 1]
-                acc = model_accel(m, v, v_lead, gap, dt, dawdle=0.5)
-            else:
-                acc = model_accel(m, v, None, None, dt, dawdle=0.5)
-            v_next = max(0.0, v + acc * dt)
-            tr.v_mps.append(v_next)
-            tr.s_m.append(s + v_next * dt)  # SUMO's Euler update: the new speed moves it
+        v_next = v.copy()
+        if driven.any():
+            # Leader: the next vehicle ahead in the same lane, at the start of the step.
+            order = np.lexsort((s, lane))
+            leader = np.full(len(s), -1)
+            same_lane = lane[order[1:]] == lane[order[:-1]]
+            leader[order[:-1][same_lane]] = order[1:][same_lane]
+            lead = leader[driven]
+            has_lead = lead >= 0
+            safe_lead = np.where(has_lead, lead, 0)
+            gap = np.where(has_lead, s[safe_lead] - length[safe_lead] - s[driven], np.inf)
+            acc = model_accel_array(drivers, v[driven], v[safe_lead], gap, dt, dawdle=0.5)
+            v_next[driven] = np.maximum(0.0, v[driven] + acc * dt)
+        s_next = s + v_next * dt
+        for j, position in overrides:
+            s_next[j] = position(t_s)
+            v_next[j] = max(0.0, (s_next[j] - s[j]) / dt)
+        return s_next, v_next
 
     @property
     def simulated_ids(self) -> list[str]:
         """Ids of the HVs predicted by their car-following model."""
-        return list(self._tracks)
+        return list(self._simulated)
 
-    def _s_at(self, tr: _Track, t_s: float) -> float:
+    def _s_at(self, j: int, t_s: float) -> float:
         times = self.times_s
         if t_s <= times[0]:
-            return tr.s_m[0] + tr.v_mps[0] * (t_s - times[0])
+            return float(self._s[0, j] + self._v[0, j] * (t_s - times[0]))
         if t_s >= times[-1]:
-            return tr.s_m[-1] + tr.v_mps[-1] * (t_s - times[-1])
+            return float(self._s[-1, j] + self._v[-1, j] * (t_s - times[-1]))
         k = bisect.bisect_right(times, t_s) - 1
         w = (t_s - times[k]) / (times[k + 1] - times[k])
-        return tr.s_m[k] + w * (tr.s_m[k + 1] - tr.s_m[k])
+        return float(self._s[k, j] + w * (self._s[k + 1, j] - self._s[k, j]))
 
-    def _v_at(self, tr: _Track, t_s: float) -> float:
+    def _v_at(self, j: int, t_s: float) -> float:
         times = self.times_s
         if t_s <= times[0]:
-            return tr.v_mps[0]
+            return float(self._v[0, j])
         if t_s >= times[-1]:
-            return tr.v_mps[-1]
-        k = bisect.bisect_right(times, t_s) - 1
+            return float(self._v[-1, j])
         # The speed of step k + 1 is the one driven between times k and k + 1 (Euler).
-        return tr.v_mps[k + 1]
+        k = bisect.bisect_left(times, t_s) - 1
+        return float(self._v[k + 1, j])
 
     def predict(self, hv: VehicleState, now_s: float, t_s: float) -> VehicleState:
         """State of ``hv`` at ``t_s``: the simulated displacement from ``now_s`` to ``t_s``
         added to ``hv``'s position (lane kept). An id not simulated: constant speed."""
-        tr = self._tracks.get(hv.vehicle_id)
-        if tr is None:
+        j = self._column.get(hv.vehicle_id)
+        if j is None or hv.vehicle_id not in self._simulated_set:
             return dataclasses.replace(hv, s_m=hv.s_m + hv.speed_mps * (t_s - now_s))
-        ds = self._s_at(tr, t_s) - self._s_at(tr, now_s)
-        v = self._v_at(tr, t_s)
-        acc = (v - self._v_at(tr, t_s - self.dt_s)) / self.dt_s
+        ds = self._s_at(j, t_s) - self._s_at(j, now_s)
+        v = self._v_at(j, t_s)
+        acc = (v - self._v_at(j, t_s - self.dt_s)) / self.dt_s
         return dataclasses.replace(hv, s_m=hv.s_m + ds, speed_mps=v, accel_mps2=acc)
 
     def error_against(self, actual: Mapping[str, VehicleState], t_s: float) -> dict[str, float]:
         """Position error [m] of each simulated HV at ``t_s``: predicted minus ``actual``."""
         return {
-            vid: self._s_at(tr, t_s) - actual[vid].s_m
-            for vid, tr in self._tracks.items()
+            vid: self._s_at(self._column[vid], t_s) - actual[vid].s_m
+            for vid in self._simulated
             if vid in actual
         }
 
