@@ -36,6 +36,7 @@ def _tool(name: str) -> ModuleType:
 
 mv = _tool("make_variants")
 vr = _tool("variants_report")
+sr = _tool("stress_report")
 
 # The ranges of issue 11 and the key of each in a case.
 RANGES = {
@@ -221,6 +222,20 @@ def test_lateral_holds_from_summary_else_events(tmp_path):
     lines = [{"event": "lateral_hold"}, {"event": "overtake_start"}, {"event": "lateral_hold"}]
     (tmp_path / "events.jsonl").write_text("\n".join(json.dumps(e) for e in lines) + "\n")
     assert vr.lateral_holds({}, tmp_path) == 2
+
+
+def test_stress_report_counts_lateral_holds_and_spreads(tmp_path):
+    run = tmp_path / "runs" / "r1"
+    run.mkdir(parents=True)
+    (run / "events.jsonl").write_text('{"event": "lateral_hold"}\n{"event": "lateral_hold"}\n')
+    from_events = pd.Series({"run_id": "r1", "overtake.lateral_holds": float("nan")})
+    assert sr.lateral_holds(tmp_path, from_events) == 2.0
+    from_summary = pd.Series({"run_id": "r1", "overtake.lateral_holds": 5})
+    assert sr.lateral_holds(tmp_path, from_summary) == 5.0
+    assert pd.isna(sr.lateral_holds(tmp_path, pd.Series({"run_id": "none"})))
+    values = pd.Series([0.0] * 19 + [100.0, float("nan")])
+    assert sr.spread(values) == "0 / 5 / 100"  # median, p95 (interpolated), max
+    assert sr.spread(pd.Series([float("nan")])) == "n/a"
 
 
 def test_report_exits_2_on_a_folder_that_is_not_a_batch(tmp_path, capsys):
