@@ -1,0 +1,286 @@
+"""Issue 11's acceptance: paper-scene variants under swarm and cacc, through real SUMO.
+
+A small seeded set drawn by tools/make_variants.py (its stratified draw puts every range's ends
+in any set of two or more scenes: side HVs wanting 24 m/s, a 12 m/s truck, 2 and 12 CAVs,
+12 m upstream gaps, HV lane changes on) runs as a batch, and tools/variants_report.py judges
+every scene against the "Done when" of issue 11, one test per check. The report's and the
+generator's pure parts are tested first, on hand-made cases with known answers.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pandas as pd
+import pytest
+
+from sumo_swarm.batch import load_sweep, run_batch
+
+ROOT = Path(__file__).resolve().parent.parent
+SEED = 11
+SCENES = 6
+
+
+def _tool(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+mv = _tool("make_variants")
+vr = _tool("variants_report")
+sr = _tool("stress_report")
+
+# The ranges of issue 11 and the key of each in a case.
+RANGES = {
+    "scene.hv.hv_left.desired_speed_mps": mv.SIDE_SPEED_MPS,
+    "scene.hv.hv_right.desired_speed_mps": mv.SIDE_SPEED_MPS,
+    "scene.hv.hv_target.speed_mps": mv.TRUCK_SPEED_MPS,
+    "scene.hv.hv_target.length_m": mv.TRUCK_LENGTH_M,
+    "scene.upstream_gap_m": mv.UPSTREAM_GAP_M,
+    "scene.upstream_per_lane": mv.UPSTREAM_PER_LANE,
+    "cav.count": mv.CAV_COUNT,
+}
+
+
+# --------------------------------------------------------------------------- the generator
+
+
+@pytest.mark.parametrize("count", [2, SCENES, 40])
+def test_draw_covers_every_range_ends_included(count):
+    cases = pd.DataFrame(mv.draw(SEED, count))
+    for key, (lo, hi) in RANGES.items():
+        assert cases[key].min() == lo and cases[key].max() == hi, key
+    # The fastest left HV's scene has the fastest right HV too: both side lanes at 24 m/s.
+    fastest = cases.loc[cases["scene.hv.hv_left.desired_speed_mps"].idxmax()]
+    assert fastest["scene.hv.hv_right.desired_speed_mps"] == mv.SIDE_SPEED_MPS[1]
+    assert cases["hv.lane_changes"].sum() == count // 2
+    assert mv.draw(SEED, count) == mv.draw(SEED, count)
+
+
+def test_draw_is_stratified_and_scenes_fit_on_the_road():
+    cases = pd.DataFrame(mv.draw(SEED, 40))
+    # One truck speed in each of 40 strata of 12-17 m/s (0.125 m/s each).
+    strata = ((cases["scene.hv.hv_target.speed_mps"] - 12.0) / 0.125).clip(upper=39.99)
+    assert sorted(strata.astype(int)) == list(range(40))
+    counts = cases["cav.count"].value_counts()
+    assert set(counts.index) == set(range(2, 13)) and counts.max() - counts.min() <= 1
+    for _, c in cases.iterrows():
+        platoon_rear = c["scene.leader_front_m"] - 15.0 * (c["cav.count"] - 1) - 5.0
+        upstream = c["scene.upstream_per_lane"] * (c["scene.upstream_gap_m"] + 5.0)
+        assert platoon_rear - upstream >= 0.0  # every upstream HV of the platoon's lane fits
+        assert c["scene.hv.hv_right.front_m"] - 5.0 - upstream >= 0.0
+        assert c["scene.hv.hv_target.front_m"] == pytest.approx(
+            c["scene.leader_front_m"] + 10.0 + c["scene.hv.hv_target.length_m"]
+        )
+
+
+def test_rendered_sweep_loads(tmp_path):
+    path = tmp_path / "v.toml"
+    path.write_text(mv.render(mv.draw(SEED, 3), SEED, base=str(ROOT / "scenarios/paper.toml")))
+    sweep = load_sweep(path)
+    assert len(sweep.runs) == 6 and set(sweep.controllers) == {"swarm", "cacc"}
+    scenario = next(r for r in sweep.runs if r.controller == "swarm").scenario()
+    assert scenario.simulation.duration_s == mv.DURATION_S
+
+
+# --------------------------------------------------------------------------- the judge
+
+
+def _record(summary: dict | None, status: str = "ok") -> dict:
+    return {"status": status, "summary": summary}
+
+
+def _summary(**changes: object) -> dict:
+    """A summary that passes every check; ``changes`` replace dotted fields (None deletes)."""
+    s = {
+        "cav": {"gap_min_m": 6.0, "max_speed_mps": 24.0, "mean_speed_mps": 19.0},
+        "overtake": {
+            "triggered": True, "completed": True, "regrouped": True, "aborted": 0,
+            "lateral_holds": 0, "blocked_hv_min_accel_mps2": -1.5,
+        },
+        "safety": {"collisions": 0},
+        "planner": {"solves": 4, "solve_ms_p95": 40.0, "solve_ms_max": 90.0},
+        "timing": {"wall_s": 5.0},
+    }  # fmt: skip
+    for dotted, value in changes.items():
+        section, key = dotted.split("__")
+        if value is None:
+            del s[section][key]
+        else:
+            s[section][key] = value
+    return s
+
+
+CACC = _record({"cav": {"mean_speed_mps": 17.0}, "timing": {"wall_s": 2.0}})
+
+
+def _judge(summary: dict, platoon=None, cacc=CACC, status="ok") -> dict:
+    return vr.judge_scene(_record(summary, status), cacc, 25.0, 2.0, platoon)
+
+
+def test_a_good_scene_passes_every_check():
+    verdicts = _judge(_summary())
+    assert {k: verdicts[k] for k in vr.CHECKS} == dict.fromkeys(vr.CHECKS, vr.PASS)
+    assert verdicts["all"] == vr.PASS and verdicts["cost_ratio"] == 2.5
+
+
+@pytest.mark.parametrize(
+    ("change", "check"),
+    [
+        ({"cav__gap_min_m": 4.97}, "min_gap"),
+        ({"cav__max_speed_mps": 25.11}, "max_speed"),
+        ({"overtake__blocked_hv_min_accel_mps2": -2.01}, "blocked_hv_brake"),
+        ({"cav__mean_speed_mps": 17.0}, "mean_speed"),  # equal is not above
+        ({"timing__wall_s": 6.01}, "run_cost"),
+        ({"planner__solve_ms_p95": 50.5}, "planner_p95"),
+        ({"planner__solve_ms_max": 251.0}, "planner_max"),
+        ({"safety__collisions": 1}, "no_collision"),
+        ({"overtake__regrouped": False}, "overtake"),
+    ],
+)
+def test_each_check_fails_on_its_own(change, check):
+    verdicts = _judge(_summary(**change))
+    assert verdicts[check] == vr.FAIL
+    assert [k for k in vr.CHECKS if verdicts[k] != vr.PASS] == [check]
+
+
+def test_bounds_themselves_pass():
+    at_bounds = {
+        "cav__gap_min_m": 5.0, "cav__max_speed_mps": 25.1, "timing__wall_s": 6.0,
+        "overtake__blocked_hv_min_accel_mps2": -2.0, "planner__solve_ms_p95": 50.0,
+        "planner__solve_ms_max": 250.0,
+    }  # fmt: skip
+    verdicts = _judge(_summary(**at_bounds))
+    assert verdicts["all"] == vr.PASS
+
+
+@pytest.mark.parametrize(
+    ("change", "check"),
+    [
+        ({"overtake__blocked_hv_min_accel_mps2": None}, "blocked_hv_brake"),
+        ({"timing__wall_s": None}, "run_cost"),
+        ({"planner__solve_ms_p95": None}, "planner_p95"),
+        ({"overtake__completed": None, "overtake__aborted": None}, "overtake"),
+    ],
+)
+def test_a_missing_field_is_not_a_pass(change, check):
+    verdicts = _judge(_summary(**change))
+    assert verdicts[check] == vr.NA and verdicts["all"] == vr.FAIL
+
+
+def test_null_means_none_happened():
+    # No plan made (null times, 0 solves) and no HV blocked (a null, not a missing key):
+    # nothing to exceed.
+    s = _summary(planner__solves=0)
+    s["planner"]["solve_ms_p95"] = s["planner"]["solve_ms_max"] = None
+    verdicts = _judge(s)
+    assert verdicts["planner_p95"] == verdicts["planner_max"] == vr.PASS
+    s["overtake"]["blocked_hv_min_accel_mps2"] = None
+    assert _judge(s)["blocked_hv_brake"] == vr.PASS
+
+
+@pytest.mark.parametrize(
+    ("platoon", "verdict"),
+    [((1, 7.0), vr.PASS), ((1, None), vr.PASS), ((2, 7.0), vr.FAIL), ((1, 4.9), vr.FAIL)],
+)
+def test_give_up_is_clean_only_with_the_platoon_intact(platoon, verdict):
+    gave_up = _summary(overtake__completed=False, overtake__regrouped=False, overtake__aborted=1)
+    assert _judge(gave_up, platoon)["overtake"] == verdict
+    # Not completed and no give-up: a failure, whatever the platoon looks like.
+    stuck = _summary(overtake__completed=False, overtake__regrouped=False)
+    assert _judge(stuck, (1, 7.0))["overtake"] == vr.FAIL
+    assert _judge(stuck, (1, 7.0), status="failed")["ran"] == vr.FAIL
+    assert _judge(_summary(), cacc=None)["ran"] == vr.NA  # its cacc run has not finished
+
+
+def test_platoon_at_end_reads_the_last_step():
+    rows = [
+        # time, kind, lane, front s, length
+        (1.0, "cav", 2, 50.0, 5.0),  # an earlier step is ignored
+        (2.0, "cav", 1, 100.0, 5.0),
+        (2.0, "cav", 1, 88.0, 5.0),  # 7 m behind the first
+        (2.0, "hv", 1, 120.0, 12.0),
+        (2.0, "cav", 1, 76.5, 5.0),  # 6.5 m behind the second
+    ]
+    df = pd.DataFrame(rows, columns=["time_s", "kind", "lane", "s_m", "length_m"])
+    assert vr.platoon_at_end(df) == (1, 6.5)
+    df.loc[4, "lane"] = 0
+    assert vr.platoon_at_end(df) == (2, 7.0)
+
+
+def test_lateral_holds_from_summary_else_events(tmp_path):
+    assert vr.lateral_holds({"overtake": {"lateral_holds": 3}}, tmp_path) == 3
+    assert vr.lateral_holds({}, tmp_path) is None
+    lines = [{"event": "lateral_hold"}, {"event": "overtake_start"}, {"event": "lateral_hold"}]
+    (tmp_path / "events.jsonl").write_text("\n".join(json.dumps(e) for e in lines) + "\n")
+    assert vr.lateral_holds({}, tmp_path) == 2
+
+
+def test_stress_report_counts_lateral_holds_and_spreads(tmp_path):
+    run = tmp_path / "runs" / "r1"
+    run.mkdir(parents=True)
+    (run / "events.jsonl").write_text('{"event": "lateral_hold"}\n{"event": "lateral_hold"}\n')
+    from_events = pd.Series({"run_id": "r1", "overtake.lateral_holds": float("nan")})
+    assert sr.lateral_holds(tmp_path, from_events) == 2.0
+    from_summary = pd.Series({"run_id": "r1", "overtake.lateral_holds": 5})
+    assert sr.lateral_holds(tmp_path, from_summary) == 5.0
+    assert pd.isna(sr.lateral_holds(tmp_path, pd.Series({"run_id": "none"})))
+    values = pd.Series([0.0] * 19 + [100.0, float("nan")])
+    assert sr.spread(values) == "0 / 5 / 100"  # median, p95 (interpolated), max
+    assert sr.spread(pd.Series([float("nan")])) == "n/a"
+
+
+def test_report_exits_2_on_a_folder_that_is_not_a_batch(tmp_path, capsys):
+    assert vr.main([str(tmp_path), "--to", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "sweep.json" in err
+
+
+# --------------------------------------------------------------------------- real runs
+
+
+@pytest.fixture(scope="module")
+def variant_table(tmp_path_factory) -> pd.DataFrame:
+    """The seeded scenes, each under swarm and cacc, judged by tools/variants_report.py."""
+    folder = tmp_path_factory.mktemp("variants")
+    sweep = folder / "variants.toml"
+    cases = mv.draw(SEED, SCENES)
+    sweep.write_text(mv.render(cases, SEED, base=str(ROOT / "scenarios" / "paper.toml")))
+    report = run_batch(sweep, folder / "out", workers=2, progress=False, impact=False)
+    assert report.failed == 0
+    table = vr.scene_table(folder / "out")
+    assert len(table) == SCENES
+    print("\n" + vr.render(table, folder / "out"))  # shown with -s: the whole verdict
+    return table
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("check", vr.CHECKS)
+def test_every_variant_passes(variant_table, check):
+    table = variant_table
+    failing = table[table[check] != vr.PASS]
+    shown = ["scene", *vr.SCENE_COLUMNS.values(), check, *_NUMBERS.get(check, ())]
+    assert failing.empty, f"{check}: {len(failing)}/{len(table)} scenes do not pass\n" + failing[
+        shown
+    ].to_string(index=False)
+
+
+_NUMBERS = {
+    "overtake": ("overtake_how",),
+    "no_collision": ("collisions",),
+    "min_gap": ("gap_min_m",),
+    "max_speed": ("cav_max_speed_mps", "max_speed_limit_mps"),
+    "blocked_hv_brake": ("blocked_hv_min_accel_mps2", "b_safe_mps2"),
+    "mean_speed": ("mean_speed_mps", "mean_speed_cacc_mps"),
+    "run_cost": ("wall_s", "wall_cacc_s", "cost_ratio"),
+    "planner_p95": ("solve_ms_p95", "replans", "lateral_holds"),
+    "planner_max": ("solve_ms_max", "replans"),
+}

@@ -1,0 +1,425 @@
+"""Judge a finished variant sweep (tools/make_variants.py) against issue 11's "Done when".
+
+For every scene, its ``swarm`` run against its ``cacc`` run:
+
+- ``ran``: both runs finished;
+- ``overtake``: completed and regrouped, or a clean give-up (``overtake.aborted`` > 0 with the
+  platoon intact at the end: every CAV in one lane, CAV-to-CAV gaps >= 5 m);
+- ``no_collision``: 0 collisions (swarm);
+- ``min_gap``: min CAV gap (``cav.gap_min_m``) >= 5 m;
+- ``max_speed``: no CAV above the scenario's ``cav.max_speed_mps`` (+0.1 m/s);
+- ``blocked_hv_brake``: ``overtake.blocked_hv_min_accel_mps2`` >= -b_safe (the scenario's
+  ``[hvmodel] b_safe_mps2``, 2.0 m/s^2 where the key does not exist); null = no HV blocked;
+- ``mean_speed``: the swarm's mean CAV speed above cacc's;
+- ``run_cost``: the swarm run's wall time <= 3x the cacc run's (``timing.wall_s``);
+- ``planner_p95``, ``planner_max``: planner solve time p95 <= 50 ms, max <= 250 ms (no solve at
+  all passes).
+
+A verdict is ``pass``, ``FAIL`` or ``n/a`` (a summary field the check needs is missing: not a
+pass). ``lateral_holds`` is reported per run (``overtake.lateral_holds``, else the number of
+``lateral_hold`` events in the run's events.jsonl) and over the sweep (median, p95, max).
+
+Writes docs/bench/variants.md and docs/bench/variants.csv (``--to`` another folder); exit
+status 0 when every check of every scene passes, 1 otherwise, 2 on bad input.
+
+Usage: python tools/variants_report.py DIR [--to FOLDER]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parent.parent
+PASS, FAIL, NA = "pass", "FAIL", "n/a"
+CHECKS = (
+    "ran",
+    "overtake",
+    "no_collision",
+    "min_gap",
+    "max_speed",
+    "blocked_hv_brake",
+    "mean_speed",
+    "run_cost",
+    "planner_p95",
+    "planner_max",
+)
+MIN_GAP_M = 5.0  # paper IV-C: minimum safety distance between CAVs
+SPEED_TOLERANCE_MPS = 0.1
+B_SAFE_DEFAULT_MPS2 = 2.0
+COST_RATIO_MAX = 3.0
+PLANNER_P95_MAX_MS = 50.0
+PLANNER_MAX_MS = 250.0
+MISSING = object()  # a summary field that is absent (null is a value: "none")
+# Scene columns of the tables: the swept parameters a reader needs, with short names.
+SCENE_COLUMNS = {
+    "cav.count": "cavs",
+    "scene.hv.hv_target.speed_mps": "truck_mps",
+    "scene.hv.hv_target.length_m": "truck_m",
+    "scene.hv.hv_left.desired_speed_mps": "left_mps",
+    "scene.hv.hv_right.desired_speed_mps": "right_mps",
+    "scene.upstream_gap_m": "up_gap_m",
+    "scene.upstream_per_lane": "up_n",
+    "hv.lane_changes": "hv_lc",
+}
+
+
+class BadInputError(Exception):
+    """A batch folder that cannot be judged (message names the file)."""
+
+
+def field(summary: Mapping[str, Any] | None, dotted: str) -> Any:
+    """``summary["a"]["b"]`` for ``"a.b"``; MISSING when any part is absent."""
+    node: Any = summary
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return MISSING
+        node = node[part]
+    return node
+
+
+def _number(value: Any) -> float | None:
+    """A finite float, or None (missing, null or NaN)."""
+    if value is MISSING or value is None or isinstance(value, bool):
+        return None
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return None
+    return out if math.isfinite(out) else None
+
+
+def scenario_limits(record: Mapping[str, Any]) -> tuple[float, float]:
+    """(CAV max speed [m/s], b_safe [m/s^2]) of a run: its overrides, else its base file."""
+    overrides = record.get("overrides") or {}
+    base_path = Path(str(record.get("base", "")))
+    try:
+        base = tomllib.loads(base_path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise BadInputError(f"{base_path}: cannot read the run's base scenario ({exc})") from exc
+
+    def value(section: str, key: str, default: float | None) -> float | None:
+        for source in (overrides, base):
+            got = _number((source.get(section) or {}).get(key, MISSING))
+            if got is not None:
+                return got
+        return default
+
+    max_speed = value("cav", "max_speed_mps", None)
+    if max_speed is None:
+        raise BadInputError(f"{base_path}: no [cav] max_speed_mps")
+    return max_speed, value("hvmodel", "b_safe_mps2", B_SAFE_DEFAULT_MPS2)
+
+
+def lateral_holds(summary: Mapping[str, Any] | None, run_dir: Path | None) -> int | None:
+    """``overtake.lateral_holds``, else the count of ``lateral_hold`` events (None: neither)."""
+    got = _number(field(summary, "overtake.lateral_holds"))
+    if got is not None:
+        return int(got)
+    events = run_dir / "events.jsonl" if run_dir is not None else None
+    if events is None or not events.is_file():
+        return None
+    count = 0
+    for line in events.read_text(encoding="utf-8").splitlines():
+        if line.strip() and json.loads(line).get("event") == "lateral_hold":
+            count += 1
+    return count
+
+
+def platoon_at_end(trajectories: pd.DataFrame) -> tuple[int, float | None]:
+    """(number of lanes the CAVs occupy, min CAV-to-CAV bumper gap [m]) at the last step.
+
+    The gap is taken between CAVs that follow each other in one lane (front bumper ``s_m``
+    minus the leader's length minus the follower's front); None with fewer than two CAVs in a
+    lane.
+    """
+    last = trajectories[trajectories["time_s"] == trajectories["time_s"].max()]
+    cavs = last[last["kind"] == "cav"]
+    lanes = int(cavs["lane"].nunique())
+    gaps: list[float] = []
+    for _, lane in cavs.groupby("lane", observed=True):
+        lane = lane.sort_values("s_m", ascending=False)
+        s = lane["s_m"].to_numpy()
+        length = lane["length_m"].to_numpy()
+        gaps.extend(float(s[i] - length[i] - s[i + 1]) for i in range(len(s) - 1))
+    return lanes, (min(gaps) if gaps else None)
+
+
+def judge_overtake(
+    summary: Mapping[str, Any], platoon: tuple[int, float | None] | None
+) -> tuple[str, str]:
+    """Completed and regrouped, or a clean give-up. Returns (verdict, how)."""
+    completed = field(summary, "overtake.completed")
+    regrouped = field(summary, "overtake.regrouped")
+    if completed is True and regrouped is True:
+        return PASS, "regrouped"
+    aborted = _number(field(summary, "overtake.aborted"))
+    if aborted is not None and aborted > 0:
+        if platoon is None:
+            return NA, "gave up; no trajectories"
+        lanes, gap = platoon
+        intact = lanes == 1 and (gap is None or gap >= MIN_GAP_M)
+        how = f"gave up; platoon {'intact' if intact else 'broken'} ({lanes} lanes, gap {gap})"
+        return (PASS if intact else FAIL), how
+    if completed is MISSING or regrouped is MISSING:
+        return NA, "overtake fields missing"
+    if completed is True:
+        return FAIL, "passed, not regrouped"
+    if field(summary, "overtake.triggered") is False:
+        return FAIL, "never triggered"
+    return FAIL, "not completed, no give-up"
+
+
+def _at_least(value: Any, bound: float) -> str:
+    number = _number(value)
+    return NA if number is None else (PASS if number >= bound else FAIL)
+
+
+def _at_most(value: Any, bound: float) -> str:
+    number = _number(value)
+    return NA if number is None else (PASS if number <= bound else FAIL)
+
+
+def judge_scene(
+    swarm: Mapping[str, Any],
+    cacc: Mapping[str, Any] | None,
+    max_speed_mps: float,
+    b_safe_mps2: float,
+    platoon: tuple[int, float | None] | None = None,
+    holds: int | None = None,
+) -> dict[str, Any]:
+    """The verdicts (``CHECKS``) and the numbers behind them for one scene.
+
+    ``swarm`` and ``cacc`` are batch records (``status`` and ``summary``); ``platoon`` is
+    :func:`platoon_at_end` of the swarm run (needed for a give-up only).
+    """
+    s = swarm.get("summary") or {}
+    c = (cacc or {}).get("summary") or {}
+    out: dict[str, Any] = {}
+    statuses = (swarm.get("status"), (cacc or {}).get("status"))
+    # A cacc run that has not finished (yet) leaves the scene unjudged, not failed.
+    out["ran"] = PASS if statuses == ("ok", "ok") else (NA if statuses[1] is None else FAIL)
+    out["overtake"], out["overtake_how"] = judge_overtake(s, platoon)
+    collisions = _number(field(s, "safety.collisions"))
+    out["collisions"] = collisions
+    out["no_collision"] = NA if collisions is None else (PASS if collisions == 0 else FAIL)
+    out["gap_min_m"] = _number(field(s, "cav.gap_min_m"))
+    out["min_gap"] = _at_least(out["gap_min_m"], MIN_GAP_M)
+    out["cav_max_speed_mps"] = _number(field(s, "cav.max_speed_mps"))
+    out["max_speed_limit_mps"] = max_speed_mps
+    out["max_speed"] = _at_most(out["cav_max_speed_mps"], max_speed_mps + SPEED_TOLERANCE_MPS)
+    blocked = field(s, "overtake.blocked_hv_min_accel_mps2")
+    out["blocked_hv_min_accel_mps2"] = None if blocked is MISSING else _number(blocked)
+    out["b_safe_mps2"] = b_safe_mps2
+    if blocked is MISSING:
+        out["blocked_hv_brake"] = NA
+    elif blocked is None:
+        out["blocked_hv_brake"] = PASS  # no HV was blocked
+    else:
+        out["blocked_hv_brake"] = _at_least(blocked, -b_safe_mps2)
+    out["mean_speed_mps"] = _number(field(s, "cav.mean_speed_mps"))
+    out["mean_speed_cacc_mps"] = _number(field(c, "cav.mean_speed_mps"))
+    if out["mean_speed_mps"] is None or out["mean_speed_cacc_mps"] is None:
+        out["mean_speed"] = NA
+    else:
+        out["mean_speed"] = PASS if out["mean_speed_mps"] > out["mean_speed_cacc_mps"] else FAIL
+    wall, wall_cacc = _number(field(s, "timing.wall_s")), _number(field(c, "timing.wall_s"))
+    out["wall_s"], out["wall_cacc_s"] = wall, wall_cacc
+    out["cost_ratio"] = wall / wall_cacc if wall is not None and wall_cacc else None
+    out["run_cost"] = _at_most(out["cost_ratio"], COST_RATIO_MAX)
+    solves = _number(field(s, "planner.solves"))
+    out["planner_solves"] = solves
+    for check, key, bound in (
+        ("planner_p95", "planner.solve_ms_p95", PLANNER_P95_MAX_MS),
+        ("planner_max", "planner.solve_ms_max", PLANNER_MAX_MS),
+    ):
+        value = field(s, key)
+        out[key.split(".")[1]] = _number(value)
+        out[check] = PASS if solves == 0 else _at_most(value, bound)
+    out["replans"] = solves
+    out["lateral_holds"] = holds
+    out["all"] = PASS if all(out[k] == PASS for k in CHECKS) else FAIL
+    return out
+
+
+def _read_records(folder: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    sweep_file = folder / "sweep.json"
+    try:
+        sweep = json.loads(sweep_file.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise BadInputError(f"{sweep_file}: not a finished batch folder ({exc})") from exc
+    records = []
+    for run_id in sweep.get("runs", []):
+        path = folder / "runs" / run_id / "record.json"
+        if path.is_file():
+            records.append(json.loads(path.read_text(encoding="utf-8")))
+    if not records:
+        raise BadInputError(f"{folder / 'runs'}: no finished run")
+    return sweep, records
+
+
+def scene_table(folder: Path) -> pd.DataFrame:
+    """One row per scene of the batch in ``folder``: its parameters, numbers and verdicts."""
+    _, records = _read_records(folder)
+    scenes: dict[str, dict[str, Any]] = {}
+    for record in records:
+        key = json.dumps(record.get("params", {}), sort_keys=True)
+        scenes.setdefault(key, {})[record["controller"]] = record
+    rows = []
+    for i, runs in enumerate(scenes.values()):
+        swarm, cacc = runs.get("swarm"), runs.get("cacc")
+        if swarm is None:
+            continue  # the swarm run of this scene has not finished
+        run_dir = folder / "runs" / swarm["run_id"]
+        max_speed, b_safe = scenario_limits(swarm)
+        platoon = None
+        traj = run_dir / "trajectories.parquet"
+        if traj.is_file():
+            platoon = platoon_at_end(
+                pd.read_parquet(traj, columns=["time_s", "kind", "lane", "s_m", "length_m"])
+            )
+        summary = swarm.get("summary") or {}
+        row: dict[str, Any] = {"scene": i}
+        params = swarm.get("params", {})
+        row.update({short: params.get(key) for key, short in SCENE_COLUMNS.items()})
+        row.update(
+            judge_scene(swarm, cacc, max_speed, b_safe, platoon, lateral_holds(summary, run_dir))
+        )
+        cacc_dir = folder / "runs" / cacc["run_id"] if cacc else None
+        row["lateral_holds_cacc"] = (
+            lateral_holds((cacc or {}).get("summary"), cacc_dir) if cacc else None
+        )
+        row["run_id"] = swarm["run_id"]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def check_table(table: pd.DataFrame) -> pd.DataFrame:
+    """Per check: how many scenes pass, fail or cannot be judged (n/a)."""
+    rows = []
+    for check in (*CHECKS, "all"):
+        counts = table[check].value_counts()
+        n_pass, n_fail, n_na = (int(counts.get(v, 0)) for v in (PASS, FAIL, NA))
+        rows.append(
+            {
+                "check": check,
+                "pass": n_pass,
+                "fail": n_fail,
+                "n/a": n_na,
+                "pass_pct": round(100 * n_pass / max(len(table), 1), 1),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _quantiles(values: pd.Series) -> str:
+    values = pd.to_numeric(values, errors="coerce").dropna()
+    if values.empty:
+        return "n/a"
+    return (
+        f"{values.median():.3g} / {values.quantile(0.95):.3g} / {values.max():.3g} "
+        f"({len(values)} runs)"
+    )
+
+
+def sweep_figures(table: pd.DataFrame) -> pd.DataFrame:
+    """Figures over the sweep: lateral holds and planner times, median / p95 / max."""
+    rows = [
+        ("scenes judged", len(table)),
+        ("scenes passing every check", int((table["all"] == PASS).sum())),
+        ("lateral_hold per swarm run, median / p95 / max", _quantiles(table["lateral_holds"])),
+        ("planner solves per swarm run, median / p95 / max", _quantiles(table["replans"])),
+        ("planner p95 per run [ms], median / p95 / max", _quantiles(table["solve_ms_p95"])),
+        ("planner max per run [ms], median / p95 / max", _quantiles(table["solve_ms_max"])),
+        ("run cost swarm/cacc, median / p95 / max", _quantiles(table["cost_ratio"])),
+        ("min CAV gap over all scenes [m]", _round(table["gap_min_m"].min())),
+    ]
+    return pd.DataFrame(rows, columns=["measure", "value"])
+
+
+def _round(value: Any) -> Any:
+    number = _number(value)
+    return "n/a" if number is None else round(number, 2)
+
+
+def verdict_table(table: pd.DataFrame) -> pd.DataFrame:
+    """Per scene: its parameters, the verdicts and the key numbers (for the markdown)."""
+    numbers = [
+        "overtake_how",
+        "gap_min_m",
+        "cav_max_speed_mps",
+        "blocked_hv_min_accel_mps2",
+        "mean_speed_mps",
+        "mean_speed_cacc_mps",
+        "cost_ratio",
+        "solve_ms_p95",
+        "solve_ms_max",
+        "lateral_holds",
+    ]
+    cols = ["scene", *SCENE_COLUMNS.values(), *CHECKS, "all", *numbers]
+    out = table[[c for c in cols if c in table.columns]].copy()
+    for c in out.columns:
+        if pd.api.types.is_float_dtype(out[c]):
+            out[c] = out[c].round(2)
+    return out
+
+
+def render(table: pd.DataFrame, folder: Path) -> str:
+    checks = check_table(table)
+    md = [
+        f"# Issue 11 acceptance: paper-scene variants ({folder.name})",
+        "",
+        "Made by `python tools/variants_report.py DIR` from a batch of "
+        "`scenarios/variants.toml`. A verdict is pass, FAIL, or n/a (a summary field the "
+        "check needs is missing).",
+        "",
+        "## Per check",
+        "",
+        checks.to_markdown(index=False),
+        "",
+        "## Over the sweep",
+        "",
+        sweep_figures(table).to_markdown(index=False),
+        "",
+        "## Per scene",
+        "",
+        verdict_table(table).to_markdown(index=False),
+    ]
+    return "\n".join(md) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folder", type=Path)
+    parser.add_argument("--to", type=Path, default=ROOT / "docs" / "bench")
+    args = parser.parse_args(argv)
+    try:
+        table = scene_table(args.folder)
+    except BadInputError as exc:
+        print(f"variants_report: {exc}", file=sys.stderr)
+        return 2
+    if table.empty:
+        print(f"variants_report: {args.folder / 'runs'}: no finished swarm run", file=sys.stderr)
+        return 2
+    md = render(table, args.folder)
+    args.to.mkdir(parents=True, exist_ok=True)
+    table.to_csv(args.to / "variants.csv", index=False)
+    (args.to / "variants.md").write_text(md, encoding="utf-8")
+    print(check_table(table).to_markdown(index=False))
+    print()
+    print(sweep_figures(table).to_markdown(index=False))
+    print()
+    print(verdict_table(table).to_markdown(index=False))
+    return 0 if (table["all"] == PASS).all() else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
