@@ -20,6 +20,7 @@ from typing import Any, Literal, TypeVar
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.grid import GridSettings
 from sumo_swarm.planner import PlannerSettings
+from sumo_swarm.swarming.guards import GuardSettings
 from sumo_swarm.tracking import LateralSettings, LongitudinalSettings
 
 T = TypeVar("T")
@@ -321,6 +322,9 @@ class SwarmSettings:
     give_up_no_plan_s: float = 10.0
     cooldown_s: float = 15.0
     max_leader_ease_mps: float = 2.0  # a cruising leader slows by at most this to close up [m/s]
+    # A CAV matches the speed of the lane its reference enters this far ahead [s].
+    match_lookahead_s: float = 2.0
+    hold_episode_s: float = 1.0  # lateral holds of one CAV closer together count once [s]
     in_lane_tolerance_m: float = 0.3  # a CAV is "in" a lane within this of its centre [m]
 
     def __post_init__(self) -> None:
@@ -331,11 +335,13 @@ class SwarmSettings:
         check_non_negative(
             self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
-            "cooldown_s", "max_leader_ease_mps", "in_lane_tolerance_m",
+            "cooldown_s", "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
+            "hold_episode_s",
         )  # fmt: skip
         if self.give_up_no_progress_intervals < 1:
             raise ConfigError(
-                f"give_up_no_progress_intervals must be >= 1, got {self.give_up_no_progress_intervals}"
+                "give_up_no_progress_intervals must be >= 1, got "
+                f"{self.give_up_no_progress_intervals}"
             )
 
 
@@ -356,12 +362,25 @@ class HvModelSettings:
 
     b_safe_mps2: float = 2.0
     planner_share: float = 0.7
+    # The swarm regroups in front of the target no closer than where the target would brake
+    # harder than this [m/s^2]: past it, the swarm must not hold the slow vehicle back.
+    target_b_mps2: float = 0.3
+    # A blocker that enters at a faster lane's speed then slows it at this share of the
+    # planner's b_safe.
+    block_decel_share: float = 0.7
     margin_rule: Literal["model", "headway"] = "model"
     predictor: Literal["car-following", "constant-speed"] = "car-following"
     prediction_dt_s: float = 0.25
 
     def __post_init__(self) -> None:
-        check_positive(self, "b_safe_mps2", "planner_share", "prediction_dt_s")
+        check_positive(
+            self,
+            "b_safe_mps2",
+            "planner_share",
+            "prediction_dt_s",
+            "target_b_mps2",
+            "block_decel_share",
+        )
         if self.planner_share > 1.0:
             raise ConfigError(f"planner_share must be <= 1, got {self.planner_share}")
 
@@ -383,6 +402,7 @@ class Scenario:
     cacc: CaccSettings = field(default_factory=CaccSettings)
     swarm: SwarmSettings = field(default_factory=SwarmSettings)
     hvmodel: HvModelSettings = field(default_factory=HvModelSettings)
+    guards: GuardSettings = field(default_factory=GuardSettings)
     longitudinal: LongitudinalSettings = field(default_factory=LongitudinalSettings)
     lateral: LateralSettings = field(default_factory=LateralSettings)
 

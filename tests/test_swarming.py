@@ -17,7 +17,7 @@ from sumo_swarm.swarming.decision import (
     speed_cap_mps,
     stopped_blocking,
 )
-from sumo_swarm.swarming.guards import GAP_GAIN, SPEED_GAIN, gap_accel_limit, lateral_refusal
+from sumo_swarm.swarming.guards import GuardSettings, gap_accel_limit, lateral_refusal
 from sumo_swarm.swarming.planlog import PlanLog
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
@@ -108,7 +108,8 @@ def test_gap_guard_hand_computed():
     lead = car("h", 120.0, 1, 18.0)  # bumper gap 15 m
     y1 = ROAD.lane_centre_y(1)
     limit = gap_accel_limit(ego, y1, y1, [ego, lead], ROAD, min_gap_m=5.0, width_m=1.8)
-    assert limit == pytest.approx(GAP_GAIN * (15.0 - 6.0) + SPEED_GAIN * (18.0 - 20.0))
+    g = GuardSettings()
+    assert limit == pytest.approx(g.gap_gain * (15.0 - 6.0) + g.speed_gain * (18.0 - 20.0))
     assert gap_accel_limit(ego, y1, y1, [ego], ROAD, 5.0, 1.8) == math.inf
 
 

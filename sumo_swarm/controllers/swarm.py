@@ -68,8 +68,6 @@ log = logging.getLogger(__name__)
 
 LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane that ends [m]
 # Replans that a safety check demands: they are not rate-limited.
-LOOKAHEAD_S = 2.0  # a CAV matches the speed of the lane its reference enters this far ahead [s]
-HOLD_EPISODE_S = 1.0  # holds of one CAV closer together than this are one episode [s]
 URGENT_TRIGGERS = frozenset({"initial", "cav_set_changed", "plan_done", "conflict"})
 
 
@@ -129,7 +127,8 @@ class SwarmController:
                 planner=self.planner_settings, grid=sc.grid,
                 b_safe_mps2=sc.hvmodel.b_safe_mps2, planner_share=sc.hvmodel.planner_share,
                 margin_rule=sc.hvmodel.margin_rule, predictor=sc.hvmodel.predictor,
-                prediction_dt_s=sc.hvmodel.prediction_dt_s,
+                prediction_dt_s=sc.hvmodel.prediction_dt_s, target_b_mps2=sc.hvmodel.target_b_mps2,
+                block_decel_share=sc.hvmodel.block_decel_share,
                 a_min_mps2=sc.cav.accel_min_mps2, a_max_mps2=sc.cav.accel_max_mps2,
                 max_lateral_speed_mps=sc.cav.max_lateral_speed_mps,
             ),
@@ -404,8 +403,9 @@ class SwarmController:
         )  # fmt: skip
         self.triggers[reason] += 1
         if not math.isfinite(interval):
-            self._fail(t_s, reason, {"time_s": t_s, "trigger": reason, "status": "undrivable",
-                                     "speed_cap_mps": cap, "grid_speed_mps": grid_speed})  # fmt: skip
+            record = {"time_s": t_s, "trigger": reason, "status": "undrivable",
+                      "speed_cap_mps": cap, "grid_speed_mps": grid_speed}  # fmt: skip
+            self._fail(t_s, reason, record)
             return
         hint = None
         if self._hints and self.plan is not None and self.plan.ok and reason != "cav_set_changed":
@@ -521,7 +521,7 @@ class SwarmController:
             refusal = lateral_refusal(
                 ego, y, cmd.dlat_m, others, road, min_gap_m=sc.cav.min_gap_m,
                 width_m=sc.cav.width_m, model_of=self.model_of,
-                b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt,
+                b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt, settings=sc.guards,
             )  # fmt: skip
             dlat = 0.0 if refusal else cmd.dlat_m
             self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)
@@ -529,23 +529,29 @@ class SwarmController:
             accel = cmd.accel_mps2
             # Into a faster lane at that lane's speed (up to the cap); with an HV close behind,
             # slow down only gently (that is how a blocker brings a lane down to its speed).
-            lane_to = road.lane_of_y(ref.y_at_s(ego.centre_s_m + LOOKAHEAD_S * ego.speed_mps))
-            accel = max(accel, lane_speed_match(ego, lane_to, others, road, sc.cav.width_m, cap))
-            accel = max(accel, gentle_for_follower(ego, others, road, sc.cav.width_m, gentle))
+            lane_to = road.lane_of_y(
+                ref.y_at_s(ego.centre_s_m + sc.swarm.match_lookahead_s * ego.speed_mps)
+            )
+            accel = max(
+                accel, lane_speed_match(ego, lane_to, others, road, sc.cav.width_m, cap, sc.guards)
+            )
+            accel = max(
+                accel, gentle_for_follower(ego, others, road, sc.cav.width_m, gentle, sc.guards)
+            )
             limit = gap_accel_limit(
-                ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m
+                ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
             )
             accel = min(max(min(accel, limit), sc.cav.accel_min_mps2), sc.cav.accel_max_mps2)
             ctx.session.set_speed(vid, min(max(ego.speed_mps + accel * dt, 0.0), cap))
             ctx.session.change_sublane(vid, dlat)
 
     def _count_hold(self, vid: str, refusal: str | None, lane: int, t_s: float) -> None:
-        """One ``lateral_hold`` per episode: a CAV held, not held again within HOLD_EPISODE_S."""
+        """One ``lateral_hold`` per episode: a CAV held, not held again within hold_episode_s."""
         if refusal is None:
             return
         last = self._holding.get(vid)
         self._holding[vid] = t_s
-        if last is not None and t_s - last <= HOLD_EPISODE_S:
+        if last is not None and t_s - last <= self.ctx.scenario.swarm.hold_episode_s:
             return
         self.lateral_holds += 1
         if self.holds_per_manoeuvre:

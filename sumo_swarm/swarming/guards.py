@@ -16,15 +16,34 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 
+from sumo_swarm.errors import ConfigError
 from sumo_swarm.hvmodel import DriverModel, accepts_entry
 from sumo_swarm.model import RoadSection, VehicleState
 from sumo_swarm.neighbours import vehicle_ahead, vehicle_behind
 
-GAP_GAIN = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v)
-SPEED_GAIN = 1.5  # [1/s]
-GAP_GUARD_EXTRA_M = 1.0  # the gap guard aims this far beyond the minimum gap [m]
-LANE_PROBE_M = 0.9  # a move is "into the next lane" once the CAV's side would cross into it [m]
+
+@dataclass(frozen=True)
+class GuardSettings:
+    """Gains and thresholds of the guards (scenario section ``[guards]``)."""
+
+    gap_gain: float = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v)
+    speed_gain: float = 1.5  # [1/s]
+    gap_extra_m: float = 1.0  # the gap guard aims this far beyond the minimum gap [m]
+    lane_probe_m: float = 0.9  # a move enters the next lane once the CAV's side would [m]
+    match_gain: float = 1.0  # [1/s] speed matching before entering a faster lane
+    follower_range_m: float = 60.0  # an HV this close behind makes a CAV brake gently [m]
+
+    def __post_init__(self) -> None:
+        for name in ("gap_gain", "speed_gain", "gap_extra_m", "lane_probe_m", "match_gain",
+                     "follower_range_m"):  # fmt: skip
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+DEFAULT = GuardSettings()
 
 
 def gap_accel_limit(
@@ -35,6 +54,7 @@ def gap_accel_limit(
     road: RoadSection,
     min_gap_m: float,
     width_m: float,
+    settings: GuardSettings = DEFAULT,
 ) -> float:
     """Largest acceleration [m/s^2] that keeps ``min_gap_m`` to whatever is ahead at ``y_now``
     or ``y_next`` (``math.inf`` with nothing ahead)."""
@@ -45,8 +65,11 @@ def gap_accel_limit(
         if ahead is None:
             continue
         lead, gap = ahead
-        d = min_gap_m + GAP_GUARD_EXTRA_M
-        limit = min(limit, GAP_GAIN * (gap - d) + SPEED_GAIN * (lead.speed_mps - ego.speed_mps))
+        d = min_gap_m + settings.gap_extra_m
+        limit = min(
+            limit,
+            settings.gap_gain * (gap - d) + settings.speed_gain * (lead.speed_mps - ego.speed_mps),
+        )
     return limit
 
 
@@ -62,6 +85,7 @@ def lateral_refusal(
     model_of: Callable[[str], DriverModel],
     b_safe_mps2: float,
     step_s: float,
+    settings: GuardSettings = DEFAULT,
 ) -> str | None:
     """Why the lateral move ``dlat`` [m] from ``y`` [m] must be held, or ``None`` if it is safe.
 
@@ -73,7 +97,7 @@ def lateral_refusal(
     if abs(dlat) < 1e-6:
         return None
     lane_now = road.lane_of_y(y)
-    lane_next = road.lane_of_y(y + dlat + math.copysign(LANE_PROBE_M, dlat))
+    lane_next = road.lane_of_y(y + dlat + math.copysign(settings.lane_probe_m, dlat))
     if lane_next == lane_now:
         return None
     others = list(others)
@@ -95,10 +119,6 @@ def lateral_refusal(
     return "follower_brake"
 
 
-MATCH_GAIN = 1.0  # [1/s] speed matching: a = k (v_lane - v)
-FOLLOWER_RANGE_M = 60.0  # an HV within this gap behind a CAV makes it slow down gently [m]
-
-
 def lane_speed_match(
     ego: VehicleState,
     lane: int,
@@ -106,6 +126,7 @@ def lane_speed_match(
     road: RoadSection,
     width_m: float,
     cap_mps: float,
+    settings: GuardSettings = DEFAULT,
 ) -> float:
     """Acceleration [m/s^2] towards the speed of the HV that will follow ``ego`` in ``lane``
     (up to ``cap_mps``), when ``ego`` is about to move into that lane in front of a faster HV;
@@ -116,7 +137,7 @@ def lane_speed_match(
     behind = vehicle_behind(ego, others, road, y_m=road.lane_centre_y(lane), width_m=width_m)
     if behind is None or behind[0].is_cav or behind[0].speed_mps <= ego.speed_mps:
         return -math.inf
-    return MATCH_GAIN * (min(behind[0].speed_mps, cap_mps) - ego.speed_mps)
+    return settings.match_gain * (min(behind[0].speed_mps, cap_mps) - ego.speed_mps)
 
 
 def gentle_for_follower(
@@ -125,11 +146,12 @@ def gentle_for_follower(
     road: RoadSection,
     width_m: float,
     decel_mps2: float,
+    settings: GuardSettings = DEFAULT,
 ) -> float:
     """Lowest acceleration [m/s^2] allowed with an HV close behind in ``ego``'s lane:
     ``-decel_mps2`` (so it brakes gently too), ``-inf`` with no such HV. The gap guard, for
     what is ahead, still overrides it."""
     behind = vehicle_behind(ego, others, road, width_m=width_m)
-    if behind is None or behind[0].is_cav or behind[1] > FOLLOWER_RANGE_M:
+    if behind is None or behind[0].is_cav or behind[1] > settings.follower_range_m:
         return -math.inf
     return -decel_mps2

@@ -60,6 +60,8 @@ class ManoeuvreSettings:
     planner_share: float
     margin_rule: str  # "model" or "headway"
     predictor: str  # "car-following" or "constant-speed"
+    target_b_mps2: float
+    block_decel_share: float
     prediction_dt_s: float
     a_min_mps2: float
     a_max_mps2: float
@@ -103,9 +105,6 @@ def entry_gap(
         b,
         step_s,
     )
-
-
-BLOCK_DECEL_SHARE = 0.7  # a blocker slows the lane at this share of the planner's b_safe
 
 
 @functools.lru_cache(maxsize=8192)
@@ -179,7 +178,7 @@ class ManoeuvrePlanner:
         levels = RELAXATION[: RELAXATION.index(relax_to) + 1]
         try:
             for level in levels:
-                front_margin = self._front_margin(level, models, grid_speed_mps, step_s)
+                front_margin = self._front_margin(level, models, grid_speed_mps, step_s, target_id)
                 target_margin = front_margin(target)[1] if front_margin else None
                 gs = st.grid
                 if st.margin_rule == "headway":  # the paper's constant headway, scaled down
@@ -234,7 +233,12 @@ class ManoeuvrePlanner:
 
     # ------------------------------------------------------------------ parts
     def _front_margin(
-        self, level: str, models: Mapping[str, DriverModel], v_cav: float, step_s: float
+        self,
+        level: str,
+        models: Mapping[str, DriverModel],
+        v_cav: float,
+        step_s: float,
+        target_id: str,
     ) -> Callable[[VehicleState], tuple[float, float]] | None:
         """(hard, entry) margins in front of an HV: the hard one is its own minGap (no CAV is
         ever planned closer), the entry one the gap at which it would brake at the level's
@@ -248,7 +252,8 @@ class ManoeuvrePlanner:
             model = models.get(hv.vehicle_id)
             if model is None:  # a lane end or other standing obstacle
                 return st.grid.gap_behind_m, st.grid.gap_behind_m
-            gap = entry_gap(model, hv.speed_mps, v_cav, b, step_s)
+            b_hv = min(b, st.target_b_mps2) if hv.vehicle_id == target_id else b
+            gap = entry_gap(model, hv.speed_mps, v_cav, b_hv, step_s)
             return model.min_gap_m, max(gap, model.min_gap_m)
 
         return margin
@@ -258,7 +263,7 @@ class ManoeuvrePlanner:
         step_s: float,
     ) -> Callable[[VehicleState], float] | None:  # fmt: skip
         """Gap a blocker needs in front of an HV: it enters at the HV's speed (at most the cap)
-        and then slows the lane to the grid's speed at BLOCK_DECEL_SHARE of b."""
+        and then slows the lane to the grid's speed at ``block_decel_share`` of b."""
         st = self.settings
         if st.margin_rule == "headway":
             return None
@@ -271,7 +276,9 @@ class ManoeuvrePlanner:
             v_enter = min(hv.speed_mps, cap)
             if v_enter <= v_grid:
                 return max(entry_gap(model, hv.speed_mps, v_grid, b, step_s), model.min_gap_m)
-            gap = block_gap(model, hv.speed_mps, v_enter, v_grid, BLOCK_DECEL_SHARE * b, b, step_s)
+            gap = block_gap(
+                model, hv.speed_mps, v_enter, v_grid, st.block_decel_share * b, b, step_s
+            )
             return max(gap, model.min_gap_m)
 
         return margin
