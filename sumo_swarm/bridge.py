@@ -423,19 +423,8 @@ class SumoSession:
         edge = self.edges.get(vid)
         return self.road_section(edge) if edge is not None else None
 
-    def set_color(self, vid: str, rgba: tuple[int, int, int, int]) -> None:
-        self.api.vehicle.setColor(vid, rgba)
-
     def exists(self, vid: str) -> bool:
         return vid in self.states
-
-    # ------------------------------------------------------------------ helpers
-    def leader_gap(self, vid: str) -> tuple[str, float] | None:
-        """SUMO's own leader lookup: (leader id, gap incl. minGap removed) or None."""
-        res = self.api.vehicle.getLeader(vid, 200.0)
-        if not res or not res[0]:
-            return None
-        return res[0], res[1] + self.api.vehicle.getMinGap(vid)
 
 
 def lane_curvature(shape) -> float:
@@ -456,8 +445,3 @@ def lane_curvature(shape) -> float:
         length += seg
     return turn / length if length > 0 else 0.0
 
-
-def finite_or_none(value: float | None) -> float | None:
-    if value is None or not math.isfinite(value):
-        return None
-    return float(value)

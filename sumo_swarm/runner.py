@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -18,6 +17,7 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext, close_controller
 from sumo_swarm.errors import ConfigError, SimulationError
+from sumo_swarm.files import write_json_atomic, write_parquet_atomic
 from sumo_swarm.model import RoadSection
 from sumo_swarm.scene import CAV_TYPE, sumo_options, write_sumo_inputs
 from sumo_swarm.summary import build_summary
@@ -36,19 +36,6 @@ def prepare_out_dir(out_dir: str | Path) -> Path:
     except OSError as exc:
         raise ConfigError(f"output folder {out} cannot be written: {exc.strerror or exc}") from None
     return out
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON through a temporary file and a rename: a crash never leaves half a file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
-
-
-def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
 
 
 def trajectory_frame(session: SumoSession) -> pd.DataFrame:

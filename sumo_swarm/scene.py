@@ -44,9 +44,6 @@ class Scene:
     def target_id(self) -> str | None:
         return next((v.id for v in self.vehicles if v.role == "target"), None)
 
-    def front_at_start(self) -> dict[str, float]:
-        return {v.id: v.front_m for v in self.vehicles}
-
 
 def _hv_type(desired_speed: float, types: dict[str, float]) -> str:
     type_id = f"hv_v{desired_speed:g}".replace(".", "_")

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from sumo_swarm import metrics
+from sumo_swarm.checks import finite_or_none
 from sumo_swarm.metrics import EvaluationWindow
 
 if TYPE_CHECKING:
@@ -18,13 +18,6 @@ if TYPE_CHECKING:
 
 SCHEMA = "sumo-swarm/summary/1"
 REGROUP_LAT_TOL_M = 0.5  # a CAV counts as "in" its lane when its centre is this close [m]
-
-
-def _f(value: Any) -> float | None:
-    if value is None:
-        return None
-    x = float(value)
-    return x if math.isfinite(x) else None
 
 
 def overtake_progress(
@@ -129,9 +122,9 @@ def build_summary(
         "completed": t_end is not None,
         "regrouped": t_regroup is not None,
         "target": own.get("target", target),
-        "t_start_s": _f(t_start),
-        "t_end_s": _f(t_end),
-        "t_regrouped_s": _f(t_regroup),
+        "t_start_s": finite_or_none(t_start),
+        "t_end_s": finite_or_none(t_end),
+        "t_regrouped_s": finite_or_none(t_regroup),
         "behaving_steps": own.get("behaving_steps"),
     }
     ref_time = t_start if t_start is not None else ev.start_s
@@ -155,14 +148,14 @@ def build_summary(
         "sim_end_s": float(session.time_s),
         "cav": {
             "count": len(cav_ids),
-            "mean_speed_mps": _f(speed.get("mean_speed_mps")),
-            "min_speed_mps": _f(speed.get("min_speed_mps")),
-            "max_speed_mps": _f(speed.get("max_speed_mps")),
-            "speed_var_m2ps2": _f(speed.get("speed_var_m2ps2")),
-            "travel_time_s": _f(metrics.travel_time_s(df, w, ev.travel_distance_m)),
-            "gap_mean_m": _f(gap.get("gap_mean_m")),
-            "gap_min_m": _f(gap.get("gap_min_m")),
-            "lat_error_rms_m": _f(controller_summary.get("lat_error_rms_m")),
+            "mean_speed_mps": finite_or_none(speed.get("mean_speed_mps")),
+            "min_speed_mps": finite_or_none(speed.get("min_speed_mps")),
+            "max_speed_mps": finite_or_none(speed.get("max_speed_mps")),
+            "speed_var_m2ps2": finite_or_none(speed.get("speed_var_m2ps2")),
+            "travel_time_s": finite_or_none(metrics.travel_time_s(df, w, ev.travel_distance_m)),
+            "gap_mean_m": finite_or_none(gap.get("gap_mean_m")),
+            "gap_min_m": finite_or_none(gap.get("gap_min_m")),
+            "lat_error_rms_m": finite_or_none(controller_summary.get("lat_error_rms_m")),
         },
         "overtake": overtake,
         "safety": {
@@ -172,11 +165,11 @@ def build_summary(
             "hard_brakes_cav": metrics.hard_brakes(df[df["kind"] == "cav"]) if len(df) else 0,
             "hard_brakes_hv": metrics.hard_brakes(df[df["kind"] == "hv"]) if len(df) else 0,
             "teleports": int(session.teleports),
-            "min_ttc_s": _f(metrics.min_ttc_s(df, w)),
+            "min_ttc_s": finite_or_none(metrics.min_ttc_s(df, w)),
         },
         "upstream": upstream,
         "planner": planner,
         # Extra (not in the contract): MPC solve time per CAV per solve, swarm only.
         "tracking": controller_summary.get("mpc"),
-        "timing": {k: _f(v) for k, v in timing.items()},
+        "timing": {k: finite_or_none(v) for k, v in timing.items()},
     }
