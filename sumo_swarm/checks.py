@@ -42,8 +42,12 @@ def require_number(
         ok = all(_COMPARE[op](value, bound) for op, bound in bounds)
     if not ok:
         kind = "an integer " if integer else ("" if is_number(value) else "a finite number ")
-        limits = " and ".join(f"{op} {bound:g}" for op, bound in bounds)
+        limits = " and ".join(f"{op} {_show(bound)}" for op, bound in bounds)
         raise ConfigError(f"{name} must be {kind}{limits}".rstrip() + f", got {value!r}")
+
+
+def _show(bound: float) -> str:
+    return f"{bound:g}" if isinstance(bound, float) else str(bound)
 
 
 def check_fields(owner: object, *names: str, **bounds: Any) -> None:

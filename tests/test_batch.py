@@ -7,6 +7,7 @@ swarm run keeps the paper's method in the loop.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import signal
@@ -21,6 +22,7 @@ import pytest
 from sumo_swarm.batch import load_sweep, run_batch
 from sumo_swarm.cli import main
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.impact import markdown_table
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = (ROOT / "scenarios" / "paper.toml").as_posix()
@@ -67,6 +69,8 @@ def unfinished(out: Path) -> list[str]:
         ("colour = 1\n", ["colour"]),
         ('controllers = ["magic"]\n', ["controllers", "magic"]),
         ("seeds = [1.5]\n", ["seeds"]),
+        ("seeds = [42, -5]\n", ["seeds[1] must be an integer >= 0"]),
+        ('[grid]\n"cav.accel_min_mps2" = [nan]\n', ["cav.accel_min_mps2", "finite"]),
         ('[fixed]\n"simulation.duration_s" = 20.0\n', ["simulation.duration_s", "end_s"]),
         ("[grid]\nsimulation.seed = [1]\n", ["simulation.seed"]),
     ],
@@ -90,6 +94,25 @@ def test_missing_base_and_missing_sweep(tmp_path, capsys):
     assert main(["batch", str(tmp_path / "none.toml"), "--out", str(tmp_path / "o")]) == 2
     assert "none.toml" in capsys.readouterr().err
     assert main(["impact", str(tmp_path)]) == 2
+
+
+def test_markdown_table_formats_numbers_flags_and_missing_values():
+    df = pd.DataFrame(
+        {"controller": ["swarm", "cacc"], "runs": [2, 3], "speed": [17.456, math.nan],
+         "overtaken": [True, False]}
+    )
+    lines = markdown_table(df, digits=2).splitlines()
+    assert [c.strip() for c in lines[0].strip("|").split("|")] == list(df.columns)
+    assert [c.strip() for c in lines[2].strip("|").split("|")] == ["swarm", "2", "17.46", "yes"]
+    assert [c.strip() for c in lines[3].strip("|").split("|")] == ["cacc", "3", "-", "no"]
+
+
+def test_a_scenario_file_is_not_a_sweep(paper_path, tmp_path, capsys):
+    assert main(["batch", str(paper_path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(paper_path) in err[0], err
+    assert "is a scenario file, not a sweep" in err[0]
+    assert not (tmp_path / "o").exists()
 
 
 def test_runs_are_the_product_with_stable_ids(sweep_file):
@@ -180,7 +203,8 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
     capsys.readouterr()
     assert main(["batch", str(path), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "0 run now, 4 skipped" in printed and "| swarm |" in printed
+    assert "0 run now, 4 skipped" in printed
+    assert re.search(r"^\| swarm +\|", printed, re.MULTILINE), printed
     assert finished_runs(out) == before
     assert len(pd.read_parquet(out / "results.parquet")) == 4
 

@@ -39,7 +39,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sumo_swarm.config import SECTIONS, Scenario, load_scenario, nested_dataclass, read_toml
+from sumo_swarm.checks import require_number
+from sumo_swarm.config import (
+    SECTIONS,
+    SEED_MAX,
+    Scenario,
+    load_scenario,
+    nested_dataclass,
+    read_toml,
+)
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.errors import ConfigError
 
@@ -310,10 +318,12 @@ def _str_list(value: Any, key: str) -> list[str]:
     return value
 
 
-def _int_list(value: Any, key: str) -> list[int]:
+def _seed_list(value: Any, key: str) -> list[int]:
     ok = isinstance(value, list) and value
     if not ok or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
         raise ConfigError(f"{key}: expected a non-empty list of integers, got {value!r}")
+    for i, seed in enumerate(value):
+        require_number(f"{key}[{i}]", seed, ge=0, le=SEED_MAX, integer=True)
     if len(set(value)) != len(value):
         raise ConfigError(f"{key}: values must be unique, got {value!r}")
     return value
@@ -357,6 +367,11 @@ def load_sweep(path: str | Path) -> Sweep:
 
 
 def _build(path: Path, data: dict[str, Any]) -> Sweep:
+    if "base" not in data and set(data) & set(SECTIONS):
+        raise ConfigError(
+            "this is a scenario file, not a sweep: run it with 'sumo-swarm run FILE', or write a "
+            "sweep whose base = \"FILE\" (format: sumo-swarm batch --help)"
+        )
     unknown = sorted(set(data) - set(SWEEP_KEYS))
     if unknown:
         raise ConfigError(f"unknown key '{unknown[0]}' (known: {', '.join(SWEEP_KEYS)})")
@@ -379,7 +394,7 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
         if c not in CONTROLLERS:
             known = ", ".join(CONTROLLERS)
             raise ConfigError(f"controllers: unknown controller '{c}' (known: {known})")
-    seeds = _int_list(data.get("seeds", [base.default.simulation.seed]), "seeds")
+    seeds = _seed_list(data.get("seeds", [base.default.simulation.seed]), "seeds")
 
     fixed = _table(data.get("fixed", {}), "fixed")
     grid = _table(data.get("grid", {}), "grid")
