@@ -225,11 +225,39 @@ def attach(
         def is_cav(vid: str, type_id: str) -> bool:
             return type_id == cav_type
 
+    warn_if_sumo_teleports(connection)
     ctrl = make_controller(controller) if isinstance(controller, str) else controller
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     return SwarmHandle(connection, ctrl, settings, is_cav, cruising_speed_mps, out)
+
+
+def warn_if_sumo_teleports(api: Any) -> bool:
+    """Log one warning, and return True, when the running SUMO teleports vehicles away.
+
+    SUMO's own runs of sumo-swarm count every collision and never teleport (``sumo-swarm run``
+    sets the options); a simulation someone else started keeps its options, and TraCI cannot
+    change them after the start, so the swarm can only say so.
+    """
+    try:
+        wait_s = float(api.simulation.getOption("time-to-teleport"))
+        on_collision = str(api.simulation.getOption("collision.action"))
+    except Exception as exc:  # a SUMO too old for getOption (before 1.19): nothing to read
+        log.debug("cannot read SUMO's teleport options: %s", exc)
+        return False
+    jams = wait_s > 0  # SUMO: a non-positive time-to-teleport switches jam teleports off
+    collisions = on_collision in ("teleport", "remove")
+    if not (jams or collisions):
+        return False
+    log.warning(
+        "SUMO teleports vehicles in this simulation (time-to-teleport %g s, collision.action "
+        "%s): colliding or stuck vehicles may vanish and be missing from the swarm's safety "
+        "counts; start SUMO with --time-to-teleport -1 --collision.action warn to keep them",
+        wait_s,
+        on_collision,
+    )
+    return True
 
 
 def detach(handle: SwarmHandle) -> None:

@@ -122,6 +122,36 @@ def test_missing_sumocfg(tmp_path):
     )
 
 
+@pytest.mark.parametrize("missing", ["highway.net.xml", "routes.rou.xml"])
+def test_sumocfg_input_file_missing(tmp_path, missing):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    (tmp_path / missing).unlink()
+    assert_bad_input(
+        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")),
+        "file not found", str(tmp_path / missing), str(cfg),
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "fragment"),
+    [
+        ('<end value="5.0"/>', '<end value="soon"/>', "end: expected a time in seconds"),
+        ('<end value="5.0"/>', '<end value="nan"/>', "end must be a finite number"),
+        ('<step-length value="0.1"/>', '<step-length value="0"/>', "step-length must be > 0"),
+        ('<end value="5.0"/>', '<end value="5.0"/><no-such-thing value="1"/>', "SUMO refuses"),
+    ],
+)
+def test_sumocfg_bad_option(tmp_path, old, new, fragment):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    text = cfg.read_text(encoding="utf-8")
+    assert old in text
+    cfg.write_text(text.replace(old, new), encoding="utf-8")
+    assert_bad_input(
+        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")),
+        fragment, str(cfg),
+    )  # fmt: skip
+
+
 def test_sumocfg_without_cav_type(tmp_path):
     cfg = tmp_path / "x.sumocfg"
     cfg.write_text("<configuration/>")

@@ -128,3 +128,24 @@ def test_run_writes_summary(paper_path, tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["safety"]["collisions"] == 0
     assert "paper/cacc" in proc.stdout
+
+
+@pytest.mark.sumo
+def test_run_sumocfg_records_the_sumo_configuration_as_run(tmp_path):
+    from sumo_swarm.netbuild import HighwaySpec
+    from sumo_swarm.runner import read_sumocfg_options
+    from tests.usercases import write_user_case
+
+    cfg = write_user_case(tmp_path / "case", HighwaySpec(length_m=500, lanes=3), end_s=3.0)
+    out = tmp_path / "o"
+    proc = sumo_swarm(
+        "run", "--sumocfg", str(cfg), "--cav-type", "cav", "--controller", "cacc",
+        "--seed", "7", "--out", str(out),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    options = read_sumocfg_options(out / "sumo" / "scenario.sumocfg")
+    assert options["net-file"] == str((cfg.parent / "highway.net.xml").resolve())
+    assert options["route-files"] == str((cfg.parent / "routes.rou.xml").resolve())
+    assert options["lateral-resolution"] == "0.5"  # added: the configuration lacks it
+    assert options["collision.action"] == "warn" and options["seed"] == "7"
+    assert options["step-length"] == "0.1" and "fcd-output" not in options

@@ -5,6 +5,7 @@ Through ``sumo-swarm run --sumocfg`` (libsumo) and through the plugin API (libsu
 from __future__ import annotations
 
 import json
+import logging
 import os
 
 import pytest
@@ -104,6 +105,31 @@ def test_attach_through_libsumo_by_ids_with_a_late_cav(tmp_path):
     assert "late" in handle.session.cav_ids
     assert summary["safety"]["collisions"] == 0
     assert summary["overtake"]["triggered"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "warned"),
+    [
+        ([], True),  # SUMO's defaults: jam teleports after 300 s
+        (["--time-to-teleport", "-1"], False),
+    ],
+)
+def test_attach_warns_once_when_sumo_teleports(tmp_path, caplog, extra, warned):
+    import libsumo
+
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    libsumo.start([*_sumo_cmd(cfg), *extra])
+    try:
+        with caplog.at_level(logging.WARNING, logger="sumo_swarm"):
+            handle = sumo_swarm.attach(libsumo, cav_type="cav")
+            libsumo.simulation.step()
+        handle.detach()
+    finally:
+        libsumo.close()
+    lines = [r.getMessage() for r in caplog.records if "teleports" in r.getMessage()]
+    assert len(lines) == (1 if warned else 0), lines
+    if warned:
+        assert "time-to-teleport 300 s" in lines[0] and "--time-to-teleport -1" in lines[0]
 
 
 def test_attach_needs_exactly_one_cav_selector():
