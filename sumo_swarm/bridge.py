@@ -69,11 +69,21 @@ class StepRecord:
         default_factory=lambda: {
             k: []
             for k in (
-                "time_s", "vehicle", "kind", "edge", "lane", "x_m", "y_m", "s_m", "lat_m",
-                "speed_mps", "accel_mps2", "length_m",
+                "time_s",
+                "vehicle",
+                "kind",
+                "edge",
+                "lane",
+                "x_m",
+                "y_m",
+                "s_m",
+                "lat_m",
+                "speed_mps",
+                "accel_mps2",
+                "length_m",
             )
         }
-    )  # fmt: skip
+    )
 
 
 class SumoSession:
@@ -94,8 +104,15 @@ class SumoSession:
     call :meth:`refresh` after each step instead of :meth:`step`.
     """
 
-    VARS = ("ROAD_ID", "LANE_INDEX", "LANEPOSITION", "LANEPOSITION_LAT", "POSITION", "SPEED",
-            "ACCELERATION")  # fmt: skip
+    VARS = (
+        "ROAD_ID",
+        "LANE_INDEX",
+        "LANEPOSITION",
+        "LANEPOSITION_LAT",
+        "POSITION",
+        "SPEED",
+        "ACCELERATION",
+    )
 
     def __init__(
         self,
@@ -444,4 +461,3 @@ def lane_curvature(shape) -> float:
         prev = heading
         length += seg
     return turn / length if length > 0 else 0.0
-

@@ -141,43 +141,56 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=RUN_EPILOG,
     )
     run.add_argument(
-        "scenario", nargs="?", type=Path, metavar="SCENARIO.toml",
+        "scenario",
+        nargs="?",
+        type=Path,
+        metavar="SCENARIO.toml",
         help="the scenario file (see below); omit it with --sumocfg",
-    )  # fmt: skip
+    )
     run.add_argument(
-        "--sumocfg", type=Path, metavar="FILE",
+        "--sumocfg",
+        type=Path,
+        metavar="FILE",
         help="run this SUMO configuration as it is (default: none, SCENARIO.toml is run)",
-    )  # fmt: skip
+    )
     run.add_argument(
-        "--cav-type", metavar="TYPE",
+        "--cav-type",
+        metavar="TYPE",
         help="with --sumocfg, required: the vType whose vehicles form the swarm",
-    )  # fmt: skip
+    )
     run.add_argument(
-        "--config", type=Path, metavar="SWARM.toml",
+        "--config",
+        type=Path,
+        metavar="SWARM.toml",
         help="with --sumocfg: the swarm's settings, a scenario file whose [cav], [swarm], "
         "[planner], ... sections apply (default: the built-in settings, cruising at the CAV "
         "vType's maxSpeed)",
-    )  # fmt: skip
+    )
     run.add_argument(
         "--controller", default="swarm", choices=CONTROLLERS, metavar="NAME", help=CONTROLLER_HELP
     )
     run.add_argument(
-        "--seed", type=_int_at_least(0, SEED_MAX), metavar="N",
+        "--seed",
+        type=_int_at_least(0, SEED_MAX),
+        metavar="N",
         help="SUMO's random seed, 0 or more (default: the scenario's [simulation] seed; with "
         "--sumocfg, the configuration's)",
-    )  # fmt: skip
+    )
     run.add_argument(
-        "--out", type=Path, default=Path("out"), metavar="DIR",
-        help="output folder, created if needed; files in it are overwritten "
-        "(default: %(default)s)",
-    )  # fmt: skip
+        "--out",
+        type=Path,
+        default=Path("out"),
+        metavar="DIR",
+        help="output folder, created if needed; files in it are overwritten (default: %(default)s)",
+    )
     run.add_argument(
         "--fcd", action="store_true", help="also write SUMO's fcd-output, fcd.xml (default: off)"
     )
     run.add_argument(
-        "--gui", action="store_true",
+        "--gui",
+        action="store_true",
         help="watch the run in sumo-gui (through traci, slower; default: off)",
-    )  # fmt: skip
+    )
 
     rep = sub.add_parser(
         "reproduce",
@@ -189,14 +202,20 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     rep.add_argument(
-        "--out", type=Path, default=Path("reproduce"), metavar="DIR",
+        "--out",
+        type=Path,
+        default=Path("reproduce"),
+        metavar="DIR",
         help="output folder (default: %(default)s)",
-    )  # fmt: skip
+    )
     rep.add_argument(
-        "--scenario", type=Path, default=None, metavar="SCENARIO.toml",
+        "--scenario",
+        type=Path,
+        default=None,
+        metavar="SCENARIO.toml",
         help="the scenario to evaluate (default: the paper's; 'sumo-swarm run --help' says "
         "where it is installed)",
-    )  # fmt: skip
+    )
 
     bat = sub.add_parser(
         "batch",
@@ -209,22 +228,30 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bat.add_argument("sweep", type=Path, metavar="SWEEP.toml", help="the sweep file (see below)")
     bat.add_argument(
-        "--out", type=Path, required=True, metavar="DIR",
+        "--out",
+        type=Path,
+        required=True,
+        metavar="DIR",
         help="required: the batch folder (resumed if it holds the same sweep)",
-    )  # fmt: skip
+    )
     bat.add_argument(
-        "--workers", type=_int_at_least(1), default=None, metavar="N",
+        "--workers",
+        type=_int_at_least(1),
+        default=None,
+        metavar="N",
         help="runs at a time (default: one per CPU; with --ray, the cluster's CPUs)",
-    )  # fmt: skip
+    )
     bat.add_argument(
-        "--ray", metavar="ADDRESS",
+        "--ray",
+        metavar="ADDRESS",
         help="run on Ray: 'auto' or a cluster address; needs pip install 'sumo-swarm[cluster]' "
         "(default: local processes)",
-    )  # fmt: skip
+    )
     bat.add_argument(
-        "--retry-failed", action="store_true",
+        "--retry-failed",
+        action="store_true",
         help="run the runs recorded as failed again (default: off, they count as finished)",
-    )  # fmt: skip
+    )
 
     imp = sub.add_parser(
         "impact",
@@ -250,10 +277,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from sumo_swarm.runner import run_sumocfg
 
         summary = run_sumocfg(
-            args.sumocfg, args.cav_type, args.controller, args.out, config=args.config,
-            seed=args.seed, fcd=args.fcd, gui=args.gui,
+            args.sumocfg,
+            args.cav_type,
+            args.controller,
+            args.out,
+            config=args.config,
+            seed=args.seed,
+            fcd=args.fcd,
+            gui=args.gui,
             notify=lambda line: print(line, file=sys.stderr),
-        )  # fmt: skip
+        )
     else:
         if args.scenario is None:
             raise ConfigError("run: give a scenario file (or --sumocfg FILE --cav-type TYPE)")

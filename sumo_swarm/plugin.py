@@ -66,9 +66,12 @@ class SwarmHandle:
         self.session = SumoSession.attached(api, is_cav=is_cav)
         self._cruising_speed = cruising_speed_mps
         self.ctx = RunContext(
-            self.session, settings, self.session.cav_ids, _first_road(self.session),
+            self.session,
+            settings,
+            self.session.cav_ids,
+            _first_road(self.session),
             out_dir=out_dir,
-        )  # fmt: skip
+        )
         self._attached = False
         self._controller_attached = False
         self._wall0 = time.perf_counter()
@@ -107,9 +110,11 @@ class SwarmHandle:
             cruise = min(api.vehicletype.getMaxSpeed(type_id), cav.max_speed_mps)
         length = api.vehicletype.getLength(type_id)
         cav = replace(
-            cav, cruising_speed_mps=cruise, length_m=length,
+            cav,
+            cruising_speed_mps=cruise,
+            length_m=length,
             max_speed_mps=max(cav.max_speed_mps, cruise),
-        )  # fmt: skip
+        )
         self.settings = replace(self.settings, cav=cav)
         self.ctx.scenario = self.settings
 
@@ -123,18 +128,20 @@ class SwarmHandle:
         settings = replace(
             self.settings,
             evaluation=EvaluationSettings(
-                start_s=start, end_s=max(end, start + 1e-3),
+                start_s=start,
+                end_s=max(end, start + 1e-3),
                 travel_distance_m=self.settings.evaluation.travel_distance_m,
                 upstream_ranks=self.settings.evaluation.upstream_ranks,
             ),
             simulation=replace(self.settings.simulation, step_length_s=self.session.step_length_s),
-        )  # fmt: skip
+        )
         wall = time.perf_counter() - self._wall0
         timing = {
-            "wall_s": wall, "sumo_s": max(wall - self.controller_s, 0.0),
+            "wall_s": wall,
+            "sumo_s": max(wall - self.controller_s, 0.0),
             "controller_s": self.controller_s,
             "realtime_factor": (end - start) / wall if wall > 0 else None,
-        }  # fmt: skip
+        }
         return build_summary(
             scenario=settings,
             controller=self.controller.name,

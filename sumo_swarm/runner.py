@@ -83,9 +83,15 @@ def run_scenario(
         gui=gui,
     )
     return _drive(
-        session, scenario, controller, controller_name, out, scene,
-        max_steps=round(sim.duration_s / sim.step_length_s), progress=progress,
-    )  # fmt: skip
+        session,
+        scenario,
+        controller,
+        controller_name,
+        out,
+        scene,
+        max_steps=round(sim.duration_s / sim.step_length_s),
+        progress=progress,
+    )
 
 
 def run_sumocfg(
@@ -265,9 +271,12 @@ def _drive(
         ctx = RunContext(session, scenario, session.cav_ids, road, out_dir=out)
         controller.attach(ctx)
         bar = tqdm(
-            total=max_steps, desc=f"{scenario.name}/{controller_name}", unit="step",
-            disable=(not progress) if progress is not None else None, leave=False,
-        )  # fmt: skip
+            total=max_steps,
+            desc=f"{scenario.name}/{controller_name}",
+            unit="step",
+            disable=(not progress) if progress is not None else None,
+            leave=False,
+        )
         try:
             for _ in range(max_steps):
                 t0 = time.perf_counter()

@@ -131,12 +131,22 @@ def build_summary(
     # The HVs behind the swarm's front at the decision: those beside the platoon, which the
     # swarm blocks, rank first in their lanes; the slow vehicle itself is left out.
     upstream = metrics.upstream_impact(
-        df, ref_time, n_rank=ev.upstream_ranks, window=EvaluationWindow(ref_time, ev.end_s),
-        behind_of="front", exclude=[target] if target else [],
-    )  # fmt: skip
+        df,
+        ref_time,
+        n_rank=ev.upstream_ranks,
+        window=EvaluationWindow(ref_time, ev.end_s),
+        behind_of="front",
+        exclude=[target] if target else [],
+    )
     collisions = {tuple(sorted((c.collider, c.victim))) for c in session.collisions}
-    planner_keys = ("solves", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "statuses",
-                    "fallbacks")  # fmt: skip
+    planner_keys = (
+        "solves",
+        "solve_ms_median",
+        "solve_ms_p95",
+        "solve_ms_max",
+        "statuses",
+        "fallbacks",
+    )
     planner = {k: None for k in planner_keys}
     planner.update(controller_summary.get("planner", {}))
     return {

@@ -82,8 +82,9 @@ def test_malformed_sumocfg(tmp_path):
     cfg.write_text("<configuration><input>")
     assert_bad_input(
         sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav"),
-        "malformed SUMO configuration", str(cfg),
-    )  # fmt: skip
+        "malformed SUMO configuration",
+        str(cfg),
+    )
 
 
 def test_sumocfg_with_entities_is_refused(tmp_path):
@@ -128,8 +129,10 @@ def test_sumocfg_input_file_missing(tmp_path, missing):
     (tmp_path / missing).unlink()
     assert_bad_input(
         sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")),
-        "file not found", str(tmp_path / missing), str(cfg),
-    )  # fmt: skip
+        "file not found",
+        str(tmp_path / missing),
+        str(cfg),
+    )
 
 
 @pytest.mark.parametrize(
@@ -148,8 +151,9 @@ def test_sumocfg_bad_option(tmp_path, old, new, fragment):
     cfg.write_text(text.replace(old, new), encoding="utf-8")
     assert_bad_input(
         sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")),
-        fragment, str(cfg),
-    )  # fmt: skip
+        fragment,
+        str(cfg),
+    )
 
 
 def test_sumocfg_without_cav_type(tmp_path):
@@ -162,7 +166,9 @@ def test_sumocfg_without_cav_type(tmp_path):
 def test_cav_type_no_vehicle_has(tmp_path):
     cfg = write_user_case(tmp_path, HighwaySpec(length_m=1000, lanes=3), end_s=5.0)
     assert_bad_input(
-        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "robotaxi", "--out",
-                   str(tmp_path / "o")),
-        "robotaxi", str(cfg),
-    )  # fmt: skip
+        sumo_swarm(
+            "run", "--sumocfg", str(cfg), "--cav-type", "robotaxi", "--out", str(tmp_path / "o")
+        ),
+        "robotaxi",
+        str(cfg),
+    )

@@ -98,8 +98,12 @@ def test_missing_base_and_missing_sweep(tmp_path, capsys):
 
 def test_markdown_table_formats_numbers_flags_and_missing_values():
     df = pd.DataFrame(
-        {"controller": ["swarm", "cacc"], "runs": [2, 3], "speed": [17.456, math.nan],
-         "overtaken": [True, False]}
+        {
+            "controller": ["swarm", "cacc"],
+            "runs": [2, 3],
+            "speed": [17.456, math.nan],
+            "overtaken": [True, False],
+        }
     )
     lines = markdown_table(df, digits=2).splitlines()
     assert [c.strip() for c in lines[0].strip("|").split("|")] == list(df.columns)
@@ -125,8 +129,10 @@ def test_runs_are_the_product_with_stable_ids(sweep_file):
     )
     sweep = load_sweep(path)
     assert sweep.parameters == (
-        "cav.count", "scene.hv.hv_target.speed_mps", "scene.hv.hv_target.desired_speed_mps",
-    )  # fmt: skip
+        "cav.count",
+        "scene.hv.hv_target.speed_mps",
+        "scene.hv.hv_target.desired_speed_mps",
+    )
     assert len(sweep.runs) == 2 * 2 * 2 * 2
     assert len({r.run_id for r in sweep.runs}) == len(sweep.runs)
     # The empty case keeps the base's value, read back from the validated scenario.
@@ -169,13 +175,25 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
 
     df = pd.read_parquet(out / "results.parquet")
     assert len(df) == 4 and df["run_id"].is_unique
-    assert list(df.columns[:6]) == ["scene.initial_speed_mps", "controller", "seed", "run_id",
-                                    "status", "error"]  # fmt: skip
+    assert list(df.columns[:6]) == [
+        "scene.initial_speed_mps",
+        "controller",
+        "seed",
+        "run_id",
+        "status",
+        "error",
+    ]
     assert set(df["status"]) == {"ok"} and df["error"].isna().all()
     assert sorted(df["scene.initial_speed_mps"]) == [16.0, 16.0, 17.5, 17.5]
-    for column in ("cav.mean_speed_mps", "safety.collisions", "overtake.completed",
-                   "upstream.first_follower_reduction_pct", "upstream.hv_influenced",
-                   "timing.wall_s", "run.peak_rss_mb"):  # fmt: skip
+    for column in (
+        "cav.mean_speed_mps",
+        "safety.collisions",
+        "overtake.completed",
+        "upstream.first_follower_reduction_pct",
+        "upstream.hv_influenced",
+        "timing.wall_s",
+        "run.peak_rss_mb",
+    ):
         assert column in df.columns, column
     swarm = df[df["controller"] == "swarm"]
     assert "planner.solves" in df.columns and swarm["planner.solves"].notna().all()
@@ -189,9 +207,16 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
     assert len(pd.read_parquet(out / "upstream.parquet")) > 0
 
     impact = out / "impact"
-    for name in ("impact.md", "mobility.csv", "upstream.csv", "safety.csv", "runs.csv",
-                 "mobility_vs_scene_initial_speed_mps.png",
-                 "upstream_vs_scene_initial_speed_mps.png", "safety.png"):  # fmt: skip
+    for name in (
+        "impact.md",
+        "mobility.csv",
+        "upstream.csv",
+        "safety.csv",
+        "runs.csv",
+        "mobility_vs_scene_initial_speed_mps.png",
+        "upstream_vs_scene_initial_speed_mps.png",
+        "safety.png",
+    ):
         assert (impact / name).is_file(), name
     mobility = pd.read_csv(impact / "mobility.csv")
     cacc = mobility[mobility["controller"] == "cacc"]
@@ -217,10 +242,21 @@ def test_resume_after_kill_9_loses_and_duplicates_nothing(sweep_file, tmp_path):
     )
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sumo_swarm", "batch", str(path), "--out", str(out),
-         "--workers", "2"],
-        start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "sumo_swarm",
+            "batch",
+            str(path),
+            "--out",
+            str(out),
+            "--workers",
+            "2",
+        ],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + 120
     try:
         while time.monotonic() < deadline:
@@ -280,10 +316,20 @@ def test_worker_killed_mid_run_is_a_failed_run(sweep_file, tmp_path):
     path = sweep_file('controllers = ["cacc", "sumo-cacc"]\n' + short(60.0))
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sumo_swarm", "batch", str(path), "--out", str(out),
-         "--workers", "1"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "sumo_swarm",
+            "batch",
+            str(path),
+            "--out",
+            str(out),
+            "--workers",
+            "1",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         deadline = time.monotonic() + 60
         while not ((out / "runs").is_dir() and unfinished(out)):

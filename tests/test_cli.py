@@ -6,6 +6,7 @@ import argparse
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -15,8 +16,11 @@ from sumo_swarm.cli import build_parser, main
 def sumo_swarm(*args: str, cwd=None) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "sumo_swarm", *args],
-        capture_output=True, text=True, cwd=cwd, timeout=300,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=300,
+    )
 
 
 def assert_bad_input(proc: subprocess.CompletedProcess, *fragments: str) -> None:
@@ -69,7 +73,8 @@ def test_help_says_where_the_scenario_format_is(capsys):
         main(["run", "--help"])
     text = capsys.readouterr().out
     shipped = next(w for w in text.split() if w.endswith("paper.toml"))
-    assert shipped.startswith("/") and open(shipped, encoding="utf-8").read().count("[cav]") == 1
+    assert Path(shipped).is_absolute()
+    assert Path(shipped).read_text(encoding="utf-8").count("[cav]") == 1
 
 
 def test_batch_help_has_the_sweep_format(capsys):
@@ -139,9 +144,18 @@ def test_run_sumocfg_records_the_sumo_configuration_as_run(tmp_path):
     cfg = write_user_case(tmp_path / "case", HighwaySpec(length_m=500, lanes=3), end_s=3.0)
     out = tmp_path / "o"
     proc = sumo_swarm(
-        "run", "--sumocfg", str(cfg), "--cav-type", "cav", "--controller", "cacc",
-        "--seed", "7", "--out", str(out),
-    )  # fmt: skip
+        "run",
+        "--sumocfg",
+        str(cfg),
+        "--cav-type",
+        "cav",
+        "--controller",
+        "cacc",
+        "--seed",
+        "7",
+        "--out",
+        str(out),
+    )
     assert proc.returncode == 0, proc.stderr
     options = read_sumocfg_options(out / "sumo" / "scenario.sumocfg")
     assert options["net-file"] == str((cfg.parent / "highway.net.xml").resolve())

@@ -174,8 +174,12 @@ def test_state_to_cell_and_back(widths, cell, speed, origin, dt, row, offset, da
     length = 5.0
     cav = VehicleState("c", centre + length / 2, lane, 0.0, speed, length, is_cav=True)
     assert cav_cell(grid, cav, road, dt) == (row, lane)
-    assert math.isclose(grid.cell_centre_s(row, dt), grid.origin_at(dt) + (row + 0.5) * cell,
-                        rel_tol=0, abs_tol=1e-6)  # fmt: skip
+    assert math.isclose(
+        grid.cell_centre_s(row, dt),
+        grid.origin_at(dt) + (row + 0.5) * cell,
+        rel_tol=0,
+        abs_tol=1e-6,
+    )
     assert abs(grid.cell_centre_s(grid.row_of(centre, dt), dt) - centre) <= cell / 2 + 1e-6
 
 

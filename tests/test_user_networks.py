@@ -31,11 +31,13 @@ def test_user_configuration_overtakes_safely_and_beats_sumo_cacc(tmp_path, name)
     spec, lane = CASES[name]
     cfg = write_user_case(tmp_path / "net", spec, platoon_lane=lane)
     notes: list[str] = []
-    swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False,
-                        notify=notes.append)  # fmt: skip
+    swarm = run_sumocfg(
+        cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=notes.append
+    )
     assert len(notes) == 1 and "--lateral-resolution" in notes[0]  # added and reported
-    baseline = run_sumocfg(cfg, "cav", "sumo-cacc", tmp_path / "cacc", progress=False,
-                           notify=notes.append)  # fmt: skip
+    baseline = run_sumocfg(
+        cfg, "cav", "sumo-cacc", tmp_path / "cacc", progress=False, notify=notes.append
+    )
     assert swarm["cav"]["count"] == 6
     assert swarm["overtake"]["target"] == "truck"  # found on its own, not configured
     assert swarm["overtake"]["completed"] and swarm["overtake"]["regrouped"]
@@ -47,8 +49,9 @@ def test_user_configuration_overtakes_safely_and_beats_sumo_cacc(tmp_path, name)
 
 
 def test_config_with_lateral_resolution_needs_no_addition(tmp_path):
-    cfg = write_user_case(tmp_path, HighwaySpec(length_m=1500, lanes=3), end_s=10.0,
-                          lateral_resolution=0.8)  # fmt: skip
+    cfg = write_user_case(
+        tmp_path, HighwaySpec(length_m=1500, lanes=3), end_s=10.0, lateral_resolution=0.8
+    )
     notes: list[str] = []
     run_sumocfg(cfg, "cav", "cacc", tmp_path / "o", progress=False, notify=notes.append)
     assert notes == []
@@ -56,8 +59,19 @@ def test_config_with_lateral_resolution_needs_no_addition(tmp_path):
 
 def _sumo_cmd(cfg) -> list[str]:
     binary = os.path.join(sumo.SUMO_HOME, "bin", "sumo")
-    return [binary, "-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
-            "--collision.mingap-factor", "0", "--collision.action", "warn"]  # fmt: skip
+    return [
+        binary,
+        "-c",
+        str(cfg),
+        "--lateral-resolution",
+        "0.5",
+        "--no-step-log",
+        "true",
+        "--collision.mingap-factor",
+        "0",
+        "--collision.action",
+        "warn",
+    ]
 
 
 def test_attach_through_traci(tmp_path):
@@ -85,8 +99,10 @@ def test_attach_through_libsumo_by_ids_with_a_late_cav(tmp_path):
 
     cfg = write_user_case(tmp_path, HighwaySpec(length_m=2500, lanes=3), end_s=60.0)
     routes = tmp_path / "routes.rou.xml"
-    late = ('  <vehicle id="late" type="cav" route="r" depart="4" departLane="1" '
-            'departPos="60" departSpeed="16"/>\n</routes>')  # fmt: skip
+    late = (
+        '  <vehicle id="late" type="cav" route="r" depart="4" departLane="1" '
+        'departPos="60" departSpeed="16"/>\n</routes>'
+    )
     routes.write_text(routes.read_text().replace("</routes>", late))
     libsumo.start(_sumo_cmd(cfg))
     try:

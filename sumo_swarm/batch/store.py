@@ -278,8 +278,14 @@ class BatchStore:
 
     def fail(self, spec: RunSpec, error: str) -> dict[str, Any]:
         """Record a run whose worker died without a record (crash, out of memory, lost node)."""
-        run = {"elapsed_s": None, "cpu_s": None, "peak_rss_mb": None, "host": None,
-               "pid": None, "finished_at": time.time()}  # fmt: skip
+        run = {
+            "elapsed_s": None,
+            "cpu_s": None,
+            "peak_rss_mb": None,
+            "host": None,
+            "pid": None,
+            "finished_at": time.time(),
+        }
         record = _record(spec, STATUS_FAILED, one_line(error), None, run)
         self.keep(record)
         return self.finished(spec.run_id) or record
@@ -372,8 +378,11 @@ def results_frame(records: list[Mapping[str, Any]], parameters: tuple[str, ...])
     df = pd.DataFrame.from_records(rows, columns=columns)
     # A table that is None in some summaries (planner.statuses of a baseline) and has keys in
     # others: keep the keys' columns only.
-    parents = [c for c in df.columns if df[c].isna().all() and any(
-        o.startswith(f"{c}.") for o in df.columns)]  # fmt: skip
+    parents = [
+        c
+        for c in df.columns
+        if df[c].isna().all() and any(o.startswith(f"{c}.") for o in df.columns)
+    ]
     df = df.drop(columns=parents)
     statuses = [c for c in df.columns if c.startswith("planner.statuses.")]
     if statuses and "planner.solves" in df.columns:

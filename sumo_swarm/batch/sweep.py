@@ -370,7 +370,7 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
     if "base" not in data and set(data) & set(SECTIONS):
         raise ConfigError(
             "this is a scenario file, not a sweep: run it with 'sumo-swarm run FILE', or write a "
-            "sweep whose base = \"FILE\" (format: sumo-swarm batch --help)"
+            'sweep whose base = "FILE" (format: sumo-swarm batch --help)'
         )
     unknown = sorted(set(data) - set(SWEEP_KEYS))
     if unknown:
