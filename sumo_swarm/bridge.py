@@ -61,28 +61,16 @@ class Collision:
     kind: str
 
 
+# The trajectory table's columns (the contract's, plus each vehicle's length).
+RECORD_COLUMNS = "time_s vehicle kind edge lane x_m y_m s_m lat_m speed_mps accel_mps2 length_m"
+
+
 @dataclass
 class StepRecord:
     """Columns of the trajectory table, appended once per vehicle per step."""
 
     columns: dict[str, list] = field(
-        default_factory=lambda: {
-            k: []
-            for k in (
-                "time_s",
-                "vehicle",
-                "kind",
-                "edge",
-                "lane",
-                "x_m",
-                "y_m",
-                "s_m",
-                "lat_m",
-                "speed_mps",
-                "accel_mps2",
-                "length_m",
-            )
-        }
+        default_factory=lambda: {k: [] for k in RECORD_COLUMNS.split()}
     )
 
 

@@ -28,6 +28,11 @@ ROOT = Path(__file__).resolve().parent.parent
 PAPER = (ROOT / "scenarios" / "paper.toml").as_posix()
 
 
+def batch_command(sweep: Path, out: Path, workers: int) -> list[str]:
+    args = ["batch", str(sweep), "--out", str(out), "--workers", str(workers)]
+    return [sys.executable, "-m", "sumo_swarm", *args]
+
+
 def short(duration_s: float) -> str:
     return f'[fixed]\n"simulation.duration_s" = {duration_s}\n"evaluation.end_s" = {duration_s}\n'
 
@@ -242,17 +247,7 @@ def test_resume_after_kill_9_loses_and_duplicates_nothing(sweep_file, tmp_path):
     )
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "sumo_swarm",
-            "batch",
-            str(path),
-            "--out",
-            str(out),
-            "--workers",
-            "2",
-        ],
+        batch_command(path, out, workers=2),
         start_new_session=True,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -316,17 +311,7 @@ def test_worker_killed_mid_run_is_a_failed_run(sweep_file, tmp_path):
     path = sweep_file('controllers = ["cacc", "sumo-cacc"]\n' + short(60.0))
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "sumo_swarm",
-            "batch",
-            str(path),
-            "--out",
-            str(out),
-            "--workers",
-            "1",
-        ],
+        batch_command(path, out, workers=1),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
