@@ -29,6 +29,7 @@ from types import ModuleType
 from typing import Any
 
 from sumo_swarm.bridge import SumoSession
+from sumo_swarm.checks import require_number
 from sumo_swarm.config import EvaluationSettings, Scenario, load_scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext, close_controller
@@ -219,6 +220,8 @@ def attach(
         connection = importlib.import_module("libsumo")
     if (cav_type is None) == (cav_ids is None):
         raise ConfigError("attach: give exactly one of cav_type or cav_ids")
+    if cruising_speed_mps is not None:
+        require_number("attach: cruising_speed_mps", cruising_speed_mps, gt=0.0)
     settings = default_settings(config)
     if cruising_speed_mps is None and config is not None:
         cruising_speed_mps = settings.cav.cruising_speed_mps

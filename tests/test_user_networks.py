@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 
 import pytest
@@ -153,3 +154,11 @@ def test_attach_needs_exactly_one_cav_selector():
 
     with pytest.raises(ValueError, match="exactly one"):
         sumo_swarm.attach(libsumo)
+
+
+@pytest.mark.parametrize("speed", [math.nan, math.inf, 0.0])
+def test_attach_refuses_a_cruising_speed_that_is_no_speed(speed):
+    import libsumo
+
+    with pytest.raises(ValueError, match="cruising_speed_mps must be"):
+        sumo_swarm.attach(libsumo, cav_type="cav", cruising_speed_mps=speed)
