@@ -9,6 +9,7 @@ from typing import Any
 
 from sumo_swarm.errors import ConfigError
 
+SEED_MAX = 2**31 - 1  # SUMO's --seed is a signed 32-bit integer
 _COMPARE = {">": operator.gt, ">=": operator.ge, "<": operator.lt, "<=": operator.le}
 
 

@@ -14,6 +14,7 @@ import textwrap
 from pathlib import Path
 
 from sumo_swarm import __version__
+from sumo_swarm.checks import SEED_MAX
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.errors import ConfigError, SimulationError
 
@@ -35,7 +36,6 @@ CONTROLLER_HELP = (
     "changes), sumo-lc (the CAVs as ordinary SUMO vehicles, each overtaking on its own) "
     "(default: %(default)s)"
 )
-SEED_MAX = 2**31 - 1  # SUMO's --seed is a signed 32-bit integer
 
 
 def _wrap(text: str) -> str:

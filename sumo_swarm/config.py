@@ -18,14 +18,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from sumo_swarm.checks import check_fields, is_number
+from sumo_swarm.checks import SEED_MAX, check_fields, is_number
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.grid import GridSettings
 from sumo_swarm.planner import PlannerSettings
 from sumo_swarm.tracking import LateralSettings, LongitudinalSettings
 
 T = TypeVar("T")
-SEED_MAX = 2**31 - 1  # SUMO's --seed is a signed 32-bit integer
 
 
 # --------------------------------------------------------------------------- checks

@@ -39,10 +39,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sumo_swarm.checks import require_number
+from sumo_swarm.checks import SEED_MAX, require_number
 from sumo_swarm.config import (
     SECTIONS,
-    SEED_MAX,
     Scenario,
     load_scenario,
     nested_dataclass,
