@@ -63,19 +63,17 @@ class Collision:
     kind: str
 
 
+# The trajectory table's columns (the contract's, plus each vehicle's length).
+RECORD_COLUMNS = "time_s vehicle kind edge lane x_m y_m s_m lat_m speed_mps accel_mps2 length_m"
+
+
 @dataclass
 class StepRecord:
     """Columns of the trajectory table, appended once per vehicle per step."""
 
     columns: dict[str, list] = field(
-        default_factory=lambda: {
-            k: []
-            for k in (
-                "time_s", "vehicle", "kind", "edge", "lane", "x_m", "y_m", "s_m", "lat_m",
-                "speed_mps", "accel_mps2", "length_m",
-            )
-        }
-    )  # fmt: skip
+        default_factory=lambda: {k: [] for k in RECORD_COLUMNS.split()}
+    )
 
 
 class SumoSession:
@@ -96,8 +94,15 @@ class SumoSession:
     call :meth:`refresh` after each step instead of :meth:`step`.
     """
 
-    VARS = ("ROAD_ID", "LANE_INDEX", "LANEPOSITION", "LANEPOSITION_LAT", "POSITION", "SPEED",
-            "ACCELERATION")  # fmt: skip
+    VARS = (
+        "ROAD_ID",
+        "LANE_INDEX",
+        "LANEPOSITION",
+        "LANEPOSITION_LAT",
+        "POSITION",
+        "SPEED",
+        "ACCELERATION",
+    )
 
     def __init__(
         self,
@@ -432,9 +437,6 @@ class SumoSession:
         edge = self.edges.get(vid)
         return self.road_section(edge) if edge is not None else None
 
-    def set_color(self, vid: str, rgba: tuple[int, int, int, int]) -> None:
-        self.api.vehicle.setColor(vid, rgba)
-
     def exists(self, vid: str) -> bool:
         return vid in self.states
 
@@ -490,14 +492,6 @@ class SumoSession:
         except Exception as exc:  # a vehicle TraCI cannot probe: keep the conservative bound
             log.warning("car-following model of %s not identified: %s", vid, exc)
             return m
-
-    # ------------------------------------------------------------------ helpers
-    def leader_gap(self, vid: str) -> tuple[str, float] | None:
-        """SUMO's own leader lookup: (leader id, gap incl. minGap removed) or None."""
-        res = self.api.vehicle.getLeader(vid, 200.0)
-        if not res or not res[0]:
-            return None
-        return res[0], res[1] + self.api.vehicle.getMinGap(vid)
 
 
 def _identify_model(m: DriverModel, vid: str, veh, step_s: float) -> DriverModel:
@@ -568,9 +562,3 @@ def lane_curvature(shape) -> float:
         prev = heading
         length += seg
     return turn / length if length > 0 else 0.0
-
-
-def finite_or_none(value: float | None) -> float | None:
-    if value is None or not math.isfinite(value):
-        return None
-    return float(value)

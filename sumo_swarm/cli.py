@@ -1,4 +1,4 @@
-"""The ``sumo-swarm`` command.
+"""The sumo-swarm command (``sumo-swarm``, or ``python -m sumo_swarm``).
 
 Exit status: 0 success, 2 bad input (one line on stderr naming the problem, no traceback),
 1 anything else.
@@ -7,55 +7,261 @@ Exit status: 0 success, 2 bad input (one line on stderr naming the problem, no t
 from __future__ import annotations
 
 import argparse
+import importlib.resources
 import logging
 import sys
+import textwrap
 from pathlib import Path
 
 from sumo_swarm import __version__
+from sumo_swarm.checks import SEED_MAX
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.errors import ConfigError, SimulationError
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
+DESCRIPTION = (
+    "Vehicles swarm intelligence for Eclipse SUMO: a platoon of connected automated vehicles "
+    "(CAVs) held up by a slow vehicle overtakes it as a swarm and regroups (Hu et al., "
+    '"Vehicles Swarm Intelligence"). Run one scenario, reproduce the paper\'s evaluation, or '
+    "sweep many runs."
+)
+EXIT_STATUS = (
+    "exit status: 0 success, 2 bad input (one line naming the problem and the file), "
+    "1 anything else. 'sumo-swarm COMMAND --help' explains each command."
+)
+CONTROLLER_HELP = (
+    "how the CAVs are driven: swarm (the paper's method), cacc (the paper's baseline, a "
+    "longitudinal-only CACC platoon), sumo-cacc (SUMO's own CACC car-following model, no lane "
+    "changes), sumo-lc (the CAVs as ordinary SUMO vehicles, each overtaking on its own) "
+    "(default: %(default)s)"
+)
+
+
+def _wrap(text: str) -> str:
+    """A paragraph for a help text (the formatter keeps line breaks, so the epilogs' layout)."""
+    return textwrap.fill(text, width=92)
+
+
+def _paper_scenario() -> Path:
+    """The paper's scenario installed with the package: every key, its unit and its source."""
+    return Path(str(importlib.resources.files("sumo_swarm") / "data" / "paper.toml"))
+
+
+RUN_EPILOG = f"""\
+A scenario file (TOML) has the sections [simulation], [evaluation], [cav], [hv], [scene],
+[cell], [grid], [planner], [cacc], [swarm], [longitudinal] and [lateral]; every key has its
+unit in its name, and an unknown key or a value out of range is refused. The paper's
+scenario, installed with the package, lists every key with its meaning and source:
+  {_paper_scenario()}
+Copy it, change what you need (its network path is relative to the file) and run the copy.
+
+With --sumocfg, your own SUMO configuration runs as it is (the sublane model is added if it
+lacks one; collisions are counted, not teleported away); the vehicles of vType --cav-type form
+the swarm, and --config sets the swarm's settings.
+
+Outputs in --out: summary.json, trajectories.parquet (one row per vehicle per step),
+events.jsonl, plans.jsonl (swarm), sumo/ (the SUMO configuration as run: open
+sumo/scenario.sumocfg in sumo-gui) and, with --fcd, fcd.xml.
+"""
+
+BATCH_EPILOG = """\
+The sweep file (TOML):
+
+  name = "demo"                      # optional; default: the file's name
+  base = "paper.toml"                # the base scenario, relative to the sweep file
+  controllers = ["swarm", "cacc"]    # optional; default: swarm and cacc
+  seeds = [42, 43]                   # optional; default: the base scenario's seed
+
+  [fixed]                            # applied to every run
+  "simulation.duration_s" = 60.0
+
+  [grid]                             # every combination of these values
+  "scene.upstream_gap_m" = [20.0, 25.0, 30.0]
+  "cav.count" = [4, 6]
+
+  [[cases]]                          # and/or cases, each crossed with the grid
+  "scene.hv.hv_target.speed_mps" = 15.0
+  "scene.hv.hv_target.desired_speed_mps" = 15.0
+
+Runs = cases x grid points x seeds x controllers. A parameter is a dotted key of the scenario
+file: section.key (cav.count), a key of a nested table (planner.weights.w_tar), or a key of
+one item of a list of tables picked by its id (scene.hv.hv_target.speed_mps). Every run is
+checked before any starts.
+
+--out DIR holds sweep.json, results.parquet (one row per run: parameters, run_id, status,
+error and every summary field, flattened with dots), upstream.parquet, runs/<run_id>/ (each
+run's outputs) and impact/ (tables and plots). Stop it at any moment and run the same command
+again to resume: finished runs are skipped. Exit status 1 when any run failed.
+"""
+
 
 class _Parser(argparse.ArgumentParser):
     """argparse that reports usage errors as bad input (exit 2) in one line."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
         raise ConfigError(f"{self.prog}: {message}")
 
 
+def _int_at_least(minimum: int, maximum: int | None = None):
+    """An argparse type: an integer in [minimum, maximum]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum or (maximum is not None and value > maximum):
+            upper = f" and <= {maximum}" if maximum is not None else ""
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}{upper}, got {value}")
+        return value
+
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="sumo-swarm", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="sumo-swarm", description=_wrap(DESCRIPTION), epilog=_wrap(EXIT_STATUS))
     parser.add_argument("--version", action="version", version=f"sumo-swarm {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    parser.add_argument(
+        "-v", "--verbose", action="store_true", help="log progress details (default: off)"
+    )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    run = sub.add_parser("run", help="one headless run of a scenario file")
-    run.add_argument("scenario", nargs="?", type=Path, help="scenario TOML file")
-    run.add_argument("--sumocfg", type=Path, help="a SUMO configuration to run as it is")
-    run.add_argument("--cav-type", help="with --sumocfg: the vType whose vehicles form the swarm")
-    run.add_argument("--config", type=Path, help="with --sumocfg: swarm settings (TOML)")
-    run.add_argument("--controller", default="swarm", choices=CONTROLLERS)
-    run.add_argument("--seed", type=int, default=None)
-    run.add_argument("--out", type=Path, default=Path("out"))
-    run.add_argument("--fcd", action="store_true", help="also write SUMO's fcd-output (fcd.xml)")
-    run.add_argument("--gui", action="store_true", help="watch the run in sumo-gui (traci)")
+    run = sub.add_parser(
+        "run",
+        help="one headless run of a scenario file or of your own SUMO configuration",
+        description=_wrap(
+            "One headless run of a scenario file (or, with --sumocfg, of your own SUMO "
+            "configuration) under one controller."
+        ),
+        epilog=RUN_EPILOG,
+    )
+    run.add_argument(
+        "scenario",
+        nargs="?",
+        type=Path,
+        metavar="SCENARIO.toml",
+        help="the scenario file (see below); omit it with --sumocfg",
+    )
+    run.add_argument(
+        "--sumocfg",
+        type=Path,
+        metavar="FILE",
+        help="run this SUMO configuration as it is (default: none, SCENARIO.toml is run)",
+    )
+    run.add_argument(
+        "--cav-type",
+        metavar="TYPE",
+        help="with --sumocfg, required: the vType whose vehicles form the swarm",
+    )
+    run.add_argument(
+        "--config",
+        type=Path,
+        metavar="SWARM.toml",
+        help="with --sumocfg: the swarm's settings, a scenario file whose [cav], [swarm], "
+        "[planner], ... sections apply (default: the built-in settings, cruising at the CAV "
+        "vType's maxSpeed)",
+    )
+    run.add_argument(
+        "--controller", default="swarm", choices=CONTROLLERS, metavar="NAME", help=CONTROLLER_HELP
+    )
+    run.add_argument(
+        "--seed",
+        type=_int_at_least(0, SEED_MAX),
+        metavar="N",
+        help="SUMO's random seed, 0 or more (default: the scenario's [simulation] seed; with "
+        "--sumocfg, the configuration's)",
+    )
+    run.add_argument(
+        "--out",
+        type=Path,
+        default=Path("out"),
+        metavar="DIR",
+        help="output folder, created if needed; files in it are overwritten (default: %(default)s)",
+    )
+    run.add_argument(
+        "--fcd", action="store_true", help="also write SUMO's fcd-output, fcd.xml (default: off)"
+    )
+    run.add_argument(
+        "--gui",
+        action="store_true",
+        help="watch the run in sumo-gui (through traci, slower; default: off)",
+    )
 
     rep = sub.add_parser(
-        "reproduce", help="the paper's evaluation (Section IV), report and figures"
+        "reproduce",
+        help="the paper's evaluation (Section IV): all controllers, report and figures",
+        description=_wrap(
+            "The paper's evaluation (Section IV): the paper's scenario under every controller, "
+            "report.md and report.json with the paper's value beside each measure, and the "
+            "figures (PNG)."
+        ),
     )
-    rep.add_argument("--out", type=Path, default=Path("reproduce"))
-    rep.add_argument("--scenario", type=Path, default=None, help="default: the paper scenario")
+    rep.add_argument(
+        "--out",
+        type=Path,
+        default=Path("reproduce"),
+        metavar="DIR",
+        help="output folder (default: %(default)s)",
+    )
+    rep.add_argument(
+        "--scenario",
+        type=Path,
+        default=None,
+        metavar="SCENARIO.toml",
+        help="the scenario to evaluate (default: the paper's; 'sumo-swarm run --help' says "
+        "where it is installed)",
+    )
 
-    bat = sub.add_parser("batch", help="a resumable sweep of runs (docs/batch.md)")
-    bat.add_argument("sweep", type=Path, help="sweep TOML file")
-    bat.add_argument("--out", type=Path, required=True, help="batch folder (resumed if it exists)")
-    bat.add_argument("--workers", type=int, default=None, help="runs at a time (default: CPUs)")
-    bat.add_argument("--ray", metavar="ADDRESS", help="run on Ray: 'auto' or a cluster address")
-    bat.add_argument("--retry-failed", action="store_true", help="run failed runs again")
-    imp = sub.add_parser("impact", help="traffic-impact tables and plots of a batch folder")
-    imp.add_argument("dir", type=Path, help="the --out folder of a batch")
+    bat = sub.add_parser(
+        "batch",
+        help="a resumable sweep of runs, on this machine or on a Ray cluster",
+        description=_wrap(
+            "Run every run of a sweep file, one SUMO process per run, and keep the results in "
+            "--out. Resumable: run the same command again after a stop."
+        ),
+        epilog=BATCH_EPILOG,
+    )
+    bat.add_argument("sweep", type=Path, metavar="SWEEP.toml", help="the sweep file (see below)")
+    bat.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        metavar="DIR",
+        help="required: the batch folder (resumed if it holds the same sweep)",
+    )
+    bat.add_argument(
+        "--workers",
+        type=_int_at_least(1),
+        default=None,
+        metavar="N",
+        help="runs at a time (default: one per CPU; with --ray, the cluster's CPUs)",
+    )
+    bat.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        help="run on Ray: 'auto' or a cluster address; needs pip install 'sumo-swarm[cluster]' "
+        "(default: local processes)",
+    )
+    bat.add_argument(
+        "--retry-failed",
+        action="store_true",
+        help="run the runs recorded as failed again (default: off, they count as finished)",
+    )
+
+    imp = sub.add_parser(
+        "impact",
+        help="traffic-impact tables and plots of a batch folder",
+        description=_wrap(
+            "Traffic-impact tables (CSV and markdown) and plots across a finished sweep, "
+            "written to DIR/impact/ (batch writes them too, at its end)."
+        ),
+    )
+    imp.add_argument("dir", type=Path, metavar="DIR", help="the --out folder of a batch")
     return parser
 
 
@@ -71,10 +277,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from sumo_swarm.runner import run_sumocfg
 
         summary = run_sumocfg(
-            args.sumocfg, args.cav_type, args.controller, args.out, config=args.config,
-            seed=args.seed, fcd=args.fcd, gui=args.gui,
+            args.sumocfg,
+            args.cav_type,
+            args.controller,
+            args.out,
+            config=args.config,
+            seed=args.seed,
+            fcd=args.fcd,
+            gui=args.gui,
             notify=lambda line: print(line, file=sys.stderr),
-        )  # fmt: skip
+        )
     else:
         if args.scenario is None:
             raise ConfigError("run: give a scenario file (or --sumocfg FILE --cav-type TYPE)")

@@ -9,6 +9,7 @@ file, any unknown key, wrong type or out-of-range value (ranges are checked by e
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import types
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
+from sumo_swarm.checks import SEED_MAX, check_fields, is_number
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.grid import GridSettings
 from sumo_swarm.planner import PlannerSettings
@@ -29,24 +31,10 @@ T = TypeVar("T")
 # --------------------------------------------------------------------------- checks
 
 
-def check_positive(owner: object, *names: str) -> None:
-    """Raise ConfigError unless every named field of ``owner`` is a finite number > 0."""
-    for name in names:
-        value = getattr(owner, name)
-        if value is None:
-            continue
-        if not math.isfinite(value) or value <= 0:
-            raise ConfigError(f"{name} must be > 0, got {value!r}")
-
-
-def check_non_negative(owner: object, *names: str) -> None:
-    """Raise ConfigError unless every named field of ``owner`` is a finite number >= 0."""
-    for name in names:
-        value = getattr(owner, name)
-        if value is None:
-            continue
-        if not math.isfinite(value) or value < 0:
-            raise ConfigError(f"{name} must be >= 0, got {value!r}")
+# Thin names for the one range check (sumo_swarm.checks), as the settings classes read best:
+# every named field (None skipped) must be a finite number > 0, or >= 0.
+check_positive = functools.partial(check_fields, gt=0.0)
+check_non_negative = functools.partial(check_fields, ge=0.0)
 
 
 # --------------------------------------------------------------------------- sections
@@ -64,9 +52,9 @@ class SimulationSettings:
     route_edges: tuple[str, ...] = ("hwy",)
 
     def __post_init__(self) -> None:
-        check_positive(self, "step_length_s", "duration_s", "lateral_resolution_m")
-        if self.step_length_s > 1.0:
-            raise ConfigError(f"step_length_s must be <= 1 s, got {self.step_length_s}")
+        check_positive(self, "duration_s", "lateral_resolution_m")
+        check_fields(self, "step_length_s", gt=0.0, le=1.0)
+        check_fields(self, "seed", ge=0, le=SEED_MAX, integer=True)
         if not self.route_edges:
             raise ConfigError("route_edges must name at least one edge")
 
@@ -451,15 +439,36 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
 
 
+def union_members(tp: Any) -> tuple[Any, ...]:
+    """The alternatives of a type hint: ``(A, B)`` for ``A | B`` or ``Optional``; ``(tp,)``."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return typing.get_args(tp)
+    return (tp,)
+
+
+def nested_dataclass(tp: Any) -> tuple[Literal["table", "items"], type] | None:
+    """What a field of type ``tp`` holds below it in a scenario file: ``("table", cls)`` for a
+    (possibly optional) dataclass, ``("items", cls)`` for a list of dataclasses, else None."""
+    for arg in union_members(tp):
+        if dataclasses.is_dataclass(arg):
+            return "table", typing.cast(type, arg)
+        if typing.get_origin(arg) is tuple:
+            items = typing.get_args(arg)
+            if items and dataclasses.is_dataclass(items[0]):
+                return "items", typing.cast(type, items[0])
+    return None
+
+
 def _convert(value: Any, tp: Any, key: str) -> Any:
     """Check ``value`` against the annotation ``tp`` and convert it (TOML -> dataclass field)."""
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
+    members = union_members(tp)
+    if len(members) > 1:
+        if value is None and type(None) in members:
             return None
         errors = []
-        for arg in args:
+        for arg in members:
             if arg is type(None):
                 continue
             try:
@@ -494,6 +503,8 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if not is_number(value):  # TOML has nan and inf; no setting means either
+            raise ConfigError(f"{key}: expected a finite number, got {value!r}")
         return float(value)
     if tp is str:
         if not isinstance(value, str):

@@ -81,22 +81,15 @@ def numeric(series: pd.Series) -> pd.Series:
     return series.map(_to_float).astype("float64")
 
 
-def _fmt(value: Any, digits: int) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "-"
-    if isinstance(value, bool | np.bool_):
-        return "yes" if value else "no"
-    if isinstance(value, float | np.floating):
-        return f"{value:.{digits}f}"
-    return str(value)
+def _yes_no(value: Any) -> Any:
+    return ("yes" if value else "no") if isinstance(value, bool | np.bool_) else value
 
 
 def markdown_table(df: pd.DataFrame, digits: int = 3) -> str:
     """``df`` as a GitHub markdown table (floats to ``digits`` decimals, missing as ``-``)."""
-    head = "| " + " | ".join(str(c) for c in df.columns) + " |"
-    rule = "| " + " | ".join("---" for _ in df.columns) + " |"
-    body = ["| " + " | ".join(_fmt(v, digits) for v in row) + " |" for row in df.itertuples(False)]
-    return "\n".join([head, rule, *body])
+    cells = df.map(_yes_no).astype(object)
+    cells = cells.where(cells.notna(), None)  # tabulate shows None, not NaN, as missing
+    return cells.to_markdown(index=False, floatfmt=f".{digits}f", missingval="-")
 
 
 def read_batch(batch_dir: str | Path) -> tuple[pd.DataFrame, list[str]]:

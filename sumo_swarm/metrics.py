@@ -25,13 +25,13 @@ Conventions shared by every function here:
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
+from sumo_swarm.checks import check_fields, finite_or_none, require_number
 from sumo_swarm.errors import ConfigError
 
 CAV = "cav"
@@ -42,6 +42,9 @@ ACCEL_TOLERANCE_MPS2 = 1e-6  # [m/s^2] float noise allowed around the hard-brake
 STOPPED_MPS = 1e-6  # [m/s] below this a follower's time headway is infinite
 CLOSING_MPS = 1e-6  # [m/s] a pair closes in only when the follower is faster by more than this
 TIME_TOLERANCE_S = 1e-6  # [s] slack on window bounds and reference times (float time stamps)
+# An upstream HV counts as influenced when its speed dropped by more than this [%]. The paper
+# (IV-E-4) calls the 4th follower, at 0.42 %, still influenced, and the ones after it not.
+INFLUENCE_THRESHOLD_PCT = 0.1
 
 
 # --------------------------------------------------------------------------------------------
@@ -52,14 +55,6 @@ def _require(df: pd.DataFrame, columns: Iterable[str]) -> None:
     missing = [c for c in columns if c not in df.columns]
     if missing:
         raise ConfigError(f"trajectory table lacks column(s) {', '.join(missing)}")
-
-
-def _num(value: object) -> float | None:
-    """``value`` as a plain float, or None when it is None, NaN or infinite."""
-    if value is None:
-        return None
-    x = float(value)  # type: ignore[arg-type]
-    return x if math.isfinite(x) else None
 
 
 # --------------------------------------------------------------------------------------------
@@ -79,10 +74,7 @@ class EvaluationWindow:
     end_s: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("start_s", "end_s"):
-            value = getattr(self, name)
-            if value is not None and not math.isfinite(value):
-                raise ConfigError(f"evaluation window {name} must be finite, got {value}")
+        check_fields(self, "start_s", "end_s")  # finite (or None: open)
         if self.start_s is not None and self.end_s is not None and self.end_s < self.start_s:
             raise ConfigError(
                 f"evaluation window ends ({self.end_s} s) before it starts ({self.start_s} s)"
@@ -142,10 +134,10 @@ def cav_speed_stats(
             "samples": 0,
         }
     return {
-        "mean_speed_mps": _num(speeds.mean()),
-        "min_speed_mps": _num(speeds.min()),
-        "max_speed_mps": _num(speeds.max()),
-        "speed_var_m2ps2": _num(speeds.var()),
+        "mean_speed_mps": finite_or_none(speeds.mean()),
+        "min_speed_mps": finite_or_none(speeds.min()),
+        "max_speed_mps": finite_or_none(speeds.max()),
+        "speed_var_m2ps2": finite_or_none(speeds.var()),
         "count": int(cav["vehicle"].nunique()),
         "samples": int(speeds.size),
     }
@@ -190,8 +182,8 @@ def travel_times_s(
         distance_m = min(s[-1] - s[0] for _, s in tracks.values())
         if distance_m <= 0:
             return {v: None for v in tracks}
-    elif not (math.isfinite(distance_m) and distance_m > 0):
-        raise ConfigError(f"travel distance must be a positive number of metres, got {distance_m}")
+    else:
+        require_number("travel distance_m", distance_m, gt=0.0)
     return {v: _time_to_cover(t, s, distance_m) for v, (t, s) in tracks.items()}
 
 
@@ -221,7 +213,7 @@ def travel_time_s(
     times = list(per_cav.values())
     if not times or any(t is None for t in times):
         return None
-    return _num(np.mean(times))
+    return finite_or_none(np.mean(times))
 
 
 # --------------------------------------------------------------------------------------------
@@ -333,8 +325,8 @@ def cav_gap_stats(
     if values.size == 0:
         return {"gap_mean_m": None, "gap_min_m": None, "samples": 0}
     return {
-        "gap_mean_m": _num(values.mean()),
-        "gap_min_m": _num(values.min()),
+        "gap_mean_m": finite_or_none(values.mean()),
+        "gap_min_m": finite_or_none(values.min()),
         "samples": int(values.size),
     }
 
@@ -348,7 +340,7 @@ def min_ttc_s(df: pd.DataFrame, window: EvaluationWindow | None = None) -> float
     """
     ttc = gaps(_select(df, window))["ttc_s"].to_numpy(dtype=float)
     ttc = ttc[np.isfinite(ttc)]
-    return _num(ttc.min()) if ttc.size else None
+    return finite_or_none(ttc.min()) if ttc.size else None
 
 
 # --------------------------------------------------------------------------------------------
@@ -508,8 +500,8 @@ def upstream_impact(
     rows: list[dict[str, object]] = []
     for row in behind.itertuples(index=False):
         vid = row.vehicle
-        reference = _num(undisturbed.get(str(vid), row.speed_mps))
-        slowest = _num(speeds.get(vid))
+        reference = finite_or_none(undisturbed.get(str(vid), row.speed_mps))
+        slowest = finite_or_none(speeds.get(vid))
         if reference is None or slowest is None or reference <= 0:
             reduction = 0.0 if reference is not None and slowest is not None else None
         else:
@@ -522,15 +514,15 @@ def upstream_impact(
                 "undisturbed_speed_mps": reference,
                 "min_speed_mps": slowest,
                 "speed_reduction_pct": reduction,
-                "min_gap_m": _num(min_gap.get(vid)),
-                "min_headway_s": _num(min_headway.get(vid)),
+                "min_gap_m": finite_or_none(min_gap.get(vid)),
+                "min_headway_s": finite_or_none(min_headway.get(vid)),
             }
         )
     return rows
 
 
 def influenced_count(
-    upstream: Iterable[Mapping[str, object]], threshold_pct: float = 0.1
+    upstream: Iterable[Mapping[str, object]], threshold_pct: float = INFLUENCE_THRESHOLD_PCT
 ) -> dict[int, int]:
     """Number of upstream vehicles per lane whose speed dropped by more than ``threshold_pct``.
 
@@ -564,7 +556,7 @@ def lateral_rms(errors: Iterable[float | None]) -> float | None:
     left.
     """
     values = _finite(errors)
-    return _num(np.sqrt(np.mean(values**2))) if values.size else None
+    return finite_or_none(np.sqrt(np.mean(values**2))) if values.size else None
 
 
 def summarise_ms(samples: Iterable[float | None], prefix: str = "") -> dict[str, float | None]:
@@ -578,7 +570,8 @@ def summarise_ms(samples: Iterable[float | None], prefix: str = "") -> dict[str,
     if values.size == 0:
         stats: list[float | None] = [None, None, None]
     else:
-        stats = [_num(np.median(values)), _num(np.percentile(values, 95)), _num(values.max())]
+        picks = (np.median(values), np.percentile(values, 95), values.max())
+        stats = [finite_or_none(x) for x in picks]
     return {
         f"{prefix}{name}": value
         for name, value in zip(("median", "p95", "max"), stats, strict=True)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import math
-import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -31,6 +30,7 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.grid import MovingGrid, hv_blocked_cells
 from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.safexml import parse_xml
 
 DPI = 110
 SUMO_DEFAULT_LANE_WIDTH_M = 3.2  # SUMO's lane width when the network does not give one [m]
@@ -90,10 +90,7 @@ class RunData:
 def lane_widths_m(scenario: Scenario) -> tuple[float, ...]:
     """Widths of the lanes of the route's first edge, read from the network file [m]."""
     edge_id = scenario.simulation.route_edges[0]
-    try:
-        root = ET.parse(scenario.network_path).getroot()
-    except (OSError, ET.ParseError) as exc:
-        raise ConfigError(f"cannot read network {scenario.network_path}: {exc}") from None
+    root = parse_xml(scenario.network_path, what="SUMO network")
     for edge in root.iter("edge"):
         if edge.get("id") == edge_id:
             lanes = sorted(edge.iter("lane"), key=lambda lane: int(lane.get("index", "0")))

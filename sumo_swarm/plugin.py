@@ -29,6 +29,7 @@ from types import ModuleType
 from typing import Any
 
 from sumo_swarm.bridge import SumoSession
+from sumo_swarm.checks import require_number
 from sumo_swarm.config import EvaluationSettings, Scenario, load_scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext, close_controller
@@ -66,9 +67,12 @@ class SwarmHandle:
         self.session = SumoSession.attached(api, is_cav=is_cav)
         self._cruising_speed = cruising_speed_mps
         self.ctx = RunContext(
-            self.session, settings, self.session.cav_ids, _first_road(self.session),
+            self.session,
+            settings,
+            self.session.cav_ids,
+            _first_road(self.session),
             out_dir=out_dir,
-        )  # fmt: skip
+        )
         self._attached = False
         self._controller_attached = False
         self._wall0 = time.perf_counter()
@@ -107,9 +111,11 @@ class SwarmHandle:
             cruise = min(api.vehicletype.getMaxSpeed(type_id), cav.max_speed_mps)
         length = api.vehicletype.getLength(type_id)
         cav = replace(
-            cav, cruising_speed_mps=cruise, length_m=length,
+            cav,
+            cruising_speed_mps=cruise,
+            length_m=length,
             max_speed_mps=max(cav.max_speed_mps, cruise),
-        )  # fmt: skip
+        )
         self.settings = replace(self.settings, cav=cav)
         self.ctx.scenario = self.settings
 
@@ -123,18 +129,20 @@ class SwarmHandle:
         settings = replace(
             self.settings,
             evaluation=EvaluationSettings(
-                start_s=start, end_s=max(end, start + 1e-3),
+                start_s=start,
+                end_s=max(end, start + 1e-3),
                 travel_distance_m=self.settings.evaluation.travel_distance_m,
                 upstream_ranks=self.settings.evaluation.upstream_ranks,
             ),
             simulation=replace(self.settings.simulation, step_length_s=self.session.step_length_s),
-        )  # fmt: skip
+        )
         wall = time.perf_counter() - self._wall0
         timing = {
-            "wall_s": wall, "sumo_s": max(wall - self.controller_s, 0.0),
+            "wall_s": wall,
+            "sumo_s": max(wall - self.controller_s, 0.0),
             "controller_s": self.controller_s,
             "realtime_factor": (end - start) / wall if wall > 0 else None,
-        }  # fmt: skip
+        }
         return build_summary(
             scenario=settings,
             controller=self.controller.name,
@@ -212,6 +220,8 @@ def attach(
         connection = importlib.import_module("libsumo")
     if (cav_type is None) == (cav_ids is None):
         raise ConfigError("attach: give exactly one of cav_type or cav_ids")
+    if cruising_speed_mps is not None:
+        require_number("attach: cruising_speed_mps", cruising_speed_mps, gt=0.0)
     settings = default_settings(config)
     if cruising_speed_mps is None and config is not None:
         cruising_speed_mps = settings.cav.cruising_speed_mps
@@ -225,11 +235,39 @@ def attach(
         def is_cav(vid: str, type_id: str) -> bool:
             return type_id == cav_type
 
+    warn_if_sumo_teleports(connection)
     ctrl = make_controller(controller) if isinstance(controller, str) else controller
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     return SwarmHandle(connection, ctrl, settings, is_cav, cruising_speed_mps, out)
+
+
+def warn_if_sumo_teleports(api: Any) -> bool:
+    """Log one warning, and return True, when the running SUMO teleports vehicles away.
+
+    SUMO's own runs of sumo-swarm count every collision and never teleport (``sumo-swarm run``
+    sets the options); a simulation someone else started keeps its options, and TraCI cannot
+    change them after the start, so the swarm can only say so.
+    """
+    try:
+        wait_s = float(api.simulation.getOption("time-to-teleport"))
+        on_collision = str(api.simulation.getOption("collision.action"))
+    except Exception as exc:  # a SUMO too old for getOption (before 1.19): nothing to read
+        log.debug("cannot read SUMO's teleport options: %s", exc)
+        return False
+    jams = wait_s > 0  # SUMO: a non-positive time-to-teleport switches jam teleports off
+    collisions = on_collision in ("teleport", "remove")
+    if not (jams or collisions):
+        return False
+    log.warning(
+        "SUMO teleports vehicles in this simulation (time-to-teleport %g s, collision.action "
+        "%s): colliding or stuck vehicles may vanish and be missing from the swarm's safety "
+        "counts; start SUMO with --time-to-teleport -1 --collision.action warn to keep them",
+        wait_s,
+        on_collision,
+    )
+    return True
 
 
 def detach(handle: SwarmHandle) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
-import os
+import subprocess
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -13,11 +13,13 @@ from typing import Any
 import pandas as pd
 from tqdm import tqdm
 
-from sumo_swarm.bridge import SumoSession
+from sumo_swarm.bridge import SumoSession, sumo_binary
+from sumo_swarm.checks import require_number
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext, close_controller
 from sumo_swarm.errors import ConfigError, SimulationError
+from sumo_swarm.files import write_json_atomic, write_parquet_atomic
 from sumo_swarm.model import RoadSection
 from sumo_swarm.scene import CAV_TYPE, sumo_options, write_sumo_inputs
 from sumo_swarm.summary import build_summary
@@ -36,19 +38,6 @@ def prepare_out_dir(out_dir: str | Path) -> Path:
     except OSError as exc:
         raise ConfigError(f"output folder {out} cannot be written: {exc.strerror or exc}") from None
     return out
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON through a temporary file and a rename: a crash never leaves half a file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
-
-
-def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
 
 
 def trajectory_frame(session: SumoSession) -> pd.DataFrame:
@@ -94,9 +83,15 @@ def run_scenario(
         gui=gui,
     )
     return _drive(
-        session, scenario, controller, controller_name, out, scene,
-        max_steps=round(sim.duration_s / sim.step_length_s), progress=progress,
-    )  # fmt: skip
+        session,
+        scenario,
+        controller,
+        controller_name,
+        out,
+        scene,
+        max_steps=round(sim.duration_s / sim.step_length_s),
+        progress=progress,
+    )
 
 
 def run_sumocfg(
@@ -123,9 +118,22 @@ def run_sumocfg(
 
     cfg = Path(sumocfg)
     options = read_sumocfg_options(cfg)
+    check_sumocfg_inputs(cfg, options)
+    step = sumocfg_time_s(cfg, options, "step-length", 1.0)
+    begin = sumocfg_time_s(cfg, options, "begin", 0.0)
+    end = sumocfg_time_s(cfg, options, "end", max_duration_s)
+    require_number(f"{cfg}: step-length", step, gt=0.0)
+    if end <= begin:
+        raise ConfigError(f"{cfg}: end ({end:g} s) must be after begin ({begin:g} s)")
+    end = min(end, max_duration_s)
     out = prepare_out_dir(out_dir)
     settings = default_settings(config)
-    settings = replace(settings, name=cfg.stem)
+    settings = replace(
+        settings,
+        name=cfg.stem,
+        simulation=replace(settings.simulation, step_length_s=step),
+        evaluation=replace(settings.evaluation, start_s=begin, end_s=end),
+    )
     added = []
     if "lateral-resolution" not in options:
         added += ["--lateral-resolution", "0.5"]
@@ -133,17 +141,13 @@ def run_sumocfg(
     forced = ["--collision.mingap-factor", "0", "--collision.action", "warn"]
     if seed is not None:
         forced += ["--seed", str(seed)]
-    args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true",
-            *_fcd_args(out, fcd)]  # fmt: skip
+    args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true"]
+    # The record of what ran, in SUMO's own words: the user's inputs by absolute path and every
+    # option, so sumo-gui -c sumo/scenario.sumocfg shows the same scene.
+    save_sumo_configuration(cfg, args, out / "sumo" / "scenario.sumocfg")
     controller = make_controller(controller_name)
-    session = SumoSession(args, is_cav=lambda vid, type_id: type_id == cav_type, gui=gui)
-    step = float(options.get("step-length", 1.0))
-    settings = replace(settings, simulation=replace(settings.simulation, step_length_s=step))
-    end = float(options.get("end", max_duration_s))
-    begin = float(options.get("begin", 0.0))
-    settings = replace(
-        settings,
-        evaluation=replace(settings.evaluation, start_s=begin, end_s=min(end, max_duration_s)),
+    session = SumoSession(
+        [*args, *_fcd_args(out, fcd)], is_cav=lambda vid, type_id: type_id == cav_type, gui=gui
     )
 
     def check_types(sess: SumoSession) -> None:
@@ -155,10 +159,17 @@ def run_sumocfg(
             )
 
     return _drive(
-        session, settings, controller, controller_name, out, LiveScene(session, controller),
-        max_steps=round((min(end, max_duration_s) - begin) / step), progress=progress,
-        on_start=check_types, require_cavs=cav_type,
-    )  # fmt: skip
+        session,
+        settings,
+        controller,
+        controller_name,
+        out,
+        LiveScene(session, controller),
+        max_steps=round((end - begin) / step),
+        progress=progress,
+        on_start=check_types,
+        require_cavs=cav_type,
+    )
 
 
 def read_sumocfg_options(path: Path) -> dict[str, str]:
@@ -172,6 +183,57 @@ def read_sumocfg_options(path: Path) -> dict[str, str]:
             if "value" in opt.attrib:
                 options[opt.tag] = opt.attrib["value"]
     return options
+
+
+# Options of a SUMO configuration that name input files (comma-separated lists), relative to
+# the configuration's folder.
+SUMOCFG_INPUTS = ("net-file", "route-files", "additional-files")
+
+
+def check_sumocfg_inputs(cfg: Path, options: dict[str, str]) -> None:
+    """ConfigError naming the first input file of ``cfg`` that is missing (SUMO's own message
+    would be a "Process Error" with exit status 1)."""
+    if not options.get("net-file"):
+        raise ConfigError(f"{cfg}: no net-file in the SUMO configuration")
+    for option in SUMOCFG_INPUTS:
+        for name in options.get(option, "").split(","):
+            path = cfg.parent / name.strip()
+            if name.strip() and not path.is_file():
+                raise ConfigError(f"{cfg}: {option}: file not found: {path}")
+
+
+def sumocfg_time_s(cfg: Path, options: dict[str, str], name: str, default_s: float) -> float:
+    """A time option of a SUMO configuration [s]: seconds or SUMO's ``[[[D:]H:]M:]S`` form;
+    ConfigError naming the option and file unless it is a finite number."""
+    text = options.get(name)
+    if text is None:
+        return default_s
+    try:
+        parts = [float(part) for part in text.split(":")]
+    except ValueError:
+        raise ConfigError(f"{cfg}: {name}: expected a time in seconds, got {text!r}") from None
+    if len(parts) > 4:
+        raise ConfigError(f"{cfg}: {name}: expected a time in seconds, got {text!r}")
+    units = (1.0, 60.0, 3600.0, 86400.0)[: len(parts)]  # S, M:S, H:M:S, D:H:M:S
+    seconds = sum(p * unit for p, unit in zip(reversed(parts), units, strict=True))
+    require_number(f"{cfg}: {name}", seconds)
+    return seconds
+
+
+def save_sumo_configuration(cfg: Path, args: list[str], path: Path) -> None:
+    """Have SUMO write the configuration ``args`` make to ``path``, without running it.
+
+    SUMO refusing an option of the user's configuration is bad input: ConfigError with SUMO's
+    message and the file.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [sumo_binary(), *args, "--save-configuration", str(path)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    if proc.returncode != 0:
+        lines = [line.strip() for line in proc.stderr.splitlines() if line.strip()]
+        reason = next((line for line in lines if line.startswith("Error")), None)
+        reason = reason or (lines[0] if lines else f"exit status {proc.returncode}")
+        raise ConfigError(f"{cfg}: SUMO refuses the configuration: {reason}")
 
 
 def _fcd_args(out: Path, fcd: bool) -> list[str]:
@@ -209,9 +271,12 @@ def _drive(
         ctx = RunContext(session, scenario, session.cav_ids, road, out_dir=out)
         controller.attach(ctx)
         bar = tqdm(
-            total=max_steps, desc=f"{scenario.name}/{controller_name}", unit="step",
-            disable=(not progress) if progress is not None else None, leave=False,
-        )  # fmt: skip
+            total=max_steps,
+            desc=f"{scenario.name}/{controller_name}",
+            unit="step",
+            disable=(not progress) if progress is not None else None,
+            leave=False,
+        )
         try:
             for _ in range(max_steps):
                 t0 = time.perf_counter()

@@ -1,10 +1,14 @@
-"""Parse users' XML files safely: no DTDs, so no entity expansion (billion laughs) and no
-external entities; every problem is a ConfigError naming the file."""
+"""Parse users' XML files safely with defusedxml: no DTD, so no entity expansion (billion
+laughs) and no external entities, whatever the file's encoding; every problem is a ConfigError
+naming the file."""
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
+
+from defusedxml import DefusedXmlException
+from defusedxml.ElementTree import fromstring
 
 from sumo_swarm.errors import ConfigError
 
@@ -17,9 +21,12 @@ def parse_xml(path: Path, what: str = "XML file") -> ET.Element:
         raise ConfigError(f"{what} not found: {path}") from None
     except OSError as exc:
         raise ConfigError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
-    if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
-        raise ConfigError(f"{path}: {what} with a DTD or entities is refused (unsafe XML)")
     try:
-        return ET.fromstring(data)
+        # The parser sees the document after decoding (UTF-8, UTF-16, ...), so a DTD is found
+        # in any encoding; forbid_dtd refuses even a DTD without entities.
+        return fromstring(data, forbid_dtd=True)
+    except DefusedXmlException:
+        unsafe = f"{what} with a DTD or entities is refused (unsafe XML)"
+        raise ConfigError(f"{path}: {unsafe}") from None
     except ET.ParseError as exc:
         raise ConfigError(f"{path}: malformed {what}: {exc}") from None

@@ -44,9 +44,6 @@ class Scene:
     def target_id(self) -> str | None:
         return next((v.id for v in self.vehicles if v.role == "target"), None)
 
-    def front_at_start(self) -> dict[str, float]:
-        return {v.id: v.front_m for v in self.vehicles}
-
 
 def _hv_type(desired_speed: float, types: dict[str, float]) -> str:
     type_id = f"hv_v{desired_speed:g}".replace(".", "_")
@@ -65,10 +62,16 @@ def build_scene(sc: Scenario) -> Scene:
         front = scene.leader_front_m - i * (cav.length_m + scene.initial_gap_m)
         vehicles.append(
             PlacedVehicle(
-                f"cav{i}", "cav", CAV_TYPE, scene.platoon_lane, front,
-                scene.initial_speed_mps, cav.length_m, "cav",
+                f"cav{i}",
+                "cav",
+                CAV_TYPE,
+                scene.platoon_lane,
+                front,
+                scene.initial_speed_mps,
+                cav.length_m,
+                "cav",
             )
-        )  # fmt: skip
+        )
     placed = list(scene.hv)
     if not any(p.role == "target" for p in placed):
         # The slow vehicle ahead of the platoon, driving at the initial speed.
@@ -89,10 +92,16 @@ def build_scene(sc: Scenario) -> Scene:
         desired = p.desired_speed_mps or hv.desired_speed_mps
         vehicles.append(
             PlacedVehicle(
-                p.id, "hv", _hv_type(desired, types), p.lane, p.front_m, p.speed_mps,
-                p.length_m or hv.length_m, p.role,
+                p.id,
+                "hv",
+                _hv_type(desired, types),
+                p.lane,
+                p.front_m,
+                p.speed_mps,
+                p.length_m or hv.length_m,
+                p.role,
             )
-        )  # fmt: skip
+        )
     n_lanes = 1 + max(v.lane for v in vehicles)
     n_lanes = max(n_lanes, 1)
     upstream_type = _hv_type(hv.desired_speed_mps, types)
@@ -107,10 +116,16 @@ def build_scene(sc: Scenario) -> Scene:
                 break
             vehicles.append(
                 PlacedVehicle(
-                    f"up{lane}_{rank}", "hv", upstream_type, lane, front,
-                    scene.upstream_speed_mps, hv.length_m, "upstream",
+                    f"up{lane}_{rank}",
+                    "hv",
+                    upstream_type,
+                    lane,
+                    front,
+                    scene.upstream_speed_mps,
+                    hv.length_m,
+                    "upstream",
                 )
-            )  # fmt: skip
+            )
             rear = front - hv.length_m
     return Scene(tuple(vehicles), types)
 
@@ -195,6 +210,7 @@ def routes_xml(sc: Scenario, scene: Scene, controller: str) -> str:
 def sumo_options(sc: Scenario) -> list[str]:
     """SUMO options every run uses (collisions are physical overlaps, counted, never hidden)."""
     sim = sc.simulation
+    # One option and its value a line: the formatter would split each pair over two lines.
     return [
         "--step-length", f"{sim.step_length_s}",
         "--lateral-resolution", f"{sim.lateral_resolution_m}",

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from sumo_swarm import metrics
+from sumo_swarm.checks import finite_or_none
 from sumo_swarm.metrics import EvaluationWindow
 
 if TYPE_CHECKING:
@@ -18,13 +18,6 @@ if TYPE_CHECKING:
 
 SCHEMA = "sumo-swarm/summary/1"
 REGROUP_LAT_TOL_M = 0.5  # a CAV counts as "in" its lane when its centre is this close [m]
-
-
-def _f(value: Any) -> float | None:
-    if value is None:
-        return None
-    x = float(value)
-    return x if math.isfinite(x) else None
 
 
 def overtake_progress(
@@ -129,14 +122,14 @@ def build_summary(
         "completed": t_end is not None,
         "regrouped": t_regroup is not None,
         "target": own.get("target", target),
-        "t_start_s": _f(t_start),
-        "t_end_s": _f(t_end),
-        "t_regrouped_s": _f(t_regroup),
+        "t_start_s": finite_or_none(t_start),
+        "t_end_s": finite_or_none(t_end),
+        "t_regrouped_s": finite_or_none(t_regroup),
         "behaving_steps": own.get("behaving_steps"),
         "aborted": int(own.get("aborted", 0)),
         "abort_reasons": dict(own.get("abort_reasons", {})),
         "lateral_holds": int(own.get("lateral_holds", 0)),
-        "blocked_hv_min_accel_mps2": _f(own.get("blocked_hv_min_accel_mps2")),
+        "blocked_hv_min_accel_mps2": finite_or_none(own.get("blocked_hv_min_accel_mps2")),
     }
     for key in ("manoeuvres", "behaving_interval_s", "lateral_holds_per_manoeuvre", "blocked_hvs"):
         if key in own:  # extra (not in the contract): the swarm's own bookkeeping
@@ -145,12 +138,22 @@ def build_summary(
     # The HVs behind the swarm's front at the decision: those beside the platoon, which the
     # swarm blocks, rank first in their lanes; the slow vehicle itself is left out.
     upstream = metrics.upstream_impact(
-        df, ref_time, n_rank=ev.upstream_ranks, window=EvaluationWindow(ref_time, ev.end_s),
-        behind_of="front", exclude=[target] if target else [],
-    )  # fmt: skip
+        df,
+        ref_time,
+        n_rank=ev.upstream_ranks,
+        window=EvaluationWindow(ref_time, ev.end_s),
+        behind_of="front",
+        exclude=[target] if target else [],
+    )
     collisions = {tuple(sorted((c.collider, c.victim))) for c in session.collisions}
-    planner_keys = ("solves", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "statuses",
-                    "fallbacks")  # fmt: skip
+    planner_keys = (
+        "solves",
+        "solve_ms_median",
+        "solve_ms_p95",
+        "solve_ms_max",
+        "statuses",
+        "fallbacks",
+    )
     planner = {k: None for k in planner_keys}
     planner.update(controller_summary.get("planner", {}))
     return {
@@ -162,14 +165,14 @@ def build_summary(
         "sim_end_s": float(session.time_s),
         "cav": {
             "count": len(cav_ids),
-            "mean_speed_mps": _f(speed.get("mean_speed_mps")),
-            "min_speed_mps": _f(speed.get("min_speed_mps")),
-            "max_speed_mps": _f(speed.get("max_speed_mps")),
-            "speed_var_m2ps2": _f(speed.get("speed_var_m2ps2")),
-            "travel_time_s": _f(metrics.travel_time_s(df, w, ev.travel_distance_m)),
-            "gap_mean_m": _f(gap.get("gap_mean_m")),
-            "gap_min_m": _f(gap.get("gap_min_m")),
-            "lat_error_rms_m": _f(controller_summary.get("lat_error_rms_m")),
+            "mean_speed_mps": finite_or_none(speed.get("mean_speed_mps")),
+            "min_speed_mps": finite_or_none(speed.get("min_speed_mps")),
+            "max_speed_mps": finite_or_none(speed.get("max_speed_mps")),
+            "speed_var_m2ps2": finite_or_none(speed.get("speed_var_m2ps2")),
+            "travel_time_s": finite_or_none(metrics.travel_time_s(df, w, ev.travel_distance_m)),
+            "gap_mean_m": finite_or_none(gap.get("gap_mean_m")),
+            "gap_min_m": finite_or_none(gap.get("gap_min_m")),
+            "lat_error_rms_m": finite_or_none(controller_summary.get("lat_error_rms_m")),
         },
         "overtake": overtake,
         "safety": {
@@ -179,7 +182,7 @@ def build_summary(
             "hard_brakes_cav": metrics.hard_brakes(df[df["kind"] == "cav"]) if len(df) else 0,
             "hard_brakes_hv": metrics.hard_brakes(df[df["kind"] == "hv"]) if len(df) else 0,
             "teleports": int(session.teleports),
-            "min_ttc_s": _f(metrics.min_ttc_s(df, w)),
+            "min_ttc_s": finite_or_none(metrics.min_ttc_s(df, w)),
         },
         "upstream": upstream,
         "planner": planner,
@@ -187,5 +190,5 @@ def build_summary(
         "tracking": controller_summary.get("mpc"),
         # Extra: the speeds the swarm used and where they came from.
         "speeds": controller_summary.get("speeds"),
-        "timing": {k: _f(v) for k, v in timing.items()},
+        "timing": {k: finite_or_none(v) for k, v in timing.items()},
     }

@@ -26,6 +26,8 @@ def scenario(scenario_file, body: str):
         ("[scene]\nplatoon_lane = 3\n", "scene.platoon_lane = 3, but the road has lanes 0..2"),
         ("[planner]\ntime_limit_s = -1.0\n", "time_limit_s"),
         ("[evaluation]\nstart_s = 50.0\nend_s = 10.0\n", "must be after start_s"),
+        ("[cav]\naccel_min_mps2 = nan\n", "cav.accel_min_mps2: expected a finite number"),
+        ("[planner.weights]\nw_tar = inf\n", "planner.weights.w_tar: expected a finite number"),
     ],
 )
 def test_bad_scenario_values(scenario_file, body, fragment):
@@ -36,6 +38,11 @@ def test_bad_scenario_values(scenario_file, body, fragment):
 def test_step_length_zero(scenario_file):
     path = scenario_file('[simulation]\nnetwork = "@NET@"\nstep_length_s = 0.0\n')
     assert_bad_input(sumo_swarm("run", str(path)), "step_length_s must be > 0", str(path))
+
+
+def test_negative_seed_in_the_file(scenario_file):
+    path = scenario_file('[simulation]\nnetwork = "@NET@"\nseed = -5\n')
+    assert_bad_input(sumo_swarm("run", str(path)), "seed must be an integer >= 0", str(path))
 
 
 def test_unreadable_scenario(tmp_path):
@@ -75,8 +82,9 @@ def test_malformed_sumocfg(tmp_path):
     cfg.write_text("<configuration><input>")
     assert_bad_input(
         sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav"),
-        "malformed SUMO configuration", str(cfg),
-    )  # fmt: skip
+        "malformed SUMO configuration",
+        str(cfg),
+    )
 
 
 def test_sumocfg_with_entities_is_refused(tmp_path):
@@ -90,10 +98,61 @@ def test_sumocfg_with_entities_is_refused(tmp_path):
     )
 
 
+def test_utf16_sumocfg_with_an_entity_bomb_is_refused(tmp_path):
+    # In UTF-16 the bytes "<!DOCTYPE" never occur, so only a parser that sees the decoded text
+    # (defusedxml) finds the DTD; expanded, lol9 would be 10**9 "lol"s.
+    entities = ['<!ENTITY lol0 "lol">']
+    entities += [f'<!ENTITY lol{i} "{f"&lol{i - 1};" * 10}">' for i in range(1, 10)]
+    text = (
+        '<?xml version="1.0" encoding="UTF-16"?>\n'
+        f"<!DOCTYPE lolz [{''.join(entities)}]>\n"
+        "<configuration><input><net-file value='&lol9;'/></input></configuration>\n"
+    )
+    cfg = tmp_path / "bomb.sumocfg"
+    cfg.write_bytes(text.encode("utf-16"))
+    assert b"<!DOCTYPE" not in cfg.read_bytes()
+    assert_bad_input(
+        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav"), "unsafe XML", str(cfg)
+    )
+
+
 def test_missing_sumocfg(tmp_path):
     cfg = tmp_path / "none.sumocfg"
     assert_bad_input(
         sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav"), "not found", str(cfg)
+    )
+
+
+@pytest.mark.parametrize("missing", ["highway.net.xml", "routes.rou.xml"])
+def test_sumocfg_input_file_missing(tmp_path, missing):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    (tmp_path / missing).unlink()
+    assert_bad_input(
+        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")),
+        "file not found",
+        str(tmp_path / missing),
+        str(cfg),
+    )
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "fragment"),
+    [
+        ('<end value="5.0"/>', '<end value="soon"/>', "end: expected a time in seconds"),
+        ('<end value="5.0"/>', '<end value="nan"/>', "end must be a finite number"),
+        ('<step-length value="0.1"/>', '<step-length value="0"/>', "step-length must be > 0"),
+        ('<end value="5.0"/>', '<end value="5.0"/><no-such-thing value="1"/>', "SUMO refuses"),
+    ],
+)
+def test_sumocfg_bad_option(tmp_path, old, new, fragment):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    text = cfg.read_text(encoding="utf-8")
+    assert old in text
+    cfg.write_text(text.replace(old, new), encoding="utf-8")
+    assert_bad_input(
+        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")),
+        fragment,
+        str(cfg),
     )
 
 
@@ -107,7 +166,9 @@ def test_sumocfg_without_cav_type(tmp_path):
 def test_cav_type_no_vehicle_has(tmp_path):
     cfg = write_user_case(tmp_path, HighwaySpec(length_m=1000, lanes=3), end_s=5.0)
     assert_bad_input(
-        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "robotaxi", "--out",
-                   str(tmp_path / "o")),
-        "robotaxi", str(cfg),
-    )  # fmt: skip
+        sumo_swarm(
+            "run", "--sumocfg", str(cfg), "--cav-type", "robotaxi", "--out", str(tmp_path / "o")
+        ),
+        "robotaxi",
+        str(cfg),
+    )

@@ -7,6 +7,7 @@ swarm run keeps the paper's method in the loop.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import signal
@@ -21,9 +22,15 @@ import pytest
 from sumo_swarm.batch import load_sweep, run_batch
 from sumo_swarm.cli import main
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.impact import markdown_table
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = (ROOT / "scenarios" / "paper.toml").as_posix()
+
+
+def batch_command(sweep: Path, out: Path, workers: int) -> list[str]:
+    args = ["batch", str(sweep), "--out", str(out), "--workers", str(workers)]
+    return [sys.executable, "-m", "sumo_swarm", *args]
 
 
 def short(duration_s: float) -> str:
@@ -67,6 +74,8 @@ def unfinished(out: Path) -> list[str]:
         ("colour = 1\n", ["colour"]),
         ('controllers = ["magic"]\n', ["controllers", "magic"]),
         ("seeds = [1.5]\n", ["seeds"]),
+        ("seeds = [42, -5]\n", ["seeds[1] must be an integer >= 0"]),
+        ('[grid]\n"cav.accel_min_mps2" = [nan]\n', ["cav.accel_min_mps2", "finite"]),
         ('[fixed]\n"simulation.duration_s" = 20.0\n', ["simulation.duration_s", "end_s"]),
         ("[grid]\nsimulation.seed = [1]\n", ["simulation.seed"]),
     ],
@@ -92,6 +101,29 @@ def test_missing_base_and_missing_sweep(tmp_path, capsys):
     assert main(["impact", str(tmp_path)]) == 2
 
 
+def test_markdown_table_formats_numbers_flags_and_missing_values():
+    df = pd.DataFrame(
+        {
+            "controller": ["swarm", "cacc"],
+            "runs": [2, 3],
+            "speed": [17.456, math.nan],
+            "overtaken": [True, False],
+        }
+    )
+    lines = markdown_table(df, digits=2).splitlines()
+    assert [c.strip() for c in lines[0].strip("|").split("|")] == list(df.columns)
+    assert [c.strip() for c in lines[2].strip("|").split("|")] == ["swarm", "2", "17.46", "yes"]
+    assert [c.strip() for c in lines[3].strip("|").split("|")] == ["cacc", "3", "-", "no"]
+
+
+def test_a_scenario_file_is_not_a_sweep(paper_path, tmp_path, capsys):
+    assert main(["batch", str(paper_path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(paper_path) in err[0], err
+    assert "is a scenario file, not a sweep" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
 def test_runs_are_the_product_with_stable_ids(sweep_file):
     path = sweep_file(
         'controllers = ["cacc", "swarm"]\nseeds = [1, 2]\n'
@@ -102,8 +134,10 @@ def test_runs_are_the_product_with_stable_ids(sweep_file):
     )
     sweep = load_sweep(path)
     assert sweep.parameters == (
-        "cav.count", "scene.hv.hv_target.speed_mps", "scene.hv.hv_target.desired_speed_mps",
-    )  # fmt: skip
+        "cav.count",
+        "scene.hv.hv_target.speed_mps",
+        "scene.hv.hv_target.desired_speed_mps",
+    )
     assert len(sweep.runs) == 2 * 2 * 2 * 2
     assert len({r.run_id for r in sweep.runs}) == len(sweep.runs)
     # The empty case keeps the base's value, read back from the validated scenario.
@@ -146,13 +180,25 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
 
     df = pd.read_parquet(out / "results.parquet")
     assert len(df) == 4 and df["run_id"].is_unique
-    assert list(df.columns[:6]) == ["scene.initial_speed_mps", "controller", "seed", "run_id",
-                                    "status", "error"]  # fmt: skip
+    assert list(df.columns[:6]) == [
+        "scene.initial_speed_mps",
+        "controller",
+        "seed",
+        "run_id",
+        "status",
+        "error",
+    ]
     assert set(df["status"]) == {"ok"} and df["error"].isna().all()
     assert sorted(df["scene.initial_speed_mps"]) == [16.0, 16.0, 17.5, 17.5]
-    for column in ("cav.mean_speed_mps", "safety.collisions", "overtake.completed",
-                   "upstream.first_follower_reduction_pct", "upstream.hv_influenced",
-                   "timing.wall_s", "run.peak_rss_mb"):  # fmt: skip
+    for column in (
+        "cav.mean_speed_mps",
+        "safety.collisions",
+        "overtake.completed",
+        "upstream.first_follower_reduction_pct",
+        "upstream.hv_influenced",
+        "timing.wall_s",
+        "run.peak_rss_mb",
+    ):
         assert column in df.columns, column
     swarm = df[df["controller"] == "swarm"]
     assert "planner.solves" in df.columns and swarm["planner.solves"].notna().all()
@@ -166,9 +212,16 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
     assert len(pd.read_parquet(out / "upstream.parquet")) > 0
 
     impact = out / "impact"
-    for name in ("impact.md", "mobility.csv", "upstream.csv", "safety.csv", "runs.csv",
-                 "mobility_vs_scene_initial_speed_mps.png",
-                 "upstream_vs_scene_initial_speed_mps.png", "safety.png"):  # fmt: skip
+    for name in (
+        "impact.md",
+        "mobility.csv",
+        "upstream.csv",
+        "safety.csv",
+        "runs.csv",
+        "mobility_vs_scene_initial_speed_mps.png",
+        "upstream_vs_scene_initial_speed_mps.png",
+        "safety.png",
+    ):
         assert (impact / name).is_file(), name
     mobility = pd.read_csv(impact / "mobility.csv")
     cacc = mobility[mobility["controller"] == "cacc"]
@@ -180,7 +233,8 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
     capsys.readouterr()
     assert main(["batch", str(path), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "0 run now, 4 skipped" in printed and "| swarm |" in printed
+    assert "0 run now, 4 skipped" in printed
+    assert re.search(r"^\| swarm +\|", printed, re.MULTILINE), printed
     assert finished_runs(out) == before
     assert len(pd.read_parquet(out / "results.parquet")) == 4
 
@@ -193,10 +247,11 @@ def test_resume_after_kill_9_loses_and_duplicates_nothing(sweep_file, tmp_path):
     )
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sumo_swarm", "batch", str(path), "--out", str(out),
-         "--workers", "2"],
-        start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+        batch_command(path, out, workers=2),
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + 120
     try:
         while time.monotonic() < deadline:
@@ -256,10 +311,10 @@ def test_worker_killed_mid_run_is_a_failed_run(sweep_file, tmp_path):
     path = sweep_file('controllers = ["cacc", "sumo-cacc"]\n' + short(60.0))
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sumo_swarm", "batch", str(path), "--out", str(out),
-         "--workers", "1"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+        batch_command(path, out, workers=1),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         deadline = time.monotonic() + 60
         while not ((out / "runs").is_dir() and unfinished(out)):

@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+import json
 import math
+import typing
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sumo_swarm.config import SECTIONS, from_mapping
+from sumo_swarm.config import (
+    SECTIONS,
+    from_mapping,
+    load_scenario,
+    nested_dataclass,
+    union_members,
+)
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.grid import GridSettings, MovingGrid, cav_cell
 from sumo_swarm.model import RoadSection, VehicleState
@@ -17,9 +26,69 @@ KNOWN = {
     for name, tp in SECTIONS.items()
 }
 toml_values = st.one_of(
-    st.integers(-10**6, 10**6), st.floats(allow_nan=True, allow_infinity=True), st.booleans(),
-    st.text(max_size=8), st.lists(st.integers(-3, 3), max_size=3), st.none(),
-)  # fmt: skip
+    st.integers(-(10**6), 10**6),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.booleans(),
+    st.text(max_size=8),
+    st.lists(st.integers(-3, 3), max_size=3),
+    st.none(),
+)
+NON_FINITE = (math.nan, math.inf, -math.inf)
+
+
+def numeric_keys(cls: type, prefix: str) -> list[str]:
+    """Every dotted key below ``cls`` whose type hint admits an int or a float (nested tables
+    followed; a list of tables as its first item, ``[0]``)."""
+    keys = []
+    for name, tp in typing.get_type_hints(cls).items():
+        if not cls.__dataclass_fields__[name].init:
+            continue
+        dotted = f"{prefix}.{name}"
+        nested = nested_dataclass(tp)
+        if nested is not None:
+            below = dotted if nested[0] == "table" else f"{dotted}[0]"
+            keys += numeric_keys(nested[1], below)
+        elif any(arg in (int, float) for arg in union_members(tp)):
+            keys.append(dotted)
+    return keys
+
+
+NUMERIC_KEYS = [key for name, tp in sorted(SECTIONS.items()) for key in numeric_keys(tp, name)]
+
+
+def _table(dotted: str, value: object) -> tuple[str, dict]:
+    """``("cav", {"length_m": value})`` for ``"cav.length_m"``; a list item gets the required
+    keys of an HV placement around it."""
+    section, *path = dotted.split(".")
+    table: dict = {}
+    node = table
+    for part in path[:-1]:
+        if part.endswith("[0]"):
+            item = {"id": "x", "lane": 0, "front_m": 10.0}
+            node[part[:-3]] = [item]
+            node = item
+        else:
+            node = node.setdefault(part, {})
+    node[path[-1]] = value
+    return section, table
+
+
+def _toml(value: object) -> str:
+    """``value`` in TOML syntax (tables and lists inline; TOML spells NaN ``nan``)."""
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return json.dumps(value)
+
+
+def test_numeric_keys_are_found():
+    # the walk above must see the keys this file's NaN checks are about
+    for key in ("cav.accel_min_mps2", "planner.weights.w_tar", "scene.hv[0].speed_mps"):
+        assert key in NUMERIC_KEYS
+    assert len(NUMERIC_KEYS) > 60
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -29,9 +98,35 @@ def test_loader_accepts_or_refuses_with_a_config_error(section, data, value):
     try:
         obj = from_mapping(SECTIONS[section], {key: value}, prefix=section)
     except ConfigError as exc:
-        assert section in str(exc) or key in str(exc)
+        assert key in str(exc), str(exc)
     else:
-        assert getattr(obj, key) is not None or value is None
+        # accepted: read back as given (ints may become floats), so never NaN or inf
+        got = getattr(obj, key)
+        assert got == (tuple(value) if isinstance(value, list) else value), (key, value, got)
+        assert not (isinstance(got, float) and not math.isfinite(got)), (key, got)
+
+
+@settings(max_examples=300, deadline=None)
+@given(key=st.sampled_from(NUMERIC_KEYS), value=st.sampled_from(NON_FINITE))
+def test_non_finite_numbers_are_refused_naming_the_key(key, value):
+    section, table = _table(key, value)
+    try:
+        from_mapping(SECTIONS[section], table, prefix=section)
+    except ConfigError as exc:
+        assert key in str(exc), str(exc)
+    else:
+        raise AssertionError(f"{key} = {value} accepted")
+
+
+@pytest.mark.parametrize("key", NUMERIC_KEYS)
+def test_nan_in_a_scenario_file_names_key_and_file(tmp_path, key):
+    section, table = _table(key, math.nan)
+    path = tmp_path / "s.toml"
+    lines = [f"[{section}]", *(f"{k} = {_toml(v)}" for k, v in table.items())]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as err:
+        load_scenario(path, require_network=False)
+    assert key in str(err.value) and str(path) in str(err.value)
 
 
 @given(
@@ -79,8 +174,12 @@ def test_state_to_cell_and_back(widths, cell, speed, origin, dt, row, offset, da
     length = 5.0
     cav = VehicleState("c", centre + length / 2, lane, 0.0, speed, length, is_cav=True)
     assert cav_cell(grid, cav, road, dt) == (row, lane)
-    assert math.isclose(grid.cell_centre_s(row, dt), grid.origin_at(dt) + (row + 0.5) * cell,
-                        rel_tol=0, abs_tol=1e-6)  # fmt: skip
+    assert math.isclose(
+        grid.cell_centre_s(row, dt),
+        grid.origin_at(dt) + (row + 0.5) * cell,
+        rel_tol=0,
+        abs_tol=1e-6,
+    )
     assert abs(grid.cell_centre_s(grid.row_of(centre, dt), dt) - centre) <= cell / 2 + 1e-6
 
 

@@ -5,6 +5,8 @@ Through ``sumo-swarm run --sumocfg`` (libsumo) and through the plugin API (libsu
 from __future__ import annotations
 
 import json
+import logging
+import math
 import os
 
 import pytest
@@ -30,11 +32,13 @@ def test_user_configuration_overtakes_safely_and_beats_sumo_cacc(tmp_path, name)
     spec, lane = CASES[name]
     cfg = write_user_case(tmp_path / "net", spec, platoon_lane=lane)
     notes: list[str] = []
-    swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False,
-                        notify=notes.append)  # fmt: skip
+    swarm = run_sumocfg(
+        cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=notes.append
+    )
     assert len(notes) == 1 and "--lateral-resolution" in notes[0]  # added and reported
-    baseline = run_sumocfg(cfg, "cav", "sumo-cacc", tmp_path / "cacc", progress=False,
-                           notify=notes.append)  # fmt: skip
+    baseline = run_sumocfg(
+        cfg, "cav", "sumo-cacc", tmp_path / "cacc", progress=False, notify=notes.append
+    )
     assert swarm["cav"]["count"] == 6
     assert swarm["overtake"]["target"] == "truck"  # found on its own, not configured
     assert swarm["overtake"]["completed"] and swarm["overtake"]["regrouped"]
@@ -46,8 +50,9 @@ def test_user_configuration_overtakes_safely_and_beats_sumo_cacc(tmp_path, name)
 
 
 def test_config_with_lateral_resolution_needs_no_addition(tmp_path):
-    cfg = write_user_case(tmp_path, HighwaySpec(length_m=1500, lanes=3), end_s=10.0,
-                          lateral_resolution=0.8)  # fmt: skip
+    cfg = write_user_case(
+        tmp_path, HighwaySpec(length_m=1500, lanes=3), end_s=10.0, lateral_resolution=0.8
+    )
     notes: list[str] = []
     run_sumocfg(cfg, "cav", "cacc", tmp_path / "o", progress=False, notify=notes.append)
     assert notes == []
@@ -55,8 +60,19 @@ def test_config_with_lateral_resolution_needs_no_addition(tmp_path):
 
 def _sumo_cmd(cfg) -> list[str]:
     binary = os.path.join(sumo.SUMO_HOME, "bin", "sumo")
-    return [binary, "-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
-            "--collision.mingap-factor", "0", "--collision.action", "warn"]  # fmt: skip
+    return [
+        binary,
+        "-c",
+        str(cfg),
+        "--lateral-resolution",
+        "0.5",
+        "--no-step-log",
+        "true",
+        "--collision.mingap-factor",
+        "0",
+        "--collision.action",
+        "warn",
+    ]
 
 
 def test_attach_through_traci(tmp_path):
@@ -84,8 +100,10 @@ def test_attach_through_libsumo_by_ids_with_a_late_cav(tmp_path):
 
     cfg = write_user_case(tmp_path, HighwaySpec(length_m=2500, lanes=3), end_s=60.0)
     routes = tmp_path / "routes.rou.xml"
-    late = ('  <vehicle id="late" type="cav" route="r" depart="4" departLane="1" '
-            'departPos="60" departSpeed="16"/>\n</routes>')  # fmt: skip
+    late = (
+        '  <vehicle id="late" type="cav" route="r" depart="4" departLane="1" '
+        'departPos="60" departSpeed="16"/>\n</routes>'
+    )
     routes.write_text(routes.read_text().replace("</routes>", late))
     libsumo.start(_sumo_cmd(cfg))
     try:
@@ -106,8 +124,41 @@ def test_attach_through_libsumo_by_ids_with_a_late_cav(tmp_path):
     assert summary["overtake"]["triggered"]
 
 
+@pytest.mark.parametrize(
+    ("extra", "warned"),
+    [
+        ([], True),  # SUMO's defaults: jam teleports after 300 s
+        (["--time-to-teleport", "-1"], False),
+    ],
+)
+def test_attach_warns_once_when_sumo_teleports(tmp_path, caplog, extra, warned):
+    import libsumo
+
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    libsumo.start([*_sumo_cmd(cfg), *extra])
+    try:
+        with caplog.at_level(logging.WARNING, logger="sumo_swarm"):
+            handle = sumo_swarm.attach(libsumo, cav_type="cav")
+            libsumo.simulation.step()
+        handle.detach()
+    finally:
+        libsumo.close()
+    lines = [r.getMessage() for r in caplog.records if "teleports" in r.getMessage()]
+    assert len(lines) == (1 if warned else 0), lines
+    if warned:
+        assert "time-to-teleport 300 s" in lines[0] and "--time-to-teleport -1" in lines[0]
+
+
 def test_attach_needs_exactly_one_cav_selector():
     import libsumo
 
     with pytest.raises(ValueError, match="exactly one"):
         sumo_swarm.attach(libsumo)
+
+
+@pytest.mark.parametrize("speed", [math.nan, math.inf, 0.0])
+def test_attach_refuses_a_cruising_speed_that_is_no_speed(speed):
+    import libsumo
+
+    with pytest.raises(ValueError, match="cruising_speed_mps must be"):
+        sumo_swarm.attach(libsumo, cav_type="cav", cruising_speed_mps=speed)

@@ -22,7 +22,6 @@ import contextlib
 import fcntl
 import json
 import logging
-import math
 import os
 import re
 import resource
@@ -39,8 +38,11 @@ from typing import Any
 import pandas as pd
 
 from sumo_swarm.batch.sweep import RunSpec, Sweep
+from sumo_swarm.checks import finite_or_none
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.runner import run_scenario, write_json_atomic
+from sumo_swarm.files import write_json_atomic, write_parquet_atomic
+from sumo_swarm.metrics import INFLUENCE_THRESHOLD_PCT
+from sumo_swarm.runner import run_scenario
 
 log = logging.getLogger(__name__)
 
@@ -54,9 +56,6 @@ SWEEP = "sweep.json"
 LOCK = ".lock"
 STATUS_OK, STATUS_FAILED = "ok", "failed"
 ERROR_MAX_CHARS = 500
-# An upstream HV counts as influenced when its speed dropped by more than this [%]. The paper
-# (IV-E-4) calls the 4th follower, at 0.42 %, still influenced, and the ones after it not.
-INFLUENCE_THRESHOLD_PCT = 0.1
 KEY_COLUMNS = ("controller", "seed", "run_id", "status", "error")
 
 
@@ -279,8 +278,14 @@ class BatchStore:
 
     def fail(self, spec: RunSpec, error: str) -> dict[str, Any]:
         """Record a run whose worker died without a record (crash, out of memory, lost node)."""
-        run = {"elapsed_s": None, "cpu_s": None, "peak_rss_mb": None, "host": None,
-               "pid": None, "finished_at": time.time()}  # fmt: skip
+        run = {
+            "elapsed_s": None,
+            "cpu_s": None,
+            "peak_rss_mb": None,
+            "host": None,
+            "pid": None,
+            "finished_at": time.time(),
+        }
         record = _record(spec, STATUS_FAILED, one_line(error), None, run)
         self.keep(record)
         return self.finished(spec.run_id) or record
@@ -289,15 +294,9 @@ class BatchStore:
         """Rebuild results.parquet and upstream.parquet (tmp file + rename) from ``records``."""
         finished = [records[r.run_id] for r in sweep.runs if r.run_id in records]
         frame = results_frame(finished, sweep.parameters)
-        _write_parquet(self.out / RESULTS, frame)
-        _write_parquet(self.out / UPSTREAM, upstream_frame(finished, sweep.parameters))
+        write_parquet_atomic(self.out / RESULTS, frame)
+        write_parquet_atomic(self.out / UPSTREAM, upstream_frame(finished, sweep.parameters))
         return frame
-
-
-def _write_parquet(path: Path, df: pd.DataFrame) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
 
 
 # --------------------------------------------------------------------------- flat rows
@@ -307,8 +306,8 @@ def _cell(value: Any) -> Any:
     """A value for a table cell: lists and tables as JSON text, non-finite floats as None."""
     if isinstance(value, list | dict):
         return json.dumps(value, sort_keys=True)
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
+    if isinstance(value, float):
+        return finite_or_none(value)
     return value
 
 
@@ -379,8 +378,11 @@ def results_frame(records: list[Mapping[str, Any]], parameters: tuple[str, ...])
     df = pd.DataFrame.from_records(rows, columns=columns)
     # A table that is None in some summaries (planner.statuses of a baseline) and has keys in
     # others: keep the keys' columns only.
-    parents = [c for c in df.columns if df[c].isna().all() and any(
-        o.startswith(f"{c}.") for o in df.columns)]  # fmt: skip
+    parents = [
+        c
+        for c in df.columns
+        if df[c].isna().all() and any(o.startswith(f"{c}.") for o in df.columns)
+    ]
     df = df.drop(columns=parents)
     statuses = [c for c in df.columns if c.startswith("planner.statuses.")]
     if statuses and "planner.solves" in df.columns:

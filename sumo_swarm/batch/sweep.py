@@ -33,14 +33,20 @@ import itertools
 import json
 import re
 import tomllib
-import types
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sumo_swarm.config import SECTIONS, Scenario, load_scenario, read_toml
+from sumo_swarm.checks import SEED_MAX, require_number
+from sumo_swarm.config import (
+    SECTIONS,
+    Scenario,
+    load_scenario,
+    nested_dataclass,
+    read_toml,
+)
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.errors import ConfigError
 
@@ -74,25 +80,6 @@ class ParamPath:
         return self.steps[0][1]
 
 
-def _union_args(tp: Any) -> tuple[Any, ...]:
-    if typing.get_origin(tp) in (typing.Union, types.UnionType):
-        return typing.get_args(tp)
-    return (tp,)
-
-
-def _dataclass_of(tp: Any) -> type | None:
-    return next((a for a in _union_args(tp) if dataclasses.is_dataclass(a)), None)
-
-
-def _item_dataclass_of(tp: Any) -> type | None:
-    for arg in _union_args(tp):
-        if typing.get_origin(arg) is tuple:
-            items = typing.get_args(arg)
-            if items and dataclasses.is_dataclass(items[0]):
-                return items[0]
-    return None
-
-
 def _init_fields(cls: type) -> list[str]:
     return [f.name for f in dataclasses.fields(cls) if f.init]
 
@@ -120,18 +107,16 @@ def compile_key(key: str) -> ParamPath:
         i += 1
         if i == len(parts):
             break
-        tp = typing.get_type_hints(cls)[name]
-        nested = _dataclass_of(tp)
-        if nested is not None:
-            cls = nested
+        nested = nested_dataclass(typing.get_type_hints(cls)[name])
+        if nested is not None and nested[0] == "table":
+            cls = nested[1]
             continue
-        item = _item_dataclass_of(tp)
-        if item is not None and "id" in _init_fields(item):
+        if nested is not None and "id" in _init_fields(nested[1]):
             steps.append(("item", parts[i]))
             i += 1
             if i == len(parts):
                 raise ConfigError(f"'{key}': name a key of that item, e.g. '{key}.speed_mps'")
-            cls = item
+            cls = nested[1]
             continue
         raise ConfigError(f"'{key}': '{'.'.join(parts[:i])}' has no sub-keys")
     return ParamPath(key, section, tuple(steps))
@@ -332,10 +317,12 @@ def _str_list(value: Any, key: str) -> list[str]:
     return value
 
 
-def _int_list(value: Any, key: str) -> list[int]:
+def _seed_list(value: Any, key: str) -> list[int]:
     ok = isinstance(value, list) and value
     if not ok or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
         raise ConfigError(f"{key}: expected a non-empty list of integers, got {value!r}")
+    for i, seed in enumerate(value):
+        require_number(f"{key}[{i}]", seed, ge=0, le=SEED_MAX, integer=True)
     if len(set(value)) != len(value):
         raise ConfigError(f"{key}: values must be unique, got {value!r}")
     return value
@@ -379,6 +366,11 @@ def load_sweep(path: str | Path) -> Sweep:
 
 
 def _build(path: Path, data: dict[str, Any]) -> Sweep:
+    if "base" not in data and set(data) & set(SECTIONS):
+        raise ConfigError(
+            "this is a scenario file, not a sweep: run it with 'sumo-swarm run FILE', or write a "
+            'sweep whose base = "FILE" (format: sumo-swarm batch --help)'
+        )
     unknown = sorted(set(data) - set(SWEEP_KEYS))
     if unknown:
         raise ConfigError(f"unknown key '{unknown[0]}' (known: {', '.join(SWEEP_KEYS)})")
@@ -401,7 +393,7 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
         if c not in CONTROLLERS:
             known = ", ".join(CONTROLLERS)
             raise ConfigError(f"controllers: unknown controller '{c}' (known: {known})")
-    seeds = _int_list(data.get("seeds", [base.default.simulation.seed]), "seeds")
+    seeds = _seed_list(data.get("seeds", [base.default.simulation.seed]), "seeds")
 
     fixed = _table(data.get("fixed", {}), "fixed")
     grid = _table(data.get("grid", {}), "grid")

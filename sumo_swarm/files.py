@@ -1,0 +1,57 @@
+"""Atomic file writes: a reader (or a resumed batch) sees the old file or the new one, never half
+of one, even after a crash or a power cut."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+
+def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
+    """Write ``path`` by ``write(tmp)`` into a hidden temporary file beside it, flush that to disk
+    (fsync), rename it over ``path`` and flush the folder, so the rename itself is durable."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        write(tmp)
+        with tmp.open("rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_folder(path.parent)
+
+
+def _fsync_folder(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # a platform whose folders cannot be opened (Windows): rename is enough
+        return
+    # Some file systems refuse fsync on a folder; the rename is done all the same.
+    try:
+        with contextlib.suppress(OSError):
+            os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    write_atomic(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write ``data`` as indented JSON atomically; NaN and inf are refused (not JSON)."""
+    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
+    """Write ``df`` (without its index) as Parquet atomically."""
+    write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
