@@ -309,6 +309,9 @@ class SwarmSettings:
     give_up_no_progress_intervals: int = 6
     give_up_no_plan_s: float = 10.0
     cooldown_s: float = 15.0
+    # An HV is held back by blockers for at most this long per manoeuvre [s] (the impact on
+    # the traffic behind is bounded; the swarm gives up rather than hold a lane forever).
+    max_block_s: float = 30.0
     max_leader_ease_mps: float = 2.0  # a cruising leader slows by at most this to close up [m/s]
     # A CAV matches the speed of the lane its reference enters this far ahead [s].
     match_lookahead_s: float = 2.0
@@ -323,7 +326,8 @@ class SwarmSettings:
         check_non_negative(
             self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
-            "cooldown_s", "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
+            "cooldown_s", "max_block_s",
+            "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s",
         )  # fmt: skip
         if self.give_up_no_progress_intervals < 1:

@@ -108,6 +108,7 @@ class SwarmController:
         self.cap_sources: dict[str, float] = {}
         self.progress: Progress | None = None
         self.blocked_until_s: dict[str, float] = {}
+        self.blocked_since_s: dict[str, float] = {}
         self.blocked_min_accel: dict[str, float] = {}
         self.prediction: tuple[float, Any] | None = None
         self._models: dict[str, DriverModel] = {}
@@ -302,6 +303,7 @@ class SwarmController:
         self.progress = Progress(t_s)
         self.holds_per_manoeuvre.append(0)
         self.blocked_until_s = {}
+        self.blocked_since_s = {}
         lane = self.planner_settings.regroup_lane
         self.regroup_lane_used = target.lane if lane is None else lane
         self.ctx.event("overtake_start", target=target.vehicle_id, speed_cap_mps=self.cap_mps)
@@ -412,9 +414,10 @@ class SwarmController:
             # Warm start: the rest of the last plan, shifted by the steps executed.
             executed = max(0, math.floor((t_s - self.plan.t0_s) / self.plan.behaving_interval_s))
             hint = shift_plan(self.plan, executed)
+        max_block = sc.swarm.max_block_s
         budget = {
-            hv: max(0, math.ceil((until - t_s) / interval - 1e-9) - 1)
-            for hv, until in self.blocked_until_s.items()
+            hv: max(0, math.floor((max_block - (t_s - since)) / interval + 1e-9))
+            for hv, since in self.blocked_since_s.items()
         }
         outcome = self.manoeuvre.plan(
             t_s, reason, states, platoon, self.target_id, ctx.road,
@@ -454,8 +457,10 @@ class SwarmController:
         self.tracker.reset()
         self.progress.planned(t_s)
         for blocker in outcome.problem.blockers:
-            if blocker.hv_id not in self.blocked_until_s:
-                self.blocked_until_s[blocker.hv_id] = t_s + (blocker.hold_steps + 1) * interval
+            self.blocked_since_s.setdefault(blocker.hv_id, t_s)
+            until = t_s + (blocker.hold_steps + 1) * interval
+            self.blocked_until_s[blocker.hv_id] = max(self.blocked_until_s.get(blocker.hv_id, 0.0),
+                                                      until)  # fmt: skip
 
     def _cav_ahead_of(self, target: VehicleState, states: dict[str, VehicleState]) -> bool:
         """Is a CAV the vehicle right ahead of the target, within three cells?"""

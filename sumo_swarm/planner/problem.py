@@ -100,9 +100,11 @@ class PlannerSettings:
         ``"swarm"``: the paper's delta, 1 at a step while any CAV is impeded; ``"cav"``: each
         CAV's own (it pays the regroup term once it is past, whatever the others do).
     block_steps
-        Steps (from step 1) a blocker holds its blocking cell, eqs. (16)-(17). ``"auto"``: as
-        many as the cut-through needs, one per CAV behind the blocker that is not a blocker
-        itself (at least 1); the paper holds for one step (``block_steps = 1``).
+        Steps (from step 1) a blocker holds its blocking cell, eqs. (16)-(17): the paper's 1 by
+        default. A blocker that holds its row keeps the gap to the HV behind it as it is; the
+        space for the others to cut in opens when it moves on, faster than the HV can follow
+        (the prediction of the blocked HV follows the blocker, see the swarm's manoeuvre).
+        ``"auto"``: one step per CAV still to cut through behind the blocker.
     max_blockers
         How many front CAVs may be assigned as blockers (one per adjacent lane).
     num_workers
@@ -117,7 +119,7 @@ class PlannerSettings:
     regroup_lane: int | None = None
     target_form: str = "distance"
     delta_mode: str = "swarm"
-    block_steps: int | Literal["auto"] = "auto"
+    block_steps: int | Literal["auto"] = 1
     max_blockers: int = 2
     num_workers: int = 1
 
@@ -229,6 +231,11 @@ class PlanningProblem:
     # Moves (step, from, to) exempt from the entry margins: a blocker's move in front of the
     # HV it blocks, checked against the blocking margin instead (it matches the lane's speed).
     exempt_moves: frozenset[tuple[int, Cell, Cell]] = frozenset()
+    # Where each HV is, as a continuous row of its centre per step, with its column: a CAV may
+    # not pass an HV within a column (15 m cells would let it jump a short vehicle).
+    hv_tracks: tuple[tuple[int, tuple[float, ...]], ...] = ()
+    # The CAVs' continuous rows at step 0 (their start cells' rows, refined).
+    start_rows: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.entry_blocked and len(self.entry_blocked) != self.n_steps:
@@ -273,6 +280,16 @@ def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool
     entry margins in front of HVs; moves of one row or column are checked elsewhere)."""
     if dst in problem.blocked[k + 1]:
         return False
+    if dst[1] == src[1] and dst[0] >= src[0] and problem.hv_tracks:
+        row = float(src[0])
+        if k == 0 and problem.start_rows:
+            row = min(
+                (r for r, cell in zip(problem.start_rows, problem.start_cells, strict=True)
+                 if cell == src), default=row,
+            )  # fmt: skip
+        for col, rows in problem.hv_tracks:
+            if col == src[1] and row < rows[k] and dst[0] >= rows[k + 1]:
+                return False  # it would pass an HV in its own lane
     if not problem.entry_blocked or (k, src, dst) in problem.exempt_moves:
         return True
     if dst[1] != src[1]:  # sideways: the new cell must be free of HVs over the whole move
@@ -357,6 +374,7 @@ class _HvCells:
     # Per HV, its entry cells at steps 0 and 1 (to check a blocker against the others).
     early_entry: dict[str, tuple[frozenset[Cell], frozenset[Cell]]]
     early_states: dict[str, tuple[VehicleState, VehicleState]]
+    tracks: tuple[tuple[int, tuple[float, ...]], ...]
 
 
 def _hv_cells(
@@ -375,11 +393,14 @@ def _hv_cells(
     goal_rows = []
     early_entry: dict[str, tuple[frozenset[Cell], frozenset[Cell]]] = {}
     early_states: dict[str, tuple[VehicleState, VehicleState]] = {}
+    tracks = []
     for hv_id, hv in all_hvs.items():
         first: list[frozenset[Cell]] = []
         first_states: list[VehicleState] = []
+        rows: list[float] = []
         for k, t in enumerate(times):
             state = predictor.predict(hv, now_s, t)
+            rows.append((state.centre_s_m - grid.origin_at(t)) / grid.cell_length_m - 0.5)
             if front_margin is None:
                 hard[k] |= hv_blocked_cells(grid, state, t, gs)
                 margin = None
@@ -398,6 +419,8 @@ def _hv_cells(
             early_entry[hv_id] = (first[0], first[1])
         if len(first_states) == 2:
             early_states[hv_id] = (first_states[0], first_states[1])
+        if not hv_id.startswith("lane_end:"):
+            tracks.append((hv_columns(grid, hv, gs)[0], tuple(rows)))
     entry_blocked = (
         ()
         if front_margin is None
@@ -405,7 +428,7 @@ def _hv_cells(
     )
     return _HvCells(
         tuple(frozenset(h) for h in hard), entry_blocked, tuple(goal_rows), early_entry,
-        early_states,
+        early_states, tuple(tracks),
     )  # fmt: skip
 
 
@@ -474,6 +497,10 @@ def build_problem(
         t0_s=now_s,
         behaving_interval_s=settings.behaving_interval_s,
         entry_blocked=cells.entry_blocked,
+        hv_tracks=cells.tracks,
+        start_rows=tuple(
+            (cav.centre_s_m - grid.origin_at(now_s)) / grid.cell_length_m - 0.5 for cav in cavs
+        ),
     )
     side_hvs = [all_hvs[h] for h in sorted(in_grid) if h != target.vehicle_id]
     blockers = assign_blockers(
@@ -491,6 +518,7 @@ def build_problem(
             exempt_moves=_exempt(problem, blockers),
             blocked=cells.blocked,
             entry_blocked=cells.entry_blocked,
+            hv_tracks=cells.tracks,
             goal_rows=cells.goal_rows,
         )
         blockers = tuple(b for b in blockers if _blocker_free(problem, b))
@@ -547,57 +575,110 @@ def assign_blockers(
     block_budget: Mapping[str, int] | None = None,
     entry_check: Callable[[str, Cell], bool] | None = None,
 ) -> tuple[Blocker, ...]:
-    """Space making, eqs. (16)-(17): front CAVs block HVs in the lanes beside the platoon.
+    """Space making, eqs. (16)-(17): CAVs block HVs in the lanes beside the platoon.
 
-    Only while some CAV is impeded. For each lane next to the platoon's lane (the regroup
-    lane) take the frontmost HV whose centre row is at or behind the leader's row; lanes are
-    served frontmost HV first, each by the frontmost unassigned CAV (among the first
-    ``max_blockers``) that sits next to that lane, ahead of the HV's footprint, and whose
-    lateral move into it, keeping its row, lands on a cell that no HV claims while it holds
-    it (nor inside an HV's entry margin) and no other CAV starts in. It holds the cell for
-    ``block_steps`` steps (``"auto"``: one per CAV behind it that is no blocker), at most what is left
-    of the HV's ``block_budget``; an HV with no budget left is not blocked again.
+    Only while some CAV is impeded, and per lane next to the platoon's lane (the regroup lane)
+    only while a CAV still has to cut through it: one in the regroup lane, behind the blocker.
+
+    * A CAV already in that lane with an HV following it (it cut in earlier) *holds*: it stays
+      in its cell, so the HV behind it stays at the grid's speed while the others cut in.
+    * Otherwise, as in the paper: take the frontmost HV whose centre row is at or behind the
+      leader's row; the frontmost unassigned CAV among the first ``max_blockers`` that sits
+      next to that lane, ahead of the HV's footprint, moves into it keeping its row, onto a
+      cell that no HV claims while it holds it (nor inside another HV's entry margin, and
+      ``entry_check`` for the blocked HV) and no other CAV starts in.
+
+    A blocker holds for ``block_steps`` steps (``"auto"``: one per CAV still to cut through
+    behind it), at most what is left of the HV's ``block_budget``; an HV with no budget left is
+    not blocked again.
     """
     if settings.max_blockers == 0 or not step_impeded(problem, problem.start_cells, 0):
         return ()
     lane = problem.regroup_lane
-    leader_row = problem.start_cells[0][0]
-    frontmost: dict[int, VehicleState] = {}
+    cells = problem.start_cells
+    leader_row = cells[0][0]
+    side_hvs: dict[int, list[VehicleState]] = {}
+    hv_top_row: dict[str, int] = {}
     for hv in hvs:
         col = hv_columns(grid, hv, grid_settings)[0]
-        if abs(col - lane) != 1 or grid.row_of(hv.centre_s_m, now_s) > leader_row:
+        if abs(col - lane) != 1:
             continue
-        if col not in frontmost or hv.s_m > frontmost[col].s_m:
-            frontmost[col] = hv
-    # Frontmost HV first; on a tie the left lane first (the paper's leader blocks left).
-    order = sorted(frontmost.items(), key=lambda item: (-item[1].s_m, -item[0]))
-    hv_top_row = {}
-    for _, hv in order:
+        side_hvs.setdefault(col, []).append(hv)
         rows = hv_blocked_rows(grid, hv, now_s, grid_settings)
         hv_top_row[hv.vehicle_id] = rows[-1] if rows else grid.row_of(hv.centre_s_m, now_s)
-    candidates = list(range(min(settings.max_blockers, problem.n_cavs)))
-    start_cells = set(problem.start_cells)
+    start_cells = set(cells)
     blockers: list[Blocker] = []
+    used: set[int] = set()
+
+    def to_cut_through(row: int) -> int:
+        """CAVs in the regroup lane, behind ``row`` and not past the target yet."""
+        return sum(
+            c == lane and r < row and r < problem.goal_rows[0]
+            for i, (r, c) in enumerate(cells)
+            if i not in used
+        )
+
+    def hold_for(hv_id: str, row: int) -> int:
+        needed = max(1, to_cut_through(row))
+        hold = needed if settings.block_steps == "auto" else settings.block_steps
+        budget = (block_budget or {}).get(hv_id)
+        return min(hold, problem.n_steps - 1, budget if budget is not None else hold)
+
+    def budget_left(hv_id: str) -> bool:
+        budget = (block_budget or {}).get(hv_id)
+        return budget is None or budget > 0
+
+    # Holders first: a CAV in a side lane with an HV right behind it.
+    for col in sorted(side_hvs, reverse=True):
+        if len(blockers) >= settings.max_blockers:
+            break
+        in_lane = sorted(
+            (i for i, (r, c) in enumerate(cells) if c == col and i not in used),
+            key=lambda i: cells[i][0],
+        )
+        for i in in_lane:  # rearmost first: the one whose follower is the HV to hold
+            row = cells[i][0]
+            behind = [h for h in side_hvs[col] if hv_top_row[h.vehicle_id] < row]
+            if not behind or to_cut_through(row) == 0:
+                continue
+            hv = max(behind, key=lambda h: h.s_m)
+            if not budget_left(hv.vehicle_id):
+                break
+            blocker = Blocker(i, problem.cav_ids[i], hv.vehicle_id, cells[i],
+                              hold_for(hv.vehicle_id, row))  # fmt: skip
+            if _blocker_free(problem, blocker):
+                blockers.append(blocker)
+                used.add(i)
+            break
+    # Then the paper's blockers, in the lanes that have no holder.
+    held = {cells[b.cav_index][1] for b in blockers}
+    frontmost: dict[int, VehicleState] = {}
+    for col, lane_hvs in side_hvs.items():
+        if col in held:
+            continue
+        for hv in lane_hvs:
+            if grid.row_of(hv.centre_s_m, now_s) > leader_row:
+                continue
+            if col not in frontmost or hv.s_m > frontmost[col].s_m:
+                frontmost[col] = hv
+    # Frontmost HV first; on a tie the left lane first (the paper's leader blocks left).
+    order = sorted(frontmost.items(), key=lambda item: (-item[1].s_m, -item[0]))
+    candidates = [i for i in range(min(settings.max_blockers, problem.n_cavs)) if i not in used]
     for col, hv in order:
-        budget = (block_budget or {}).get(hv.vehicle_id)
-        if budget is not None and budget <= 0:
+        if len(blockers) >= settings.max_blockers or not budget_left(hv.vehicle_id):
             continue
         for i in candidates:
-            row, cav_col = problem.start_cells[i]
+            row, cav_col = cells[i]
             cell = (row, col)
             if abs(cav_col - col) != 1 or cell in start_cells or row <= hv_top_row[hv.vehicle_id]:
                 continue
-            if settings.block_steps == "auto":
-                # One step per CAV that has yet to cut through behind the blocker.
-                hold = max(1, sum(r < row for r, _ in problem.start_cells) - len(blockers) - 1)
-            else:
-                hold = settings.block_steps
-            hold = min(hold, problem.n_steps - 1, budget if budget is not None else hold)
-            blocker = Blocker(i, problem.cav_ids[i], hv.vehicle_id, cell, hold)
+            if settings.block_steps == "auto" and to_cut_through(row) == 0 and cav_col != lane:
+                continue
+            blocker = Blocker(i, problem.cav_ids[i], hv.vehicle_id, cell,
+                              hold_for(hv.vehicle_id, row))  # fmt: skip
             if entry_check is not None:
                 free = entry_check(hv.vehicle_id, cell) and _blocker_free(
-                    replace(problem, exempt_moves=frozenset({(0, problem.start_cells[i], cell)})),
-                    blocker,
+                    replace(problem, exempt_moves=frozenset({(0, cells[i], cell)})), blocker
                 )
             else:
                 free = _blocker_free(problem, blocker)
@@ -605,5 +686,6 @@ def assign_blockers(
                 continue
             blockers.append(blocker)
             candidates.remove(i)
+            used.add(i)
             break
     return tuple(blockers)

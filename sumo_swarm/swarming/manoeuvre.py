@@ -306,7 +306,7 @@ class ManoeuvrePlanner:
                 row, col = b.cell
                 cav = cav_by_id[b.cav_id]
                 moved[b.cav_id] = replace(cav, lane=col, lat_m=0.0)
-                release_s = t_s + (b.hold_steps + 1) * interval_s
+                release_s = t_s + b.hold_steps * interval_s
                 s_release = grid.cell_centre_s(row, release_s) + half
                 speed = min(cap_mps, grid.speed_mps + grid.cell_length_m / interval_s)
 
