@@ -202,8 +202,9 @@ class _Reproduction:
         out = {"upstream": upstream, "target": target, "facts": facts, "error": None}
         finished = self.finished()
         try:
-            for c, run in finished.items():
-                facts["upstream_surge_mps"][c] = upstream_surge_mps(run.summary, run.df)
+            if BASELINE in finished:  # the start's own settling, without any manoeuvre
+                run = finished[BASELINE]
+                facts["upstream_surge_mps"][BASELINE] = upstream_surge_mps(run.summary, run.df)
             if FOCUS in finished:
                 ot = finished[FOCUS].summary.get("overtake") or {}
                 facts["t_end_s"], facts["t_regrouped_s"] = (

@@ -347,22 +347,18 @@ def _reasons(report: Mapping[str, Any], scenario: Scenario) -> list[str]:
         "between two lanes counts in the lane SUMO reports it on, for gaps and for the upstream "
         "ranking."
     )
-    surge = {run: s for run, s in (facts.get("upstream_surge_mps") or {}).items() if s is not None}
     start = (
         f"Our upstream HVs start {scene.upstream_gap_m:g} m apart at "
         f"{scene.upstream_speed_mps:g} m/s"
     )
-    if surge:
-        start += "; the fastest of them then rises above its start speed by " + ", ".join(
-            f"{s:.2f} m/s ({run})" for run, s in surge.items()
+    rise = (facts.get("upstream_surge_mps") or {}).get(BASELINE)
+    if rise is not None:  # the baseline changes no lane: what its HVs do comes from the start
+        start += (
+            f"; in the {BASELINE} run, where no CAV changes lanes, the fastest of them rises "
+            f"{rise:.2f} m/s above its start speed: that start is "
+            + ("not" if rise >= SURGE_MIN_MPS else "close to")
+            + " an IDM equilibrium with these parameters"
         )
-        base = surge.get(BASELINE)
-        if base is not None:  # the baseline makes no manoeuvre: what it shows is the start's
-            start += (
-                f": even with the {BASELINE} platoon, which changes no lane, that start is "
-                + ("not" if base >= SURGE_MIN_MPS else "close to")
-                + " an IDM equilibrium with these parameters"
-            )
     start += "."
     out.append(
         "**The scene's geometry.** The paper gives the speeds and the upstream spacing but not "
@@ -431,16 +427,14 @@ def capped_paragraph(report: Mapping[str, Any], scenario: Scenario) -> list[str]
             f"{fmt(v('cav.mobility_gain', CAPPED))} vs {fmt(v('cav.mobility_gain', FOCUS))} %)."
         )
     for key, what in (
-        ("overtake.pass_s", "every CAV is past the slow HV"),
-        ("overtake.duration_s", "the platoon has regrouped"),
+        ("overtake.pass_s", "Decision to all CAVs past the slow HV"),
+        ("overtake.duration_s", "Decision to the regrouped platoon"),
     ):
         a, b = v(key, CAPPED), v(key, FOCUS)
         if a is not None and b is not None:
-            parts.append(
-                f"From the decision until {what}: {a:.1f} s vs {b:.1f} s ({a - b:+.1f} s)."
-            )
+            parts.append(f"{what}: {a:.1f} s vs {b:.1f} s ({a - b:+.1f} s).")
         elif b is not None:
-            parts.append(f"With the cap, {what} not inside the run ({FOCUS}: {b:.1f} s).")
+            parts.append(f"{what}: not reached in the run ({FOCUS}: {b:.1f} s).")
     parts.append(
         f"Minimum CAV gap {fmt(v('cav.gap_min', CAPPED))} vs {fmt(v('cav.gap_min', FOCUS))} m, "
         f"collisions {fmt(v('safety.collisions', CAPPED))} vs "
