@@ -12,6 +12,7 @@ import collections
 import logging
 import sys
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -148,22 +149,20 @@ def run_batch(
     return report
 
 
-def _run_all(
-    sweep: Sweep,
-    store: BatchStore,
+def run_specs(
     backend: Backend,
-    pending: list[RunSpec],
-    records: dict[str, dict[str, Any]],
-    progress: bool | None,
-) -> pd.DataFrame:
-    queue = collections.deque(pending)
+    store: BatchStore,
+    specs: Iterable[RunSpec],
+    on_record: Callable[[dict[str, Any]], None],
+) -> None:
+    """Run ``specs`` in order on ``backend``, at most ``backend.capacity`` at a time.
+
+    Each finished run's record (a failed one too: a worker that died leaves a failed record) is
+    kept in ``store`` and handed to ``on_record`` as it comes. The backend is closed at the end,
+    also when ``on_record`` raises or the caller is interrupted (the runs under way are stopped).
+    """
+    queue = collections.deque(specs)
     under_way = 0
-    failed = 0
-    next_write = 0.0  # results.parquet after every run, unless rebuilding it gets costly
-    bar = tqdm(
-        total=len(pending), desc=f"batch {sweep.name}", unit="run", file=sys.stderr,
-        disable=(not progress) if progress is not None else None, dynamic_ncols=True,
-    )  # fmt: skip
     try:
         while queue or under_way:
             while queue and under_way < backend.capacity:
@@ -179,20 +178,44 @@ def _run_all(
                 record = store.fail(outcome.spec, outcome.error or "worker left no record")
             else:
                 store.keep(record)
-            records[record["run_id"]] = record
-            if time.perf_counter() >= next_write:
-                t_write = time.perf_counter()
-                store.write_results(sweep, records)
-                spent = time.perf_counter() - t_write
-                next_write = t_write + spent * (1.0 + 1.0 / RESULTS_WRITE_SHARE)
-            if record["status"] == STATUS_FAILED:
-                failed += 1
-                bar.set_postfix(failed=failed)
-                tqdm.write(f"run {record['run_id']} failed: {record['error']}", file=sys.stderr)
-            bar.update()
+            on_record(record)
+    finally:
+        backend.close()
+
+
+def _run_all(
+    sweep: Sweep,
+    store: BatchStore,
+    backend: Backend,
+    pending: list[RunSpec],
+    records: dict[str, dict[str, Any]],
+    progress: bool | None,
+) -> pd.DataFrame:
+    failed = 0
+    next_write = 0.0  # results.parquet after every run, unless rebuilding it gets costly
+    bar = tqdm(
+        total=len(pending), desc=f"batch {sweep.name}", unit="run", file=sys.stderr,
+        disable=(not progress) if progress is not None else None, dynamic_ncols=True,
+    )  # fmt: skip
+
+    def finished(record: dict[str, Any]) -> None:
+        nonlocal failed, next_write
+        records[record["run_id"]] = record
+        if time.perf_counter() >= next_write:
+            t_write = time.perf_counter()
+            store.write_results(sweep, records)
+            spent = time.perf_counter() - t_write
+            next_write = t_write + spent * (1.0 + 1.0 / RESULTS_WRITE_SHARE)
+        if record["status"] == STATUS_FAILED:
+            failed += 1
+            bar.set_postfix(failed=failed)
+            tqdm.write(f"run {record['run_id']} failed: {record['error']}", file=sys.stderr)
+        bar.update()
+
+    try:
+        run_specs(backend, store, pending, finished)
     finally:
         bar.close()
-        backend.close()
         results = store.write_results(sweep, records)
     return results
 
@@ -206,4 +229,5 @@ __all__ = [
     "Sweep",
     "load_sweep",
     "run_batch",
+    "run_specs",
 ]
