@@ -101,7 +101,8 @@ def reachable_cells(problem: PlanningProblem) -> list[set[Cell]] | str:
             )
         }
     if layers[0] != set(problem.start_cells):
-        return "a CAV has no way through the HV-blocked cells"
+        stuck = sorted(set(problem.start_cells) - layers[0])
+        return f"a CAV has no way through the HV-blocked cells (from {stuck})"
     for k, layer in enumerate(layers[1:], start=1):
         if len(layer) < problem.n_cavs:
             return f"fewer free reachable cells than CAVs at step {k}"

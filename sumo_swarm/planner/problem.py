@@ -236,6 +236,10 @@ class PlanningProblem:
     hv_tracks: tuple[tuple[int, tuple[float, ...]], ...] = ()
     # The CAVs' continuous rows at step 0 (their start cells' rows, refined).
     start_rows: tuple[float, ...] = ()
+    # Start cells a CAV may keep for the first step although an HV's hard margin covers the
+    # cell: the CAV itself, where it really is, is clear of every HV at step 1 (15 m cells
+    # are coarse: a cell's centre may sit in a margin that the car in it is not in).
+    stay_ok: frozenset[Cell] = frozenset()
 
     def __post_init__(self) -> None:
         if self.entry_blocked and len(self.entry_blocked) != self.n_steps:
@@ -278,6 +282,8 @@ class PlanningProblem:
 def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool:
     """May a CAV go from ``src`` at step ``k`` to ``dst`` at step ``k + 1``? (eq. (15) and the
     entry margins in front of HVs; moves of one row or column are checked elsewhere)."""
+    if k == 0 and src == dst and src in problem.stay_ok:
+        return True
     if dst in problem.blocked[k + 1]:
         return False
     if dst[1] == src[1] and dst[0] >= src[0] and problem.hv_tracks:
@@ -502,6 +508,11 @@ def build_problem(
             (cav.centre_s_m - grid.origin_at(now_s)) / grid.cell_length_m - 0.5 for cav in cavs
         ),
     )
+    problem = replace(
+        problem,
+        stay_ok=_stay_ok(grid, cavs, start_cells, all_hvs, predictor, now_s, times[1],
+                         grid_settings, front_margin),
+    )  # fmt: skip
     side_hvs = [all_hvs[h] for h in sorted(in_grid) if h != target.vehicle_id]
     blockers = assign_blockers(
         problem, grid, side_hvs, now_s, grid_settings, settings, block_budget,
@@ -523,6 +534,41 @@ def build_problem(
         )
         blockers = tuple(b for b in blockers if _blocker_free(problem, b))
     return problem.with_blockers(blockers)
+
+
+def _stay_ok(
+    grid: MovingGrid,
+    cavs: Sequence[VehicleState],
+    start_cells: Sequence[Cell],
+    all_hvs: Mapping[str, VehicleState],
+    predictor: HvPredictor,
+    now_s: float,
+    t1_s: float,
+    gs: GridSettings,
+    front_margin: FrontMargin | None,
+) -> frozenset[Cell]:
+    """Start cells whose CAV, keeping the grid's speed, is clear at step 1 of the hard margins of
+    every HV in its lane (``gap_behind_m`` behind an HV ahead, the HV's hard margin ahead of an
+    HV behind)."""
+    ok = set()
+    for cav, cell in zip(cavs, start_cells, strict=True):
+        front = cav.s_m + grid.speed_mps * (t1_s - now_s)
+        rear = front - cav.length_m
+        clear = True
+        for hv in all_hvs.values():
+            state = predictor.predict(hv, now_s, t1_s)
+            if hv_columns(grid, state, gs)[0] != cell[1]:
+                continue
+            if state.s_m >= front:
+                clear = state.rear_s_m - front >= gs.gap_behind_m
+            else:
+                hard = front_margin(state)[0] if front_margin else gs.gap_behind_m
+                clear = rear - state.s_m >= hard
+            if not clear:
+                break
+        if clear:
+            ok.add(cell)
+    return frozenset(ok)
 
 
 def _exempt(

@@ -28,7 +28,13 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sumo_swarm.grid import GridSettings, MovingGrid, build_grid
-from sumo_swarm.hvmodel import CarFollowingPredictor, DriverModel, min_block_gap, min_entry_gap
+from sumo_swarm.hvmodel import (
+    CarFollowingPredictor,
+    DriverModel,
+    braking_needed,
+    min_block_gap,
+    min_entry_gap,
+)
 from sumo_swarm.model import RoadSection, VehicleState
 from sumo_swarm.planner import (
     CellPlanner,
@@ -88,9 +94,18 @@ class PlanOutcome:
 SPEED_QUANTUM_MPS = 0.1  # entry margins are computed for speeds rounded to this [m/s]
 
 
+# Entry margins are capped here [m]: an HV that would brake harder than allowed at any gap (it
+# is far faster than the grid) claims this much of its lane ahead, not the whole road.
+MAX_MARGIN_M = 150.0
+
+
 @functools.lru_cache(maxsize=8192)
 def _entry_gap(model: DriverModel, v_q: int, v_lead_q: int, b: float, step_s: float) -> float:
-    return min_entry_gap(model, v_q * SPEED_QUANTUM_MPS, v_lead_q * SPEED_QUANTUM_MPS, b, step_s)
+    v, v_lead = v_q * SPEED_QUANTUM_MPS, v_lead_q * SPEED_QUANTUM_MPS
+    # A driver above its desired speed slows down on a free road too: only the braking the
+    # entering vehicle adds counts against b.
+    free = braking_needed(model, v, None, None, step_s)
+    return min(min_entry_gap(model, v, v_lead, b + free, step_s), MAX_MARGIN_M)
 
 
 def entry_gap(
@@ -113,7 +128,9 @@ def _block_gap(
     step_s: float,
 ) -> float:  # fmt: skip
     q = SPEED_QUANTUM_MPS
-    return min_block_gap(model, v_q * q, v_enter_q * q, v_final_q * q, decel, b, step_s)
+    free = braking_needed(model, v_q * q, None, None, step_s)
+    gap = min_block_gap(model, v_q * q, v_enter_q * q, v_final_q * q, decel, b + free, step_s)
+    return min(gap, MAX_MARGIN_M)
 
 
 def block_gap(
@@ -163,7 +180,13 @@ class ManoeuvrePlanner:
         horizon_s = interval_s * settings.n_steps
         models = {h.vehicle_id: model_of(h.vehicle_id) for h in [*hvs, target] if
                   not h.vehicle_id.startswith("lane_end:")}  # fmt: skip
-        everyone = [*states.values(), *obstacles]
+        # HVs are predicted behind CAVs that keep their cells (the grid's speed), the motion
+        # the plan starts from; a CAV's current speed would make its follower run into cells
+        # the plan keeps the CAV in.
+        everyone = [
+            replace(st, speed_mps=grid_speed_mps) if st.is_cav else st for st in states.values()
+        ]
+        everyone += list(obstacles)
         record: dict[str, Any] = {
             "time_s": t_s, "trigger": reason, "grid_speed_mps": grid_speed_mps,
             "behaving_interval_s": interval_s, "speed_cap_mps": cap_mps,
