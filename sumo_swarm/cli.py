@@ -56,6 +56,15 @@ def build_parser() -> argparse.ArgumentParser:
     bat.add_argument("--retry-failed", action="store_true", help="run failed runs again")
     imp = sub.add_parser("impact", help="traffic-impact tables and plots of a batch folder")
     imp.add_argument("dir", type=Path, help="the --out folder of a batch")
+    rpl = sub.add_parser("replay", help="an animation (MP4 or GIF) of a finished run")
+    rpl.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="the --out folder of a run")
+    rpl.add_argument("--out", type=Path, help="FILE.mp4 or FILE.gif (default: RUN_DIR/replay.mp4)")
+    rpl.add_argument(
+        "--follow", metavar="VEHICLE", help="keep this vehicle in view (default: swarm)"
+    )
+    rpl.add_argument("--from", dest="t_from", type=float, metavar="S", help="start time [s]")
+    rpl.add_argument("--to", dest="t_to", type=float, metavar="S", help="end time [s]")
+    rpl.add_argument("--fps", type=float, default=10.0, help="frames per second (default: 10)")
     return parser
 
 
@@ -139,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_batch(args)
         if args.command == "impact":
             return _cmd_impact(args)
+        if args.command == "replay":
+            from sumo_swarm.replay import replay_command
+
+            return replay_command(args)
         raise ConfigError(f"unknown command {args.command}")
     except ConfigError as exc:
         print(f"sumo-swarm: error: {exc}", file=sys.stderr)
