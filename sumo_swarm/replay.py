@@ -43,7 +43,9 @@ from sumo_swarm.routeshape import (
 )
 
 FORMATS = (".mp4", ".gif")
-MAX_LABELS = 32  # vehicles whose speed is written on them, at most
+LABEL_PT = 7.0  # size of the speeds written on the vehicles [pt]
+HEADER_PT = 11.0  # size of the line with the time and speeds [pt]
+HEADER_AT = (0.01, 0.955)  # its top-left corner [figure fraction]
 DEFAULT_WIDTH_M = 1.8  # SUMO's default vehicle width [m], when the routes give none
 FOLLOW_VIEW_M = 160.0  # length of road in view when following one vehicle [m]
 FRAME_PX = (1600, 608)  # multiples of 16: ffmpeg's codecs need no resize
@@ -302,6 +304,68 @@ def lane_borders(
     return outer, marks
 
 
+class TextStamps:
+    """Text drawn straight into an RGBA frame from cached anti-aliased glyphs: the strings of a
+    replay change every frame but are made of a few dozen characters."""
+
+    def __init__(self, size_px: float) -> None:
+        from matplotlib import font_manager
+        from PIL import ImageFont
+
+        path = font_manager.findfont(font_manager.FontProperties(family="DejaVu Sans"))
+        self.font = ImageFont.truetype(path, max(round(size_px), 1))
+        ascent, descent = self.font.getmetrics()
+        self.height_px = ascent + descent
+        self.glyphs: dict[str, tuple[np.ndarray, float]] = {}
+
+    def glyph(self, char: str) -> tuple[np.ndarray, float]:
+        """Coverage of a character's cell (height x width x 1, 0-1) and its advance [px]."""
+        found = self.glyphs.get(char)
+        if found is None:
+            from PIL import Image, ImageDraw
+
+            advance = self.font.getlength(char)
+            width = max(math.ceil(advance), self.font.getbbox(char)[2], 1)
+            im = Image.new("L", (width, self.height_px), 0)
+            ImageDraw.Draw(im).text((0, 0), char, fill=255, font=self.font)
+            found = (np.asarray(im, dtype=np.float32)[..., None] / 255.0, advance)
+            self.glyphs[char] = found
+        return found
+
+    def width_px(self, text: str) -> float:
+        return sum(self.glyph(c)[1] for c in text)
+
+    def stamp(
+        self,
+        image: np.ndarray,
+        text: str,
+        x_px: float,
+        y_px: float,
+        rgb: tuple[int, int, int],
+        *,
+        centred: bool = False,
+    ) -> None:
+        """Draw ``text`` into ``image`` (rows from the top) with its top-left corner at
+        ``(x_px, y_px)``, or its centre there when ``centred``."""
+        if centred:
+            x_px -= 0.5 * self.width_px(text)
+            y_px -= 0.5 * self.height_px
+        colour = np.asarray(rgb, np.float32)
+        y0 = round(y_px)
+        for char in text:
+            alpha, advance = self.glyph(char)
+            x0 = round(x_px)
+            x_px += advance
+            h, w = alpha.shape[:2]
+            ya, yb = max(y0, 0), min(y0 + h, image.shape[0])
+            xa, xb = max(x0, 0), min(x0 + w, image.shape[1])
+            if ya >= yb or xa >= xb or char == " ":
+                continue
+            a = alpha[ya - y0 : yb - y0, xa - x0 : xb - x0]
+            region = image[ya:yb, xa:xb, :3]
+            region[...] = (region * (1.0 - a) + colour * a).astype(np.uint8)
+
+
 class Renderer:
     """Draws frames of a run; every artist is made once and updated in place."""
 
@@ -336,20 +400,15 @@ class Renderer:
         )
         self.plan_cells = self._add(PolyCollection([], linewidths=1.4), data)
         self.vehicles = self._add(PolyCollection([], edgecolors="black", linewidths=0.5), data)
-        self.labels = [
-            self._add(
-                self.ax.text(
-                    0, 0, "", fontsize=7, color="white", ha="center", va="center", clip_on=True
-                ),
-                data,
-            )
-            for _ in range(MAX_LABELS)
-        ]
         self.fig.text(0.01, 0.995, run.title, fontsize=9, color="0.35", va="top")
-        self.header = self.fig.text(0.01, 0.955, "", fontsize=11, va="top")
-        self.header.set_animated(True)
+        # text that changes every frame is stamped into the pixels from cached glyph masks:
+        # matplotlib lays out and renders every string anew, most of a frame's cost
+        self.label_stamps = TextStamps(LABEL_PT * self.fig.dpi / 72.0)
+        self.header_stamps = TextStamps(HEADER_PT * self.fig.dpi / 72.0)
+        self.header_text = ""
+        self.labels: list[tuple[str, float, float]] = []  # text and its centre [px, from top]
         # the plan's line changes every few seconds: part of the background, redrawn on change
-        self.plan_line = self.fig.text(0.40, 0.955, "", fontsize=11, va="top")
+        self.plan_line = self.fig.text(0.40, HEADER_AT[1], "", fontsize=HEADER_PT, va="top")
         handles = [
             Patch(facecolor=c, edgecolor="black", lw=0.5, label=ROLE_LABELS[r])
             for r, c in ROLE_COLOURS.items()
@@ -480,19 +539,21 @@ class Renderer:
         self.vehicles.set_facecolors([ROLE_COLOURS[r] for r in roles])
         centres = polys.mean(axis=1)
         speeds = col["speed_mps"][vis]
-        # speeds written on the swarm, the target and the blocked HVs (text is the slow part)
+        # speeds written on the swarm, the target and the blocked HVs
         named = [i for i, role in enumerate(roles) if role != "hv"]
-        for j, text in enumerate(self.labels):
-            if j < len(named):
-                i = named[j]
-                text.set_position(centres[i])
-                text.set_text(f"{speeds[i]:.1f}")
-                text.set_visible(True)
-            else:
-                text.set_visible(False)
+        to_px = (self.camera + self.ax.transData).transform
+        height_px = self.fig.bbox.height
+        self.labels = (
+            [
+                (f"{speeds[i]:.1f}", float(x), float(height_px - y))
+                for i, (x, y) in zip(named, to_px(centres[named]), strict=True)
+            ]
+            if named
+            else []
+        )
         self._draw_plan(plan, t_s)
         self.cursor.set_xdata([t_s, t_s])
-        self.header.set_text(self._header(t_s, rows))
+        self.header_text = self._header(t_s, rows)
         plan_line = self._plan_line(t_s, plan)
         if plan_line != self.plan_line.get_text():
             self.plan_line.set_text(plan_line)
@@ -502,8 +563,16 @@ class Renderer:
         for artist in self.animated:
             self.ax.draw_artist(artist)
         self.speed_ax.draw_artist(self.cursor)
-        self.fig.draw_artist(self.header)
-        return np.array(self.canvas.buffer_rgba())
+        image = np.array(self.canvas.buffer_rgba())
+        road = self.ax.bbox
+        for text, x, y in self.labels:
+            if road.x0 <= x <= road.x1 and road.y0 <= height_px - y <= road.y1:
+                self.label_stamps.stamp(image, text, x, y, (255, 255, 255), centred=True)
+        x, y = HEADER_AT
+        self.header_stamps.stamp(
+            image, self.header_text, x * image.shape[1], (1.0 - y) * image.shape[0], (0, 0, 0)
+        )
+        return image
 
     def roles(self, vehicles: np.ndarray, is_cav: np.ndarray, plan: PlanRecord | None) -> list[str]:
         """Role of each vehicle (a key of ROLE_COLOURS) under the plan in force."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from sumo_swarm.replay import (
     FRAME_PX,
     ROLE_COLOURS,
     Renderer,
+    TextStamps,
     _view_length,
     frame_times,
     load_run,
@@ -52,6 +54,21 @@ def test_vehicle_polygons_from_the_front_bumper():
     # north-bound: the body hangs south of the front bumper, its left side is -x
     quad = vehicle_polygons(*(np.array([v]) for v in (0.0, 10.0, math.pi / 2, 5.0, 2.0)))[0]
     assert np.allclose(quad, [[-1, 10], [1, 10], [1, 5], [-1, 5]])
+
+
+def test_text_stamps_draw_where_asked():
+    stamps = TextStamps(12.0)
+    image = np.zeros((60, 120, 4), np.uint8)
+    stamps.stamp(image, "17.5", 60.0, 30.0, (255, 255, 255), centred=True)
+    rows, cols = np.nonzero(image[..., 0] > 128)
+    assert len(rows) > 20  # the digits are there, in white
+    assert abs(cols.mean() - 60.0) < 3.0 and abs(rows.mean() - 30.0) < 3.0
+    assert cols.max() - cols.min() == pytest.approx(stamps.width_px("17.5"), abs=3.0)
+    assert len(stamps.glyphs) == 4  # one glyph per character...
+    stamps.stamp(image, "5.1", -3.0, 55.0, (255, 0, 0))  # ...reused; clipped at the corner
+    assert len(stamps.glyphs) == 4
+    assert (image[50:, :8, 0] > 128).any()
+    assert (image[..., 3] == 0).all()  # the alpha channel is left alone
 
 
 # ------------------------------------------------------------------------------ a real run
@@ -101,7 +118,15 @@ def test_frame_draws_lanes_vehicles_roles_and_the_plan(run):
     assert len(r.grid_cells.get_paths()) == plan.grid["n_rows"] * plan.grid["n_cols"]
     assert len(r.plan_cells.get_paths()) == 6  # one cell per CAV
     assert "cav0 blocks hv_left" in r.plan_line.get_text()
-    assert "t =   6.00 s" in r.header.get_text()
+    assert "t =   6.00 s" in r.header_text
+    # speeds written on the CAVs, the target and the blocked HVs, each on its vehicle
+    assert len(r.labels) == 9
+    to_px = (r.camera + r.ax.transData).transform
+    assert all(re.fullmatch(r"\d+\.\d", text) for text, _, _ in r.labels)
+    centres_px = to_px(np.array([p.vertices[:4].mean(axis=0) for p in r.vehicles.get_paths()]))
+    for _, x_px, y_px in r.labels:
+        d = np.hypot(centres_px[:, 0] - x_px, centres_px[:, 1] - (FRAME_PX[1] - y_px))
+        assert d.min() < 0.5
     # every vehicle to scale: 5 m x 1.8 m
     for path in r.vehicles.get_paths():
         sides = np.hypot(*np.diff(path.vertices[:5], axis=0).T)
