@@ -62,8 +62,12 @@ def build_parser() -> argparse.ArgumentParser:
     rpl.add_argument(
         "--follow", metavar="VEHICLE", help="keep this vehicle in view (default: swarm)"
     )
-    rpl.add_argument("--from", dest="t_from", type=float, metavar="S", help="start time [s]")
-    rpl.add_argument("--to", dest="t_to", type=float, metavar="S", help="end time [s]")
+    rpl.add_argument(
+        "--from", dest="t_from", type=float, metavar="S", help="start [s] (default: 0)"
+    )
+    rpl.add_argument(
+        "--to", dest="t_to", type=float, metavar="S", help="end [s] (default: the end)"
+    )
     rpl.add_argument("--fps", type=float, default=10.0, help="frames per second (default: 10)")
     return parser
 

@@ -509,7 +509,7 @@ class Renderer:
         cav = s[run.is_cav[rows]]
         pool = cav if len(cav) else s  # no CAV (or the followed vehicle gone): everyone
         s_c = 0.5 * (float(pool.min()) + float(pool.max())) if len(pool) else 0.0
-        top = len(run.route.edges[0].lanes) - 1
+        top = len(run.route.lanes_at(s_c)) - 1  # the view centres on the road's middle
         x, y, _ = run.route.xy([s_c, s_c], [0, top])
         return float(x.mean()), float(y.mean()), self._road_heading(s_c)
 
@@ -690,6 +690,8 @@ def write_replay(
         raise ConfigError(f"replay: --out {out} must end in .mp4 or .gif")
     if not (math.isfinite(fps) and 0 < fps <= 60):
         raise ConfigError(f"replay: --fps must be in (0, 60], got {fps:g}")
+    if not run_dir.is_dir():
+        raise ConfigError(f"run folder not found: {run_dir}")
     if not out.parent.is_dir():
         raise ConfigError(f"replay: folder of --out not found: {out.parent}")
     run = load_run(run_dir)

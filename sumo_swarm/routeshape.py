@@ -135,10 +135,14 @@ class RouteGeometry:
         shape = np.broadcast_shapes(np.shape(s_m), np.shape(lane), np.shape(lat_m))
         return x.reshape(shape), y.reshape(shape), h.reshape(shape)
 
+    def lanes_at(self, s_m: float) -> tuple[LaneGeometry, ...]:
+        """The lanes of the route edge at route position ``s_m`` [m] (0 = rightmost)."""
+        j = max(int(np.searchsorted(self._offsets, s_m, side="right")) - 1, 0)
+        return self.edges[j].lanes
+
     def lane_width_m(self, s_m: float, lane: int) -> float:
         """Width of ``lane`` on the edge at route position ``s_m`` [m] (outer lane if missing)."""
-        j = max(int(np.searchsorted(self._offsets, s_m, side="right")) - 1, 0)
-        lanes = self.edges[j].lanes
+        lanes = self.lanes_at(s_m)
         return lanes[min(max(lane, 0), len(lanes) - 1)].width_m
 
     def band(self, s_from_m: float, s_to_m: float, lane: int, step_m: float = 5.0) -> np.ndarray:
