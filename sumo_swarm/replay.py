@@ -45,6 +45,7 @@ from sumo_swarm.routeshape import (
 FORMATS = (".mp4", ".gif")
 GIF_CLEAR = 255  # palette index of "unchanged since the last frame" (transparent) in a GIF
 LABEL_PT = 7.0  # size of the speeds written on the vehicles [pt]
+MIN_LABELLED_LENGTH_M = 4.5  # speeds are written when a car this long is as wide as the text [m]
 HEADER_PT = 11.0  # size of the line with the time and speeds [pt]
 HEADER_AT = (0.01, 0.955)  # its top-left corner [figure fraction]
 DEFAULT_WIDTH_M = 1.8  # SUMO's default vehicle width [m], when the routes give none
@@ -566,6 +567,9 @@ class Renderer:
         self.speed_ax.draw_artist(self.cursor)
         image = np.array(self.canvas.buffer_rgba())
         road = self.ax.bbox
+        px_per_m = road.width / self.view_m
+        if px_per_m * MIN_LABELLED_LENGTH_M < self.label_stamps.width_px("00.0"):
+            self.labels = []  # zoomed out too far: the speeds would cover the cars
         for text, x, y in self.labels:
             if road.x0 <= x <= road.x1 and road.y0 <= height_px - y <= road.y1:
                 self.label_stamps.stamp(image, text, x, y, (255, 255, 255), centred=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pandas as pd
 import pytest
 import traci
 
@@ -186,3 +187,25 @@ def test_route_is_read_from_the_first_cav(connection):
     assert drawer.route_edges == ["hwy"]
     drawer.clear()
     assert not [p for p in connection.polygon.getIDList() if p.startswith(POLYGON_PREFIX)]
+
+
+@pytest.mark.sumo
+def test_route_coordinates_land_where_sumo_put_the_vehicles(tmp_path):
+    """A curved road of four edges with a lane drop: every recorded (s, lane, lat) maps back to
+    the position SUMO reported. Exactly on the edges; on junction lanes (a few steps each) the
+    bridge's lane index is the internal lane's and the route blends across, so within a lane."""
+    from sumo_swarm.netbuild import HighwaySpec, edge_ids
+    from sumo_swarm.runner import run_sumocfg
+    from tests.usercases import write_user_case
+
+    spec = HighwaySpec(length_m=1600, lanes=(3, 3, 2, 2), edges=4, radius_m=500)
+    cfg = write_user_case(tmp_path, spec, platoon_lane=1, end_s=70.0)
+    run_sumocfg(cfg, "cav", "swarm", tmp_path / "run")
+    df = pd.read_parquet(tmp_path / "run" / "trajectories.parquet")
+    route = route_from_net(tmp_path / "highway.net.xml", edge_ids(spec))
+    x, y, _ = route.xy(df["s_m"].to_numpy(), df["lane"].to_numpy(), df["lat_m"].to_numpy())
+    error_m = np.hypot(x - df["x_m"].to_numpy(), y - df["y_m"].to_numpy())
+    on_junction = df["edge"].astype(str).str.startswith(":").to_numpy()
+    assert set(df.loc[~on_junction, "edge"].astype(str)) >= {"e0", "e1", "e2"}  # past the drop
+    assert error_m[~on_junction].max() < 0.01
+    assert on_junction.any() and error_m[on_junction].max() < spec.lane_width_m + 0.1
