@@ -262,6 +262,32 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     imp.add_argument("dir", type=Path, metavar="DIR", help="the --out folder of a batch")
+    rpl = sub.add_parser(
+        "replay",
+        help="an animation (MP4 or GIF) of a finished run",
+        description=_wrap(
+            "An animation of a finished run from its outputs: the network's lanes, the vehicles "
+            "to scale coloured by role (target, blockers, other CAVs, HVs), the plan's cells, "
+            "time and speeds."
+        ),
+    )
+    rpl.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="the --out folder of a run")
+    rpl.add_argument(
+        "--out",
+        type=Path,
+        metavar="FILE",
+        help="FILE.mp4 or FILE.gif (default: RUN_DIR/replay.mp4)",
+    )
+    rpl.add_argument(
+        "--follow", metavar="VEHICLE", help="keep this vehicle in view (default: the swarm)"
+    )
+    rpl.add_argument(
+        "--from", dest="t_from", type=float, metavar="S", help="start [s] (default: 0)"
+    )
+    rpl.add_argument(
+        "--to", dest="t_to", type=float, metavar="S", help="end [s] (default: the end of the run)"
+    )
+    rpl.add_argument("--fps", type=float, default=10.0, help="frames per second (default: 10)")
     return parser
 
 
@@ -351,6 +377,10 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_batch(args)
         if args.command == "impact":
             return _cmd_impact(args)
+        if args.command == "replay":
+            from sumo_swarm.replay import replay_command
+
+            return replay_command(args)
         raise ConfigError(f"unknown command {args.command}")
     except ConfigError as exc:
         print(f"sumo-swarm: error: {exc}", file=sys.stderr)

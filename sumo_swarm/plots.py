@@ -44,6 +44,10 @@ CONTROLLER_STYLES = {
     "sumo-cacc": {"color": "#ff7f0e", "lw": 1.4, "ls": "-."},
     "sumo-lc": {"color": "#2ca02c", "lw": 1.4, "ls": ":"},
 }
+# Fig. 12's speed axes span at least this much: with 17.5 m/s traffic a 1 % change is 1/23 of it
+MIN_SPEED_SPAN_MPS = 4.0
+EVENT_GID = "event"  # gid of the event lines, so that labels do not avoid them
+SNAPSHOT_MARGIN_M = 10.0  # road shown behind the last and ahead of the first vehicle, Fig. 8(b) [m]
 RANK_COLOURS = ("#08306b", "#2171b5", "#4292c6", "#6baed6", "#9ecae1", "#c6dbef")
 
 # file stem -> caption (the report lists the figures in this order)
@@ -163,15 +167,94 @@ def _event_times(summary: Mapping[str, Any]) -> list[tuple[float, str]]:
     return [(float(t), label) for t, label in events if t is not None]
 
 
-def _mark_events(ax: Axes, summary: Mapping[str, Any], *, labels: bool = True) -> None:
-    """Dotted vertical lines at the manoeuvre's decision, pass and regroup times."""
+def _mark_events(ax: Axes, summary: Mapping[str, Any]) -> None:
+    """Dotted vertical lines at the manoeuvre's decision, pass and regroup times (label them
+    with :func:`_label_events` once the axes hold their data and limits)."""
+    for t, _ in _event_times(summary):
+        ax.axvline(t, color="0.35", ls=":", lw=1.0, zorder=0, gid=EVENT_GID)
+
+
+def _label_events(ax: Axes, summary: Mapping[str, Any], fontsize: float = 8.0) -> None:
+    """Name the event lines, each in the tallest stretch of its line free of curves.
+
+    Call after everything is plotted and the limits are set. A label is written upwards just
+    right of its line; the curves it must not cover are the parts of every line (horizontal
+    reference lines too) that pass through the label's column.
+    """
+    fig = ax.get_figure()
+    width_px = max(ax.get_position().width * fig.get_figwidth() * fig.dpi, 1.0)
+    height_px = max(ax.get_position().height * fig.get_figheight() * fig.dpi, 1.0)
+    column = (fontsize * 1.6) * fig.dpi / 72.0 / width_px  # the label's width [axes fraction]
+    to_axes = ax.transAxes.inverted()
+    curves = []
+    for line in ax.get_lines():
+        if line.get_gid() == EVENT_GID or not line.get_visible():
+            continue
+        xy = np.asarray(line.get_xydata(), dtype=float)
+        if len(xy):
+            curves.append(to_axes.transform(line.get_transform().transform(xy)))
+    x_lo, x_hi = ax.get_xlim()
     for t, label in _event_times(summary):
-        ax.axvline(t, color="0.35", ls=":", lw=1.0, zorder=0)
-        if labels:
-            ax.annotate(
-                label, (t, 1.0), xycoords=("data", "axes fraction"), xytext=(2, -2),
-                textcoords="offset points", fontsize=8, color="0.3", va="top", rotation=90,
-            )  # fmt: skip
+        if not x_lo <= t <= x_hi:
+            continue
+        xf = (t - x_lo) / (x_hi - x_lo)
+        covered = _covered_heights(curves, xf - 0.1 * column, xf + column)
+        low, high = _largest_gap(covered)
+        needed = len(label) * 0.6 * fontsize * fig.dpi / 72.0 / height_px
+        centre = 0.5 * (low + high)
+        if high - low > needed + 0.04:  # room to spare: sit near the top of the gap
+            centre = high - 0.02 - 0.5 * needed
+        ax.annotate(
+            label,
+            (t, centre),
+            xycoords=("data", "axes fraction"),
+            xytext=(2, 0),
+            textcoords="offset points",
+            fontsize=fontsize,
+            color="0.3",
+            va="center",
+            ha="left",
+            rotation=90,
+        )
+
+
+def _covered_heights(
+    curves: Sequence[np.ndarray], x_from: float, x_to: float
+) -> list[tuple[float, float]]:
+    """Height intervals [axes fraction] the curves (n x 2 arrays, axes fraction) cover between
+    ``x_from`` and ``x_to``."""
+    out = []
+    for xy in curves:
+        x, y = xy[:, 0], xy[:, 1]
+        x0, x1, y0, y1 = x[:-1], x[1:], y[:-1], y[1:]
+        ok = np.isfinite(x0) & np.isfinite(x1) & np.isfinite(y0) & np.isfinite(y1)
+        lo_x, hi_x = np.minimum(x0, x1), np.maximum(x0, x1)
+        hit = ok & (hi_x >= x_from) & (lo_x <= x_to)
+        for a_x, b_x, a_y, b_y in zip(x0[hit], x1[hit], y0[hit], y1[hit], strict=True):
+            if b_x == a_x:
+                out.append((min(a_y, b_y), max(a_y, b_y)))
+                continue
+            ends = np.clip([x_from, x_to], min(a_x, b_x), max(a_x, b_x))
+            ys = a_y + (ends - a_x) * (b_y - a_y) / (b_x - a_x)
+            out.append((float(ys.min()), float(ys.max())))
+    return out
+
+
+def _largest_gap(covered: Sequence[tuple[float, float]], pad: float = 0.02) -> tuple[float, float]:
+    """The tallest stretch of [0, 1] outside the ``covered`` intervals (each padded)."""
+    edges = sorted(
+        (max(lo - pad, 0.0), min(hi + pad, 1.0))
+        for lo, hi in covered
+        if hi >= -pad and lo <= 1.0 + pad
+    )
+    best, start = (0.0, 0.0), 0.0
+    for lo, hi in edges:
+        if lo > start and lo - start > best[1] - best[0]:
+            best = (start, lo)
+        start = max(start, hi)
+    if 1.0 - start > best[1] - best[0]:
+        best = (start, 1.0)
+    return best
 
 
 def _mark_window_end(ax: Axes, end_s: float | None, sim_end_s: float) -> None:
@@ -363,6 +446,16 @@ def figure_trajectories(
     widths_m: Mapping[str, float],
     path: Path,
 ) -> Path:
+    """Write :func:`draw_trajectories` to ``path`` (PNG)."""
+    return _save(draw_trajectories(df, summary, road, widths_m), path)
+
+
+def draw_trajectories(
+    df: pd.DataFrame,
+    summary: Mapping[str, Any],
+    road: RoadSection,
+    widths_m: Mapping[str, float],
+) -> Figure:
     """(a) lateral position against distance along the road during the manoeuvre;
     (b) snapshots of the scene around the slow HV at the key instants."""
     target = (summary.get("overtake") or {}).get("target")
@@ -408,42 +501,73 @@ def figure_trajectories(
     ]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
 
-    rows = {t: df[np.isclose(df["time_s"], t, atol=1e-6)] for t, _ in snaps}
-    for j, (t, label) in enumerate(snaps):
-        sub = fig.add_subplot(gs[1 + j])
-        at = rows[t]
+    scenes = []  # per snapshot: the rows, x of each front bumper, the window's centre
+    for t, _ in snaps:
+        at = df[np.isclose(df["time_s"], t, atol=1e-6)]
         if at.empty:
-            nearest = times[np.argmin(np.abs(times - t))]
-            at = df[df["time_s"] == nearest]
+            at = df[df["time_s"] == times[np.argmin(np.abs(times - t))]]
         ref = at.loc[at["vehicle"] == target, "s_m"]
         s_ref = float(ref.iloc[0]) if not ref.empty else float(at["s_m"].median())
+        x = at["s_m"].to_numpy(dtype=float) - s_ref
+        main = ((at["kind"] == metrics.CAV) | (at["vehicle"] == target)).to_numpy()
+        if not main.any():
+            main[:] = True
+        rear = x[main] - at["length_m"].to_numpy(dtype=float)[main]
+        scenes.append((at, x, float(rear.min()), float(x[main].max())))
+    # one window length for all snapshots, to scale (1 m across = 1 m along): the swarm and
+    # the slow HV with room around them
+    span = max(hi - lo for _, _, lo, hi in scenes) + 2.0 * SNAPSHOT_MARGIN_M
+    centres = [road.lane_centre_y(q) for q in range(road.n_lanes)]
+    for j, ((t, label), (at, x, lo, hi)) in enumerate(zip(snaps, scenes, strict=True)):
+        sub = fig.add_subplot(gs[1 + j])
+        x_from = 0.5 * (lo + hi) - 0.5 * span
         ys = lateral_position_m(at, road)
-        for row, y in zip(at.itertuples(index=False), ys, strict=True):
-            x = float(row.s_m) - s_ref
-            if not -160 <= x <= 160:
+        for row, xf, y in zip(at.itertuples(index=False), x, ys, strict=True):
+            if not x_from - 10.0 <= xf <= x_from + span + 10.0:
                 continue
             is_cav = row.kind == metrics.CAV
-            colour = (cav_colour(cavs.index(row.vehicle)) if is_cav
-                      else TARGET_COLOUR if row.vehicle == target else HV_COLOUR)  # fmt: skip
+            colour = (
+                cav_colour(cavs.index(row.vehicle))
+                if is_cav
+                else TARGET_COLOUR
+                if row.vehicle == target
+                else HV_COLOUR
+            )
             w = widths_m["cav" if is_cav else "hv"]
-            sub.add_patch(Rectangle((x - row.length_m, y - w / 2), row.length_m, w,
-                                    facecolor=colour, edgecolor="black", lw=0.4))  # fmt: skip
+            sub.add_patch(
+                Rectangle(
+                    (xf - row.length_m, y - w / 2),
+                    row.length_m,
+                    w,
+                    facecolor=colour,
+                    edgecolor="black",
+                    lw=0.4,
+                )
+            )
         for y in y_lines:
-            sub.axhline(y, color="0.75", lw=0.8,
-                        ls="--" if y not in (y_lines[0], y_lines[-1]) else "-")  # fmt: skip
-        sub.set_xlim(-160, 160)
-        sub.set_ylim(y_lines[0], y_lines[-1])
-        sub.set_yticks([])
-        sub.text(1.005, 0.5, f"t = {t:.2f} s\n{label}", transform=sub.transAxes, fontsize=8,
-                 va="center")  # fmt: skip
+            sub.axhline(
+                y, color="0.75", lw=0.8, ls="--" if y not in (y_lines[0], y_lines[-1]) else "-"
+            )
+        sub.set_xlim(x_from, x_from + span)
+        sub.set_ylim(y_lines[0] - 0.5, y_lines[-1] + 0.5)
+        sub.set_aspect("equal", adjustable="box")
+        sub.set_yticks(centres, [lane_name(q, road.n_lanes) for q in range(road.n_lanes)])
+        sub.tick_params(labelsize=7)
+        sub.set_ylabel("lane", fontsize=8)
+        sub.text(
+            1.005,
+            0.5,
+            f"t = {t:.2f} s\n{label}",
+            transform=sub.transAxes,
+            fontsize=8,
+            va="center",
+        )
         if j == 0:
-            sub.set_title("(b) The scene around the slow HV (black) at key instants",
-                          fontsize=10)  # fmt: skip
-        if j < len(snaps) - 1:
-            sub.set_xticklabels([])
-        else:
-            sub.set_xlabel("distance ahead of the slow HV's front bumper (m)")
-    return _save(fig, path)
+            sub.set_title(
+                "(b) The scene around the slow HV (black) at key instants, to scale", fontsize=10
+            )
+    sub.set_xlabel("distance ahead of the slow HV's front bumper (m)")
+    return fig
 
 
 def _lane_edges(road: RoadSection) -> list[float]:
@@ -470,6 +594,16 @@ def figure_speeds(
     paper_speeds: Mapping[str, float],
     path: Path,
 ) -> Path:
+    """Write :func:`draw_speeds` to ``path`` (PNG)."""
+    return _save(draw_speeds(runs, focus, window, paper_speeds), path)
+
+
+def draw_speeds(
+    runs: Mapping[str, RunData],
+    focus: str,
+    window: tuple[float, float],
+    paper_speeds: Mapping[str, float],
+) -> Figure:
     """(a) each CAV's speed under ``focus`` and the platoon average, with cacc's average;
     (b) the platoon average speed of every controller."""
     main = runs[focus]
@@ -479,7 +613,7 @@ def figure_speeds(
     sim_end = float(df["time_s"].max())
     for ax in (ax_a, ax_b):
         _mark_window_end(ax, window[1], sim_end)
-        _mark_events(ax, main.summary, labels=ax is ax_a)
+        _mark_events(ax, main.summary)
     speeds = wide(df[df["kind"] == metrics.CAV], "speed_mps")
     for i, vid in enumerate(cav_ids(df)):
         ax_a.plot(speeds.index, speeds[vid], color=cav_colour(i), lw=1.0, label=vid)
@@ -503,7 +637,8 @@ def figure_speeds(
     ax_b.set_title("(b) Average speed of the six CAVs, per controller", fontsize=10)
     ax_b.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
     ax_b.set_xlim(0, sim_end)
-    return _save(fig, path)
+    _label_events(ax_a, main.summary)
+    return fig
 
 
 def _xy(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
@@ -522,6 +657,17 @@ def figure_gaps(
     window: tuple[float, float],
     path: Path,
 ) -> Path:
+    """Write :func:`draw_gaps` to ``path`` (PNG)."""
+    return _save(draw_gaps(df, summary, min_gap_m, desired_gap_m, window), path)
+
+
+def draw_gaps(
+    df: pd.DataFrame,
+    summary: Mapping[str, Any],
+    min_gap_m: float,
+    desired_gap_m: float,
+    window: tuple[float, float],
+) -> Figure:
     """Bumper-to-bumper gap of each CAV to the vehicle ahead in its lane, over time."""
     g = metrics.gaps(df)
     g = g[(g["kind"] == metrics.CAV)]
@@ -550,7 +696,8 @@ def figure_gaps(
     ax.set_ylabel("following distance (m, bumper to bumper)")
     ax.set_title("Following distance of each CAV to the vehicle ahead in its lane", fontsize=10)
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
-    return _save(fig, path)
+    _label_events(ax, summary)
+    return fig
 
 
 # --------------------------------------------------------------------------------------------
@@ -565,6 +712,17 @@ def figure_time_space(
     frame_speed_mps: float,
     path: Path,
 ) -> Path:
+    """Write :func:`draw_time_space` to ``path`` (PNG)."""
+    return _save(draw_time_space(df, summary, lane, n_lanes, frame_speed_mps), path)
+
+
+def draw_time_space(
+    df: pd.DataFrame,
+    summary: Mapping[str, Any],
+    lane: int,
+    n_lanes: int,
+    frame_speed_mps: float,
+) -> Figure:
     """(a) Front-bumper position against time of every vehicle while it is in ``lane``;
     (b) the same positions in a frame moving at ``frame_speed_mps`` (shows small speed changes).
     """
@@ -577,7 +735,7 @@ def figure_time_space(
     ax_a, ax_b = fig.subplots(2, 1, sharex=True, height_ratios=[1.3, 1.0])
     cavs = cav_ids(df)
     for ax, offset in ((ax_a, 0.0 * t), (ax_b, frame_speed_mps * t)):
-        _mark_events(ax, summary, labels=ax is ax_a)
+        _mark_events(ax, summary)
         for vid in sorted(s.columns, key=_natural_key):
             if vid in cavs or s[vid].isna().all():
                 continue
@@ -607,7 +765,8 @@ def figure_time_space(
         "down is a vehicle slower than that",
         fontsize=10,
     )
-    return _save(fig, path)
+    _label_events(ax_a, summary)
+    return fig
 
 
 # --------------------------------------------------------------------------------------------
@@ -623,10 +782,38 @@ def figure_upstream(
     initial_speed_mps: float | None,
     path: Path,
 ) -> Path:
+    """Write :func:`draw_upstream` to ``path`` (PNG)."""
+    return _save(draw_upstream(df, summary, adjacent, n_lanes, headway_s, initial_speed_mps), path)
+
+
+def speed_limits(
+    low_mps: float, high_mps: float, min_span_mps: float = MIN_SPEED_SPAN_MPS
+) -> tuple[float, float]:
+    """Speed-axis limits [m/s]: the data on whole m/s with a margin, at least ``min_span_mps``
+    wide (centred on the data, ends on half m/s), so changes of a few tenths stay small."""
+    floor = 0.0 if low_mps >= 0.0 else -math.inf  # no negative speeds on a forward-only axis
+    low, high = max(math.floor(low_mps - 0.25), floor), math.ceil(high_mps + 0.25)
+    if high - low < min_span_mps:
+        mid = round(low_mps + high_mps) / 2.0  # the data's middle, to the nearest 0.5 m/s
+        low = max(mid - min_span_mps / 2.0, floor)
+        high = low + min_span_mps
+    return float(low), float(high)
+
+
+def draw_upstream(
+    df: pd.DataFrame,
+    summary: Mapping[str, Any],
+    adjacent: Mapping[int, Iterable[str]],
+    n_lanes: int,
+    headway_s: float,
+    initial_speed_mps: float | None,
+) -> Figure:
     """Speed (top) and following distance (bottom) of the ranked upstream HVs, one column per
     lane (left lane first); the blocked HVs beside the platoon (``adjacent``) dashed, once each
     whether ranked or not. The distance axis fits the other ranked HVs: a blocked HV's gap
-    grows while the swarm holds it back and would squash them."""
+    grows while the swarm holds it back and would squash them, so a blocked HV whose gap leaves
+    the scale is named in a note instead of drawn. The speed axes share their limits, at least
+    ``MIN_SPEED_SPAN_MPS`` wide (:func:`speed_limits`)."""
     upstream = summary.get("upstream") or []
     by_lane: dict[int, list[tuple[int, str]]] = {}
     for entry in upstream:
@@ -639,44 +826,75 @@ def figure_upstream(
     axes = fig.subplots(2, max(len(lanes), 1), squeeze=False, sharex=True)
     sim_end = float(df["time_s"].max())
     v_ref = initial_speed_mps
+    speed_range = [math.inf, -math.inf]
     for j, lane in enumerate(lanes):
         ax_v, ax_g = axes[0][j], axes[1][j]
         for ax in (ax_v, ax_g):
-            _mark_events(ax, summary, labels=(ax is ax_v and j == 0))
+            _mark_events(ax, summary)
         blocked = set(adjacent.get(lane, ()))
-        ranks = {vid: rank for rank, vid in by_lane.get(lane, [])}
-        for vid in [v for v in adjacent.get(lane, ()) if v not in ranks]:
-            for ax, table in ((ax_v, speeds), (ax_g, gap)):
-                if vid in table.columns:
-                    ax.plot(table.index, table[vid], color="black", ls="--", lw=1.2,
-                            label=f"{vid} (blocked)")  # fmt: skip
-        for rank, vid in sorted(by_lane.get(lane, [])):
-            colour = RANK_COLOURS[min(rank - 1, len(RANK_COLOURS) - 1)]
-            style = {"ls": "--", "lw": 1.6} if vid in blocked else {"lw": 1.3}
-            label = f"#{rank} {vid}" + (" (blocked)" if vid in blocked else "")
-            for ax, table in ((ax_v, speeds), (ax_g, gap)):
-                if vid in table.columns:
-                    ax.plot(table.index, table[vid], color=colour, label=label, **style)
-        ranked = [
-            vid for _, vid in by_lane.get(lane, []) if vid in gap.columns and vid not in blocked
-        ]
+        ranked_here = sorted(by_lane.get(lane, []))
+        rank_of = {vid: rank for rank, vid in ranked_here}
+        ranked = [vid for _, vid in ranked_here if vid in gap.columns and vid not in blocked]
+        off: list[str] = []
         if ranked:  # scale to the ranked HVs; a blocked HV's gap may run off the top
             low = float(np.nanmin(gap[ranked].to_numpy()))
             high = float(np.nanmax(gap[ranked].to_numpy()))
             ax_g.set_ylim(min(low, headway_s * v_ref if v_ref else low) - 3.0, high + 8.0)
+            # a gap that leaves the scale is named in a note, not drawn as a stray fragment
             off = [v for v in sorted(blocked) if v in gap.columns and gap[v].max() > high + 8.0]
             if off:
-                ax_g.text(0.98, 0.96, "\n".join(
-                    f"{v} (blocked): {gap[v].min():.0f}-{gap[v].max():.0f} m, off the scale"
-                    for v in off), transform=ax_g.transAxes, ha="right", va="top", fontsize=8,
-                )  # fmt: skip
+                ax_g.text(
+                    0.98,
+                    0.96,
+                    "\n".join(
+                        f"{v} (blocked): {gap[v].min():.0f}-{gap[v].max():.0f} m, off the scale"
+                        for v in off
+                    ),
+                    transform=ax_g.transAxes,
+                    ha="right",
+                    va="top",
+                    fontsize=8,
+                )
+        # the blocked HVs beside the platoon that are not ranked, then the ranked ones
+        entries = [(None, v) for v in adjacent.get(lane, ()) if v not in rank_of] + ranked_here
+        for rank, vid in entries:
+            if rank is None:
+                style = {"color": "black", "ls": "--", "lw": 1.2, "label": f"{vid} (blocked)"}
+            else:
+                style = {
+                    "color": RANK_COLOURS[min(rank - 1, len(RANK_COLOURS) - 1)],
+                    "label": f"#{rank} {vid}" + (" (blocked)" if vid in blocked else ""),
+                    **({"ls": "--", "lw": 1.6} if vid in blocked else {"lw": 1.3}),
+                }
+            if vid in speeds.columns:
+                ax_v.plot(speeds.index, speeds[vid], **style)
+                speed_range[0] = min(speed_range[0], float(speeds[vid].min()))
+                speed_range[1] = max(speed_range[1], float(speeds[vid].max()))
+            if vid in gap.columns and vid not in off:
+                ax_g.plot(gap.index, gap[vid], **style)
+        handles = list(ax_v.get_lines())
         if v_ref is not None:
-            ax_g.axhline(headway_s * v_ref, color="#d62728", lw=1.0, ls="-",
-                         label=f"{headway_s:g} s headway at {v_ref:.1f} m/s")  # fmt: skip
+            handles.append(
+                ax_g.axhline(
+                    headway_s * v_ref,
+                    color="#d62728",
+                    lw=1.0,
+                    ls="-",
+                    label=f"{headway_s:g} s headway at {v_ref:.1f} m/s",
+                )
+            )
+        handles = [h for h in handles if not h.get_label().startswith("_")]
         ax_v.set_title(f"{lane_name(lane, n_lanes)} lane (lane {lane})", fontsize=10)
         ax_g.set_xlabel("time (s)")
         ax_g.set_xlim(0, sim_end)
-        ax_g.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, fontsize=8)
+        ax_g.legend(
+            handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, fontsize=8
+        )
+    if math.isfinite(speed_range[0]):
+        limits = speed_limits(*speed_range)
+        for ax in axes[0]:
+            ax.set_ylim(*limits)
+    _label_events(axes[0][0], summary)
     axes[0][0].set_ylabel("speed (m/s)")
     axes[1][0].set_ylabel("following distance (m)")
     fig.suptitle(
@@ -684,7 +902,7 @@ def figure_upstream(
         "HV blocked beside the platoon)",
         fontsize=10,
     )
-    return _save(fig, path)
+    return fig
 
 
 # --------------------------------------------------------------------------------------------
