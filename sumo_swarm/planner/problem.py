@@ -11,11 +11,14 @@ initial cells, eqs. (18)-(19)).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Literal
+
+import numpy as np
 
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.grid import (
@@ -274,6 +277,32 @@ class PlanningProblem:
     def n_cavs(self) -> int:
         return len(self.cav_ids)
 
+    @functools.cached_property
+    def pass_limits(self) -> np.ndarray:
+        """``[k, col, row]``: the lowest row a CAV in ``row`` at step ``k`` may not reach at step
+        ``k + 1`` within its column without passing an HV (``inf``: none)."""
+        limits = np.full((self.n_steps, self.n_cols, self.n_rows), np.inf)
+        rows = np.arange(self.n_rows)
+        for col, track in self.hv_tracks:
+            if not 0 <= col < self.n_cols:
+                continue
+            for k in range(self.n_steps - 1):
+                behind = rows < track[k]
+                limits[k, col, behind] = np.minimum(limits[k, col, behind], track[k + 1])
+        return limits
+
+    @functools.cached_property
+    def start_pass_limits(self) -> dict[Cell, float]:
+        """The same at step 0, from where the CAVs really are in their start cells."""
+        out: dict[Cell, float] = {}
+        for pos, cell in zip(self.start_rows, self.start_cells, strict=True):
+            limit = math.inf
+            for col, track in self.hv_tracks:
+                if col == cell[1] and pos < track[0]:
+                    limit = min(limit, track[1])
+            out[cell] = min(out.get(cell, math.inf), limit)
+        return out
+
     def with_blockers(self, blockers: Sequence[Blocker]) -> PlanningProblem:
         """The same problem with other blocker assignments (e.g. none)."""
         return replace(self, blockers=tuple(blockers))
@@ -287,15 +316,11 @@ def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool
     if dst in problem.blocked[k + 1]:
         return False
     if dst[1] == src[1] and dst[0] >= src[0] and problem.hv_tracks:
-        row = float(src[0])
-        if k == 0 and problem.start_rows:
-            row = min(
-                (r for r, cell in zip(problem.start_rows, problem.start_cells, strict=True)
-                 if cell == src), default=row,
-            )  # fmt: skip
-        for col, rows in problem.hv_tracks:
-            if col == src[1] and row < rows[k] and dst[0] >= rows[k + 1]:
-                return False  # it would pass an HV in its own lane
+        limit = problem.pass_limits[k, src[1], src[0]]
+        if k == 0:
+            limit = min(limit, problem.start_pass_limits.get(src, limit))
+        if dst[0] >= limit:
+            return False  # it would pass an HV in its own lane
     if not problem.entry_blocked or (k, src, dst) in problem.exempt_moves:
         return True
     if dst[1] != src[1]:  # sideways: the new cell must be free of HVs over the whole move
