@@ -88,9 +88,14 @@ def test_planner_failure_falls_back_to_a_safe_platoon(tmp_path, status):
     summary = run_scenario(
         sc, "swarm", tmp_path, progress=False, controller=SwarmController(planner=planner)
     )
-    assert planner.calls >= 2  # retried after the cool-down
-    assert summary["planner"]["fallbacks"] == planner.calls
-    assert summary["planner"]["statuses"] == {status.value: planner.calls}
+    # An infeasible replan is tried again at the guard's margins (one more call), then falls
+    # back; a timeout falls back at once.
+    per_replan = 2 if status is PlanStatus.INFEASIBLE else 1
+    replans = planner.calls // per_replan
+    assert planner.calls == per_replan * replans and replans >= 2  # retried after the cool-down
+    assert summary["planner"]["fallbacks"] == replans
+    assert summary["planner"]["statuses"] == {status.value: replans}
+    assert summary["overtake"]["abort_reasons"].get("no_feasible_plan", 0) >= 1
     assert summary["safety"]["collisions"] == 0
     assert summary["safety"]["hard_brakes"] == 0
     assert summary["cav"]["gap_min_m"] >= 5.0

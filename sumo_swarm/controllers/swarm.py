@@ -141,6 +141,9 @@ class SwarmController:
         self.trigger = self._new_trigger()
         self.watch = TargetWatch(sc.swarm.trigger_after_s)
         self.planlog = PlanLog(ctx.out_dir)
+        self.drawer = _plan_drawer(ctx.session)
+        if self.drawer is not None:
+            self.planlog.listeners.append(lambda record: self.drawer.draw(record, record["time_s"]))
 
     @property
     def planner(self) -> CellPlanner:
@@ -192,6 +195,8 @@ class SwarmController:
         if road is not None:
             ctx.road = road
         self._watch_blocked(t_s, states)
+        if self.drawer is not None and self.mode is Mode.OVERTAKE:
+            self.drawer.update(t_s)
         if self.mode is Mode.CRUISE:
             target = self._decide(t_s, states, platoon)
             if target is not None:
@@ -214,7 +219,8 @@ class SwarmController:
                 self.progress.update(t_s, target, list(cavs.values()), sc.cav.min_gap_m)
                 give_up = self.progress.give_up_reason(
                     t_s,
-                    sc.swarm.give_up_no_progress_intervals * (self.interval_s or 0.0),
+                    sc.swarm.give_up_no_progress_intervals
+                    * (self.interval_s or self.planner_settings.behaving_interval_s),
                     sc.swarm.give_up_no_plan_s,
                     self.plan is not None,
                 )
@@ -310,6 +316,8 @@ class SwarmController:
 
     def _finish(self, t_s: float, completed: bool, reason: str = "completed") -> None:
         self.mode = Mode.CRUISE
+        if self.drawer is not None:
+            self.drawer.clear()
         self.plan = None
         self.references = {}
         self.watch.candidate_id = self.watch.since_s = None
@@ -611,6 +619,24 @@ class SwarmController:
                 self.tracker.solve_ms if self.ctx else [], prefix="solve_ms_per_cav_"
             ),
         }
+
+
+def _plan_drawer(session: Any) -> Any:
+    """A sumo-gui plan drawer when the session is a traci connection to sumo-gui, else None."""
+    api = getattr(session, "api", None)
+    if api is None:
+        return None
+    try:
+        api.gui.getIDList()  # only sumo-gui answers
+    except Exception:
+        return None
+    from sumo_swarm.gui import PlanDrawer
+
+    try:
+        return PlanDrawer(api, getattr(session, "route_edges", None))
+    except Exception:  # drawing is a convenience: never stop the run for it
+        log.exception("sumo-gui plan drawing is off")
+        return None
 
 
 def _no_plan(t_s: float) -> Plan:
