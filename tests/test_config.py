@@ -37,6 +37,13 @@ def test_paper_scenario_holds_section_iv_c(paper_path):
         ("[cav]\nmin_gap_m = 12.0\n", "desired_gap_m (10.0) must be >= min_gap_m"),
         ("[hv]\nlane_changes = 1\n", "hv.lane_changes: expected true or false"),
         ('[cell]\nrule = "tiny"\n', "cell.rule: must be one of"),
+        (
+            "[grid]\ncell_length_m = 9.0\n",
+            "grid.cell_length_m is not set here: it comes from [cell]",
+        ),
+        ("[lateral]\nwheelbase_m = 3.0\n", "lateral.wheelbase_m is not set here"),
+        ("[hvmodel]\nplanner_share = 1.5\n", "planner_share must be <= 1"),
+        ("[swarm]\ngive_up_no_progress_intervals = 0\n", "give_up_no_progress_intervals"),
         ('[cell]\nrule = "fixed"\ncell_length_m = 2.0\n', "must be at least as long as a CAV"),
         ("[bogus]\nx = 1\n", "unknown section '[bogus]'"),
         ("[evaluation]\nend_s = 500.0\n", "is after simulation.duration_s"),
@@ -75,3 +82,23 @@ def test_overrides_are_validated_too(paper_path):
     assert sc.cav.count == 4
     with pytest.raises(ConfigError, match=r"unknown key 'cav\.cnt'"):
         load_scenario(paper_path, overrides={"cav": {"cnt": 4}})
+
+
+def test_one_source_for_each_physical_quantity(tmp_path, paper_path):
+    """The grid and the lateral MPC take the cell length, CAV length, wheelbase and steering
+    range from [cell] and [cav]; keys nothing reads are refused instead of ignored."""
+    import math
+
+    text = paper_path.read_text().replace(
+        'network = "../networks/', f'network = "{paper_path.parent.parent}/networks/'
+    )
+    text += "\n[cav]\n" if "[cav]" not in text else ""
+    text = text.replace("steering_ratio = 15.0", "steering_ratio = 10.0")
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    sc = load_scenario(path)
+    assert sc.grid.cell_length_m == sc.cell_length_m == 15.0
+    assert sc.grid.cav_length_m == sc.cav.length_m
+    assert sc.lateral.wheelbase_m == sc.cav.wheelbase_m
+    assert sc.lateral.delta_max == pytest.approx(math.radians(450.0 / 10.0))
+    assert sc.lateral.delta_min == -sc.lateral.delta_max

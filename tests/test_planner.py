@@ -455,3 +455,44 @@ def test_replan_trigger_reasons():
     trigger.planned(failed, 10.0, [])
     assert trigger.check(11.0, {}, []) is None
     assert trigger.check(13.0, {}, []) == "initial"
+
+
+def test_move_masks_agree_with_move_allowed_cell_by_cell():
+    """The vectorised move rules (flow model) and the scalar ones (validator) are the same rules."""
+    import random
+
+    from sumo_swarm.planner.problem import MOVES, move_allowed, move_masks
+
+    rng = random.Random(7)
+    for _ in range(20):
+        n_rows, n_cols, n_steps = rng.randint(3, 8), rng.randint(2, 4), rng.randint(2, 5)
+        cells = [(r, c) for r in range(n_rows) for c in range(n_cols)]
+
+        def some(p):
+            return frozenset(cell for cell in cells if rng.random() < p)  # noqa: B023
+
+        starts = tuple(rng.sample(cells, 2))
+        problem = PlanningProblem(
+            n_rows=n_rows, n_cols=n_cols, n_steps=n_steps, cav_ids=("a", "b"),
+            start_cells=starts, blocked=tuple(some(0.15) for _ in range(n_steps)),
+            goal_rows=(n_rows,) * n_steps, regroup_lane=0,
+            entry_blocked=tuple(some(0.2) for _ in range(n_steps)),
+            hv_tracks=tuple(
+                (rng.randrange(n_cols), tuple(rng.uniform(-1, n_rows) for _ in range(n_steps)))
+                for _ in range(2)
+            ),
+            start_rows=tuple(r + rng.uniform(-0.5, 0.5) for r, _ in starts),
+            stay_ok=frozenset({starts[0]}),
+            exempt_moves=frozenset(
+                {(0, starts[1], (starts[1][0], starts[1][1] + 1))} if starts[1][1] + 1 < n_cols
+                else set()
+            ),
+        )  # fmt: skip
+        masks = move_masks(problem)
+        for k in range(n_steps - 1):
+            for row, col in cells:
+                for m, (dr, dc) in enumerate(MOVES):
+                    dst = (row + dr, col + dc)
+                    inside = 0 <= dst[0] < n_rows and 0 <= dst[1] < n_cols
+                    expected = inside and move_allowed(problem, k, (row, col), dst)
+                    assert masks[m, k, row, col] == expected, (k, (row, col), dst)

@@ -334,6 +334,64 @@ def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool
     return True
 
 
+# Moves of one behaving step as (row, column) offsets: stay, forward, back, left, right.
+MOVES = ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))
+
+
+def _cell_mask(
+    cells_per_step: Sequence[frozenset[Cell]], shape: tuple[int, int, int]
+) -> np.ndarray:
+    mask = np.zeros(shape, dtype=bool)
+    for k, cells in enumerate(cells_per_step):
+        for row, col in cells:
+            if 0 <= row < shape[1] and 0 <= col < shape[2]:
+                mask[k, row, col] = True
+    return mask
+
+
+def move_masks(problem: PlanningProblem) -> np.ndarray:
+    """``[m, k, row, col]``: may a CAV in ``(row, col)`` at step ``k`` make move ``MOVES[m]``?
+
+    The rules of :func:`move_allowed` for every cell at once (moves off the grid are False; the
+    last step has no moves). Used by the flow model to build only allowed edges.
+    """
+    n_steps, n_rows, n_cols = problem.n_steps, problem.n_rows, problem.n_cols
+    shape = (n_steps, n_rows, n_cols)
+    hard = _cell_mask(problem.blocked, shape)
+    entry = _cell_mask(problem.entry_blocked, shape) if problem.entry_blocked else None
+    rows = np.arange(n_rows)[:, None]
+    limits = problem.pass_limits if problem.hv_tracks else None
+    out = np.zeros((len(MOVES), *shape), dtype=bool)
+    for m, (dr, dc) in enumerate(MOVES):
+        for k in range(n_steps - 1):
+            ok = np.zeros((n_rows, n_cols), dtype=bool)
+            src = (slice(max(0, -dr), n_rows - max(0, dr)), slice(max(0, -dc), n_cols - max(0, dc)))
+            dst = (slice(max(0, dr), n_rows + min(0, dr)), slice(max(0, dc), n_cols + min(0, dc)))
+            allowed = ~hard[k + 1][dst]
+            if dc == 0 and dr >= 0 and limits is not None:
+                allowed &= (rows[src[0]] + dr) < limits[k][:, src[0]].T[:, src[1]]
+            if entry is not None:
+                if dc != 0:
+                    allowed &= ~(entry[k + 1][dst] | entry[k][dst] | hard[k][dst])
+                elif dr < 0:
+                    allowed &= ~entry[k + 1][dst]
+            ok[src] = allowed
+            out[m, k] = ok
+    # Exceptions, cell by cell: a kept start cell, blockers' entries, refined start rows.
+    for cell in problem.stay_ok:
+        out[0, 0, cell[0], cell[1]] = True
+    for m, (dr, dc) in enumerate(MOVES):
+        for cell in set(problem.start_cells):
+            dst = (cell[0] + dr, cell[1] + dc)
+            if 0 <= dst[0] < n_rows and 0 <= dst[1] < n_cols:
+                out[m, 0, cell[0], cell[1]] = move_allowed(problem, 0, cell, dst)
+    for k, src, dst in problem.exempt_moves:
+        move = (dst[0] - src[0], dst[1] - src[1])
+        if move in MOVES and 0 <= dst[0] < n_rows and 0 <= dst[1] < n_cols:
+            out[MOVES.index(move), k, src[0], src[1]] = move_allowed(problem, k, src, dst)
+    return out
+
+
 def target_cost(problem: PlanningProblem, row: int, k: int) -> float:
     """Forward-target cost of one CAV in ``row`` at step ``k`` (first term of eq. (5))."""
     behind = problem.goal_rows[k] - row
