@@ -133,10 +133,14 @@ class _FlowPlanner:
 
 
 def _usable_hint(model: FlowModel, hint: Plan | None) -> list[int] | None:
-    """Variable values of ``hint`` if it fits the problem (same CAVs, leader first)."""
-    if hint is None or not hint.cells or tuple(hint.cav_ids) != model.problem.cav_ids:
+    """Variable values of ``hint``'s cells (CAV order does not matter to the flow)."""
+    if hint is None or not hint.cells:
         return None
-    return hint_values(model, hint.cells)
+    try:
+        return hint_values(model, hint.cells)
+    except (TypeError, ValueError, IndexError):  # a malformed hint must not spoil the solve
+        _LOG.warning("planner hint ignored: cells are not (row, col) paths")
+        return None
 
 
 def _join(values: list[int]) -> str:
