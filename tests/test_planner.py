@@ -27,6 +27,7 @@ from sumo_swarm.planner import (
     shift_plan,
     validate_plan,
 )
+from sumo_swarm.planner.flow import build_flow_model, extract_paths, uncross_swaps
 
 W = PlannerWeights(w_tar=10, w_lon=1, w_lat=1)  # integer weights: objectives compare exactly
 
@@ -350,6 +351,89 @@ def test_hint_from_shifted_plan_is_accepted():
     assert again.status is PlanStatus.OPTIMAL and again.objective == first.objective
 
 
+def hand_problems() -> list[PlanningProblem]:
+    """Hand-made problems with known optima (see the hand-solved tests above)."""
+    blocker = Blocker(0, "c0", "h", (1, 1), hold_steps=2)
+    return [
+        small_problem(2, 2, 3, [(0, 0)], goal_row=1, lane=1),  # optimum 3
+        small_problem(3, 2, 3, [(1, 0), (0, 0)], goal_row=2),  # optimum 19
+        small_problem(3, 2, 4, [(0, 0)], goal_row=2, blocked=frozenset({(1, 0)})),  # 27
+        small_problem(3, 2, 4, [(1, 0), (0, 0)], goal_row=2, blockers=(blocker,)),
+        small_problem(3, 2, 2, [(2, 1), (0, 0)], goal_row=2),  # optimum 10
+    ]
+
+
+@pytest.mark.parametrize("planner_type", [CpSatPlanner, ScipPlanner])
+def test_hinted_solves_return_the_same_optimum(planner_type):
+    # Hints: the optimal plan itself, a worse feasible plan (everyone stays), a plan through
+    # an HV-claimed cell (infeasible) and one with a CAV too few. None may change the optimum.
+    for problem in hand_problems():
+        plain = planner_type(10.0).plan(problem)
+        assert plain.status is PlanStatus.OPTIMAL
+        stay = tuple((cell,) * problem.n_steps for cell in problem.start_cells)
+        bad_cell = next(iter(problem.blocked[1]), problem.start_cells[0])
+        through_hv = tuple(
+            (cell, bad_cell, *(cell,) * (problem.n_steps - 2)) for cell in problem.start_cells
+        )
+        hints = [plain, plan_of(problem, stay), plan_of(problem, through_hv)]
+        hints.append(dataclasses.replace(plain, cells=plain.cells[:1]))
+        for hint in hints:
+            hinted = planner_type(10.0).plan(problem, hint=hint)
+            assert hinted.status is PlanStatus.OPTIMAL, hinted.message
+            assert hinted.objective == pytest.approx(plain.objective)
+            assert validate_plan(problem, hinted) == []
+
+
+def test_hint_shifted_into_a_new_grid_matches_a_fresh_solve():
+    # Replanning one step later in a grid whose origin moved one row: the old plan, shifted by
+    # a step and a row, is a valid warm start and the optimum does not change.
+    problem = small_problem(4, 2, 4, [(1, 0), (0, 0)], goal_row=3)
+    first = CpSatPlanner(10.0).plan(problem)
+    moved = [path[1] for path in first.cells]
+    later = small_problem(4, 2, 4, [(r - 1, c) for r, c in moved], goal_row=2)
+    hint = shift_plan(first, 1, row_offset=1)
+    assert [path[0] for path in hint.cells] == list(later.start_cells)
+    fresh = CpSatPlanner(10.0).plan(later)
+    hinted = CpSatPlanner(10.0).plan(later, hint=hint)
+    assert hinted.status is fresh.status is PlanStatus.OPTIMAL
+    assert hinted.objective == fresh.objective
+
+
+def test_reused_planner_gives_the_plan_of_a_fresh_one():
+    # One planner keeps its CP-SAT model object and replaces its content every call: solving
+    # other problems in between must not leave anything behind.
+    reused = CpSatPlanner(10.0)
+    problems = hand_problems()
+    first = [reused.plan(problem) for problem in problems]
+    again = [reused.plan(problem) for problem in reversed(problems)][::-1]
+    for problem, a, b in zip(problems, first, again, strict=True):
+        fresh = CpSatPlanner(10.0).plan(problem)
+        assert a.cells == b.cells == fresh.cells
+        assert a.objective == b.objective == fresh.objective
+
+
+def test_swaps_are_uncrossed_at_no_cost():
+    # Two CAVs past the target side by side, per-CAV delta: lateral moves are free and the
+    # regroup costs of (0,0)+(0,1) are the same either way, so a swap is as cheap as staying.
+    problem = small_problem(1, 2, 2, [(0, 0), (0, 1)], goal_row=0, delta_mode="cav")
+    model = build_flow_model(problem)
+    swap = [0] * model.n_edges
+    for src, dst in (((0, 0), (0, 1)), ((0, 1), (0, 0))):
+        swap[model.edge_between(0, src, dst)] = 1
+    values, swaps = uncross_swaps(model, swap)
+    assert swaps == 1
+    stays = {model.edge_between(0, c, c) for c in problem.start_cells}
+    assert {e for e, v in enumerate(values) if v} == stays
+    cells = extract_paths(model, values)
+    assert cells == (((0, 0), (0, 0)), ((0, 1), (0, 1)))
+    assert evaluate_objective(problem, cells) <= evaluate_objective(
+        problem, (((0, 0), (0, 1)), ((0, 1), (0, 0)))
+    )
+    # Whatever optimum a backend returns, the plan never swaps.
+    for plan in solve_both(problem):
+        assert validate_plan(problem, plan) == []
+
+
 # ----------------------------------------------------------------------------- settings
 
 
@@ -496,3 +580,10 @@ def test_move_masks_agree_with_move_allowed_cell_by_cell():
                     inside = 0 <= dst[0] < n_rows and 0 <= dst[1] < n_cols
                     expected = inside and move_allowed(problem, k, (row, col), dst)
                     assert masks[m, k, row, col] == expected, (k, (row, col), dst)
+
+
+def test_malformed_hint_is_ignored():
+    problem = hand_problems()[1]
+    junk = dataclasses.replace(plan_of(problem, [[(0, 0)] * 3] * 2), cells=((1, 2, 3), (4,)))
+    plan = CpSatPlanner(10.0).plan(problem, hint=junk)
+    assert plan.status is PlanStatus.OPTIMAL and plan.objective == 19

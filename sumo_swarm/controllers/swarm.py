@@ -41,7 +41,7 @@ from sumo_swarm.hvmodel import DriverModel
 from sumo_swarm.metrics import lateral_rms, summarise_ms
 from sumo_swarm.model import VehicleState
 from sumo_swarm.neighbours import ordered_platoon, vehicle_ahead
-from sumo_swarm.planner import CellPlanner, Plan, ReplanTrigger, make_planner, shift_plan
+from sumo_swarm.planner import CellPlanner, Plan, ReplanTrigger, make_planner
 from sumo_swarm.planner.problem import hvs_in_grid
 from sumo_swarm.swarming.decision import (
     Mode,
@@ -417,11 +417,9 @@ class SwarmController:
                       "speed_cap_mps": cap, "grid_speed_mps": grid_speed}  # fmt: skip
             self._fail(t_s, reason, record)
             return
-        hint = None
-        if self._hints and self.plan is not None and self.plan.ok and reason != "cav_set_changed":
-            # Warm start: the rest of the last plan, shifted by the steps executed.
-            executed = max(0, math.floor((t_s - self.plan.t0_s) / self.plan.behaving_interval_s))
-            hint = shift_plan(self.plan, executed)
+        previous = None
+        if self._hints and self.plan is not None and self.grid is not None:
+            previous = (self.plan, self.grid)  # the warm start of the next solve
         max_block = sc.swarm.max_block_s
         budget = {
             hv: max(0, math.floor((max_block - (t_s - since)) / interval + 1e-9))
@@ -431,7 +429,7 @@ class SwarmController:
             t_s, reason, states, platoon, self.target_id, ctx.road,
             obstacles=self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0),
             model_of=self.model_of, grid_speed_mps=grid_speed, cap_mps=cap, interval_s=interval,
-            step_s=ctx.dt_s, block_budget=budget, hint=hint,
+            step_s=ctx.dt_s, block_budget=budget, previous=previous,
         )  # fmt: skip
         record = outcome.record
         if self.prediction is not None and hasattr(self.prediction[1], "error_against"):

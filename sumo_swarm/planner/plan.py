@@ -160,24 +160,29 @@ def validate_plan(problem: PlanningProblem, plan: Plan) -> list[str]:
     return errors
 
 
-def shift_plan(plan: Plan, executed_steps: int) -> Plan:
+def shift_plan(plan: Plan, executed_steps: int, row_offset: int = 0) -> Plan:
     """The rest of ``plan`` after ``executed_steps`` steps, padded by staying (a warm-start hint).
 
-    The horizon keeps its length; ``t0_s`` moves on by the executed steps.
+    The horizon keeps its length; ``t0_s`` moves on by the executed steps. ``row_offset`` is
+    how many rows the new grid's row 0 lies ahead of the old one's at the new ``t0_s`` (a
+    replan builds its grid at the tail CAV again), so the cells land in the new grid's rows;
+    cells that fall off the grid only make the hint partial.
     """
-    if plan.cells is None or executed_steps <= 0:
+    if plan.cells is None or (executed_steps <= 0 and row_offset == 0):
         return plan
+    steps = max(executed_steps, 0)
     shifted = tuple(
         tuple(
-            path[min(k, len(path) - 1)] for k in range(executed_steps, executed_steps + len(path))
+            (path[min(k, len(path) - 1)][0] - row_offset, path[min(k, len(path) - 1)][1])
+            for k in range(steps, steps + len(path))
         )
         for path in plan.cells
     )
     return replace(
         plan,
         cells=shifted,
-        t0_s=plan.t0_s + executed_steps * plan.behaving_interval_s,
-        message=f"shifted by {executed_steps} steps",
+        t0_s=plan.t0_s + steps * plan.behaving_interval_s,
+        message=f"shifted by {steps} steps and {row_offset} rows",
     )
 
 

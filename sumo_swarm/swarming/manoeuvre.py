@@ -42,6 +42,7 @@ from sumo_swarm.planner import (
     PlannerSettings,
     PlanningProblem,
     build_problem,
+    shift_plan,
     validate_plan,
 )
 from sumo_swarm.planner.problem import Blocker
@@ -168,7 +169,7 @@ class ManoeuvrePlanner:
         interval_s: float,
         step_s: float,
         block_budget: Mapping[str, int] | None = None,
-        hint: Plan | None = None,
+        previous: tuple[Plan, MovingGrid] | None = None,
         relax_to: str = "guard",
     ) -> PlanOutcome:
         st = self.settings
@@ -221,6 +222,7 @@ class ManoeuvrePlanner:
                     block_margin=self._block_margin(level, models, grid_speed_mps, cap_mps,
                                                     step_s),
                 )  # fmt: skip
+                hint = _hint(previous, grid, t_s, platoon)
                 plan = (
                     self.planner.plan(problem, hint=hint)
                     if hint is not None
@@ -374,3 +376,18 @@ class ManoeuvrePlanner:
                 v_now=ego.speed_mps, a_now=ego.accel_mps2,
             )  # fmt: skip
         return refs
+
+
+def _hint(
+    previous: tuple[Plan, MovingGrid] | None, grid: MovingGrid, t_s: float, platoon: Sequence[str]
+) -> Plan | None:
+    """Warm start: the rest of the last plan, shifted by the steps executed and mapped into the
+    new grid's rows (``None`` if there is no usable last plan for the same CAVs)."""
+    if previous is None:
+        return None
+    plan, old = previous
+    if not plan.ok or set(plan.cav_ids) != set(platoon) or old.cell_length_m != grid.cell_length_m:
+        return None
+    executed = max(0, math.floor((t_s - plan.t0_s) / plan.behaving_interval_s + 1e-9))
+    offset = round((grid.origin_s_m - old.origin_at(t_s)) / grid.cell_length_m)
+    return shift_plan(plan, executed, offset)
