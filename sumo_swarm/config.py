@@ -300,9 +300,11 @@ class SwarmSettings:
     # behaving interval.
     replan_min_interval_s: float | None = None
     retry_after_s: float = 1.0  # after a failed replan, wait this long before the next [s]
-    # Rolling horizon: while some CAV is still behind the target, replan every this many
-    # behaving intervals (the predictions of HVs are refreshed); 0 = only on the paper's events.
-    replan_every_intervals: int = 2
+    # Rolling horizon: while some CAV is still behind the target, check the last plan's HV
+    # predictions every this many behaving intervals and replan when an HV in the grid is off
+    # by more than prediction_error_m [m] (0 = only on the paper's events).
+    replan_every_intervals: int = 1
+    prediction_error_m: float = 4.0
     # A manoeuvre with no progress (CAVs past the target, rows gained) for this many behaving
     # intervals, or without a usable plan for give_up_no_plan_s, is given up: the CAVs re-form a
     # platoon and follow; no new decision for cooldown_s.
@@ -326,7 +328,7 @@ class SwarmSettings:
         check_non_negative(
             self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
-            "cooldown_s", "max_block_s",
+            "cooldown_s", "max_block_s", "prediction_error_m",
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s",
         )  # fmt: skip

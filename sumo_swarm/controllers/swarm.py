@@ -103,6 +103,7 @@ class SwarmController:
         self.regroup_lane_used: int | None = None
         self.replan_not_before_s = -math.inf
         self.last_plan_s = -math.inf
+        self.last_check_s = -math.inf
         self.interval_s: float | None = None
         self.cap_mps = math.inf
         self.cap_sources: dict[str, float] = {}
@@ -359,11 +360,11 @@ class SwarmController:
             if (
                 reason is None
                 and every
-                and t_s - self.last_plan_s >= every * (self.interval_s or 0.0) - 1e-9
-                and not all_past(states[self.target_id], {v: states[v] for v in platoon},
-                                 ctx.scenario.cav.min_gap_m)
-            ):  # fmt: skip
-                reason = "periodic"
+                and t_s - self.last_check_s >= every * (self.interval_s or 0.0) - 1e-9
+            ):
+                self.last_check_s = t_s
+                if self._prediction_off(t_s, states, hvs):
+                    reason = "prediction"
         elif self.plan is None and self.trigger.plan is not None:
             reason = self.trigger.check(t_s, {}, ())  # "initial" once the retry time has passed
         if reason is None or t_s < self.replan_not_before_s:
@@ -374,6 +375,17 @@ class SwarmController:
         if reason not in URGENT_TRIGGERS and t_s - self.last_plan_s < min_gap:
             return
         self._replan(t_s, reason, states, platoon)
+
+    def _prediction_off(self, t_s: float, states, hvs: list[VehicleState]) -> bool:
+        """Is an HV in the grid farther from where the last plan predicted it than allowed?"""
+        if self.prediction is None or not hasattr(self.prediction[1], "error_against"):
+            return False
+        near = {
+            h.vehicle_id: h for h in hvs if h.vehicle_id in set(hvs_in_grid(self.grid, hvs, t_s))
+        }
+        errors = self.prediction[1].error_against(near, t_s)
+        limit = self.ctx.scenario.swarm.prediction_error_m
+        return any(abs(e) > limit for e in errors.values())
 
     def _new_hv_conflicts(self, t_s: float, states, hvs: list[VehicleState]) -> bool:
         """Does an HV the plan did not know claim a cell a CAV is planned in (next 2 steps)?"""
@@ -457,7 +469,7 @@ class SwarmController:
         plan = outcome.plan
         self.plan, self.grid, self.references = plan, outcome.grid, outcome.references
         self.interval_s = interval
-        self.last_plan_s = t_s
+        self.last_plan_s = self.last_check_s = t_s
         self.prediction = (t_s, outcome.predictor)
         self.trigger.planned(plan, t_s, outcome.problem.hv_ids)
         self.tracker.reset()

@@ -238,7 +238,8 @@ class ManoeuvrePlanner:
             violations = validate_plan(outcome.problem, plan) if plan.ok else []
             grid = outcome.grid
             record.update(
-                status=plan.status.value, solve_ms=plan.solve_ms, objective=plan.objective,
+                status=plan.status.value, solve_ms=plan.solve_ms, build_ms=plan.build_ms,
+                objective=plan.objective,
                 blockers=plan.blockers, violations=violations, message=plan.message,
                 block_steps={b.cav_id: b.hold_steps for b in outcome.problem.blockers},
                 cells={c: list(map(list, plan.cells_of(c))) for c in plan.cav_ids}
