@@ -357,4 +357,27 @@ def reproduce(
             paper_speeds={k: v for k, v in paper_speeds.items() if k in finished},
             on_figure=lambda name: fig_bar.update(),
         )
+    if FOCUS in finished:
+        clip = _manoeuvre_clip(out, finished[FOCUS])
+        if clip is not None:
+            figures = {**figures, "manoeuvre": clip}
     return rep.write(figures, figure_errors, complete=True)
+
+
+def _manoeuvre_clip(out: Path, run: RunData) -> str | None:
+    """``manoeuvre.gif``: a replay of the swarm run from the decision to the regroup (a failure
+    here only loses the clip)."""
+    from sumo_swarm.replay import write_replay
+
+    over = run.summary.get("overtake") or {}
+    start = over.get("t_start_s")
+    if start is None:
+        return None
+    end = over.get("t_regrouped_s") or over.get("t_end_s") or start + 40.0
+    try:
+        write_replay(run.folder, out / "manoeuvre.gif", t_from=max(0.0, start - 2.0),
+                     t_to=end + 3.0, fps=5.0)  # fmt: skip
+    except Exception as exc:  # the report stands without the clip
+        log.warning("manoeuvre replay not written: %s", exc)
+        return None
+    return "manoeuvre.gif"

@@ -544,7 +544,11 @@ def render_markdown(report: Mapping[str, Any]) -> str:
     if report.get("capped"):
         out += ["", "## CAVs capped at the cruising speed", "", *report["capped"]]
     out += ["", "## Figures", ""]
-    for name, caption in FIGURES.items():
+    captions = {
+        **FIGURES,
+        "manoeuvre": "The manoeuvre, replayed (`sumo-swarm replay` of the swarm run)",
+    }
+    for name, caption in captions.items():
         if name in report["figures"]:
             out += [f"### {caption}", "", f"![{caption}]({report['figures'][name]})", ""]
         elif name in report["figure_errors"]:
