@@ -90,7 +90,10 @@ class PlannerSettings:
     backend
         ``"cp-sat"`` (OR-Tools CP-SAT) or ``"scip"`` (OR-Tools linear solver, SCIP).
     time_limit_s
-        Wall-clock limit of one solve [s].
+        Wall-clock budget of one planner call, model build included [s]: when it runs out the
+        best plan found so far is returned (status ``feasible``), a timeout only without one.
+        0.25 s keeps a replan inside a few SUMO steps; mid-manoeuvre problems (some CAVs past
+        the target) can need longer to *prove* optimality, rarely to find the optimum.
     weights
         :class:`PlannerWeights`, or a mapping with keys ``w_tar``, ``w_lon``, ``w_lat``.
     regroup_lane
@@ -117,7 +120,7 @@ class PlannerSettings:
     n_steps: int = 14
     behaving_interval_s: float = 3.0
     backend: str = "cp-sat"
-    time_limit_s: float = 1.0
+    time_limit_s: float = 0.25
     weights: PlannerWeights = field(default_factory=PlannerWeights)
     regroup_lane: int | None = None
     target_form: str = "distance"
