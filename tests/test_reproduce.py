@@ -74,7 +74,9 @@ def test_report_files_and_every_figure_are_written(reproduction):
     assert on_disk == json.loads(json.dumps(report))
     md = (out / "report.md").read_text(encoding="utf-8")
     assert report["figure_errors"] == {}
-    assert set(report["figures"]) == set(FIGURES)
+    assert set(report["figures"]) == {*FIGURES, "manoeuvre"}
+    clip = out / report["figures"]["manoeuvre"]  # the replay of the swarm run's manoeuvre
+    assert clip.read_bytes()[:6] in (b"GIF87a", b"GIF89a") and "](manoeuvre.gif)" in md
     for name in FIGURES:
         png = out / f"{name}.png"
         assert png.stat().st_size > 10_000, name

@@ -584,7 +584,8 @@ class SwarmController:
     # ------------------------------------------------------------------ outputs
     def close(self) -> None:
         """Close plans.jsonl (the run is over or the swarm was detached)."""
-        self.planlog.close()
+        if getattr(self, "planlog", None) is not None:  # never attached: nothing to close
+            self.planlog.close()
 
     def summary(self) -> dict[str, Any]:
         interval = self.planner_settings.behaving_interval_s if self.ctx else 3.0
