@@ -189,7 +189,8 @@ def attach(
         The swarm's cruising speed; default: ``[cav] cruising_speed_mps`` of ``config`` when one
         is given, else the CAV vType's maxSpeed.
     out_dir
-        Where the swarm writes ``plans.jsonl`` (optional).
+        Where the swarm writes ``plans.jsonl`` as it goes and, at :meth:`SwarmHandle.detach`,
+        ``summary.json``, ``trajectories.parquet`` and ``events.jsonl`` (optional).
     """
     if connection is None:
         connection = importlib.import_module("libsumo")
