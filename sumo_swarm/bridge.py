@@ -1,32 +1,29 @@
 """The SUMO bridge: the only module that imports libsumo (or traci, for users of sumo-gui).
 
 It starts and stops SUMO, reads every vehicle's state in bulk through subscriptions, counts
-collisions and teleports, and applies the controllers' commands.
+collisions and teleports, and applies the controllers' commands. Route positions come from the
+pure :mod:`sumo_swarm.routeframe` (fed from the running network), trajectories are recorded by
+:mod:`sumo_swarm.recorder`, and the CAVs' driving parameters are set by the controllers
+(:func:`sumo_swarm.controllers.base.configure_cav`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import logging
-import math
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
 from sumo_swarm.errors import SimulationError
 from sumo_swarm.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
 from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.routeframe import RouteFrame
 
 log = logging.getLogger(__name__)
 
-# Lane-change mode 0: no autonomous lane changes and no safety vetoes of our own sublane moves;
-# the planner and its validator own lateral safety (SUMO's safe-speed check stays on, below).
-LC_MODE_CONTROLLED = 0
-# Speed mode 31 (SUMO's default): commanded speeds still respect the safe speed towards the
-# vehicle ahead and the vType's accel/decel limits. A last safety net under our controllers.
-SPEED_MODE_SAFE = 31
+DEFAULT_WIDTHS_M = (3.2, 3.2)  # the road assumed until a route is known (SUMO's lane width) [m]
 
 
 def sumo_binary(gui: bool = False) -> str:
@@ -63,17 +60,28 @@ class Collision:
     kind: str
 
 
-# The trajectory table's columns (the contract's, plus each vehicle's length).
-RECORD_COLUMNS = "time_s vehicle kind edge lane x_m y_m s_m lat_m speed_mps accel_mps2 length_m"
+class SumoNetwork:
+    """The network data of :class:`~sumo_swarm.routeframe.RouteFrame`, read from a running
+    simulation (libsumo module, traci module or traci connection)."""
 
+    def __init__(self, api) -> None:
+        self.api = api
 
-@dataclass
-class StepRecord:
-    """Columns of the trajectory table, appended once per vehicle per step."""
+    def lane_count(self, edge: str) -> int:
+        return self.api.edge.getLaneNumber(edge)
 
-    columns: dict[str, list] = field(
-        default_factory=lambda: {k: [] for k in RECORD_COLUMNS.split()}
-    )
+    def lane_length_m(self, lane_id: str) -> float:
+        return self.api.lane.getLength(lane_id)
+
+    def lane_width_m(self, lane_id: str) -> float:
+        return self.api.lane.getWidth(lane_id)
+
+    def lane_shape(self, lane_id: str) -> Sequence[tuple[float, float]]:
+        return self.api.lane.getShape(lane_id)
+
+    def lane_links(self, lane_id: str) -> list[tuple[str, str]]:
+        # TraCI's link tuples: (lane reached, has priority, is open, has foe, via lane, ...)
+        return [(link[0], link[4]) for link in self.api.lane.getLinks(lane_id)]
 
 
 class SumoSession:
@@ -86,8 +94,8 @@ class SumoSession:
                 sumo.step()
                 states = sumo.states
 
-    ``route_edges`` defines the route coordinate ``s_m`` (the edges' lengths accumulated,
-    junctions included); empty: the route of the first CAV that departs. ``is_cav(vehicle_id,
+    ``route_edges`` defines the route coordinate ``s_m`` (:class:`RouteFrame`, in
+    :attr:`frame`); empty: the route of the first CAV that departs. ``is_cav(vehicle_id,
     type_id)`` tells which vehicles are CAVs; their ids collect in :attr:`cav_ids`.
 
     :meth:`attached` wraps a simulation someone else started and steps (the plugin API): then
@@ -120,8 +128,8 @@ class SumoSession:
         self.label = label
         self.api = _api(self.use_traci)
         self._vars = [getattr(_constants(self.api), f"VAR_{v}") for v in self.VARS]
-        self._edge_offset: dict[str, float] = {}
-        self._route_edges = list(route_edges)
+        self._route_edges = list(route_edges)  # set on the frame once SUMO runs
+        self.frame = RouteFrame(SumoNetwork(self.api))
         self._is_cav = is_cav or (lambda vid, type_id: False)
         self.kinds: dict[str, str] = {}
         self.lengths: dict[str, float] = {}
@@ -135,15 +143,10 @@ class SumoSession:
         self.arrived: list[str] = []
         self.time_s = 0.0
         self.step_length_s = 0.0
-        self.record = StepRecord()
-        self.recording = True
         self.cav_ids: list[str] = []
         self.vanished: list[tuple[float, str]] = []
         self._open = False
         self._owned = True
-        self._roads: dict[str, RoadSection] = {}
-        self._lane_ends: list[tuple[int, int, float]] = []
-        self._lanes_ahead: dict[str, list[tuple[float, int]]] = {}
         self._driver_types: dict[str, DriverModel] = {}
         self._driver_models: dict[str, tuple[str, DriverModel]] = {}
 
@@ -154,6 +157,7 @@ class SumoSession:
         """A session on a simulation that is already running (libsumo module or traci)."""
         session = cls([], route_edges=route_edges, is_cav=is_cav)
         session.api = api
+        session.frame = RouteFrame(SumoNetwork(api))
         session._vars = [getattr(_constants(api), f"VAR_{v}") for v in cls.VARS]
         session._owned = False
         session._open = True
@@ -187,62 +191,17 @@ class SumoSession:
         self._set_route(self._route_edges)
 
     def _set_route(self, edges: Iterable[str]) -> None:
-        """Offsets of the route coordinate: each edge's start, junction (internal) edges too."""
-        edges = list(edges)
-        self._route_edges = edges
-        self._edge_offset = {}
-        self._via_end: dict[str, tuple[float, float]] = {}
-        self._lane_ends: list[tuple[int, int, float]] = []  # (route edge index, lane, end s)
-        offset = 0.0
-        api = self.api
-        for i, edge in enumerate(edges):
-            self._edge_offset[edge] = offset
-            offset += api.lane.getLength(f"{edge}_0")
-            if i + 1 < len(edges):
-                # Junction lanes into the next route edge: the shortest sets the next edge's
-                # offset; each internal lane is placed so that it ends where that edge starts.
-                vias = {}
-                edge_end = offset
-                for lane in range(api.edge.getLaneNumber(edge)):
-                    continues = False
-                    for link in api.lane.getLinks(f"{edge}_{lane}"):
-                        if link[0].rsplit("_", 1)[0] == edges[i + 1] and link[4]:
-                            vias[link[4]] = api.lane.getLength(link[4])
-                            continues = True
-                    if not continues:  # no connection into the next route edge: it ends
-                        self._lane_ends.append((i, lane, edge_end))
-                offset += min(vias.values(), default=0.0)
-                for via, length in vias.items():
-                    self._via_end[via] = (offset, length)
+        self._route_edges = list(edges)
+        self.frame.set_route(self._route_edges)
 
     @property
     def route_edges(self) -> list[str]:
         return list(self._route_edges)
 
     def lanes_ending(self, edge: str, s_from_m: float, s_to_m: float) -> list[tuple[int, float]]:
-        """Lanes that end between ``s_from_m`` and ``s_to_m`` (no connection into the next route
-        edge), as (lane index on ``edge``, route position of the end).
-
-        Only ends on ``edge`` itself, or on later edges reached without a change in the number
-        of lanes (so the lane indices still mean the same lanes), are reported.
-        """
-        if edge not in self._route_edges:
-            return []
-        first = self._route_edges.index(edge)
-        api = self.api
-        n_lanes = api.edge.getLaneNumber(edge)
-        last = first
-        while (
-            last + 1 < len(self._route_edges)
-            and api.edge.getLaneNumber(self._route_edges[last + 1]) == n_lanes
-            and not any(i == last for i, _, _ in self._lane_ends)
-        ):
-            last += 1
-        return [
-            (lane, end)
-            for i, lane, end in self._lane_ends
-            if first <= i <= last and s_from_m < end <= s_to_m
-        ]
+        """Lanes that end between ``s_from_m`` and ``s_to_m`` [m]: see
+        :meth:`RouteFrame.lanes_ending`."""
+        return self.frame.lanes_ending(edge, s_from_m, s_to_m)
 
     def close(self) -> None:
         if self._open and self._owned:
@@ -297,46 +256,30 @@ class SumoSession:
         states: dict[str, VehicleState] = {}
         positions: dict[str, tuple[float, float]] = {}
         edges: dict[str, str] = {}
-        rec = self.record.columns if self.recording else None
         dt = self.step_length_s
+        route_s = self.frame.route_s
         for vid, r in results.items():
             edge = r[c.VAR_ROAD_ID]
             lane = r[c.VAR_LANE_INDEX]
             pos = r[c.VAR_LANEPOSITION]
-            offset = self._edge_offset.get(edge)
             speed = r[c.VAR_SPEED]
-            via = self._via_end.get(f"{edge}_{lane}") if offset is None else None
-            if offset is not None:
-                s = offset + pos
-            elif via is not None:  # on a junction lane: measured back from the next edge
-                s = via[0] - (via[1] - pos)
-            elif vid in previous:  # on an internal (junction) edge: integrate the speed
-                s = previous[vid].s_m + speed * dt
-            else:
-                s = pos
-            lat = r[c.VAR_LANEPOSITION_LAT]
+            s = route_s(edge, lane, pos)
+            if s is None:  # on a junction edge off the route: integrate the speed
+                s = previous[vid].s_m + speed * dt if vid in previous else pos
             kind = self.kinds.get(vid, "hv")
-            length = self.lengths.get(vid, 5.0)
-            state = VehicleState(
-                vid, s, lane, lat, speed, length, r[c.VAR_ACCELERATION], kind == "cav"
+            states[vid] = VehicleState(
+                vid,
+                s,
+                lane,
+                r[c.VAR_LANEPOSITION_LAT],
+                speed,
+                self.lengths.get(vid, 5.0),
+                r[c.VAR_ACCELERATION],
+                kind == "cav",
             )
-            states[vid] = state
             x, y = r[c.VAR_POSITION]
             positions[vid] = (x, y)
             edges[vid] = edge
-            if rec is not None:
-                rec["time_s"].append(self.time_s)
-                rec["vehicle"].append(vid)
-                rec["kind"].append(kind)
-                rec["edge"].append(edge)
-                rec["lane"].append(lane)
-                rec["x_m"].append(x)
-                rec["y_m"].append(y)
-                rec["s_m"].append(s)
-                rec["lat_m"].append(lat)
-                rec["speed_mps"].append(speed)
-                rec["accel_mps2"].append(state.accel_mps2)
-                rec["length_m"].append(length)
         self.states = states
         self.positions = positions
         self.edges = edges
@@ -346,19 +289,8 @@ class SumoSession:
 
     # ------------------------------------------------------------------ road
     def road_section(self, edge: str) -> RoadSection:
-        """Lane widths of ``edge`` (0 = rightmost) and its mean curvature [1/m] (left > 0),
-        from the lane geometry. Internal (junction) edges give the previous road section."""
-        road = self._roads.get(edge)
-        if road is not None:
-            return road
-        if edge.startswith(":") and self._roads:
-            return next(reversed(self._roads.values()))
-        api = self.api
-        n = api.edge.getLaneNumber(edge)
-        widths = tuple(api.lane.getWidth(f"{edge}_{i}") for i in range(n))
-        road = RoadSection(widths, lane_curvature(api.lane.getShape(f"{edge}_0")))
-        self._roads[edge] = road
-        return road
+        """Lane widths and curvature of ``edge``: see :meth:`RouteFrame.road_section`."""
+        return self.frame.road_section(edge)
 
     # ------------------------------------------------------------------ commands
     def _command(self, vid: str, call, *args) -> bool:
@@ -406,31 +338,25 @@ class SumoSession:
         if abs(lateral_m) > 1e-4:
             self._command(vid, self.api.vehicle.changeSublane, lateral_m)
 
-    def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> None:
-        if speed_mode is not None:
-            self._command(vid, self.api.vehicle.setSpeedMode, speed_mode)
-        if lane_change_mode is not None:
-            self._command(vid, self.api.vehicle.setLaneChangeMode, lane_change_mode)
-
-    def configure_cav(self, vid: str) -> None:
-        """Hand a CAV to our controllers, whatever vType the user gave it.
-
-        Lane-change mode 0 and speed mode 31 (module constants); lcAccelLat 40 m/s^2 so that
-        per-step sublane moves are executed as commanded (docs/closed-loop.md); tau 0.2 s and
-        minGap 0.5 m so that SUMO's safe-speed check stays a last-resort net that binds only
-        within a few metres of the vehicle ahead.
-        """
+    def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> bool:
+        """Set SUMO's speed mode and lane-change mode of ``vid`` (None: leave it); False if the
+        vehicle vanished."""
         vehicle = self.api.vehicle
-        if self._command(vid, vehicle.setSpeedMode, SPEED_MODE_SAFE):
-            vehicle.setLaneChangeMode(vid, LC_MODE_CONTROLLED)
-            vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", "40")
-            vehicle.setTau(vid, 0.2)
-            vehicle.setMinGap(vid, 0.5)
+        if speed_mode is not None and not self._command(vid, vehicle.setSpeedMode, speed_mode):
+            return False
+        if lane_change_mode is not None:
+            return self._command(vid, vehicle.setLaneChangeMode, lane_change_mode)
+        return True
 
     def speed_limits(self, vid: str) -> tuple[float, float]:
         """(vType maxSpeed, speed allowed on its lane with its speedFactor) of a vehicle [m/s]."""
         vehicle = self.api.vehicle
         return vehicle.getMaxSpeed(vid), vehicle.getAllowedSpeed(vid)
+
+    def first_road(self) -> RoadSection:
+        """The road section where the route starts; two 3.2 m lanes while it is not known."""
+        edges = self.frame.route_edges
+        return self.road_section(edges[0]) if edges else RoadSection(DEFAULT_WIDTHS_M)
 
     def road_at(self, vid: str) -> RoadSection | None:
         """The road section under vehicle ``vid`` (None if it is not in the simulation)."""
@@ -543,22 +469,3 @@ def _fit_idm_delta(m: DriverModel, sumo, v0: float, step_s: float) -> DriverMode
     # SUMO reads delta from XML as a decimal; a value within 1e-6 of a round one is that one.
     rounded = round(delta, 6)
     return dataclasses.replace(m, delta=rounded if abs(rounded - delta) < 1e-6 else delta)
-
-
-def lane_curvature(shape) -> float:
-    """Mean curvature of a polyline [1/m]: total heading change over length, left positive."""
-    if len(shape) < 3:
-        return 0.0
-    turn = 0.0
-    length = 0.0
-    prev = None
-    for (x0, y0), (x1, y1) in itertools.pairwise(shape):
-        seg = math.hypot(x1 - x0, y1 - y0)
-        if seg < 1e-9:
-            continue
-        heading = math.atan2(y1 - y0, x1 - x0)
-        if prev is not None:
-            turn += (heading - prev + math.pi) % (2 * math.pi) - math.pi
-        prev = heading
-        length += seg
-    return turn / length if length > 0 else 0.0

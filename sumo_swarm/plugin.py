@@ -30,23 +30,16 @@ from typing import Any
 
 from sumo_swarm.bridge import SumoSession
 from sumo_swarm.checks import require_number
-from sumo_swarm.config import EvaluationSettings, Scenario, load_scenario
+from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
-from sumo_swarm.controllers.base import Controller, RunContext, close_controller
+from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.scene import LiveScene
-from sumo_swarm.summary import build_summary
+from sumo_swarm.recorder import EMPTY_WINDOW_S, RunRecorder
+from sumo_swarm.scene import LiveScene, default_settings
 
 log = logging.getLogger(__name__)
 
-
-def default_settings(config: str | Path | Scenario | None) -> Scenario:
-    """The swarm's settings: a Scenario object, a scenario/settings TOML, or the defaults."""
-    if isinstance(config, Scenario):
-        return config
-    if config is not None:
-        return load_scenario(config, require_network=False)
-    return Scenario(name="attached", path=Path.cwd() / "attached.toml")
+__all__ = ["SwarmHandle", "attach", "default_settings", "detach", "warn_if_sumo_teleports"]
 
 
 class SwarmHandle:
@@ -67,16 +60,14 @@ class SwarmHandle:
         self.session = SumoSession.attached(api, is_cav=is_cav)
         self._cruising_speed = cruising_speed_mps
         self.ctx = RunContext(
-            self.session,
-            settings,
-            self.session.cav_ids,
-            _first_road(self.session),
-            out_dir=out_dir,
+            self.session, settings, self.session.cav_ids, self.session.first_road(), out_dir=out_dir
+        )
+        self.out_dir = out_dir
+        self.recorder = RunRecorder(
+            self.session, controller, controller.name, LiveScene(self.session, controller)
         )
         self._attached = False
         self._controller_attached = False
-        self._wall0 = time.perf_counter()
-        self.controller_s = 0.0
         base = _step_listener_base(api)
         handle = self
 
@@ -92,13 +83,14 @@ class SwarmHandle:
     def _on_step(self) -> None:
         t0 = time.perf_counter()
         self.session.refresh()
+        self.recorder.record()
         if not self._controller_attached and self.session.cav_ids:
             self._adopt_cav_settings()
             self.controller.attach(self.ctx)
             self._controller_attached = True
         if self._controller_attached:
             self.controller.control(self.session.time_s)
-        self.controller_s += time.perf_counter() - t0
+        self.recorder.controller_s += time.perf_counter() - t0
 
     def _adopt_cav_settings(self) -> None:
         """Take the CAVs' length and cruising speed from their vType where config is silent."""
@@ -119,46 +111,35 @@ class SwarmHandle:
         self.settings = replace(self.settings, cav=cav)
         self.ctx.scenario = self.settings
 
+    @property
+    def controller_s(self) -> float:
+        """Wall time spent reading SUMO and in the controller so far [s]."""
+        return self.recorder.controller_s
+
+    def _settings_now(self) -> Scenario:
+        """The settings with the evaluation window over what was recorded and SUMO's step."""
+        times = self.recorder.columns["time_s"]
+        start, end = (times[0], times[-1]) if times else (0.0, 0.0)
+        end = max(end, start + EMPTY_WINDOW_S)
+        evaluation = replace(self.settings.evaluation, start_s=start, end_s=end)
+        step = replace(self.settings.simulation, step_length_s=self.session.step_length_s)
+        return replace(self.settings, evaluation=evaluation, simulation=step)
+
     def summary(self) -> dict[str, Any]:
         """The summary of ``../shared/contract.md`` for everything seen so far."""
-        from sumo_swarm.runner import trajectory_frame
-
-        df = trajectory_frame(self.session)
-        end = max(float(df["time_s"].max()) if not df.empty else 0.0, 1e-3)
-        start = float(df["time_s"].min()) if not df.empty else 0.0
-        settings = replace(
-            self.settings,
-            evaluation=EvaluationSettings(
-                start_s=start,
-                end_s=max(end, start + 1e-3),
-                travel_distance_m=self.settings.evaluation.travel_distance_m,
-                upstream_ranks=self.settings.evaluation.upstream_ranks,
-            ),
-            simulation=replace(self.settings.simulation, step_length_s=self.session.step_length_s),
-        )
-        wall = time.perf_counter() - self._wall0
-        timing = {
-            "wall_s": wall,
-            "sumo_s": max(wall - self.controller_s, 0.0),
-            "controller_s": self.controller_s,
-            "realtime_factor": (end - start) / wall if wall > 0 else None,
-        }
-        return build_summary(
-            scenario=settings,
-            controller=self.controller.name,
-            df=df,
-            scene=LiveScene(self.session, self.controller),
-            session=self.session,
-            controller_summary=self.controller.summary() if self._controller_attached else {},
-            timing=timing,
-        )
+        own = None if self._controller_attached else {}
+        return self.recorder.summary(self._settings_now(), controller_summary=own)
 
     def detach(self) -> None:
-        """Stop controlling: remove the listener and hand the CAVs back to SUMO."""
+        """Stop controlling: remove the listener and hand the CAVs back to SUMO.
+
+        With ``out_dir``, the run's outputs are written there as ``sumo-swarm run`` writes
+        them: summary.json, trajectories.parquet, events.jsonl.
+        """
         if not self._attached:
             return
         self._attached = False
-        close_controller(self.controller)
+        self.recorder.close_controller()
         try:
             self.api.removeStepListener(self._listener_id)
         except Exception as exc:  # the simulation may already be closed
@@ -169,6 +150,9 @@ class SwarmHandle:
                     self.session.release_speed(vid)
                 except Exception as exc:
                     log.debug("releasing %s: %s", vid, exc)
+        if self.out_dir is not None:
+            own = None if self._controller_attached else {}
+            self.recorder.finish(self.out_dir, self._settings_now(), self.ctx.events, own)
 
 
 def _step_listener_base(api: Any) -> type:
@@ -176,15 +160,6 @@ def _step_listener_base(api: Any) -> type:
         return api.StepListener
     traci = importlib.import_module("traci")
     return traci.StepListener
-
-
-def _first_road(session: SumoSession):
-    from sumo_swarm.model import RoadSection
-
-    edges = session.route_edges
-    if edges:
-        return session.road_section(edges[0])
-    return RoadSection((3.2, 3.2))
 
 
 def attach(
@@ -214,7 +189,8 @@ def attach(
         The swarm's cruising speed; default: ``[cav] cruising_speed_mps`` of ``config`` when one
         is given, else the CAV vType's maxSpeed.
     out_dir
-        Where the swarm writes ``plans.jsonl`` (optional).
+        Where the swarm writes ``plans.jsonl`` as it goes and, at :meth:`SwarmHandle.detach`,
+        ``summary.json``, ``trajectories.parquet`` and ``events.jsonl`` (optional).
     """
     if connection is None:
         connection = importlib.import_module("libsumo")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import subprocess
 import time
@@ -10,19 +9,16 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
 from tqdm import tqdm
 
 from sumo_swarm.bridge import SumoSession, sumo_binary
 from sumo_swarm.checks import require_number
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
-from sumo_swarm.controllers.base import Controller, RunContext, close_controller
+from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError, SimulationError
-from sumo_swarm.files import write_json_atomic, write_parquet_atomic
-from sumo_swarm.model import RoadSection
-from sumo_swarm.scene import CAV_TYPE, sumo_options, write_sumo_inputs
-from sumo_swarm.summary import build_summary
+from sumo_swarm.recorder import RunRecorder
+from sumo_swarm.scene import CAV_TYPE, LiveScene, default_settings, sumo_options, write_sumo_inputs
 
 log = logging.getLogger(__name__)
 
@@ -38,16 +34,6 @@ def prepare_out_dir(out_dir: str | Path) -> Path:
     except OSError as exc:
         raise ConfigError(f"output folder {out} cannot be written: {exc.strerror or exc}") from None
     return out
-
-
-def trajectory_frame(session: SumoSession) -> pd.DataFrame:
-    df = pd.DataFrame(session.record.columns)
-    if not df.empty:
-        df["kind"] = df["kind"].astype("category")
-        df["vehicle"] = df["vehicle"].astype("category")
-        df["edge"] = df["edge"].astype("category")
-        df["lane"] = df["lane"].astype("int16")
-    return df
 
 
 def run_scenario(
@@ -113,9 +99,6 @@ def run_sumocfg(
     line through ``notify``. Outputs as for :func:`run_scenario`. The run ends when SUMO has no
     vehicle left or at the configuration's end, and after ``max_duration_s`` at the latest.
     """
-    from sumo_swarm.plugin import default_settings
-    from sumo_swarm.scene import LiveScene
-
     cfg = Path(sumocfg)
     options = read_sumocfg_options(cfg)
     check_sumocfg_inputs(cfg, options)
@@ -255,20 +238,18 @@ def _drive(
     on_start=None,
     require_cavs: str | None = None,
 ) -> dict[str, Any]:
-    """Step SUMO, call the controller after every step, then write every output.
+    """Step SUMO, record, call the controller after every step, then write every output.
 
     Whatever happens during the run, the trajectories and events gathered so far are written
     and the summary is built from them; a SUMO failure is raised after that.
     """
-    wall0 = time.perf_counter()
-    sumo_s = controller_s = 0.0
+    recorder = RunRecorder(session, controller, controller_name, scene)
+    recorder.sumo_s = 0.0
     failure: str | None = None
     with session:
         if on_start is not None:
             on_start(session)
-        edges = session.route_edges
-        road = session.road_section(edges[0]) if edges else RoadSection((3.2, 3.2))
-        ctx = RunContext(session, scenario, session.cav_ids, road, out_dir=out)
+        ctx = RunContext(session, scenario, session.cav_ids, session.first_road(), out_dir=out)
         controller.attach(ctx)
         bar = tqdm(
             total=max_steps,
@@ -281,10 +262,11 @@ def _drive(
             for _ in range(max_steps):
                 t0 = time.perf_counter()
                 session.step()
+                recorder.record()
                 t1 = time.perf_counter()
                 controller.control(session.time_s)
-                controller_s += time.perf_counter() - t1
-                sumo_s += t1 - t0
+                recorder.controller_s += time.perf_counter() - t1
+                recorder.sumo_s += t1 - t0
                 bar.update()
                 if not session.has_vehicles_to_come():
                     break
@@ -297,43 +279,10 @@ def _drive(
             ctx.event("run_failed", message=failure)
         finally:
             bar.close()
-            close_controller(controller)
-    wall = time.perf_counter() - wall0
-    df = trajectory_frame(session)
-    write_parquet_atomic(out / "trajectories.parquet", df)
-    write_events(out / "events.jsonl", ctx.events)
-    timing = {
-        "wall_s": wall,
-        "sumo_s": sumo_s,
-        "controller_s": controller_s,
-        "realtime_factor": (session.time_s / wall) if wall > 0 else None,
-    }
-    if not df.empty:
-        scenario = replace(
-            scenario,
-            evaluation=replace(
-                scenario.evaluation,
-                end_s=min(scenario.evaluation.end_s, float(df["time_s"].max())),
-            ),
-        )
-    summary = build_summary(
-        scenario=scenario,
-        controller=controller_name,
-        df=df,
-        scene=scene,
-        session=session,
-        controller_summary=controller.summary(),
-        timing=timing,
-    )
-    write_json_atomic(out / "summary.json", summary)
+            recorder.close_controller()
+    summary = recorder.finish(out, scenario, ctx.events)
     if failure is not None:
         raise SimulationError(f"{failure} (outputs so far kept in {out})")
     if require_cavs is not None and not session.cav_ids:
         raise ConfigError(f"--cav-type: no vehicle of vType '{require_cavs}' ever departed")
     return summary
-
-
-def write_events(path: Path, events: list[dict[str, Any]]) -> None:
-    with path.open("w", encoding="utf-8") as fh:
-        for e in events:
-            fh.write(json.dumps(e, default=str) + "\n")

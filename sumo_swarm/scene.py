@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from sumo_swarm.config import Scenario
+from sumo_swarm.config import Scenario, load_scenario
 
 ROUTE_ID = "main"
 CAV_TYPE = "cav"
@@ -248,6 +248,16 @@ def write_sumo_inputs(sc: Scenario, controller: str, folder: Path) -> tuple[Path
         encoding="utf-8",
     )
     return cfg, scene
+
+
+def default_settings(config: str | Path | Scenario | None) -> Scenario:
+    """The swarm's settings on a simulation no scenario describes (a user's sumocfg, or
+    ``attach()``): a Scenario object, a scenario/settings TOML, or the defaults."""
+    if isinstance(config, Scenario):
+        return config
+    if config is not None:
+        return load_scenario(config, require_network=False)
+    return Scenario(name="attached", path=Path.cwd() / "attached.toml")
 
 
 class LiveScene:

@@ -11,21 +11,9 @@ import pytest
 from sumo_swarm import metrics
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.metrics import EvaluationWindow
+from sumo_swarm.recorder import RECORD_COLUMNS
 
-COLUMNS = [
-    "time_s",
-    "vehicle",
-    "kind",
-    "edge",
-    "lane",
-    "x_m",
-    "y_m",
-    "s_m",
-    "lat_m",
-    "speed_mps",
-    "accel_mps2",
-    "length_m",
-]
+COLUMNS = list(RECORD_COLUMNS)  # the table sumo-swarm records
 
 
 def table(rows: list[tuple]) -> pd.DataFrame:

@@ -11,6 +11,20 @@ if TYPE_CHECKING:
     from sumo_swarm.bridge import SumoSession
     from sumo_swarm.config import Scenario
 
+# Lane-change mode 0: no autonomous lane changes and no safety vetoes of our own sublane moves;
+# the planner and its validator own lateral safety (SUMO's safe-speed check stays on, below).
+LC_MODE_CONTROLLED = 0
+# Speed mode 31 (SUMO's default): commanded speeds still respect the safe speed towards the
+# vehicle ahead and the vType's accel/decel limits. A last safety net under our controllers.
+SPEED_MODE_SAFE = 31
+# lcAccelLat so high that per-step sublane moves are executed as commanded
+# (docs/closed-loop.md) [m/s^2]
+CAV_LC_ACCEL_LAT_MPS2 = 40.0
+# tau and minGap so small that SUMO's safe-speed check is a last-resort net binding only within
+# a few metres of the vehicle ahead [s], [m]
+CAV_TAU_S = 0.2
+CAV_MIN_GAP_M = 0.5
+
 
 @dataclass
 class RunContext:
@@ -30,6 +44,10 @@ class RunContext:
     def event(self, kind: str, **data: Any) -> None:
         """Record a notable event (fallbacks, vanished vehicles, ...) for the run's outputs."""
         self.events.append({"time_s": self.session.time_s, "event": kind, **data})
+
+    def configure_cav(self, vid: str) -> None:
+        """Hand CAV ``vid`` to the controllers: see :func:`configure_cav`."""
+        configure_cav(self.session, vid)
 
 
 class Controller(Protocol):
@@ -53,3 +71,14 @@ def close_controller(controller: Controller) -> None:
     close = getattr(controller, "close", None)
     if close is not None:
         close()
+
+
+def configure_cav(session: SumoSession, vid: str) -> None:
+    """Hand CAV ``vid`` to our controllers, whatever vType the user gave it: the controllers'
+    SUMO modes (:data:`SPEED_MODE_SAFE`, :data:`LC_MODE_CONTROLLED`), lcAccelLat, tau and minGap
+    (module constants). A vehicle that vanished is left alone."""
+    if session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_CONTROLLED):
+        vehicle = session.api.vehicle
+        vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", f"{CAV_LC_ACCEL_LAT_MPS2:g}")
+        vehicle.setTau(vid, CAV_TAU_S)
+        vehicle.setMinGap(vid, CAV_MIN_GAP_M)

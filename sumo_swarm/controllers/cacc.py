@@ -91,7 +91,7 @@ class CaccController:
         ctx = self.ctx
         for vid in ctx.cav_ids:
             if vid in ctx.session.states and vid not in self._configured:
-                ctx.session.configure_cav(vid)
+                ctx.configure_cav(vid)
                 self._configured.add(vid)
 
     def control(self, t_s: float) -> None:

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from sumo_swarm.bridge import LC_MODE_CONTROLLED
-from sumo_swarm.controllers.base import RunContext
+from sumo_swarm.controllers.base import LC_MODE_CONTROLLED, RunContext
 
 
 class SumoModelController:

@@ -157,7 +157,7 @@ class SwarmController:
     def _configure_new(self, states: dict[str, VehicleState]) -> None:
         for vid in self.ctx.cav_ids:
             if vid in states and vid not in self.configured:
-                self.ctx.session.configure_cav(vid)
+                self.ctx.configure_cav(vid)
                 self.configured.add(vid)
                 self.tracker.add(vid)
 

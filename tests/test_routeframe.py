@@ -1,0 +1,158 @@
+"""The route frame on hand-made networks (known answers), and on a network SUMO built itself
+(the bridge's route coordinate equals the replay's, read from the .net.xml file)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from defusedxml import ElementTree
+
+from sumo_swarm.routeframe import RouteFrame, lane_curvature
+
+
+class TableNetwork:
+    """Network data from a table: lane id -> (length, width, shape, links)."""
+
+    def __init__(self, lanes: dict[str, tuple[float, float, list, list[tuple[str, str]]]]):
+        self.lanes = lanes
+
+    def lane_count(self, edge: str) -> int:
+        return sum(1 for lane in self.lanes if lane.rsplit("_", 1)[0] == edge)
+
+    def lane_length_m(self, lane_id: str) -> float:
+        return self.lanes[lane_id][0]
+
+    def lane_width_m(self, lane_id: str) -> float:
+        return self.lanes[lane_id][1]
+
+    def lane_shape(self, lane_id: str) -> list:
+        return self.lanes[lane_id][2]
+
+    def lane_links(self, lane_id: str) -> list[tuple[str, str]]:
+        return self.lanes[lane_id][3]
+
+
+STRAIGHT = [(0.0, 0.0), (100.0, 0.0)]
+LEFT_TURN = [(0.0, 0.0), (100.0, 0.0), (100.0, 100.0)]  # +pi/2 over 200 m
+
+
+def network(lanes_on_a: int = 2) -> TableNetwork:
+    """a (100 m) -> b (200 m, 2 lanes, its left lane ends) -> c (300 m, 1 lane).
+
+    Junction lanes a->b are 10, 12 (and 15) m long, b->c 8 m.
+    """
+    vias_ab = [":j1_0_0", ":j1_1_0", ":j1_2_0"]
+    lanes = {
+        f"a_{q}": (100.0, 3.5, STRAIGHT, [(f"b_{min(q, 1)}", vias_ab[q])])
+        for q in range(lanes_on_a)
+    }
+    lanes |= {
+        ":j1_0_0": (10.0, 3.5, STRAIGHT, [("b_0", "")]),
+        ":j1_1_0": (12.0, 3.5, STRAIGHT, [("b_1", "")]),
+        ":j1_2_0": (15.0, 3.5, STRAIGHT, [("b_1", "")]),
+        "b_0": (200.0, 3.2, LEFT_TURN, [("c_0", ":j2_0_0"), ("x_0", ":j2_1_0")]),
+        "b_1": (200.0, 3.0, LEFT_TURN, [("x_0", ":j2_2_0")]),  # leaves the route only
+        ":j2_0_0": (8.0, 3.2, STRAIGHT, [("c_0", "")]),
+        "c_0": (300.0, 3.2, STRAIGHT, []),
+    }
+    return TableNetwork(lanes)
+
+
+def test_offsets_take_the_shortest_junction_lane():
+    frame = RouteFrame(network(), ["a", "b", "c"])
+    assert frame.edge_offset_m == {"a": 0.0, "b": 110.0, "c": 318.0}
+    # every junction lane into the next route edge ends where that edge starts
+    assert frame.via_end == {
+        ":j1_0_0": (110.0, 10.0),
+        ":j1_1_0": (110.0, 12.0),
+        ":j2_0_0": (318.0, 8.0),
+    }
+    assert frame.lane_ends == [(1, 1, 310.0)]  # b's left lane: no connection into c
+
+
+def test_route_positions_on_edges_junction_lanes_and_off_the_route():
+    frame = RouteFrame(network(), ["a", "b", "c"])
+    assert frame.route_s("a", 1, 40.0) == 40.0
+    assert frame.route_s("b", 0, 50.0) == 160.0
+    assert frame.route_s(":j1_1", 0, 6.0) == 104.0  # 6 m into a 12 m lane ending at 110 m
+    assert frame.route_s(":j2_0", 0, 8.0) == 318.0  # the end of a junction lane: c's start
+    assert frame.route_s("x", 0, 5.0) is None  # not on the route
+    assert frame.route_s(":j2_2", 0, 1.0) is None  # a junction lane off the route
+
+
+def test_lanes_ending_ahead():
+    frame = RouteFrame(network(), ["a", "b", "c"])
+    assert frame.lanes_ending("a", 0.0, 1000.0) == [(1, 310.0)]  # a and b: same two lanes
+    assert frame.lanes_ending("a", 0.0, 309.0) == []  # the end is beyond the window
+    assert frame.lanes_ending("b", 310.0, 400.0) == []  # at the window's start: excluded
+    assert frame.lanes_ending("c", 0.0, 1000.0) == []
+    assert frame.lanes_ending("x", 0.0, 1000.0) == []
+    # a with three lanes: b's lane 1 is not a's lane 1 any more, so nothing is reported on a
+    three = RouteFrame(network(lanes_on_a=3), ["a", "b", "c"])
+    assert three.lanes_ending("a", 0.0, 1000.0) == []
+    assert three.lanes_ending("b", 0.0, 1000.0) == [(1, 310.0)]
+
+
+def test_road_sections_and_an_unknown_route():
+    frame = RouteFrame(network())  # the route is not known yet
+    assert frame.route_s("a", 0, 5.0) is None and frame.lanes_ending("a", 0.0, 1e3) == []
+    b = frame.road_section("b")
+    assert b.lane_widths_m == (3.2, 3.0)
+    assert b.curvature_1pm == pytest.approx(math.pi / 400)
+    assert frame.road_section(":j2_0") is b  # a junction edge: the road last read
+    frame.set_route(["a", "b"])
+    assert frame.edge_offset_m == {"a": 0.0, "b": 110.0}
+    assert frame.lane_ends == []  # the route ends at b: nothing to connect to
+
+
+@pytest.mark.parametrize(
+    ("shape", "curvature"),
+    [
+        (STRAIGHT, 0.0),
+        (LEFT_TURN, math.pi / 400),
+        ([(0.0, 0.0), (100.0, 0.0), (100.0, -100.0)], -math.pi / 400),  # right turn
+        ([(0.0, 0.0), (50.0, 0.0), (50.0, 0.0), (100.0, 0.0)], 0.0),  # a repeated point
+    ],
+)
+def test_lane_curvature(shape, curvature):
+    assert lane_curvature(shape) == pytest.approx(curvature)
+
+
+@pytest.mark.sumo
+def test_the_bridge_coordinate_is_the_replays(tmp_path):
+    """SUMO's own network (a lane drop over four edges): the frame read through libsumo gives
+    the offsets the replay reads from the .net.xml, and the dropped lane's end."""
+    import libsumo
+
+    from sumo_swarm.bridge import SumoNetwork, sumo_binary
+    from sumo_swarm.netbuild import HighwaySpec, build_highway, edge_ids
+    from sumo_swarm.routeshape import route_from_net
+
+    spec = HighwaySpec(length_m=2000, lanes=(3, 2, 2, 2), edges=4)
+    net = build_highway(spec, tmp_path)
+    edges = edge_ids(spec)
+    libsumo.start([sumo_binary(), "-n", str(net), "--no-step-log", "true"])
+    try:
+        frame = RouteFrame(SumoNetwork(libsumo), edges)
+        widths = frame.road_section("e0").lane_widths_m
+        ending_ahead = frame.lanes_ending("e0", 0.0, 1e4)
+    finally:
+        libsumo.close()
+    geometry = route_from_net(net, edges)
+    assert [frame.edge_offset_m[e] for e in edges] == pytest.approx(
+        [e.offset_m for e in geometry.edges], abs=1e-6
+    )
+    assert len(widths) == 3
+    # the lane of e0 that netconvert did not connect into e1 ends where e0 ends
+    root = ElementTree.parse(str(net)).getroot()
+    continuing = {
+        int(c.get("fromLane"))
+        for c in root.iter("connection")
+        if c.get("from") == "e0" and c.get("to") == "e1"
+    }
+    assert len(continuing) == 2
+    (ending,) = set(range(3)) - continuing
+    assert [(i, lane) for i, lane, _ in frame.lane_ends] == [(0, ending)]
+    assert frame.lane_ends[0][2] == pytest.approx(geometry.edges[0].length_m)
+    assert ending_ahead == [(ending, frame.lane_ends[0][2])]
