@@ -223,8 +223,10 @@ def travel_time_s(
 def gaps(df: pd.DataFrame) -> pd.DataFrame:
     """Leader, gap, headway and time to collision of every vehicle at every step.
 
-    Vectorised: rows are sorted by (time, lane, s, vehicle) once and each row's leader is the
-    next row when it is at the same time in the same lane.
+    Vectorised: rows are sorted by (time, edge, lane, s, vehicle) once and each row's leader is
+    the next row when it is at the same time in the same lane of the same edge (with an ``edge``
+    column; lane indices change at junctions and where a lane ends, so lane 1 of one edge need
+    not be lane 1 of the next: a leader just across an edge boundary is not paired).
 
     Returns
     -------
@@ -242,16 +244,22 @@ def gaps(df: pd.DataFrame) -> pd.DataFrame:
     """
     _require(df, ["time_s", "vehicle", "kind", "lane", "s_m", "speed_mps", "length_m"])
     n = len(df)
+    edge_codes = (
+        pd.factorize(df["edge"].astype(str), sort=True)[0]
+        if "edge" in df.columns
+        else np.zeros(n, dtype=np.int64)
+    )
     order = np.lexsort(
         (
             pd.factorize(df["vehicle"].astype(str), sort=True)[0],
             df["s_m"].to_numpy(dtype=float),
             df["lane"].to_numpy(dtype=float),
+            edge_codes,
             df["time_s"].to_numpy(dtype=float),
         )
     )
     t = df["time_s"].to_numpy(dtype=float)[order]
-    lane = df["lane"].to_numpy(dtype=float)[order]
+    lane = df["lane"].to_numpy(dtype=float)[order] + 1e4 * edge_codes[order]
     s = df["s_m"].to_numpy(dtype=float)[order]
     length = df["length_m"].to_numpy(dtype=float)[order]
     speed = df["speed_mps"].to_numpy(dtype=float)[order]

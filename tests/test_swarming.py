@@ -78,16 +78,15 @@ def test_speed_cap_and_drivable_interval():
 
 
 def test_target_stops_blocking():
-    platoon = [car("c0", 100.0, 1, 15.0, cav=True)]
     kw = dict(slow_below_mps=19.0, any_past=False)
-    assert stopped_blocking(None, platoon, ROAD, 1, **kw) == "target_left"
-    moved = car("truck", 130.0, 0, 15.0)
-    assert stopped_blocking(moved, platoon, ROAD, 1, **kw) == "target_changed_lane"
+    truck = car("truck", 130.0, 1, 15.0)
+    assert stopped_blocking(None, False, **kw) == "target_left"
+    assert stopped_blocking(truck, True, **kw) == "target_changed_lane"
     fast = car("truck", 130.0, 1, 20.0)
-    assert stopped_blocking(fast, platoon, ROAD, 1, **kw) == "target_sped_up"
-    assert stopped_blocking(car("truck", 130.0, 1, 15.0), platoon, ROAD, 1, **kw) is None
+    assert stopped_blocking(fast, False, **kw) == "target_sped_up"
+    assert stopped_blocking(truck, False, **kw) is None
     # Once CAVs are past, the manoeuvre goes on (they regroup wherever they planned).
-    assert stopped_blocking(moved, platoon, ROAD, 1, slow_below_mps=19.0, any_past=True) is None
+    assert stopped_blocking(truck, True, slow_below_mps=19.0, any_past=True) is None
 
 
 def test_progress_and_giving_up():

@@ -42,7 +42,7 @@ from sumo_swarm.metrics import lateral_rms, summarise_ms
 from sumo_swarm.model import VehicleState
 from sumo_swarm.neighbours import ordered_platoon, vehicle_ahead
 from sumo_swarm.planner import CellPlanner, Plan, ReplanTrigger, make_planner
-from sumo_swarm.planner.problem import hvs_in_grid
+from sumo_swarm.planner.problem import LANE_END_PREFIX, hvs_in_grid
 from sumo_swarm.swarming.decision import (
     Mode,
     Progress,
@@ -113,6 +113,7 @@ class SwarmController:
         self.blocked_min_accel: dict[str, float] = {}
         self.prediction: tuple[float, Any] | None = None
         self._models: dict[str, DriverModel] = {}
+        self._target_lane: tuple[str | None, int] | None = None
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:
@@ -209,7 +210,7 @@ class SwarmController:
                 c.rear_s_m >= target.s_m + sc.cav.min_gap_m for c in cavs.values()
             )
             stop = stopped_blocking(
-                target, list(cavs.values()), ctx.road, self._swarm_lane(),
+                target, self._target_changed_lane(target),
                 slow_below_mps=self._slow_below(), any_past=any_past,
             )  # fmt: skip
             if stop is not None:
@@ -271,8 +272,17 @@ class SwarmController:
         )  # fmt: skip
         return self.watch.update(t_s, candidate)
 
-    def _swarm_lane(self) -> int:
-        return self.regroup_lane_used if self.regroup_lane_used is not None else 0
+    def _target_changed_lane(self, target: VehicleState | None) -> bool:
+        """Has the target changed lanes on its own since the decision? Lane indices change
+        where a lane ends (netconvert drops the rightmost), so only a new lane on the same edge,
+        with the target settled in it, counts."""
+        if target is None:
+            return False
+        edge = self.ctx.session.edges.get(target.vehicle_id)
+        if self._target_lane is None or self._target_lane[0] != edge:
+            self._target_lane = (edge, target.lane)
+            return False
+        return target.lane != self._target_lane[1] and abs(target.lat_m) < 0.5
 
     # ------------------------------------------------------------------ cruise
     def _cruise(self, states: dict[str, VehicleState], platoon: list[str]) -> None:
@@ -313,6 +323,7 @@ class SwarmController:
         self.blocked_since_s = {}
         lane = self.planner_settings.regroup_lane
         self.regroup_lane_used = target.lane if lane is None else lane
+        self._target_lane = None
         self.ctx.event("overtake_start", target=target.vehicle_id, speed_cap_mps=self.cap_mps)
 
     def _finish(self, t_s: float, completed: bool, reason: str = "completed") -> None:
@@ -510,8 +521,8 @@ class SwarmController:
         out = []
         for lane, end in session.lanes_ending(edge, s_from_m, s_to_m) if edge else []:
             out.append(
-                VehicleState(f"lane_end:{lane}@{end:.0f}", end + LANE_END_LENGTH_M, lane, 0.0,
-                             0.0, LANE_END_LENGTH_M)
+                VehicleState(f"{LANE_END_PREFIX}{lane}@{end:.0f}", end + LANE_END_LENGTH_M,
+                             lane, 0.0, 0.0, LANE_END_LENGTH_M)
             )  # fmt: skip
         return out
 

@@ -337,6 +337,8 @@ def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool
     return True
 
 
+LANE_END_PREFIX = "lane_end:"  # ids of the standing obstacles that stand for lanes that end
+
 # Moves of one behaving step as (row, column) offsets: stay, forward, back, left, right.
 MOVES = ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))
 
@@ -511,7 +513,7 @@ def _hv_cells(
             early_entry[hv_id] = (first[0], first[1])
         if len(first_states) == 2:
             early_states[hv_id] = (first_states[0], first_states[1])
-        if not hv_id.startswith("lane_end:"):
+        if not hv_id.startswith(LANE_END_PREFIX):
             tracks.append((hv_columns(grid, hv, gs)[0], tuple(rows)))
     entry_blocked = (
         ()
@@ -600,6 +602,9 @@ def build_problem(
                          grid_settings, front_margin),
     )  # fmt: skip
     side_hvs = [all_hvs[h] for h in sorted(in_grid) if h != target.vehicle_id]
+    side_hvs += [
+        hv for h, hv in all_hvs.items() if h.startswith(LANE_END_PREFIX) and h not in in_grid
+    ]
     blockers = assign_blockers(
         problem, grid, side_hvs, now_s, grid_settings, settings, block_budget,
         _blocker_entry_check(grid, cells, times, grid_settings, block_margin),
@@ -731,13 +736,19 @@ def assign_blockers(
     leader_row = cells[0][0]
     side_hvs: dict[int, list[VehicleState]] = {}
     hv_top_row: dict[str, int] = {}
+    ending: set[int] = set()  # lanes that end ahead: no CAV is sent there to block
     for hv in hvs:
         col = hv_columns(grid, hv, grid_settings)[0]
+        if hv.vehicle_id.startswith(LANE_END_PREFIX):
+            ending.add(col)
+            continue
         if abs(col - lane) != 1:
             continue
         side_hvs.setdefault(col, []).append(hv)
         rows = hv_blocked_rows(grid, hv, now_s, grid_settings)
         hv_top_row[hv.vehicle_id] = rows[-1] if rows else grid.row_of(hv.centre_s_m, now_s)
+    for col in ending:
+        side_hvs.pop(col, None)
     start_cells = set(cells)
     blockers: list[Blocker] = []
     used: set[int] = set()

@@ -22,6 +22,8 @@ from enum import Enum
 from sumo_swarm.model import RoadSection, VehicleState
 from sumo_swarm.neighbours import vehicle_ahead
 
+GAIN_STEP_M = 3.0  # a gain of the CAVs' mean position on the target that counts as progress [m]
+
 
 class Mode(Enum):
     """What the swarm is doing."""
@@ -113,23 +115,21 @@ class TargetWatch:
 
 def stopped_blocking(
     target: VehicleState | None,
-    platoon: Sequence[VehicleState],
-    road: RoadSection,
-    swarm_lane: int,
+    changed_lane: bool,
     *,
     slow_below_mps: float,
     any_past: bool,
 ) -> str | None:
     """Why the target no longer needs overtaking, or ``None``.
 
-    ``"target_left"``: it is no longer in the simulation; ``"target_changed_lane"``: it is
-    in another lane than the swarm's and no CAV is past it yet (once CAVs are past, the swarm
-    regroups in whatever lane it chose); ``"target_sped_up"``: it drives at the cruise again.
+    ``"target_left"``: it is no longer in the simulation; ``"target_changed_lane"``: it moved to
+    another lane (``changed_lane``: a lane change of its own, not a renumbering where a lane
+    ends) and no CAV is past it yet (once CAVs are past, the swarm regroups in whatever lane it
+    chose); ``"target_sped_up"``: it drives at the cruise again.
     """
     if target is None:
         return "target_left"
-    y = road.y_of(target.lane, target.lat_m)
-    if road.lane_of_y(y) != swarm_lane and abs(target.lat_m) < 0.5 and not any_past:
+    if changed_lane and not any_past:
         return "target_changed_lane"
     if target.speed_mps >= slow_below_mps and not any_past:
         return "target_sped_up"
@@ -150,16 +150,22 @@ class Progress:
         self.last_progress_s = self.started_s
         self.last_plan_ok_s = self.started_s
 
+    best_out: int = 0
+
     def update(
         self, t_s: float, target: VehicleState, platoon: Sequence[VehicleState], min_gap_m: float
     ) -> None:
+        """Progress is any of: more CAVs past the target, more CAVs out of its lane (cut
+        through), or the CAVs' mean position relative to it up by GAIN_STEP_M."""
         past = sum(cav.rear_s_m >= target.s_m + min_gap_m for cav in platoon)
+        out = sum(cav.lane != target.lane and cav.rear_s_m < target.s_m for cav in platoon)
         # Gain: the mean CAV position relative to the target [m], grows as the swarm passes.
         gain = sum(cav.s_m - target.s_m for cav in platoon) / max(len(platoon), 1)
-        if past > self.best_past or gain > self.best_gain_m + 5.0:
+        if past > self.best_past or out > self.best_out or gain > self.best_gain_m + GAIN_STEP_M:
             self.last_progress_s = t_s
+            self.best_gain_m = max(self.best_gain_m, gain)
         self.best_past = max(self.best_past, past)
-        self.best_gain_m = max(self.best_gain_m, gain)
+        self.best_out = max(self.best_out, out)
 
     def planned(self, t_s: float) -> None:
         self.last_plan_ok_s = t_s

@@ -45,7 +45,7 @@ from sumo_swarm.planner import (
     shift_plan,
     validate_plan,
 )
-from sumo_swarm.planner.problem import Blocker
+from sumo_swarm.planner.problem import LANE_END_PREFIX, Blocker
 from sumo_swarm.trajectory import GridFrame, Reference, reference_from_cells
 
 log = logging.getLogger(__name__)
@@ -180,7 +180,7 @@ class ManoeuvrePlanner:
         settings = replace(st.planner, behaving_interval_s=interval_s)
         horizon_s = interval_s * settings.n_steps
         models = {h.vehicle_id: model_of(h.vehicle_id) for h in [*hvs, target] if
-                  not h.vehicle_id.startswith("lane_end:")}  # fmt: skip
+                  not h.vehicle_id.startswith(LANE_END_PREFIX)}  # fmt: skip
         # HVs are predicted behind CAVs that keep their cells (the grid's speed), the motion
         # the plan starts from; a CAV's current speed would make its follower run into cells
         # the plan keeps the CAV in.
