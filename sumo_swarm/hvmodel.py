@@ -252,18 +252,35 @@ def peak_braking(
     # The entry step is SUMO's; the rest of the reaction is simulated in steps of at least
     # 0.1 s to bound the cost, the model evaluated over the same coarser step (holding a
     # short step's Krauss deceleration for longer would overshoot its safe speed).
+    return _reaction_peak(m, v, v_lead_mps, v_lead_mps, 0.0, gap, step_s, horizon_s)
+
+
+def _reaction_peak(
+    m: DriverModel,
+    v: float,
+    v_lead: float,
+    v_final: float,
+    lead_decel: float,
+    gap: float,
+    step_s: float,
+    horizon_s: float,
+) -> float:
+    """Strongest braking of a driver reacting to a leader that enters at ``gap`` driving
+    ``v_lead`` and slows at ``lead_decel`` to ``v_final`` (0: keeps its speed)."""
     sim_dt = max(step_s, 0.1)
     peak = previous = 0.0
     for k in range(max(2, round(horizon_s / sim_dt))):
-        acc = model_accel(m, v, v_lead_mps, gap, step_s if k == 0 else sim_dt)
+        acc = model_accel(m, v, v_lead, gap, step_s if k == 0 else sim_dt)
         braking = max(0.0, -acc)
         peak = max(peak, braking)
-        if k > 0 and v <= v_lead_mps + _CLOSED_MPS and braking <= previous:
+        settled = v_lead <= v_final + 1e-9
+        if k > 0 and settled and v <= v_lead + _CLOSED_MPS and braking <= previous:
             break  # closing in no more and easing off: the strongest braking is behind
         previous = braking
         dt = step_s if k == 0 else sim_dt
         v = max(0.0, v + acc * dt)
-        gap += (v_lead_mps - v) * dt
+        v_lead = max(v_final, v_lead - lead_decel * dt)
+        gap += (v_lead - v) * dt
     return peak
 
 
@@ -595,19 +612,11 @@ def peak_braking_behind_slowing(
     bumper gap ``gap_m`` driving ``v_lead_mps`` and then slows at ``lead_decel_mps2`` to
     ``v_final_mps`` (a blocker: it matches the lane's speed, then brings the lane down to the
     swarm's speed gently)."""
-    v, v_lead, gap = max(0.0, v_mps), max(0.0, v_lead_mps), gap_m
-    sim_dt = max(step_s, 0.1)
-    peak = 0.0
-    for _ in range(max(2, round(horizon_s / sim_dt))):
-        acc = model_accel(m, v, v_lead, gap, step_s)
-        braking = max(0.0, -acc)
-        peak = max(peak, braking)
-        if v_lead <= v_final_mps and v <= v_lead and braking <= lead_decel_mps2 * 0.5:
-            break  # the lane has come down to the final speed and the driver has settled
-        v = max(0.0, v + acc * sim_dt)
-        v_lead = max(v_final_mps, v_lead - lead_decel_mps2 * sim_dt)
-        gap += (v_lead - v) * sim_dt
-    return peak
+    v_lead = max(0.0, v_lead_mps)
+    final = min(v_final_mps, v_lead)
+    return _reaction_peak(
+        m, max(0.0, v_mps), v_lead, final, lead_decel_mps2, gap_m, step_s, horizon_s
+    )
 
 
 def min_block_gap(

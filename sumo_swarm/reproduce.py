@@ -34,6 +34,7 @@ from sumo_swarm.batch.sweep import CONTROLLER_COST, RunSpec
 from sumo_swarm.config import Scenario, load_scenario
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.files import write_json_atomic
 from sumo_swarm.plots import FIGURES, RunData, lane_widths_m, make_figures
 from sumo_swarm.reproduce_rows import (
     BASELINE,
@@ -57,7 +58,7 @@ from sumo_swarm.reproduce_text import (
     differences,
     render_markdown,
 )
-from sumo_swarm.runner import prepare_out_dir, write_json_atomic
+from sumo_swarm.runner import prepare_out_dir
 from sumo_swarm.scene import build_scene
 
 log = logging.getLogger(__name__)
