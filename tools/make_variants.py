@@ -29,6 +29,8 @@ import random
 import sys
 from pathlib import Path
 
+from sumo_swarm.batch.sweep import cases_toml
+
 ROOT = Path(__file__).resolve().parent.parent
 
 # The ranges of issue 11's "Done when" [unit in the name].
@@ -152,14 +154,6 @@ def case(d: dict[str, object]) -> dict[str, object]:
     }
 
 
-def _toml_value(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return f'"{value}"'
-    return repr(value)
-
-
 def render(
     cases: list[dict[str, object]],
     seed: int,
@@ -184,9 +178,7 @@ def render(
         f'"simulation.duration_s" = {duration_s!r}',
         f'"evaluation.end_s" = {min(EVALUATION_END_S, duration_s)!r}',
     ]
-    for c in cases:
-        lines += ["", "[[cases]]"]
-        lines += [f'"{k}" = {_toml_value(v)}' for k, v in c.items()]
+    lines += cases_toml(cases)
     return "\n".join(lines) + "\n"
 
 

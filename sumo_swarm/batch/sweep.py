@@ -34,7 +34,7 @@ import json
 import re
 import tomllib
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -460,3 +460,21 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
         seeds=tuple(seeds),
         runs=tuple(runs),
     )
+
+
+def cases_toml(cases: Sequence[Mapping[str, object]]) -> list[str]:
+    """``[[cases]]`` tables of a sweep file, one ``"dotted.key" = value`` line per parameter
+    (the generators of tools/ write their sweeps with it)."""
+    lines: list[str] = []
+    for case in cases:
+        lines += ["", "[[cases]]"]
+        lines += [f'"{key}" = {_toml_literal(value)}' for key, value in case.items()]
+    return lines
+
+
+def _toml_literal(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return repr(value)
