@@ -198,10 +198,17 @@ class CpSatPlanner(_FlowPlanner):
     backend = "cp-sat"
 
     def __init__(
-        self, time_limit_s: float = 1.0, num_workers: int = 1, retry_without_blockers: bool = True
+        self,
+        time_limit_s: float = 1.0,
+        num_workers: int = 1,
+        retry_without_blockers: bool = True,
+        work_limit: float | None = None,
     ) -> None:
         super().__init__(time_limit_s, retry_without_blockers)
         self.num_workers = int(num_workers)
+        if work_limit is not None and not work_limit > 0:
+            raise ConfigError(f"CpSatPlanner: work_limit must be > 0, got {work_limit!r}")
+        self.work_limit = work_limit
         self._cp: cp_model.CpModel | None = None
 
     def _prepare(self, model, hints):
@@ -216,6 +223,8 @@ class CpSatPlanner(_FlowPlanner):
         solver = cp_model.CpSolver()
         params = solver.parameters
         params.max_time_in_seconds = time_limit_s
+        if self.work_limit is not None:  # load-independent: the same plan on any machine state
+            params.max_deterministic_time = self.work_limit
         params.num_workers = self.num_workers
         # The flow relaxation is nearly integral: give the LP every constraint up front
         # (linearization 2, not lazily) and skip presolve, which rewrites the flow
@@ -316,7 +325,9 @@ class ScipPlanner(_FlowPlanner):
 def make_planner(settings: PlannerSettings) -> CellPlanner:
     """The planner the settings name (``backend``), with their time limit."""
     if settings.backend == "cp-sat":
-        return CpSatPlanner(settings.time_limit_s, num_workers=settings.num_workers)
+        return CpSatPlanner(
+            settings.time_limit_s, num_workers=settings.num_workers, work_limit=settings.work_limit
+        )
     if settings.backend == "scip":
         return ScipPlanner(settings.time_limit_s)
     raise ConfigError(f"unknown planner backend {settings.backend!r}")
