@@ -7,6 +7,6 @@ both Longitudinal and Lateral Dimensions").
 
 __version__ = "0.1.0"
 
-from sumo_swarm.plugin import SwarmHandle, attach, detach
+from sumo_swarm.sim.plugin import SwarmHandle, attach, detach
 
 __all__ = ["SwarmHandle", "__version__", "attach", "detach"]

@@ -293,14 +293,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from sumo_swarm.config import load_scenario
-    from sumo_swarm.runner import run_scenario
+    from sumo_swarm.sim.runner import run_scenario
 
     if args.sumocfg is not None:
         if args.scenario is not None:
             raise ConfigError("run: give a scenario file or --sumocfg, not both")
         if not args.cav_type:
             raise ConfigError("run: --sumocfg needs --cav-type TYPE (the swarm's vType)")
-        from sumo_swarm.runner import run_sumocfg
+        from sumo_swarm.sim.runner import run_sumocfg
 
         summary = run_sumocfg(
             args.sumocfg,
@@ -338,14 +338,14 @@ def _num(value: float | None) -> str:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from sumo_swarm.reproduce import reproduce
+    from sumo_swarm.study.reproduce import reproduce
 
     reproduce(args.out, scenario_path=args.scenario)
     return EXIT_OK
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from sumo_swarm.batch import run_batch
+    from sumo_swarm.study.batch import run_batch
 
     report = run_batch(
         args.sweep, args.out, workers=args.workers, ray=args.ray, retry_failed=args.retry_failed
@@ -356,7 +356,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 
 def _cmd_impact(args: argparse.Namespace) -> int:
-    from sumo_swarm.impact import impact
+    from sumo_swarm.study.impact import impact
 
     print(impact(args.dir))
     return EXIT_OK
@@ -378,7 +378,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "impact":
             return _cmd_impact(args)
         if args.command == "replay":
-            from sumo_swarm.replay import replay_command
+            from sumo_swarm.study.replay import replay_command
 
             return replay_command(args)
         raise ConfigError(f"unknown command {args.command}")

@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 from sumo_swarm.checks import SEED_MAX, check_fields, is_number
+from sumo_swarm.core.grid import GridSettings
+from sumo_swarm.core.planner import PlannerSettings
+from sumo_swarm.core.swarming.guards import GuardSettings
+from sumo_swarm.core.tracking import LateralSettings, LongitudinalSettings
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.grid import GridSettings
-from sumo_swarm.planner import PlannerSettings
-from sumo_swarm.swarming.guards import GuardSettings
-from sumo_swarm.tracking import LateralSettings, LongitudinalSettings
 
 T = TypeVar("T")
 
@@ -346,7 +346,7 @@ class HvModelSettings:
 
     Each HV's car-following parameters are read from SUMO (accel, decel, tau, minGap, IDM's
     delta; a conservative bound for models other than IDM and Krauss), see
-    :mod:`sumo_swarm.hvmodel`. A CAV may enter a lane in front of an HV only where that HV,
+    :mod:`sumo_swarm.core.hvmodel`. A CAV may enter a lane in front of an HV only where that HV,
     reacting by its own model, brakes no harder than ``b_safe_mps2`` (MOBIL's b_safe, well inside
     the 4 m/s^2 hard-brake line). The planner plans against ``planner_share * b_safe_mps2`` so that
     the guard, which checks the true speeds against ``b_safe_mps2``, rarely has to refuse.

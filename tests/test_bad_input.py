@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sumo_swarm.netbuild import HighwaySpec, build_highway
+from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
 from tests.test_cli import assert_bad_input, sumo_swarm
 from tests.usercases import write_user_case
 

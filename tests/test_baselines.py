@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from sumo_swarm.config import load_scenario
-from sumo_swarm.runner import run_scenario
+from sumo_swarm.sim.runner import run_scenario
 from tests.contract import TRAJECTORY_COLUMNS, assert_summary_contract
 
 pytestmark = pytest.mark.sumo

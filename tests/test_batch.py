@@ -19,10 +19,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from sumo_swarm.batch import load_sweep, run_batch
 from sumo_swarm.cli import main
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.impact import markdown_table
+from sumo_swarm.study.batch import load_sweep, run_batch
+from sumo_swarm.study.impact import markdown_table
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = (ROOT / "scenarios" / "paper.toml").as_posix()

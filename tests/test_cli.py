@@ -137,8 +137,8 @@ def test_run_writes_summary(paper_path, tmp_path):
 
 @pytest.mark.sumo
 def test_run_sumocfg_records_the_sumo_configuration_as_run(tmp_path):
-    from sumo_swarm.netbuild import HighwaySpec
-    from sumo_swarm.runner import read_sumocfg_options
+    from sumo_swarm.sim.netbuild import HighwaySpec
+    from sumo_swarm.sim.runner import read_sumocfg_options
     from tests.usercases import write_user_case
 
     cfg = write_user_case(tmp_path / "case", HighwaySpec(length_m=500, lanes=3), end_s=3.0)

@@ -14,10 +14,10 @@ import pytest
 from sumo_swarm.config import HvPlacement, load_scenario
 from sumo_swarm.controllers.base import RunContext
 from sumo_swarm.controllers.swarm import SwarmController
+from sumo_swarm.core.model import VehicleState
 from sumo_swarm.errors import SimulationError
-from sumo_swarm.metrics import hard_brake_events
-from sumo_swarm.model import VehicleState
-from sumo_swarm.runner import run_scenario
+from sumo_swarm.sim.metrics import hard_brake_events
+from sumo_swarm.sim.runner import run_scenario
 from tests.conftest import PAPER
 
 pytestmark = pytest.mark.sumo

@@ -1,11 +1,10 @@
-"""Moving grid: hand-computed rows, origins, HV footprints (sumo_swarm.grid)."""
+"""Moving grid: hand-computed rows, origins, HV footprints (sumo_swarm.core.grid)."""
 
 from __future__ import annotations
 
 import pytest
 
-from sumo_swarm.errors import ConfigError
-from sumo_swarm.grid import (
+from sumo_swarm.core.grid import (
     ConstantSpeedPredictor,
     GridSettings,
     MovingGrid,
@@ -13,7 +12,8 @@ from sumo_swarm.grid import (
     cav_cell,
     hv_blocked_cells,
 )
-from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.errors import ConfigError
 
 ROAD3 = RoadSection((3.0, 3.0, 3.0))
 SETTINGS = GridSettings()

@@ -13,9 +13,9 @@ import pandas as pd
 import pytest
 import traci
 
-from sumo_swarm.bridge import sumo_binary
-from sumo_swarm.gui import POLYGON_PREFIX, PlanDrawer
-from sumo_swarm.routeshape import (
+from sumo_swarm.sim.bridge import sumo_binary
+from sumo_swarm.sim.gui import POLYGON_PREFIX, PlanDrawer
+from sumo_swarm.sim.routeshape import (
     DEFAULT_INTERVAL_S,
     LaneGeometry,
     PlanRecord,
@@ -194,8 +194,8 @@ def test_route_coordinates_land_where_sumo_put_the_vehicles(tmp_path):
     """A curved road of four edges with a lane drop: every recorded (s, lane, lat) maps back to
     the position SUMO reported. Exactly on the edges; on junction lanes (a few steps each) the
     bridge's lane index is the internal lane's and the route blends across, so within a lane."""
-    from sumo_swarm.netbuild import HighwaySpec, edge_ids
-    from sumo_swarm.runner import run_sumocfg
+    from sumo_swarm.sim.netbuild import HighwaySpec, edge_ids
+    from sumo_swarm.sim.runner import run_sumocfg
     from tests.usercases import write_user_case
 
     spec = HighwaySpec(length_m=1600, lanes=(3, 3, 2, 2), edges=4, radius_m=500)

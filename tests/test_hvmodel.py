@@ -9,8 +9,8 @@ import random
 import numpy as np
 import pytest
 
-from sumo_swarm.grid import ConstantSpeedPredictor
-from sumo_swarm.hvmodel import (
+from sumo_swarm.core.grid import ConstantSpeedPredictor
+from sumo_swarm.core.hvmodel import (
     CarFollowingPredictor,
     DriverArrays,
     DriverModel,
@@ -21,7 +21,7 @@ from sumo_swarm.hvmodel import (
     model_accel_array,
     peak_braking,
 )
-from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.core.model import RoadSection, VehicleState
 
 # a = b = 1 (so 2 sqrt(ab) = 2), T = 1 s, s0 = 2 m, delta = 4, v0 = 20 m/s
 IDM = DriverModel("IDM", 1.0, 1.0, 9.0, 1.0, 2.0, 4.0, 20.0, 5.0)

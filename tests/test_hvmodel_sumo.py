@@ -11,15 +11,15 @@ from pathlib import Path
 
 import pytest
 
-from sumo_swarm.bridge import SumoSession
-from sumo_swarm.hvmodel import (
+from sumo_swarm.core.hvmodel import (
     CarFollowingPredictor,
     DriverModel,
     braking_needed,
     min_entry_gap,
     peak_braking,
 )
-from sumo_swarm.model import RoadSection, VehicleState
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.sim.bridge import SumoSession
 from tests.conftest import ROOT
 
 pytestmark = pytest.mark.sumo

@@ -120,16 +120,16 @@ def test_the_package_has_no_import_cycle():
 
 def test_runner_and_plugin_share_the_recorder_and_not_each_other():
     graph = import_graph(PACKAGE)
-    for user in ("sumo_swarm.runner", "sumo_swarm.plugin"):
-        assert "sumo_swarm.recorder" in graph[user]
-    assert "sumo_swarm.plugin" not in graph["sumo_swarm.runner"]
-    assert "sumo_swarm.runner" not in graph["sumo_swarm.plugin"]
+    for user in ("sumo_swarm.sim.runner", "sumo_swarm.sim.plugin"):
+        assert "sumo_swarm.sim.recorder" in graph[user]
+    assert "sumo_swarm.sim.plugin" not in graph["sumo_swarm.sim.runner"]
+    assert "sumo_swarm.sim.runner" not in graph["sumo_swarm.sim.plugin"]
 
 
 def test_the_route_frame_needs_no_sumo():
     """routeframe is pure: no SUMO import, directly or through the package's modules."""
     graph = import_graph(PACKAGE)
-    reached, todo = set(), ["sumo_swarm.routeframe"]
+    reached, todo = set(), ["sumo_swarm.core.routeframe"]
     while todo:
         name = todo.pop()
         if name not in reached:
@@ -141,3 +141,74 @@ def test_the_route_frame_needs_no_sumo():
         imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
         imported |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
         assert not {m for m in imported if m and m.split(".")[0] in ("libsumo", "traci", "sumo")}
+
+
+# --------------------------------------------------------------------------- layers
+
+# The folders tell the pipeline's story; each layer imports only itself and the layers below.
+LAYERS = {
+    "foundation": 0,  # errors, checks, files, safexml
+    "core": 1,  # the pure pipeline: model, grid, planner, trajectory, tracking, swarming, ...
+    "config": 2,  # the scenario's settings, built from core's settings classes
+    "controllers": 3,  # swarm, cacc and SUMO's baselines over the core
+    "sim": 4,  # SUMO: bridge, scenes, runner, plugin, recorder, metrics, summary, gui
+    "study": 5,  # across runs: batch, impact, reproduce, plots, replay
+    "top": 6,  # the CLI and the package's own entry points
+}
+FOUNDATION = {"errors", "checks", "files", "safexml"}
+
+
+def layer_of(module: str) -> int:
+    parts = module.split(".")
+    if len(parts) == 1 or parts[1] in ("cli", "__main__"):
+        return LAYERS["top"]
+    if parts[1] in FOUNDATION:
+        return LAYERS["foundation"]
+    if parts[1] == "config":
+        return LAYERS["config"]
+    return LAYERS[parts[1]]
+
+
+def runtime_imports(package_dir: Path) -> dict[str, set[str]]:
+    """The import graph without imports under ``if TYPE_CHECKING:`` (annotations only)."""
+    root = package_dir.parent
+    files = {module_name(p, root): p for p in sorted(package_dir.rglob("*.py"))}
+    graph: dict[str, set[str]] = {}
+    for name, path in files.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        skip = {
+            id(n)
+            for node in ast.walk(tree)
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+            for n in ast.walk(node)
+        }
+        deps = set()
+        for node in ast.walk(tree):
+            if id(node) in skip or not isinstance(node, ast.ImportFrom | ast.Import):
+                continue
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [f"{node.module}.{a.name}" for a in node.names] + [node.module or ""]
+            )
+            deps.update(n for n in names if n in files)
+        graph[name] = deps - {name}
+    return graph
+
+
+def test_every_module_imports_only_its_layer_and_those_below():
+    graph = runtime_imports(Path(sumo_swarm.__file__).parent)
+    wrong = sorted(
+        f"{module} ({layer_of(module)}) imports {dep} ({layer_of(dep)})"
+        for module, deps in graph.items()
+        for dep in deps
+        if layer_of(dep) > layer_of(module)
+    )
+    assert wrong == []
+
+
+def test_the_layer_check_can_fail():
+    assert layer_of("sumo_swarm.core.grid") < layer_of("sumo_swarm.sim.bridge")
+    assert layer_of("sumo_swarm.controllers.swarm") < layer_of("sumo_swarm.study.batch.store")
+    assert layer_of("sumo_swarm.errors") == 0 and layer_of("sumo_swarm.cli") == LAYERS["top"]
+    assert layer_of("sumo_swarm") == LAYERS["top"]

@@ -8,10 +8,10 @@ import math
 import pandas as pd
 import pytest
 
-from sumo_swarm import metrics
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.metrics import EvaluationWindow
-from sumo_swarm.recorder import RECORD_COLUMNS
+from sumo_swarm.sim import metrics
+from sumo_swarm.sim.metrics import EvaluationWindow
+from sumo_swarm.sim.recorder import RECORD_COLUMNS
 
 COLUMNS = list(RECORD_COLUMNS)  # the table sumo-swarm records
 

@@ -8,10 +8,9 @@ import random
 
 import pytest
 
-from sumo_swarm.errors import ConfigError
-from sumo_swarm.grid import GridSettings, build_grid
-from sumo_swarm.model import RoadSection, VehicleState
-from sumo_swarm.planner import (
+from sumo_swarm.core.grid import GridSettings, build_grid
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.planner import (
     Blocker,
     CpSatPlanner,
     Plan,
@@ -27,7 +26,8 @@ from sumo_swarm.planner import (
     shift_plan,
     validate_plan,
 )
-from sumo_swarm.planner.flow import build_flow_model, extract_paths, uncross_swaps
+from sumo_swarm.core.planner.flow import build_flow_model, extract_paths, uncross_swaps
+from sumo_swarm.errors import ConfigError
 
 W = PlannerWeights(w_tar=10, w_lon=1, w_lat=1)  # integer weights: objectives compare exactly
 
@@ -333,7 +333,7 @@ def test_too_short_time_limit_never_raises():
 
 
 def test_solver_exception_becomes_error_plan(monkeypatch):
-    import sumo_swarm.planner.solvers as solvers
+    import sumo_swarm.core.planner.solvers as solvers
 
     def boom(problem):
         raise RuntimeError("boom")
@@ -545,7 +545,7 @@ def test_move_masks_agree_with_move_allowed_cell_by_cell():
     """The vectorised move rules (flow model) and the scalar ones (validator) are the same rules."""
     import random
 
-    from sumo_swarm.planner.problem import MOVES, move_allowed, move_masks
+    from sumo_swarm.core.planner.problem import MOVES, move_allowed, move_masks
 
     rng = random.Random(7)
     for _ in range(20):

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from matplotlib.text import Annotation
 
-from sumo_swarm import plots
 from sumo_swarm.config import load_scenario
-from sumo_swarm.model import RoadSection
-from sumo_swarm.runner import run_scenario
-from sumo_swarm.scene import build_scene
+from sumo_swarm.core.model import RoadSection
+from sumo_swarm.sim.runner import run_scenario
+from sumo_swarm.sim.scene import build_scene
+from sumo_swarm.study import plots
 from tests.conftest import PAPER
 
 # The paper scene to 40 s: decision, all CAVs past and regrouped all happen (at about 3, 27, 36 s).

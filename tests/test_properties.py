@@ -17,9 +17,9 @@ from sumo_swarm.config import (
     nested_dataclass,
     union_members,
 )
+from sumo_swarm.core.grid import GridSettings, MovingGrid, cav_cell
+from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.grid import GridSettings, MovingGrid, cav_cell
-from sumo_swarm.model import RoadSection, VehicleState
 
 KNOWN = {
     name: sorted(f for f in tp.__dataclass_fields__ if not f.startswith("_"))

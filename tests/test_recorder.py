@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 
 import sumo_swarm
-from sumo_swarm.bridge import sumo_binary
-from sumo_swarm.netbuild import HighwaySpec
-from sumo_swarm.recorder import RECORD_COLUMNS
-from sumo_swarm.runner import run_sumocfg
+from sumo_swarm.sim.bridge import sumo_binary
+from sumo_swarm.sim.netbuild import HighwaySpec
+from sumo_swarm.sim.recorder import RECORD_COLUMNS
+from sumo_swarm.sim.runner import run_sumocfg
 from tests.usercases import write_user_case
 
 pytestmark = pytest.mark.sumo

@@ -15,7 +15,8 @@ from PIL import Image
 
 from sumo_swarm.cli import main
 from sumo_swarm.config import load_scenario
-from sumo_swarm.replay import (
+from sumo_swarm.sim.runner import run_scenario
+from sumo_swarm.study.replay import (
     FRAME_PX,
     ROLE_COLOURS,
     Renderer,
@@ -25,7 +26,6 @@ from sumo_swarm.replay import (
     load_run,
     vehicle_polygons,
 )
-from sumo_swarm.runner import run_scenario
 from tests.conftest import PAPER
 
 # The paper scene cut to 16 s: the first plan (t = 3.03 s, two blockers) and the replan after it.

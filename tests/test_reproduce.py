@@ -12,11 +12,11 @@ import pytest
 
 from sumo_swarm.config import load_scenario
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.metrics import EvaluationWindow
-from sumo_swarm.plots import FIGURES
-from sumo_swarm.reproduce import ReproRun, default_scenario_path, reproduce
-from sumo_swarm.reproduce_rows import paired_upstream, targets
-from sumo_swarm.reproduce_text import capped_paragraph
+from sumo_swarm.sim.metrics import EvaluationWindow
+from sumo_swarm.study.plots import FIGURES
+from sumo_swarm.study.reproduce import ReproRun, default_scenario_path, reproduce
+from sumo_swarm.study.reproduce_rows import paired_upstream, targets
+from sumo_swarm.study.reproduce_text import capped_paragraph
 from tests.conftest import PAPER, ROOT
 from tests.contract import assert_summary_contract
 

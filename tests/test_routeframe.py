@@ -8,7 +8,7 @@ import math
 import pytest
 from defusedxml import ElementTree
 
-from sumo_swarm.routeframe import RouteFrame, lane_curvature
+from sumo_swarm.core.routeframe import RouteFrame, lane_curvature
 
 
 class TableNetwork:
@@ -125,9 +125,9 @@ def test_the_bridge_coordinate_is_the_replays(tmp_path):
     the offsets the replay reads from the .net.xml, and the dropped lane's end."""
     import libsumo
 
-    from sumo_swarm.bridge import SumoNetwork, sumo_binary
-    from sumo_swarm.netbuild import HighwaySpec, build_highway, edge_ids
-    from sumo_swarm.routeshape import route_from_net
+    from sumo_swarm.sim.bridge import SumoNetwork, sumo_binary
+    from sumo_swarm.sim.netbuild import HighwaySpec, build_highway, edge_ids
+    from sumo_swarm.sim.routeshape import route_from_net
 
     spec = HighwaySpec(length_m=2000, lanes=(3, 2, 2, 2), edges=4)
     net = build_highway(spec, tmp_path)

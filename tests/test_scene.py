@@ -6,7 +6,7 @@ import itertools
 import xml.etree.ElementTree as ET
 
 from sumo_swarm.config import load_scenario
-from sumo_swarm.scene import build_scene, write_sumo_inputs
+from sumo_swarm.sim.scene import build_scene, write_sumo_inputs
 
 
 def test_paper_scene_layout(paper_path):

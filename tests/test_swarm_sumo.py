@@ -10,8 +10,8 @@ import pytest
 
 from sumo_swarm.config import load_scenario
 from sumo_swarm.controllers.swarm import SwarmController
-from sumo_swarm.planner import Plan, PlanStatus
-from sumo_swarm.runner import run_scenario
+from sumo_swarm.core.planner import Plan, PlanStatus
+from sumo_swarm.sim.runner import run_scenario
 from tests.conftest import PAPER
 from tests.contract import assert_summary_contract
 

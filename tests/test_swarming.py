@@ -7,9 +7,9 @@ import math
 
 import pytest
 
-from sumo_swarm.hvmodel import DriverModel, braking_needed
-from sumo_swarm.model import RoadSection, VehicleState
-from sumo_swarm.swarming.decision import (
+from sumo_swarm.core.hvmodel import DriverModel, braking_needed
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.swarming.decision import (
     Progress,
     TargetWatch,
     behaving_interval_s,
@@ -17,8 +17,8 @@ from sumo_swarm.swarming.decision import (
     speed_cap_mps,
     stopped_blocking,
 )
-from sumo_swarm.swarming.guards import GuardSettings, gap_accel_limit, lateral_refusal
-from sumo_swarm.swarming.planlog import PlanLog
+from sumo_swarm.core.swarming.guards import GuardSettings, gap_accel_limit, lateral_refusal
+from sumo_swarm.core.swarming.planlog import PlanLog
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
 IDM = DriverModel(model="IDM", accel_mps2=1.0, decel_mps2=2.0, tau_s=1.0, min_gap_m=2.0,

@@ -1,4 +1,5 @@
-"""Tests of sumo_swarm.tracking: OSQP MPCs against hand-computed answers and the DP recursion."""
+"""Tests of sumo_swarm.core.tracking: OSQP MPCs against hand-computed answers and the DP
+recursion."""
 
 from __future__ import annotations
 
@@ -7,9 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from sumo_swarm.errors import ConfigError
-from sumo_swarm.model import RoadSection
-from sumo_swarm.tracking import (
+from sumo_swarm.core.model import RoadSection
+from sumo_swarm.core.tracking import (
     DEFAULT_DELTA_MAX_RAD,
     LateralMpc,
     LateralSettings,
@@ -20,7 +20,8 @@ from sumo_swarm.tracking import (
     lateral_model,
     longitudinal_model,
 )
-from sumo_swarm.trajectory import GridFrame, reference_from_cells
+from sumo_swarm.core.trajectory import GridFrame, reference_from_cells
+from sumo_swarm.errors import ConfigError
 
 TIGHT = OsqpSettings(eps_abs=1e-10, eps_rel=1e-10, max_iter=200_000, polish=True)
 

@@ -1,18 +1,18 @@
-"""Tests of sumo_swarm.trajectory: cells -> smooth reference (eqs. (20)-(22))."""
+"""Tests of sumo_swarm.core.trajectory: cells -> smooth reference (eqs. (20)-(22))."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sumo_swarm.errors import ConfigError
-from sumo_swarm.model import RoadSection
-from sumo_swarm.trajectory import (
+from sumo_swarm.core.model import RoadSection
+from sumo_swarm.core.trajectory import (
     GridFrame,
     cell_waypoints,
     reference_from_cells,
     waypoint_error_m,
 )
+from sumo_swarm.errors import ConfigError
 
 ROAD = RoadSection(lane_widths_m=(3.0, 3.5, 3.0))  # lane centres at y = 0, 3.25, 6.5
 FRAME = GridFrame(

@@ -13,8 +13,8 @@ import pytest
 import sumo
 
 import sumo_swarm
-from sumo_swarm.netbuild import HighwaySpec
-from sumo_swarm.runner import run_sumocfg
+from sumo_swarm.sim.netbuild import HighwaySpec
+from sumo_swarm.sim.runner import run_sumocfg
 from tests.usercases import write_user_case
 
 pytestmark = pytest.mark.sumo

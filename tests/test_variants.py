@@ -18,7 +18,7 @@ from types import ModuleType
 import pandas as pd
 import pytest
 
-from sumo_swarm.batch import load_sweep, run_batch
+from sumo_swarm.study.batch import load_sweep, run_batch
 
 ROOT = Path(__file__).resolve().parent.parent
 SEED = 11

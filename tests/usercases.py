@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sumo_swarm.netbuild import HighwaySpec, build_highway, edge_ids
+from sumo_swarm.sim.netbuild import HighwaySpec, build_highway, edge_ids
 
 
 def write_user_case(

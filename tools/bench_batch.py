@@ -31,8 +31,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from sumo_swarm.batch import run_batch
-from sumo_swarm.impact import markdown_table
+from sumo_swarm.study.batch import run_batch
+from sumo_swarm.study.impact import markdown_table
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper.toml"

@@ -28,9 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from sumo_swarm.model import RoadSection
-from sumo_swarm.tracking import LateralMpc, LateralSettings, LongitudinalMpc, LongitudinalSettings
-from sumo_swarm.trajectory import GridFrame, Reference, reference_from_cells
+from sumo_swarm.core.model import RoadSection
+from sumo_swarm.core.tracking import (
+    LateralMpc,
+    LateralSettings,
+    LongitudinalMpc,
+    LongitudinalSettings,
+)
+from sumo_swarm.core.trajectory import GridFrame, Reference, reference_from_cells
 
 TARGET_MS = 1.0  # budget per CAV per control step, both MPCs together [ms]
 COLUMNS = (

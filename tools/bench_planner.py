@@ -36,9 +36,9 @@ from pathlib import Path
 # The code under test: this checkout, or the baseline's when run as the --baseline child.
 sys.path.insert(0, os.environ.get("SUMO_SWARM_BENCH_CODE", str(Path(__file__).parents[1])))
 
-from sumo_swarm.grid import GridSettings, build_grid
-from sumo_swarm.model import RoadSection, VehicleState
-from sumo_swarm.planner import (
+from sumo_swarm.core.grid import GridSettings, build_grid
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.planner import (
     PlannerSettings,
     PlanStatus,
     build_problem,

@@ -29,7 +29,7 @@ import random
 import sys
 from pathlib import Path
 
-from sumo_swarm.batch.sweep import cases_toml
+from sumo_swarm.study.batch.sweep import cases_toml
 
 ROOT = Path(__file__).resolve().parent.parent
 

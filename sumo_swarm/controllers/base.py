@@ -5,11 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
-from sumo_swarm.model import RoadSection
+from sumo_swarm.core.model import RoadSection
 
 if TYPE_CHECKING:
-    from sumo_swarm.bridge import SumoSession
     from sumo_swarm.config import Scenario
+    from sumo_swarm.sim.bridge import SumoSession
 
 # Lane-change mode 0: no autonomous lane changes and no safety vetoes of our own sublane moves;
 # the planner and its validator own lateral safety (SUMO's safe-speed check stays on, below).

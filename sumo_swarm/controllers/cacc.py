@@ -10,7 +10,7 @@ from typing import Any
 
 from sumo_swarm.config import CaccSettings, CavSettings
 from sumo_swarm.controllers.base import RunContext
-from sumo_swarm.neighbours import vehicle_ahead
+from sumo_swarm.core.neighbours import vehicle_ahead
 
 
 def cacc_accel(

@@ -2,13 +2,13 @@
 
 Each SUMO step (after the step, acting on the next one):
 
-1. *Cruise* as a CACC platoon. :mod:`~sumo_swarm.swarming.decision` names a target: the HV
+1. *Cruise* as a CACC platoon. :mod:`~sumo_swarm.core.swarming.decision` names a target: the HV
    right ahead of the leader in its lane, slower than the cruise, worth passing, for
    ``swarm.trigger_after_s``.
-2. *Overtake*: :mod:`~sumo_swarm.swarming.manoeuvre` builds the moving grid, the HV margins
-   and predictions from each HV's own driver model (:mod:`sumo_swarm.hvmodel`), solves the cell
-   MIP and turns the cells into references; :mod:`~sumo_swarm.swarming.tracker` follows them
-   with the MPCs; :mod:`~sumo_swarm.swarming.guards` checks every command. Replans happen on
+2. *Overtake*: :mod:`~sumo_swarm.core.swarming.manoeuvre` builds the moving grid, the HV margins
+   and predictions from each HV's own driver model (:mod:`sumo_swarm.core.hvmodel`), solves the cell
+   MIP and turns the cells into references; :mod:`~sumo_swarm.core.swarming.tracker` follows them
+   with the MPCs; :mod:`~sumo_swarm.core.swarming.guards` checks every command. Replans happen on
    the events of the paper's Fig. 4, at most one per behaving interval unless a safety check
    demands one.
 3. The manoeuvre ends when every CAV is past the target and back in the regroup lane, when the
@@ -36,14 +36,14 @@ import numpy as np
 
 from sumo_swarm.controllers.base import RunContext
 from sumo_swarm.controllers.cacc import command_cacc
-from sumo_swarm.grid import MovingGrid, cav_cell, hv_blocked_cells
-from sumo_swarm.hvmodel import DriverModel
-from sumo_swarm.metrics import lateral_rms, summarise_ms
-from sumo_swarm.model import VehicleState
-from sumo_swarm.neighbours import ordered_platoon, vehicle_ahead
-from sumo_swarm.planner import CellPlanner, Plan, ReplanTrigger, make_planner
-from sumo_swarm.planner.problem import LANE_END_PREFIX, hvs_in_grid
-from sumo_swarm.swarming.decision import (
+from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
+from sumo_swarm.core.hvmodel import DriverModel
+from sumo_swarm.core.model import VehicleState
+from sumo_swarm.core.neighbours import ordered_platoon, vehicle_ahead
+from sumo_swarm.core.planner import CellPlanner, Plan, ReplanTrigger, make_planner
+from sumo_swarm.core.planner.problem import LANE_END_PREFIX, hvs_in_grid
+from sumo_swarm.core.stats import lateral_rms, summarise_ms
+from sumo_swarm.core.swarming.decision import (
     Mode,
     Progress,
     TargetWatch,
@@ -53,16 +53,16 @@ from sumo_swarm.swarming.decision import (
     speed_cap_mps,
     stopped_blocking,
 )
-from sumo_swarm.swarming.guards import (
+from sumo_swarm.core.swarming.guards import (
     gap_accel_limit,
     gentle_for_follower,
     lane_speed_match,
     lateral_refusal,
 )
-from sumo_swarm.swarming.manoeuvre import ManoeuvrePlanner, ManoeuvreSettings
-from sumo_swarm.swarming.planlog import PlanLog
-from sumo_swarm.swarming.tracker import Tracker
-from sumo_swarm.trajectory import Reference
+from sumo_swarm.core.swarming.manoeuvre import ManoeuvrePlanner, ManoeuvreSettings
+from sumo_swarm.core.swarming.planlog import PlanLog
+from sumo_swarm.core.swarming.tracker import Tracker
+from sumo_swarm.core.trajectory import Reference
 
 log = logging.getLogger(__name__)
 
@@ -143,9 +143,7 @@ class SwarmController:
         self.trigger = self._new_trigger()
         self.watch = TargetWatch(sc.swarm.trigger_after_s)
         self.planlog = PlanLog(ctx.out_dir)
-        self.drawer = _plan_drawer(ctx.session)
-        if self.drawer is not None:
-            self.planlog.listeners.append(lambda record: self.drawer.draw(record, record["time_s"]))
+        self.drawer = None  # a sumo-gui plan drawer, set by the session's side (sim.gui)
 
     @property
     def planner(self) -> CellPlanner:
@@ -643,27 +641,9 @@ class SwarmController:
         }
 
 
-def _plan_drawer(session: Any) -> Any:
-    """A sumo-gui plan drawer when the session is a traci connection to sumo-gui, else None."""
-    api = getattr(session, "api", None)
-    if api is None:
-        return None
-    try:
-        api.gui.getIDList()  # only sumo-gui answers
-    except Exception:
-        return None
-    from sumo_swarm.gui import PlanDrawer
-
-    try:
-        return PlanDrawer(api, getattr(session, "route_edges", None))
-    except Exception:  # drawing is a convenience: never stop the run for it
-        log.exception("sumo-gui plan drawing is off")
-        return None
-
-
 def _no_plan(t_s: float) -> Plan:
     """A cell-less plan that tells the trigger when the last solve failed."""
-    from sumo_swarm.planner.problem import PlanStatus
+    from sumo_swarm.core.planner.problem import PlanStatus
 
     return Plan(status=PlanStatus.INFEASIBLE, cells=None, objective=None, solve_ms=0.0,
                 backend="none", t0_s=t_s)  # fmt: skip

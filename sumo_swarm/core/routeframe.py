@@ -1,0 +1,148 @@
+"""The route coordinate from network data: no SUMO import, so it is unit-tested on hand-made roads.
+
+A route is a list of edges. Its coordinate ``s_m`` accumulates the edges' lengths, junctions
+included: each edge starts where the previous one ended plus the shortest junction (internal)
+lane into it; a junction lane is placed so that it ends where the next route edge starts. The
+frame also knows where lanes end (no connection into the next route edge) and the road section
+(lane widths, curvature) of every edge.
+
+The network data come through :class:`NetworkData`: the SUMO session answers it from a running
+simulation, a test from a table.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Sequence
+from typing import Protocol
+
+from sumo_swarm.core.model import RoadSection
+
+
+class NetworkData(Protocol):
+    """What the frame reads about the network; lanes are named ``{edge}_{index}`` as in SUMO."""
+
+    def lane_count(self, edge: str) -> int: ...
+
+    def lane_length_m(self, lane_id: str) -> float: ...
+
+    def lane_width_m(self, lane_id: str) -> float: ...
+
+    def lane_shape(self, lane_id: str) -> Sequence[tuple[float, float]]: ...
+
+    def lane_links(self, lane_id: str) -> Iterable[tuple[str, str]]:
+        """(lane reached, junction lane used or "") of each connection leaving ``lane_id``."""
+        ...
+
+
+def lane_curvature(shape: Sequence[tuple[float, float]]) -> float:
+    """Mean curvature of a polyline [1/m]: total heading change over length, left positive."""
+    if len(shape) < 3:
+        return 0.0
+    turn = 0.0
+    length = 0.0
+    prev = None
+    for (x0, y0), (x1, y1) in itertools.pairwise(shape):
+        seg = math.hypot(x1 - x0, y1 - y0)
+        if seg < 1e-9:
+            continue
+        heading = math.atan2(y1 - y0, x1 - x0)
+        if prev is not None:
+            turn += (heading - prev + math.pi) % (2 * math.pi) - math.pi
+        prev = heading
+        length += seg
+    return turn / length if length > 0 else 0.0
+
+
+class RouteFrame:
+    """Route positions, lane ends and road sections of one route on a network.
+
+    ``route_edges`` may be empty (the route is not known yet): then only :meth:`road_section`
+    answers; :meth:`set_route` gives the route later.
+    """
+
+    def __init__(self, net: NetworkData, route_edges: Iterable[str] = ()) -> None:
+        self.net = net
+        self._roads: dict[str, RoadSection] = {}
+        self.set_route(route_edges)
+
+    def set_route(self, edges: Iterable[str]) -> None:
+        """Compute each edge's start [m], each junction lane's end [m] and the lane ends."""
+        edges = list(edges)
+        net = self.net
+        self.route_edges = edges
+        self.edge_offset_m: dict[str, float] = {}
+        self.via_end: dict[str, tuple[float, float]] = {}  # junction lane: (end s, length) [m]
+        self.lane_ends: list[tuple[int, int, float]] = []  # (route edge index, lane, end s [m])
+        offset = 0.0
+        for i, edge in enumerate(edges):
+            self.edge_offset_m[edge] = offset
+            offset += net.lane_length_m(f"{edge}_0")
+            if i + 1 >= len(edges):
+                continue
+            # Junction lanes into the next route edge: the shortest sets the next edge's
+            # offset; each junction lane is placed so that it ends where that edge starts.
+            vias: dict[str, float] = {}
+            edge_end = offset
+            for lane in range(net.lane_count(edge)):
+                continues = False
+                for to_lane, via in net.lane_links(f"{edge}_{lane}"):
+                    if to_lane.rsplit("_", 1)[0] == edges[i + 1] and via:
+                        vias[via] = net.lane_length_m(via)
+                        continues = True
+                if not continues:  # no connection into the next route edge: the lane ends
+                    self.lane_ends.append((i, lane, edge_end))
+            offset += min(vias.values(), default=0.0)
+            for via, length in vias.items():
+                self.via_end[via] = (offset, length)
+
+    def route_s(self, edge: str, lane: int, pos_m: float) -> float | None:
+        """Route position [m] of lane position ``pos_m`` on ``edge``'s lane ``lane``; None off
+        the route (or on a junction edge the route does not use)."""
+        offset = self.edge_offset_m.get(edge)
+        if offset is not None:
+            return offset + pos_m
+        via = self.via_end.get(f"{edge}_{lane}")
+        if via is not None:  # on a junction lane: measured back from the next edge's start
+            return via[0] - (via[1] - pos_m)
+        return None
+
+    def lanes_ending(self, edge: str, s_from_m: float, s_to_m: float) -> list[tuple[int, float]]:
+        """Lanes that end between ``s_from_m`` and ``s_to_m`` [m] (no connection into the next
+        route edge), as (lane index on ``edge``, route position of the end [m]).
+
+        Only ends on ``edge`` itself, or on later edges reached without a change in the number
+        of lanes (so the lane indices still mean the same lanes), are reported.
+        """
+        edges = self.route_edges
+        if edge not in edges:
+            return []
+        first = edges.index(edge)
+        n_lanes = self.net.lane_count(edge)
+        last = first
+        while (
+            last + 1 < len(edges)
+            and self.net.lane_count(edges[last + 1]) == n_lanes
+            and not any(i == last for i, _, _ in self.lane_ends)
+        ):
+            last += 1
+        return [
+            (lane, end)
+            for i, lane, end in self.lane_ends
+            if first <= i <= last and s_from_m < end <= s_to_m
+        ]
+
+    def road_section(self, edge: str) -> RoadSection:
+        """Lane widths of ``edge`` [m] (0 = rightmost) and its mean curvature [1/m] (left > 0),
+        from the lane geometry. A junction edge (``:...``) gives the last road section read."""
+        road = self._roads.get(edge)
+        if road is not None:
+            return road
+        if edge.startswith(":") and self._roads:
+            return next(reversed(self._roads.values()))
+        net = self.net
+        widths = tuple(net.lane_width_m(f"{edge}_{i}") for i in range(net.lane_count(edge)))
+        road = RoadSection(widths, lane_curvature(net.lane_shape(f"{edge}_0")))
+        self._roads[edge] = road
+        return road

@@ -1,0 +1,186 @@
+"""When the swarm overtakes, whom, whether it still pays, and when it gives up (pure).
+
+* :func:`slow_vehicle_ahead` names the candidate: the vehicle right ahead of the platoon's
+  leader in the leader's own lane, human-driven, slower than the cruise, and worth passing
+  (the swarm's speed cap exceeds its speed by ``min_speed_gain_mps``: MOBIL's incentive
+  criterion for the platoon as a whole).
+* :class:`TargetWatch` turns a candidate into a decision once it has held the leader back for
+  ``trigger_after_s``, and keeps the swarm from deciding again during a cool-down.
+* :func:`stopped_blocking` says why a target no longer needs overtaking (it left the swarm's
+  lane, sped up, or vanished).
+* :class:`Progress` measures a manoeuvre (CAVs past the target, rows gained) and says when it
+  has stalled or had no usable plan for too long.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from enum import Enum
+
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.neighbours import vehicle_ahead
+
+GAIN_STEP_M = 3.0  # a gain of the CAVs' mean position on the target that counts as progress [m]
+
+
+class Mode(Enum):
+    """What the swarm is doing."""
+
+    CRUISE = "cruise"  # a CACC platoon in its lane
+    OVERTAKE = "overtake"  # swarming past a target (plan, track, regroup)
+
+
+def speed_cap_mps(limits: Sequence[float]) -> float:
+    """The swarm's speed cap: the lowest of the limits given (config, vTypes, lanes) [m/s]."""
+    finite = [v for v in limits if v is not None and math.isfinite(v) and v > 0]
+    return min(finite) if finite else math.inf
+
+
+def behaving_interval_s(
+    configured_s: float,
+    cell_length_m: float,
+    grid_speed_mps: float,
+    cap_mps: float,
+    margin_mps: float,
+    rule: str,
+) -> float:
+    """Behaving interval [s] of a plan: long enough that a one-row move per interval stays
+    under the cap (``rule = "drivable"``), never shorter than the configured one."""
+    if rule != "drivable":
+        return configured_s
+    room = cap_mps - margin_mps - grid_speed_mps
+    if room <= 0:
+        return math.inf
+    return max(configured_s, cell_length_m / room)
+
+
+def slow_vehicle_ahead(
+    leader: VehicleState,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    *,
+    slow_below_mps: float,
+    detect_range_m: float,
+    cap_mps: float,
+    min_gain_mps: float,
+    width_m: float,
+) -> VehicleState | None:
+    """The vehicle holding the leader back, if it is one worth overtaking (else ``None``).
+
+    It must be the nearest vehicle ahead in the leader's lane (by lateral overlap, so a vehicle
+    in a neighbouring lane never qualifies), human-driven, within ``detect_range_m``, slower than
+    ``slow_below_mps`` while the leader is too, and slower than the cap by ``min_gain_mps``.
+    """
+    ahead = vehicle_ahead(leader, others, road, width_m=width_m)
+    if ahead is None:
+        return None
+    vehicle, gap = ahead
+    if vehicle.is_cav or gap > detect_range_m:
+        return None
+    if vehicle.speed_mps >= slow_below_mps or leader.speed_mps >= slow_below_mps:
+        return None
+    if cap_mps - vehicle.speed_mps < min_gain_mps:
+        return None
+    if vehicle.lane != leader.lane and abs(vehicle.lat_m) < 0.5:
+        return None  # in another lane (the overlap was the leader's own lane change)
+    return vehicle
+
+
+@dataclass
+class TargetWatch:
+    """Persistence of the overtaking decision, and the cool-down after a give-up."""
+
+    trigger_after_s: float
+    candidate_id: str | None = None
+    since_s: float | None = None
+    cooldown_until_s: float = -math.inf
+
+    def update(self, t_s: float, candidate: VehicleState | None) -> VehicleState | None:
+        """The target once the same candidate has held the platoon back long enough."""
+        if candidate is None or t_s < self.cooldown_until_s:
+            self.candidate_id = self.since_s = None
+            return None
+        if candidate.vehicle_id != self.candidate_id:
+            self.candidate_id, self.since_s = candidate.vehicle_id, t_s
+        if t_s - self.since_s + 1e-9 < self.trigger_after_s:
+            return None
+        return candidate
+
+    def cool_down(self, until_s: float) -> None:
+        self.cooldown_until_s = until_s
+        self.candidate_id = self.since_s = None
+
+
+def stopped_blocking(
+    target: VehicleState | None,
+    changed_lane: bool,
+    *,
+    slow_below_mps: float,
+    any_past: bool,
+) -> str | None:
+    """Why the target no longer needs overtaking, or ``None``.
+
+    ``"target_left"``: it is no longer in the simulation; ``"target_changed_lane"``: it moved to
+    another lane (``changed_lane``: a lane change of its own, not a renumbering where a lane
+    ends) and no CAV is past it yet (once CAVs are past, the swarm regroups in whatever lane it
+    chose); ``"target_sped_up"``: it drives at the cruise again.
+    """
+    if target is None:
+        return "target_left"
+    if changed_lane and not any_past:
+        return "target_changed_lane"
+    if target.speed_mps >= slow_below_mps and not any_past:
+        return "target_sped_up"
+    return None
+
+
+@dataclass
+class Progress:
+    """How far a manoeuvre has come: CAVs past the target and rows gained on it."""
+
+    started_s: float
+    best_past: int = 0
+    best_gain_m: float = -math.inf
+    last_progress_s: float = -math.inf
+    last_plan_ok_s: float = -math.inf
+
+    def __post_init__(self) -> None:
+        self.last_progress_s = self.started_s
+        self.last_plan_ok_s = self.started_s
+
+    best_out: int = 0
+
+    def update(
+        self, t_s: float, target: VehicleState, platoon: Sequence[VehicleState], min_gap_m: float
+    ) -> None:
+        """Progress is any of: more CAVs past the target, more CAVs out of its lane (cut
+        through), or the CAVs' mean position relative to it up by GAIN_STEP_M."""
+        past = sum(cav.rear_s_m >= target.s_m + min_gap_m for cav in platoon)
+        out = sum(cav.lane != target.lane and cav.rear_s_m < target.s_m for cav in platoon)
+        # Gain: the mean CAV position relative to the target [m], grows as the swarm passes.
+        gain = sum(cav.s_m - target.s_m for cav in platoon) / max(len(platoon), 1)
+        if past > self.best_past or out > self.best_out or gain > self.best_gain_m + GAIN_STEP_M:
+            self.last_progress_s = t_s
+            self.best_gain_m = max(self.best_gain_m, gain)
+        self.best_past = max(self.best_past, past)
+        self.best_out = max(self.best_out, out)
+
+    def planned(self, t_s: float) -> None:
+        self.last_plan_ok_s = t_s
+
+    def give_up_reason(
+        self, t_s: float, no_progress_s: float, no_plan_s: float, has_plan: bool
+    ) -> str | None:
+        """``"no_progress"`` or ``"no_feasible_plan"`` when it is time to give up."""
+        if not has_plan and t_s - self.last_plan_ok_s > no_plan_s:
+            return "no_feasible_plan"
+        if t_s - self.last_progress_s > no_progress_s:
+            return "no_progress"
+        return None
+
+
+def all_past(target: VehicleState, platoon: Mapping[str, VehicleState], min_gap_m: float) -> bool:
+    """Every CAV's rear is ahead of the target's front by ``min_gap_m``."""
+    return all(cav.rear_s_m >= target.s_m + min_gap_m for cav in platoon.values())

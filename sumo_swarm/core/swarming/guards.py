@@ -1,0 +1,157 @@
+"""Safety checks applied to every command of the swarm, whatever the plan says (pure).
+
+Both guards look at the lanes a CAV overlaps now and the one it is moving into, through the
+shared neighbour look-up (:mod:`sumo_swarm.core.neighbours`), so an HV that is changing lanes
+towards a CAV counts early.
+
+* :func:`gap_accel_limit` caps the acceleration so that no CAV closes within its minimum gap
+  of whatever is ahead.
+* :func:`lateral_refusal` holds a lateral move into another lane while the vehicle ahead there
+  is closer than the minimum gap, or the follower there would have to brake harder than
+  ``b_safe`` by its own car-following model (:mod:`sumo_swarm.core.hvmodel`): the same model the
+  planner uses for its entry margins, so the guard refuses only what the plan did not foresee.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+from sumo_swarm.core.hvmodel import DriverModel, accepts_entry
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.neighbours import vehicle_ahead, vehicle_behind
+from sumo_swarm.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class GuardSettings:
+    """Gains and thresholds of the guards (scenario section ``[guards]``)."""
+
+    gap_gain: float = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v)
+    speed_gain: float = 1.5  # [1/s]
+    gap_extra_m: float = 1.0  # the gap guard aims this far beyond the minimum gap [m]
+    lane_probe_m: float = 0.9  # a move enters the next lane once the CAV's side would [m]
+    match_gain: float = 1.0  # [1/s] speed matching before entering a faster lane
+    follower_range_m: float = 60.0  # an HV this close behind makes a CAV brake gently [m]
+
+    def __post_init__(self) -> None:
+        for name in ("gap_gain", "speed_gain", "gap_extra_m", "lane_probe_m", "match_gain",
+                     "follower_range_m"):  # fmt: skip
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+DEFAULT = GuardSettings()
+
+
+def gap_accel_limit(
+    ego: VehicleState,
+    y_now: float,
+    y_next: float,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    min_gap_m: float,
+    width_m: float,
+    settings: GuardSettings = DEFAULT,
+) -> float:
+    """Largest acceleration [m/s^2] that keeps ``min_gap_m`` to whatever is ahead at ``y_now``
+    or ``y_next`` (``math.inf`` with nothing ahead)."""
+    others = list(others)
+    limit = math.inf
+    for y in {y_now, y_next}:
+        ahead = vehicle_ahead(ego, others, road, y_m=y, width_m=width_m)
+        if ahead is None:
+            continue
+        lead, gap = ahead
+        d = min_gap_m + settings.gap_extra_m
+        limit = min(
+            limit,
+            settings.gap_gain * (gap - d) + settings.speed_gain * (lead.speed_mps - ego.speed_mps),
+        )
+    return limit
+
+
+def lateral_refusal(
+    ego: VehicleState,
+    y: float,
+    dlat: float,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    *,
+    min_gap_m: float,
+    width_m: float,
+    model_of: Callable[[str], DriverModel],
+    b_safe_mps2: float,
+    step_s: float,
+    settings: GuardSettings = DEFAULT,
+) -> str | None:
+    """Why the lateral move ``dlat`` [m] from ``y`` [m] must be held, or ``None`` if it is safe.
+
+        Reasons: ``"leader"`` (the vehicle ahead in the new lane is closer than ``min_gap_m``),
+        ``"follower_gap"`` (the follower there, a CAV or an HV, is closer than ``min_gap_m``),
+        ``"follower_brake"`` (the HV following there would brake harder than ``b_safe_mps2`` at
+    some point of its reaction, :func:`sumo_swarm.core.hvmodel.accepts_entry`).
+    """
+    if abs(dlat) < 1e-6:
+        return None
+    lane_now = road.lane_of_y(y)
+    lane_next = road.lane_of_y(y + dlat + math.copysign(settings.lane_probe_m, dlat))
+    if lane_next == lane_now:
+        return None
+    others = list(others)
+    y_probe = road.lane_centre_y(lane_next)
+    ahead = vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m)
+    if ahead is not None and ahead[1] < min_gap_m:
+        return "leader"
+    behind = vehicle_behind(ego, others, road, y_m=y_probe, width_m=width_m)
+    if behind is None:
+        return None
+    follower, gap = behind
+    if gap < min_gap_m:
+        return "follower_gap"
+    if follower.is_cav:
+        return None
+    model = model_of(follower.vehicle_id)
+    if accepts_entry(model, follower.speed_mps, ego.speed_mps, gap, b_safe_mps2, step_s):
+        return None
+    return "follower_brake"
+
+
+def lane_speed_match(
+    ego: VehicleState,
+    lane: int,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    width_m: float,
+    cap_mps: float,
+    settings: GuardSettings = DEFAULT,
+) -> float:
+    """Acceleration [m/s^2] towards the speed of the HV that will follow ``ego`` in ``lane``
+    (up to ``cap_mps``), when ``ego`` is about to move into that lane in front of a faster HV;
+    ``-inf`` (no demand) otherwise. A CAV that enters at the lane's speed needs a much smaller
+    gap than one that enters slower (:func:`sumo_swarm.core.hvmodel.min_block_gap`)."""
+    if lane == road.lane_of_y(road.y_of(ego.lane, ego.lat_m)):
+        return -math.inf
+    behind = vehicle_behind(ego, others, road, y_m=road.lane_centre_y(lane), width_m=width_m)
+    if behind is None or behind[0].is_cav or behind[0].speed_mps <= ego.speed_mps:
+        return -math.inf
+    return settings.match_gain * (min(behind[0].speed_mps, cap_mps) - ego.speed_mps)
+
+
+def gentle_for_follower(
+    ego: VehicleState,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    width_m: float,
+    decel_mps2: float,
+    settings: GuardSettings = DEFAULT,
+) -> float:
+    """Lowest acceleration [m/s^2] allowed with an HV close behind in ``ego``'s lane:
+    ``-decel_mps2`` (so it brakes gently too), ``-inf`` with no such HV. The gap guard, for
+    what is ahead, still overrides it."""
+    behind = vehicle_behind(ego, others, road, width_m=width_m)
+    if behind is None or behind[0].is_cav or behind[1] > settings.follower_range_m:
+        return -math.inf
+    return -decel_mps2

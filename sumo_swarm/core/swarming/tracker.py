@@ -1,0 +1,113 @@
+"""Tracking the references with the MPCs (paper Section II-D), one pair per CAV (pure).
+
+The longitudinal MPC works in time, the lateral one in space; both are re-solved every
+``control_interval_steps`` SUMO steps and their input sequences applied in between (zero-order
+hold on the MPC's own step). :meth:`Tracker.command` returns what the CAV should do this
+step; the controller applies the guards, then :meth:`Tracker.commit` integrates the heading.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.tracking import (
+    LateralMpc,
+    LateralSettings,
+    LongitudinalMpc,
+    LongitudinalSettings,
+)
+from sumo_swarm.core.trajectory import Reference
+
+
+@dataclass(frozen=True)
+class TrackCommand:
+    """What the tracker asks of one CAV for one SUMO step."""
+
+    accel_mps2: float  # longitudinal acceleration
+    dlat_m: float  # lateral move over the step
+    delta_rad: float  # front-wheel angle (for the heading update)
+    lat_error_m: float  # lateral distance from the reference now
+
+
+class Tracker:
+    """Per-CAV MPCs, warm-started; solved every ``interval_steps`` calls."""
+
+    def __init__(
+        self,
+        lon: LongitudinalSettings,
+        lat: LateralSettings,
+        interval_steps: int,
+    ) -> None:
+        self.lon, self.lat = lon, lat
+        self.interval_steps = interval_steps
+        self._lon: dict[str, LongitudinalMpc] = {}
+        self._lat: dict[str, LateralMpc] = {}
+        self.phi: dict[str, float] = {}
+        self._inputs: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+        self._calls = 0
+        self.solve_ms: list[float] = []
+
+    def add(self, vid: str) -> None:
+        if vid not in self._lon:
+            self._lon[vid] = LongitudinalMpc(self.lon)
+            self._lat[vid] = LateralMpc(self.lat)
+            self.phi[vid] = 0.0
+
+    def reset(self) -> None:
+        """Forget the solved inputs (a new plan: solve at the next call)."""
+        self._inputs = {}
+
+    def tick(self) -> bool:
+        """Advance one SUMO step; True when the MPCs are due for a solve."""
+        due = self._calls % self.interval_steps == 0
+        self._calls += 1
+        return due
+
+    def command(
+        self,
+        t_s: float,
+        ego: VehicleState,
+        ref: Reference,
+        road: RoadSection,
+        dt_s: float,
+        solve: bool,
+    ) -> TrackCommand:
+        vid = ego.vehicle_id
+        self.add(vid)
+        centre = ego.centre_s_m
+        y = road.y_of(ego.lane, ego.lat_m)
+        if solve or vid not in self._inputs:
+            _, s_ref, v_ref, _ = ref.sample_time(t_s, self.lon.dt_s, self.lon.horizon)
+            res = self._lon[vid].solve(centre, ego.speed_mps, s_ref, v_ref)
+            ds = max(ego.speed_mps, 1.0) * self.lat.dt_s
+            _, y_ref, dy_ref, _ = ref.sample_space(centre, ds, self.lat.horizon)
+            kappa = np.full(self.lat.horizon, road.curvature_1pm)
+            lres = self._lat[vid].solve(y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds)
+            self._inputs[vid] = (t_s, res.inputs, lres.inputs)
+            self.solve_ms.append(res.solve_ms + lres.solve_ms)
+        t_solved, accels, deltas = self._inputs[vid]
+        accel = float(accels[min(int((t_s - t_solved) / self.lon.dt_s + 1e-9), len(accels) - 1)])
+        delta = float(deltas[min(int((t_s - t_solved) / self.lat.dt_s + 1e-9), len(deltas) - 1)])
+        # The lateral move of this SUMO step from the kinematic model (eqs. 33-35).
+        dlat = ego.speed_mps * dt_s * math.sin(self.phi[vid])
+        return TrackCommand(accel, dlat, delta, y - ref.y_at_s(centre))
+
+    def commit(
+        self, ego: VehicleState, cmd: TrackCommand, held: bool, road: RoadSection, dt_s: float
+    ) -> None:
+        """Integrate the heading; a move held by the guard stops turning towards the lane."""
+        vid = ego.vehicle_id
+        if held:
+            self.phi[vid] = 0.0
+            return
+        ds = ego.speed_mps * dt_s
+        self.phi[vid] += ds * (math.tan(cmd.delta_rad) / self.lat.wheelbase_m - road.curvature_1pm)
+
+    def straighten(self, vids: Mapping[str, object] | list[str]) -> None:
+        for vid in vids:
+            self.phi[vid] = 0.0

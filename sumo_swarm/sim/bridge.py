@@ -1,0 +1,471 @@
+"""The SUMO bridge: the only module that imports libsumo (or traci, for users of sumo-gui).
+
+It starts and stops SUMO, reads every vehicle's state in bulk through subscriptions, counts
+collisions and teleports, and applies the controllers' commands. Route positions come from the
+pure :mod:`sumo_swarm.core.routeframe` (fed from the running network), trajectories are recorded by
+:mod:`sumo_swarm.sim.recorder`, and the CAVs' driving parameters are set by the controllers
+(:func:`sumo_swarm.controllers.base.configure_cav`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+
+from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.routeframe import RouteFrame
+from sumo_swarm.errors import SimulationError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_WIDTHS_M = (3.2, 3.2)  # the road assumed until a route is known (SUMO's lane width) [m]
+
+
+def sumo_binary(gui: bool = False) -> str:
+    """Path of the sumo (or sumo-gui) binary shipped with the eclipse-sumo package."""
+    import sumo
+
+    name = "sumo-gui" if gui else "sumo"
+    return str(Path(sumo.SUMO_HOME) / "bin" / name)
+
+
+def _api(use_traci: bool) -> ModuleType:
+    if use_traci:
+        import traci
+
+        return traci
+    import libsumo
+
+    return libsumo
+
+
+def _constants(api) -> ModuleType:
+    """TraCI's variable ids: the same numbers for libsumo, traci and traci connections."""
+    consts = getattr(api, "constants", None)
+    if consts is None:
+        import traci.constants as consts
+    return consts
+
+
+@dataclass
+class Collision:
+    time_s: float
+    collider: str
+    victim: str
+    kind: str
+
+
+class SumoNetwork:
+    """The network data of :class:`~sumo_swarm.core.routeframe.RouteFrame`, read from a running
+    simulation (libsumo module, traci module or traci connection)."""
+
+    def __init__(self, api) -> None:
+        self.api = api
+
+    def lane_count(self, edge: str) -> int:
+        return self.api.edge.getLaneNumber(edge)
+
+    def lane_length_m(self, lane_id: str) -> float:
+        return self.api.lane.getLength(lane_id)
+
+    def lane_width_m(self, lane_id: str) -> float:
+        return self.api.lane.getWidth(lane_id)
+
+    def lane_shape(self, lane_id: str) -> Sequence[tuple[float, float]]:
+        return self.api.lane.getShape(lane_id)
+
+    def lane_links(self, lane_id: str) -> list[tuple[str, str]]:
+        # TraCI's link tuples: (lane reached, has priority, is open, has foe, via lane, ...)
+        return [(link[0], link[4]) for link in self.api.lane.getLinks(lane_id)]
+
+
+class SumoSession:
+    """A running SUMO simulation.
+
+    Use as a context manager::
+
+        with SumoSession(["-c", "scenario.sumocfg"]) as sumo:
+            while sumo.time_s < end:
+                sumo.step()
+                states = sumo.states
+
+    ``route_edges`` defines the route coordinate ``s_m`` (:class:`RouteFrame`, in
+    :attr:`frame`); empty: the route of the first CAV that departs. ``is_cav(vehicle_id,
+    type_id)`` tells which vehicles are CAVs; their ids collect in :attr:`cav_ids`.
+
+    :meth:`attached` wraps a simulation someone else started and steps (the plugin API): then
+    call :meth:`refresh` after each step instead of :meth:`step`.
+    """
+
+    VARS = (
+        "ROAD_ID",
+        "LANE_INDEX",
+        "LANEPOSITION",
+        "LANEPOSITION_LAT",
+        "POSITION",
+        "SPEED",
+        "ACCELERATION",
+    )
+
+    def __init__(
+        self,
+        args: list[str],
+        *,
+        route_edges: Iterable[str] = (),
+        is_cav=None,
+        use_traci: bool = False,
+        gui: bool = False,
+        label: str | None = None,
+    ) -> None:
+        self.args = list(args)
+        self.use_traci = use_traci or gui
+        self.gui = gui
+        self.label = label
+        self.api = _api(self.use_traci)
+        self._vars = [getattr(_constants(self.api), f"VAR_{v}") for v in self.VARS]
+        self._route_edges = list(route_edges)  # set on the frame once SUMO runs
+        self.frame = RouteFrame(SumoNetwork(self.api))
+        self._is_cav = is_cav or (lambda vid, type_id: False)
+        self.kinds: dict[str, str] = {}
+        self.lengths: dict[str, float] = {}
+        self.types: dict[str, str] = {}
+        self.states: dict[str, VehicleState] = {}
+        self.positions: dict[str, tuple[float, float]] = {}
+        self.edges: dict[str, str] = {}
+        self.collisions: list[Collision] = []
+        self.teleports: int = 0
+        self.departed: list[str] = []
+        self.arrived: list[str] = []
+        self.time_s = 0.0
+        self.step_length_s = 0.0
+        self.cav_ids: list[str] = []
+        self.vanished: list[tuple[float, str]] = []
+        self._open = False
+        self._owned = True
+        self._driver_types: dict[str, DriverModel] = {}
+        self._driver_models: dict[str, tuple[str, DriverModel]] = {}
+
+    @classmethod
+    def attached(
+        cls, api: ModuleType, *, route_edges: Iterable[str] = (), is_cav=None
+    ) -> SumoSession:
+        """A session on a simulation that is already running (libsumo module or traci)."""
+        session = cls([], route_edges=route_edges, is_cav=is_cav)
+        session.api = api
+        session.frame = RouteFrame(SumoNetwork(api))
+        session._vars = [getattr(_constants(api), f"VAR_{v}") for v in cls.VARS]
+        session._owned = False
+        session._open = True
+        session.step_length_s = api.simulation.getDeltaT()
+        session.time_s = api.simulation.getTime()
+        session._set_route(session._route_edges)
+        for vid in api.vehicle.getIDList():  # vehicles already driving when attached
+            session._register(vid)
+        return session
+
+    # ------------------------------------------------------------------ life cycle
+    def __enter__(self) -> SumoSession:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def start(self) -> None:
+        cmd = [sumo_binary(self.gui), *self.args]
+        try:
+            if self.use_traci:
+                self.api.start(cmd, label=self.label) if self.label else self.api.start(cmd)
+            else:
+                self.api.start(cmd)
+        except Exception as exc:  # SUMO refuses its input: report it as a simulation error
+            raise SimulationError(f"SUMO did not start: {exc}") from None
+        self._open = True
+        self.step_length_s = self.api.simulation.getDeltaT()
+        self.time_s = self.api.simulation.getTime()
+        self._set_route(self._route_edges)
+
+    def _set_route(self, edges: Iterable[str]) -> None:
+        self._route_edges = list(edges)
+        self.frame.set_route(self._route_edges)
+
+    @property
+    def route_edges(self) -> list[str]:
+        return list(self._route_edges)
+
+    def lanes_ending(self, edge: str, s_from_m: float, s_to_m: float) -> list[tuple[int, float]]:
+        """Lanes that end between ``s_from_m`` and ``s_to_m`` [m]: see
+        :meth:`RouteFrame.lanes_ending`."""
+        return self.frame.lanes_ending(edge, s_from_m, s_to_m)
+
+    def close(self) -> None:
+        if self._open and self._owned:
+            self._open = False
+            try:
+                self.api.close()
+            except Exception as exc:  # already gone: nothing left to release
+                log.debug("closing SUMO: %s", exc)
+
+    # ------------------------------------------------------------------ stepping
+    def step(self) -> None:
+        """Advance SUMO by one step and refresh :attr:`states` (bulk, by subscription)."""
+        try:
+            self.api.simulation.step()
+        except Exception as exc:
+            raise SimulationError(f"SUMO stopped at t = {self.time_s:.2f} s: {exc}") from None
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Read what the last SUMO step did: departures, collisions, every vehicle's state."""
+        api = self.api
+        try:
+            self.time_s = api.simulation.getTime()
+            self.departed = list(api.simulation.getDepartedIDList())
+            self.arrived = list(api.simulation.getArrivedIDList())
+            for vid in self.departed:
+                self._register(vid)
+            for c in api.simulation.getCollisions():
+                self.collisions.append(Collision(self.time_s, c.collider, c.victim, c.type))
+            self.teleports += api.simulation.getStartingTeleportNumber()
+            results = api.vehicle.getAllSubscriptionResults()
+        except Exception as exc:
+            raise SimulationError(f"SUMO stopped at t = {self.time_s:.2f} s: {exc}") from None
+        self._read(results)
+
+    def _register(self, vid: str) -> None:
+        api = self.api
+        api.vehicle.subscribe(vid, self._vars)
+        type_id = api.vehicle.getTypeID(vid)
+        self.types[vid] = type_id
+        self.lengths[vid] = api.vehicle.getLength(vid)
+        is_cav = self._is_cav(vid, type_id)
+        self.kinds[vid] = "cav" if is_cav else "hv"
+        if is_cav:
+            self.cav_ids.append(vid)
+            if not self._route_edges:
+                self._set_route(api.vehicle.getRoute(vid))
+
+    def _read(self, results: dict) -> None:
+        c = _constants(self.api)
+        previous = self.states
+        states: dict[str, VehicleState] = {}
+        positions: dict[str, tuple[float, float]] = {}
+        edges: dict[str, str] = {}
+        dt = self.step_length_s
+        route_s = self.frame.route_s
+        for vid, r in results.items():
+            edge = r[c.VAR_ROAD_ID]
+            lane = r[c.VAR_LANE_INDEX]
+            pos = r[c.VAR_LANEPOSITION]
+            speed = r[c.VAR_SPEED]
+            s = route_s(edge, lane, pos)
+            if s is None:  # on a junction edge off the route: integrate the speed
+                s = previous[vid].s_m + speed * dt if vid in previous else pos
+            kind = self.kinds.get(vid, "hv")
+            states[vid] = VehicleState(
+                vid,
+                s,
+                lane,
+                r[c.VAR_LANEPOSITION_LAT],
+                speed,
+                self.lengths.get(vid, 5.0),
+                r[c.VAR_ACCELERATION],
+                kind == "cav",
+            )
+            x, y = r[c.VAR_POSITION]
+            positions[vid] = (x, y)
+            edges[vid] = edge
+        self.states = states
+        self.positions = positions
+        self.edges = edges
+
+    def has_vehicles_to_come(self) -> bool:
+        return self.api.simulation.getMinExpectedNumber() > 0
+
+    # ------------------------------------------------------------------ road
+    def road_section(self, edge: str) -> RoadSection:
+        """Lane widths and curvature of ``edge``: see :meth:`RouteFrame.road_section`."""
+        return self.frame.road_section(edge)
+
+    # ------------------------------------------------------------------ commands
+    def _command(self, vid: str, call, *args) -> bool:
+        """Send one command; a vehicle SUMO no longer knows is a warning, not a crash.
+
+        It is dropped from :attr:`states` at once (so the controller stops commanding it this
+        step) and listed in :attr:`vanished`. Returns whether the command went through.
+        """
+        try:
+            call(vid, *args)
+        except Exception as exc:
+            if type(exc).__name__ != "TraCIException" or not self._gone(vid):
+                raise
+            log.warning("vehicle %s vanished: %s", vid, exc)
+            self.vanished.append((self.time_s, vid))
+            self.states.pop(vid, None)
+            return False
+        return True
+
+    def _gone(self, vid: str) -> bool:
+        try:
+            return vid not in self.api.vehicle.getIDList()
+        except Exception:
+            return True
+
+    def remove_vehicle(self, vid: str) -> None:
+        """Take ``vid`` out of the simulation.
+
+        Unsubscribes first: with libsumo 1.28, ``vehicle.remove`` on a subscribed vehicle makes
+        the next ``simulation.step()`` fail with "Vehicle ... is not known" (measured).
+        """
+        self.api.vehicle.unsubscribe(vid)
+        self.api.vehicle.remove(vid)
+        self.states.pop(vid, None)
+
+    def set_speed(self, vid: str, speed_mps: float) -> None:
+        self._command(vid, self.api.vehicle.setSpeed, max(0.0, speed_mps))
+
+    def release_speed(self, vid: str) -> None:
+        """Hand the speed back to SUMO's car-following model."""
+        self._command(vid, self.api.vehicle.setSpeed, -1.0)
+
+    def change_sublane(self, vid: str, lateral_m: float) -> None:
+        """Move ``vid`` sideways by ``lateral_m`` (left positive), within maxSpeedLat per second."""
+        if abs(lateral_m) > 1e-4:
+            self._command(vid, self.api.vehicle.changeSublane, lateral_m)
+
+    def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> bool:
+        """Set SUMO's speed mode and lane-change mode of ``vid`` (None: leave it); False if the
+        vehicle vanished."""
+        vehicle = self.api.vehicle
+        if speed_mode is not None and not self._command(vid, vehicle.setSpeedMode, speed_mode):
+            return False
+        if lane_change_mode is not None:
+            return self._command(vid, vehicle.setLaneChangeMode, lane_change_mode)
+        return True
+
+    def speed_limits(self, vid: str) -> tuple[float, float]:
+        """(vType maxSpeed, speed allowed on its lane with its speedFactor) of a vehicle [m/s]."""
+        vehicle = self.api.vehicle
+        return vehicle.getMaxSpeed(vid), vehicle.getAllowedSpeed(vid)
+
+    def first_road(self) -> RoadSection:
+        """The road section where the route starts; two 3.2 m lanes while it is not known."""
+        edges = self.frame.route_edges
+        return self.road_section(edges[0]) if edges else RoadSection(DEFAULT_WIDTHS_M)
+
+    def road_at(self, vid: str) -> RoadSection | None:
+        """The road section under vehicle ``vid`` (None if it is not in the simulation)."""
+        edge = self.edges.get(vid)
+        return self.road_section(edge) if edge is not None else None
+
+    def exists(self, vid: str) -> bool:
+        return vid in self.states
+
+    # ------------------------------------------------------------------ driver models
+    def driver_model(self, vehicle_id: str) -> DriverModel:
+        """How ``vehicle_id`` drives: its car-following model and parameters.
+
+        Read once per vType (a vehicle whose parameters were changed has its own copy, e.g.
+        ``hv@x``) and once per vehicle for its speedFactor. ``desired_speed_mps`` is SUMO's
+        vehicle maxSpeed; on a lane SUMO takes ``min(maxSpeed, limit * speedFactor)``
+        (:meth:`DriverModel.desired_speed_on`).
+        """
+        vehicle = self.api.vehicle
+        type_id = vehicle.getTypeID(vehicle_id)
+        cached = self._driver_models.get(vehicle_id)
+        if cached is not None and cached[0] == type_id:
+            return cached[1]
+        base = self._driver_types.get(type_id)
+        if base is None:
+            base = self._read_driver_type(vehicle_id)
+            self._driver_types[type_id] = base
+        model = dataclasses.replace(
+            base,
+            desired_speed_mps=vehicle.getMaxSpeed(vehicle_id),
+            speed_factor=vehicle.getSpeedFactor(vehicle_id),
+        )
+        self._driver_models[vehicle_id] = (type_id, model)
+        return model
+
+    def _read_driver_type(self, vid: str) -> DriverModel:
+        """Parameters through TraCI; the model's name by experiment.
+
+        TraCI does not tell the car-following model (libsumo 1.28: ``getParameter`` of
+        ``carFollowModel.*`` keys returns ""). SUMO's own ``getFollowSpeed`` does answer
+        with the vehicle's model, so a few probe situations are compared with our IDM
+        (its delta fitted on a free-road probe) and Krauss formulas: "IDM" or "Krauss" when
+        every probe agrees to 1e-6 m/s, "unknown" (conservative bound) otherwise.
+        """
+        veh = self.api.vehicle
+        m = DriverModel(
+            model="unknown",
+            accel_mps2=veh.getAccel(vid),
+            decel_mps2=veh.getDecel(vid),
+            emergency_decel_mps2=veh.getEmergencyDecel(vid),
+            tau_s=veh.getTau(vid),
+            min_gap_m=veh.getMinGap(vid),
+            desired_speed_mps=veh.getMaxSpeed(vid),
+            length_m=veh.getLength(vid),
+            sigma=max(0.0, veh.getImperfection(vid)),  # -1: the model has no sigma
+        )
+        try:
+            return _identify_model(m, vid, veh, self.api.simulation.getDeltaT())
+        except Exception as exc:  # a vehicle TraCI cannot probe: keep the conservative bound
+            log.warning("car-following model of %s not identified: %s", vid, exc)
+            return m
+
+
+def _identify_model(m: DriverModel, vid: str, veh, step_s: float) -> DriverModel:
+    """``m`` named "IDM" (with its delta) or "Krauss" if SUMO's followSpeed of ``vid``
+    matches that model in every probe, else ``m`` unchanged ("unknown")."""
+    v0 = veh.getAllowedSpeed(vid)  # the desired speed SUMO's followSpeed uses on this lane
+
+    def sumo(v: float, gap_m: float, v_lead: float) -> float:
+        # TraCI's gap has minGap removed; ours is the bumper gap
+        return veh.getFollowSpeed(vid, v, gap_m - m.min_gap_m, v_lead, m.decel_mps2, "")
+
+    probes = [(0.6 * v0, 20.0, 0.4 * v0), (0.3 * v0, 8.0, 0.3 * v0 + 2.0),
+              (0.9 * v0, 60.0, 0.8 * v0), (0.5 * v0, 3.0, 0.2 * v0)]  # fmt: skip
+    answers = [sumo(*p) for p in probes]
+
+    def matches(follow) -> bool:
+        return all(
+            abs(follow(*p) - a) <= 1e-6 * max(1.0, a) for p, a in zip(probes, answers, strict=True)
+        )
+
+    idm = _fit_idm_delta(dataclasses.replace(m, model="IDM"), sumo, v0, step_s)
+    if idm is not None and matches(lambda v, g, vl: idm_follow_speed(idm, v, vl, g, step_s, v0)):
+        return idm
+    krauss = dataclasses.replace(m, model="Krauss")
+    if matches(lambda v, g, vl: krauss_follow_speed(krauss, v, vl, g, step_s)):
+        return krauss
+    return m
+
+
+def _fit_idm_delta(m: DriverModel, sumo, v0: float, step_s: float) -> DriverModel | None:
+    """IDM's delta from SUMO's free-road speed at half the desired speed (it rises with delta);
+    None if no delta in [0.1, 50] gives it."""
+    v = 0.5 * v0
+    target = sumo(v, 1e5, v)
+
+    def speed(delta: float) -> float:
+        return idm_follow_speed(dataclasses.replace(m, delta=delta), v, v, 1e5, step_s, v0)
+
+    lo, hi = 0.1, 50.0
+    if not speed(lo) - 1e-6 <= target <= speed(hi) + 1e-6:
+        return None
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if speed(mid) < target:
+            lo = mid
+        else:
+            hi = mid
+    delta = 0.5 * (lo + hi)
+    # SUMO reads delta from XML as a decimal; a value within 1e-6 of a round one is that one.
+    rounded = round(delta, 6)
+    return dataclasses.replace(m, delta=rounded if abs(rounded - delta) < 1e-6 else delta)

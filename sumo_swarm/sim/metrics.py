@@ -1,0 +1,552 @@
+"""Measures of effectiveness of the paper's Section IV, computed from a run's trajectory table.
+
+Pure functions over the trajectory table (no SUMO import). The table is a pandas DataFrame with
+one row per vehicle per SUMO step and the columns
+
+``time_s, vehicle, kind, edge, lane, x_m, y_m, s_m, lat_m, speed_mps, accel_mps2, length_m``
+
+where ``kind`` is ``"cav"`` or ``"hv"``, ``lane`` is the lane index (0 = rightmost) and ``s_m``
+the front bumper along the route, one coordinate shared by all vehicles of a scenario. Each
+function reads only the columns it needs and raises :class:`~sumo_swarm.errors.ConfigError`
+naming any that are missing.
+
+Conventions shared by every function here:
+
+* "Same lane" means the same value in the ``lane`` column at the same ``time_s``; a vehicle
+  between two lanes (sublane model) counts in the lane SUMO reports it on. Lane indices are
+  assumed to mean the same lane across the edges of the route.
+* The *leader* of a vehicle at a step is the vehicle with the smallest ``s_m`` strictly ahead of
+  it in the same lane (ties in ``s_m`` are broken by vehicle id, so an overlapping pair still
+  gets a leader). The *gap* is bumper to bumper: ``leader.s_m - leader.length_m - s_m`` [m],
+  negative when the two overlap.
+* Everything returned for a summary is a plain Python ``int``/``float``/``str``; a measure that
+  is undefined (no samples, NaN, infinite) is ``None``, so the result is valid JSON.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from sumo_swarm.checks import check_fields, finite_or_none, require_number
+from sumo_swarm.errors import ConfigError
+
+CAV = "cav"
+HV = "hv"
+
+HARD_BRAKE_MPS2 = 4.0  # [m/s^2] contract: "decelerated harder than 4 m/s^2"
+ACCEL_TOLERANCE_MPS2 = 1e-6  # [m/s^2] float noise allowed around the hard-brake threshold
+STOPPED_MPS = 1e-6  # [m/s] below this a follower's time headway is infinite
+CLOSING_MPS = 1e-6  # [m/s] a pair closes in only when the follower is faster by more than this
+TIME_TOLERANCE_S = 1e-6  # [s] slack on window bounds and reference times (float time stamps)
+# An upstream HV counts as influenced when its speed dropped by more than this [%]. The paper
+# (IV-E-4) calls the 4th follower, at 0.42 %, still influenced, and the ones after it not.
+INFLUENCE_THRESHOLD_PCT = 0.1
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+
+
+def _require(df: pd.DataFrame, columns: Iterable[str]) -> None:
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise ConfigError(f"trajectory table lacks column(s) {', '.join(missing)}")
+
+
+# --------------------------------------------------------------------------------------------
+# evaluation window
+
+
+@dataclass(frozen=True, slots=True)
+class EvaluationWindow:
+    """Closed time interval ``[start_s, end_s]`` of simulation time [s].
+
+    ``None`` leaves that end open. Both bounds are inclusive, with a slack of
+    ``TIME_TOLERANCE_S`` so that float time stamps such as ``12.300000000000001`` fall inside a
+    window that ends at ``12.3``.
+    """
+
+    start_s: float | None = None
+    end_s: float | None = None
+
+    def __post_init__(self) -> None:
+        check_fields(self, "start_s", "end_s")  # finite (or None: open)
+        if self.start_s is not None and self.end_s is not None and self.end_s < self.start_s:
+            raise ConfigError(
+                f"evaluation window ends ({self.end_s} s) before it starts ({self.start_s} s)"
+            )
+
+
+def window(df: pd.DataFrame, w: EvaluationWindow | None) -> pd.DataFrame:
+    """Rows of ``df`` whose ``time_s`` lies in ``w`` (all rows when ``w`` is None)."""
+    if w is None:
+        return df
+    _require(df, ["time_s"])
+    t = df["time_s"].to_numpy(dtype=float)
+    keep = np.ones(len(df), dtype=bool)
+    if w.start_s is not None:
+        keep &= t >= w.start_s - TIME_TOLERANCE_S
+    if w.end_s is not None:
+        keep &= t <= w.end_s + TIME_TOLERANCE_S
+    return df[keep]
+
+
+# The metric functions take their window as a parameter named ``window``, which hides the
+# function of that name inside them.
+_select = window
+
+
+# --------------------------------------------------------------------------------------------
+# mobility
+
+
+def cav_speed_stats(
+    df: pd.DataFrame, window: EvaluationWindow | None = None, *, kind: str = CAV
+) -> dict[str, float | int | None]:
+    """Speed statistics of the platoon (all CAV speed samples in the window).
+
+    Returns
+    -------
+    dict
+        ``mean_speed_mps``: mean of all CAV speed samples in the window, i.e. the platoon's
+        average speed over CAVs and steps [m/s] (the paper's Fig. 9 measure).
+        ``min_speed_mps`` / ``max_speed_mps``: extreme samples [m/s].
+        ``speed_var_m2ps2``: population variance (ddof 0) of those samples [m^2/s^2].
+        ``count``: number of distinct CAVs with at least one sample in the window.
+        ``samples``: number of samples.
+        Speeds are None when there is no sample.
+    """
+    _require(df, ["time_s", "vehicle", "kind", "speed_mps"])
+    cav = _select(df, window)
+    cav = cav[cav["kind"] == kind]
+    speeds = cav["speed_mps"].to_numpy(dtype=float)
+    if speeds.size == 0:
+        return {
+            "mean_speed_mps": None,
+            "min_speed_mps": None,
+            "max_speed_mps": None,
+            "speed_var_m2ps2": None,
+            "count": 0,
+            "samples": 0,
+        }
+    return {
+        "mean_speed_mps": finite_or_none(speeds.mean()),
+        "min_speed_mps": finite_or_none(speeds.min()),
+        "max_speed_mps": finite_or_none(speeds.max()),
+        "speed_var_m2ps2": finite_or_none(speeds.var()),
+        "count": int(cav["vehicle"].nunique()),
+        "samples": int(speeds.size),
+    }
+
+
+def _time_to_cover(t: np.ndarray, s: np.ndarray, distance_m: float) -> float | None:
+    """Time from ``t[0]`` until ``s`` first reaches ``s[0] + distance_m``, linearly interpolated."""
+    target = s[0] + distance_m
+    reached = np.flatnonzero(s >= target - 1e-9)
+    if reached.size == 0:
+        return None
+    i = int(reached[0])
+    if i == 0:
+        return 0.0
+    ds = s[i] - s[i - 1]
+    frac = (target - s[i - 1]) / ds if ds > 0 else 1.0
+    return float(t[i - 1] + frac * (t[i] - t[i - 1]) - t[0])
+
+
+def travel_times_s(
+    df: pd.DataFrame,
+    window: EvaluationWindow | None = None,
+    distance_m: float | None = None,
+    *,
+    kind: str = CAV,
+) -> dict[str, float | None]:
+    """Per-CAV travel time [s] over ``distance_m``: see :func:`travel_time_s` for the definition.
+
+    Returns ``{vehicle: seconds or None}`` (None: the CAV did not cover the distance inside the
+    window), ordered by vehicle id.
+    """
+    _require(df, ["time_s", "vehicle", "kind", "s_m"])
+    cav = _select(df, window)
+    cav = cav[cav["kind"] == kind].sort_values(["vehicle", "time_s"], kind="mergesort")
+    tracks = {
+        str(v): (g["time_s"].to_numpy(dtype=float), g["s_m"].to_numpy(dtype=float))
+        for v, g in cav.groupby("vehicle", sort=True)
+    }
+    if not tracks:
+        return {}
+    if distance_m is None:
+        distance_m = min(s[-1] - s[0] for _, s in tracks.values())
+        if distance_m <= 0:
+            return {v: None for v in tracks}
+    else:
+        require_number("travel distance_m", distance_m, gt=0.0)
+    return {v: _time_to_cover(t, s, distance_m) for v, (t, s) in tracks.items()}
+
+
+def travel_time_s(
+    df: pd.DataFrame,
+    window: EvaluationWindow | None = None,
+    distance_m: float | None = None,
+    *,
+    kind: str = CAV,
+) -> float | None:
+    """Mean time the CAVs need to travel ``distance_m`` [s].
+
+    For each CAV with samples in the window, its start is its first sample in the window
+    (time ``t0``, position ``s0``); its travel time is the first time its front bumper reaches
+    ``s0 + distance_m``, linearly interpolated between steps, minus ``t0``. The result is the
+    mean over the CAVs.
+
+    ``distance_m=None`` uses the shortest distance any CAV covers inside the window, so every
+    CAV reaches it. That default depends on the run; to compare controllers, pass the same
+    ``distance_m`` to each.
+
+    Returns None when there is no CAV in the window, when a CAV does not cover the distance
+    before the window ends (the platoon's travel time is then undefined), or when the default
+    distance is zero.
+    """
+    per_cav = travel_times_s(df, window, distance_m, kind=kind)
+    times = list(per_cav.values())
+    if not times or any(t is None for t in times):
+        return None
+    return finite_or_none(np.mean(times))
+
+
+# --------------------------------------------------------------------------------------------
+# gaps, headways, time to collision
+
+
+def gaps(df: pd.DataFrame) -> pd.DataFrame:
+    """Leader, gap, headway and time to collision of every vehicle at every step.
+
+    Vectorised: rows are sorted by (time, edge, lane, s, vehicle) once and each row's leader is
+    the next row when it is at the same time in the same lane of the same edge (with an ``edge``
+    column; lane indices change at junctions and where a lane ends, so lane 1 of one edge need
+    not be lane 1 of the next: a leader just across an edge boundary is not paired).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Same index and row order as ``df``, with columns
+        ``time_s, vehicle, kind, lane`` (copied from ``df``),
+        ``leader`` (vehicle id, missing when nobody is ahead in the lane), ``leader_kind``,
+        ``gap_m`` (bumper to bumper ``leader.s_m - leader.length_m - s_m`` [m], negative when
+        the two overlap; NaN without a leader),
+        ``headway_s`` (``gap_m / speed_mps`` [s]; ``inf`` when the follower is stopped,
+        ``speed_mps <= STOPPED_MPS``; NaN without a leader),
+        ``closing_speed_mps`` (``speed_mps - leader speed`` [m/s], positive when closing in),
+        ``ttc_s`` (time to collision ``max(gap_m, 0) / closing_speed_mps`` [s] when closing
+        faster than ``CLOSING_MPS``, else ``inf``; NaN without a leader).
+    """
+    _require(df, ["time_s", "vehicle", "kind", "lane", "s_m", "speed_mps", "length_m"])
+    n = len(df)
+    edge_codes = (
+        pd.factorize(df["edge"].astype(str), sort=True)[0]
+        if "edge" in df.columns
+        else np.zeros(n, dtype=np.int64)
+    )
+    order = np.lexsort(
+        (
+            pd.factorize(df["vehicle"].astype(str), sort=True)[0],
+            df["s_m"].to_numpy(dtype=float),
+            df["lane"].to_numpy(dtype=float),
+            edge_codes,
+            df["time_s"].to_numpy(dtype=float),
+        )
+    )
+    t = df["time_s"].to_numpy(dtype=float)[order]
+    lane = df["lane"].to_numpy(dtype=float)[order] + 1e4 * edge_codes[order]
+    s = df["s_m"].to_numpy(dtype=float)[order]
+    length = df["length_m"].to_numpy(dtype=float)[order]
+    speed = df["speed_mps"].to_numpy(dtype=float)[order]
+    vehicle = df["vehicle"].to_numpy(dtype=object)[order]
+    kind = df["kind"].to_numpy(dtype=object)[order]
+
+    has_leader = np.zeros(n, dtype=bool)
+    if n > 1:
+        has_leader[:-1] = (t[1:] == t[:-1]) & (lane[1:] == lane[:-1])
+    nxt = np.minimum(np.arange(n) + 1, max(n - 1, 0))  # index of the candidate leader
+
+    gap = np.full(n, np.nan)
+    gap[has_leader] = (s[nxt] - length[nxt] - s)[has_leader]
+    closing = np.full(n, np.nan)
+    closing[has_leader] = (speed - speed[nxt])[has_leader]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        headway = np.where(speed > STOPPED_MPS, gap / np.maximum(speed, STOPPED_MPS), np.inf)
+        ttc = np.where(
+            closing > CLOSING_MPS, np.maximum(gap, 0.0) / np.maximum(closing, CLOSING_MPS), np.inf
+        )
+    headway[~has_leader] = np.nan
+    ttc[~has_leader] = np.nan
+    leader = np.full(n, None, dtype=object)
+    leader[has_leader] = vehicle[nxt][has_leader]
+    leader_kind = np.full(n, None, dtype=object)
+    leader_kind[has_leader] = kind[nxt][has_leader]
+
+    def unsort(sorted_values: np.ndarray) -> np.ndarray:
+        out = np.empty_like(sorted_values)
+        out[order] = sorted_values
+        return out
+
+    return pd.DataFrame(
+        {
+            "time_s": df["time_s"].to_numpy(),
+            "vehicle": df["vehicle"].to_numpy(),
+            "kind": df["kind"].to_numpy(),
+            "lane": df["lane"].to_numpy(),
+            "leader": unsort(leader),
+            "leader_kind": unsort(leader_kind),
+            "gap_m": unsort(gap),
+            "headway_s": unsort(headway),
+            "closing_speed_mps": unsort(closing),
+            "ttc_s": unsort(ttc),
+        },
+        index=df.index,
+    )
+
+
+def cav_gap_stats(
+    df: pd.DataFrame,
+    window: EvaluationWindow | None = None,
+    *,
+    kind: str = CAV,
+    max_gap_m: float | None = None,
+) -> dict[str, float | int | None]:
+    """Following distance of the CAVs (the paper's Fig. 10 measure).
+
+    Over every step in the window and every CAV that has a leader in its lane (a CAV or an HV),
+    the bumper-to-bumper gap as defined by :func:`gaps`. ``max_gap_m`` (optional) drops samples
+    with a larger gap, i.e. a CAV that is not following anyone in particular.
+
+    Returns ``gap_mean_m`` (mean of the samples) [m], ``gap_min_m`` (smallest sample) [m] and
+    ``samples``; the gaps are None when there is no sample.
+    """
+    g = gaps(_select(df, window))
+    g = g[(g["kind"] == kind) & g["gap_m"].notna()]
+    values = g["gap_m"].to_numpy(dtype=float)
+    if max_gap_m is not None:
+        values = values[values <= max_gap_m]
+    if values.size == 0:
+        return {"gap_mean_m": None, "gap_min_m": None, "samples": 0}
+    return {
+        "gap_mean_m": finite_or_none(values.mean()),
+        "gap_min_m": finite_or_none(values.min()),
+        "samples": int(values.size),
+    }
+
+
+def min_ttc_s(df: pd.DataFrame, window: EvaluationWindow | None = None) -> float | None:
+    """Smallest time to collision [s] over all follower/leader pairs and steps in the window.
+
+    Time to collision is ``max(gap_m, 0) / (v_follower - v_leader)`` for a follower and its
+    leader in the same lane (see :func:`gaps`), counted only while the follower closes in faster
+    than ``CLOSING_MPS``. Vehicles of any kind. None when no pair ever closes in.
+    """
+    ttc = gaps(_select(df, window))["ttc_s"].to_numpy(dtype=float)
+    ttc = ttc[np.isfinite(ttc)]
+    return finite_or_none(ttc.min()) if ttc.size else None
+
+
+# --------------------------------------------------------------------------------------------
+# hard braking
+
+
+def hard_brake_events(
+    df: pd.DataFrame,
+    threshold_mps2: float = HARD_BRAKE_MPS2,
+    window: EvaluationWindow | None = None,
+) -> pd.DataFrame:
+    """Episodes of braking harder than ``threshold_mps2``, vehicles of any kind.
+
+    A sample brakes hard when ``accel_mps2 < -(threshold_mps2 + ACCEL_TOLERANCE_MPS2)``: strictly
+    beyond the threshold, so a deceleration of exactly 4 m/s^2 (give or take float noise) is not
+    hard braking. An episode is a run of consecutive samples of one vehicle (in time order) that
+    all brake hard.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per episode, ordered by ``start_s`` then vehicle, with columns
+        ``vehicle, kind, start_s, end_s`` (first and last hard-braking sample [s]),
+        ``min_accel_mps2`` (the strongest deceleration, negative) and ``samples``.
+    """
+    _require(df, ["time_s", "vehicle", "kind", "accel_mps2"])
+    d = _select(df, window).sort_values(["vehicle", "time_s"], kind="mergesort")
+    hard = (d["accel_mps2"] < -(threshold_mps2 + ACCEL_TOLERANCE_MPS2)).to_numpy()
+    vehicle = d["vehicle"].to_numpy(dtype=object)
+    new_vehicle = np.ones(len(d), dtype=bool)
+    new_vehicle[1:] = vehicle[1:] != vehicle[:-1]
+    prev_hard = np.zeros(len(d), dtype=bool)
+    prev_hard[1:] = hard[:-1]
+    starts = hard & (new_vehicle | ~prev_hard)
+    episode = np.cumsum(starts)
+    events = (
+        d[hard]
+        .assign(episode=episode[hard])
+        .groupby("episode", sort=True)
+        .agg(
+            vehicle=("vehicle", "first"),
+            kind=("kind", "first"),
+            start_s=("time_s", "min"),
+            end_s=("time_s", "max"),
+            min_accel_mps2=("accel_mps2", "min"),
+            samples=("time_s", "size"),
+        )
+    )
+    columns = ["vehicle", "kind", "start_s", "end_s", "min_accel_mps2", "samples"]
+    return events.sort_values(["start_s", "vehicle"], kind="mergesort").reset_index(drop=True)[
+        columns
+    ]
+
+
+def hard_brakes(
+    df: pd.DataFrame,
+    threshold_mps2: float = HARD_BRAKE_MPS2,
+    window: EvaluationWindow | None = None,
+) -> int:
+    """Number of vehicles (any kind) that ever braked harder than ``threshold_mps2`` [m/s^2].
+
+    Each vehicle counts once however many hard-braking samples or episodes it has; see
+    :func:`hard_brake_events` for the test applied to a sample.
+    """
+    return int(hard_brake_events(df, threshold_mps2, window)["vehicle"].nunique())
+
+
+# --------------------------------------------------------------------------------------------
+# influence on upstream traffic
+
+
+def upstream_impact(
+    df: pd.DataFrame,
+    ref_time_s: float | None,
+    *,
+    swarm_kind: str = CAV,
+    n_rank: int = 5,
+    window: EvaluationWindow | None = None,
+    undisturbed: Mapping[str, float] | None = None,
+    behind_of: str = "rear",
+    exclude: Iterable[str] = (),
+) -> list[dict[str, object]]:
+    """Speed and following distance of the vehicles upstream of the swarm (paper's Fig. 12).
+
+    ``behind_of="front"`` selects the vehicles behind the swarm's *front* (its front-most
+    bumper) instead of its rear: with it the HVs beside the platoon at the reference step, the
+    ones a swarm blocks, are ranked too (nearest the swarm's front first). ``exclude`` leaves
+    vehicles out (e.g. the slow vehicle being overtaken).
+
+    Selection, at the reference step (the first recorded step at or after ``ref_time_s``, the
+    start of the manoeuvre; the table's first step when None): the swarm's rear is the smallest
+    rear bumper (``s_m - length_m``) of the vehicles of ``swarm_kind``; the upstream vehicles
+    are the other vehicles whose front bumper is behind it (``s_m <`` swarm rear). In each lane
+    (the lane at the reference step), they are ranked nearest first (largest ``s_m``; rank 1 =
+    right behind the swarm), up to ``n_rank`` per lane.
+
+    Measures of each, over ``window`` (default: from the reference step to the end of the
+    table), whatever lane it drives in then:
+
+    * ``undisturbed_speed_mps``: ``undisturbed[vehicle]`` when given (e.g. its speed in a run
+      without the swarm), else its speed at the reference step [m/s];
+    * ``min_speed_mps``: its smallest speed sample [m/s];
+    * ``speed_reduction_pct``: ``max(0, (undisturbed - min) / undisturbed * 100)`` [%]
+      (0 when the undisturbed speed is not positive);
+    * ``min_gap_m`` / ``min_headway_s``: its smallest gap [m] and time headway [s] to the
+      vehicle ahead in its lane, any kind (see :func:`gaps`); None if nobody was ever ahead
+      (or, for the headway, if it never moved).
+
+    Returns
+    -------
+    list of dict
+        Keys ``lane, rank, vehicle, undisturbed_speed_mps, min_speed_mps, speed_reduction_pct,
+        min_gap_m, min_headway_s``, ordered by lane then rank. Empty when the table has no step
+        at or after ``ref_time_s`` or no vehicle of ``swarm_kind`` at that step.
+    """
+    if n_rank < 1:
+        raise ConfigError(f"n_rank must be at least 1, got {n_rank}")
+    _require(df, ["time_s", "vehicle", "kind", "lane", "s_m", "speed_mps", "length_m"])
+    times = df["time_s"].to_numpy(dtype=float)
+    later = times if ref_time_s is None else times[times >= ref_time_s - TIME_TOLERANCE_S]
+    if later.size == 0:
+        return []
+    t_ref = float(later.min())
+    at_ref = df[times == t_ref]
+    swarm = at_ref[at_ref["kind"] == swarm_kind]
+    if swarm.empty:
+        return []
+    if behind_of == "front":
+        limit = float(swarm["s_m"].max())
+    elif behind_of == "rear":
+        limit = float((swarm["s_m"] - swarm["length_m"]).min())
+    else:
+        raise ConfigError(f"behind_of must be 'rear' or 'front', got {behind_of!r}")
+    excluded = {str(v) for v in exclude}
+    behind = at_ref[
+        (at_ref["kind"] != swarm_kind)
+        & (at_ref["s_m"] < limit)
+        & ~at_ref["vehicle"].astype(str).isin(excluded)
+    ]
+    behind = behind.assign(vehicle_key=behind["vehicle"].astype(str)).sort_values(
+        ["lane", "s_m", "vehicle_key"], ascending=[True, False, True], kind="mergesort"
+    )
+    behind = behind.assign(rank=behind.groupby("lane").cumcount() + 1)
+    behind = behind[behind["rank"] <= n_rank]
+    if behind.empty:
+        return []
+
+    in_window = _select(df, window if window is not None else EvaluationWindow(t_ref, None))
+    followed = gaps(in_window)
+    ids = behind["vehicle"].to_numpy()
+    speeds = in_window[in_window["vehicle"].isin(ids)].groupby("vehicle")["speed_mps"].min()
+    mine = followed[followed["vehicle"].isin(ids) & followed["gap_m"].notna()]
+    min_gap = mine.groupby("vehicle")["gap_m"].min()
+    min_headway = mine.groupby("vehicle")["headway_s"].min()
+    undisturbed = undisturbed or {}
+
+    rows: list[dict[str, object]] = []
+    for row in behind.itertuples(index=False):
+        vid = row.vehicle
+        reference = finite_or_none(undisturbed.get(str(vid), row.speed_mps))
+        slowest = finite_or_none(speeds.get(vid))
+        if reference is None or slowest is None or reference <= 0:
+            reduction = 0.0 if reference is not None and slowest is not None else None
+        else:
+            reduction = max(0.0, (reference - slowest) / reference * 100.0)
+        rows.append(
+            {
+                "lane": int(row.lane),
+                "rank": int(row.rank),
+                "vehicle": str(vid),
+                "undisturbed_speed_mps": reference,
+                "min_speed_mps": slowest,
+                "speed_reduction_pct": reduction,
+                "min_gap_m": finite_or_none(min_gap.get(vid)),
+                "min_headway_s": finite_or_none(min_headway.get(vid)),
+            }
+        )
+    return rows
+
+
+def influenced_count(
+    upstream: Iterable[Mapping[str, object]], threshold_pct: float = INFLUENCE_THRESHOLD_PCT
+) -> dict[int, int]:
+    """Number of upstream vehicles per lane whose speed dropped by more than ``threshold_pct``.
+
+    ``upstream`` is the list :func:`upstream_impact` returns. A vehicle counts when its
+    ``speed_reduction_pct`` is strictly greater than ``threshold_pct`` [%] (None never counts).
+    Every lane that appears in ``upstream`` is a key, with 0 when nobody there was slowed;
+    keys in ascending order.
+    """
+    counts: dict[int, int] = {}
+    for entry in upstream:
+        lane = int(entry["lane"])  # type: ignore[call-overload]
+        reduction = entry.get("speed_reduction_pct")
+        hit = reduction is not None and float(reduction) > threshold_pct  # type: ignore[arg-type]
+        counts[lane] = counts.get(lane, 0) + int(hit)
+    return dict(sorted(counts.items()))
+
+
+# --------------------------------------------------------------------------------------------
+# small summaries

@@ -1,0 +1,173 @@
+"""One recording path: trajectories step by step, then a run finished the same way everywhere.
+
+Both ways of running the swarm use it: ``sumo-swarm run`` (:mod:`sumo_swarm.sim.runner`, which
+starts SUMO itself) and ``attach()`` (:mod:`sumo_swarm.sim.plugin`, on a simulation someone else
+steps). After every SUMO step, before the controller acts, :meth:`RunRecorder.record` appends
+one row per vehicle; :meth:`RunRecorder.summary` builds summary.json from what was recorded at
+any time; :meth:`RunRecorder.finish` closes the controller and writes ``trajectories.parquet``,
+``events.jsonl`` and ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pandas as pd
+
+from sumo_swarm.controllers.base import Controller, close_controller
+from sumo_swarm.files import write_json_atomic, write_parquet_atomic
+from sumo_swarm.sim.summary import build_summary
+
+if TYPE_CHECKING:
+    from sumo_swarm.config import Scenario
+    from sumo_swarm.sim.bridge import SumoSession
+    from sumo_swarm.sim.scene import Scene
+
+# The trajectory table's columns (the contract's, plus each vehicle's length).
+RECORD_COLUMNS = (
+    "time_s",
+    "vehicle",
+    "kind",
+    "edge",
+    "lane",
+    "x_m",
+    "y_m",
+    "s_m",
+    "lat_m",
+    "speed_mps",
+    "accel_mps2",
+    "length_m",
+)
+
+EMPTY_WINDOW_S = 1e-3  # the evaluation window of a run with nothing to evaluate [s]
+
+
+def write_events(path: Path, events: list[dict[str, Any]]) -> None:
+    """The run's events, one JSON object a line."""
+    with path.open("w", encoding="utf-8") as fh:
+        for e in events:
+            fh.write(json.dumps(e, default=str) + "\n")
+
+
+class RunRecorder:
+    """The trajectories of one run and what it cost, and the run's outputs at its end.
+
+    ``scene`` tells the summary the CAVs and the target (a scenario's placed scene, or a
+    :class:`~sumo_swarm.sim.scene.LiveScene`). The wall time counts from its creation, the
+    simulated time from the step before the first one recorded.
+    """
+
+    def __init__(
+        self, session: SumoSession, controller: Controller, controller_name: str, scene: Scene
+    ) -> None:
+        self.session = session
+        self.controller = controller
+        self.controller_name = controller_name
+        self.scene = scene
+        self.columns: dict[str, list] = {k: [] for k in RECORD_COLUMNS}
+        self.sumo_s: float | None = None  # measured by the caller, else wall minus controller
+        self.controller_s = 0.0
+        self._wall0 = time.perf_counter()
+        self._wall_end: float | None = None  # set when the run ends
+        self._t0_s: float | None = None  # simulated time when recording began [s]
+        self._closed = False
+
+    def record(self) -> None:
+        """Append the session's vehicles as they are after the last step (one row each)."""
+        s = self.session
+        if self._t0_s is None:
+            self._t0_s = s.time_s - s.step_length_s
+        rec = self.columns
+        t = s.time_s
+        for vid, st in s.states.items():
+            x, y = s.positions[vid]
+            rec["time_s"].append(t)
+            rec["vehicle"].append(vid)
+            rec["kind"].append(s.kinds.get(vid, "hv"))
+            rec["edge"].append(s.edges[vid])
+            rec["lane"].append(st.lane)
+            rec["x_m"].append(x)
+            rec["y_m"].append(y)
+            rec["s_m"].append(st.s_m)
+            rec["lat_m"].append(st.lat_m)
+            rec["speed_mps"].append(st.speed_mps)
+            rec["accel_mps2"].append(st.accel_mps2)
+            rec["length_m"].append(st.length_m)
+
+    def frame(self) -> pd.DataFrame:
+        """The trajectory table recorded so far (the contract's trajectories.parquet)."""
+        df = pd.DataFrame(self.columns)
+        if not df.empty:
+            for col in ("kind", "vehicle", "edge"):
+                df[col] = df[col].astype("category")
+            df["lane"] = df["lane"].astype("int16")
+        return df
+
+    def timing(self) -> dict[str, float | None]:
+        """summary.json's ``timing`` block: wall, SUMO and controller time [s] and the
+        simulated time per wall time since the recorder was made."""
+        wall = (self._wall_end or time.perf_counter()) - self._wall0
+        sumo = self.sumo_s if self.sumo_s is not None else max(wall - self.controller_s, 0.0)
+        simulated = self.session.time_s - self._t0_s if self._t0_s is not None else 0.0
+        return {
+            "wall_s": wall,
+            "sumo_s": sumo,
+            "controller_s": self.controller_s,
+            "realtime_factor": simulated / wall if wall > 0 else None,
+        }
+
+    def summary(
+        self,
+        scenario: Scenario,
+        df: pd.DataFrame | None = None,
+        controller_summary: dict[str, Any] | None = None,
+    ) -> dict[str, Any]:
+        """summary.json of what was recorded so far; the evaluation window ends with the data.
+
+        ``controller_summary``: the controller's blocks, default its ``summary()``."""
+        df = self.frame() if df is None else df
+        if not df.empty:
+            ev = scenario.evaluation
+            end = min(ev.end_s, float(df["time_s"].max()))
+            # a run that ended before the window opened: an empty window just after its start
+            end = max(end, ev.start_s + EMPTY_WINDOW_S)
+            scenario = replace(scenario, evaluation=replace(ev, end_s=end))
+        return build_summary(
+            scenario=scenario,
+            controller=self.controller_name,
+            df=df,
+            scene=self.scene,
+            session=self.session,
+            controller_summary=(
+                self.controller.summary() if controller_summary is None else controller_summary
+            ),
+            timing=self.timing(),
+        )
+
+    def close_controller(self) -> None:
+        """Let the controller release what it holds open (once)."""
+        if not self._closed:
+            self._closed = True
+            close_controller(self.controller)
+
+    def finish(
+        self,
+        out: Path,
+        scenario: Scenario,
+        events: list[dict[str, Any]],
+        controller_summary: dict[str, Any] | None = None,
+    ) -> dict[str, Any]:
+        """End the run: close the controller, write trajectories.parquet, events.jsonl and
+        summary.json into ``out``; return the summary. The run's wall time ends here."""
+        self._wall_end = self._wall_end or time.perf_counter()
+        self.close_controller()
+        df = self.frame()
+        write_parquet_atomic(out / "trajectories.parquet", df)
+        write_events(out / "events.jsonl", events)
+        summary = self.summary(scenario, df, controller_summary)
+        write_json_atomic(out / "summary.json", summary)
+        return summary

@@ -1,0 +1,194 @@
+"""summary.json (schema ``sumo-swarm/summary/1``, see the output contract) from a run's outputs."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from sumo_swarm.checks import finite_or_none
+from sumo_swarm.sim import metrics
+from sumo_swarm.sim.metrics import EvaluationWindow
+
+if TYPE_CHECKING:
+    from sumo_swarm.config import Scenario
+    from sumo_swarm.sim.bridge import SumoSession
+    from sumo_swarm.sim.scene import Scene
+
+SCHEMA = "sumo-swarm/summary/1"
+REGROUP_LAT_TOL_M = 0.5  # a CAV counts as "in" its lane when its centre is this close [m]
+
+
+def overtake_progress(
+    df: pd.DataFrame, cav_ids: tuple[str, ...], target: str | None, lane: int, max_gap_m: float
+) -> pd.DataFrame:
+    """Per step: whether every CAV is past ``target`` and whether they form one platoon.
+
+    *Past*: every CAV's rear bumper is ahead of the target's front bumper. *Platoon*: every CAV
+    in one lane (``lane``, the regroup lane, or, where lane indices change along the route as at
+    a lane drop on the right, the lane of the front-most CAV) within ``REGROUP_LAT_TOL_M`` of its
+    centre, no other vehicle between the first and the last of them in that lane, and no gap
+    between consecutive CAVs above ``max_gap_m``.
+    Returns a frame indexed by time with boolean columns ``past`` and ``platoon``.
+    """
+    if df.empty or not cav_ids:
+        return pd.DataFrame(columns=["past", "platoon"], dtype=bool)
+    wide = df.pivot_table(index="time_s", columns="vehicle", values="s_m", observed=True)
+    present = [c for c in cav_ids if c in wide.columns]
+    if len(present) < len(cav_ids):
+        missing = pd.DataFrame(
+            np.nan, index=wide.index, columns=[c for c in cav_ids if c not in wide.columns]
+        )
+        wide = pd.concat([wide, missing], axis=1)
+    lengths = df.groupby("vehicle", observed=True)["length_m"].first()
+    cav_s = wide[list(cav_ids)]
+    cav_rear = cav_s - lengths.reindex(list(cav_ids)).to_numpy()
+    if target is not None and target in wide.columns:
+        past = (cav_rear.min(axis=1) > wide[target]).fillna(False)
+    else:
+        past = pd.Series(False, index=wide.index)
+    in_lane = df[df["vehicle"].isin(cav_ids)].copy()
+    head_lane = in_lane.sort_values("s_m").groupby("time_s", observed=True)["lane"].last()
+    if lane is not None:
+        # The regroup lane where the road keeps its lane numbering, else the head's lane.
+        head_lane = head_lane.where(head_lane != lane, lane)
+    in_lane = in_lane.join(head_lane.rename("head_lane"), on="time_s")
+    in_lane["ok"] = (in_lane["lane"] == in_lane["head_lane"]) & (
+        in_lane["lat_m"].abs() < REGROUP_LAT_TOL_M
+    )
+    ok_all = in_lane.pivot_table(
+        index="time_s", columns="vehicle", values="ok", aggfunc="first", observed=True
+    )
+    ok_all = ok_all.reindex(index=wide.index, columns=list(cav_ids)).fillna(False).astype(bool)
+    lane_ok = ok_all.all(axis=1)
+    ordered = np.sort(cav_s.to_numpy(dtype=float), axis=1)
+    sorted_rear = ordered - lengths.reindex(list(cav_ids)).mean()
+    gaps = sorted_rear[:, 1:] - ordered[:, :-1]
+    gaps_ok = np.all(gaps <= max_gap_m, axis=1) if gaps.shape[1] else np.ones(len(wide), bool)
+    # No foreign vehicle between the platoon's tail and head in that lane.
+    hv = df[~df["vehicle"].isin(cav_ids)].join(head_lane.rename("head_lane"), on="time_s")
+    hv = hv[hv["lane"] == hv["head_lane"]]
+    head = cav_s.max(axis=1)
+    tail = cav_s.min(axis=1)
+    intruders = hv.join(head.rename("head"), on="time_s").join(tail.rename("tail"), on="time_s")
+    between = (intruders["s_m"] > intruders["tail"]) & (intruders["s_m"] < intruders["head"])
+    intruded = intruders[between]
+    clean = ~wide.index.isin(intruded["time_s"].unique())
+    platoon = lane_ok & pd.Series(gaps_ok & clean, index=wide.index)
+    return pd.DataFrame({"past": past.astype(bool), "platoon": platoon.astype(bool)})
+
+
+def _first_time_holding(flags: pd.Series) -> float | None:
+    """First time after which ``flags`` stays True to the end (None if false at the end)."""
+    if flags.empty or not bool(flags.iloc[-1]):
+        return None
+    values = flags.to_numpy()
+    false_idx = np.flatnonzero(~values)
+    start = 0 if false_idx.size == 0 else int(false_idx[-1]) + 1
+    return float(flags.index[start])
+
+
+def build_summary(
+    *,
+    scenario: Scenario,
+    controller: str,
+    df: pd.DataFrame,
+    scene: Scene,
+    session: SumoSession,
+    controller_summary: dict[str, Any],
+    timing: dict[str, Any],
+) -> dict[str, Any]:
+    """Assemble every key of the contract's summary.json (None where a key does not apply)."""
+    ev = scenario.evaluation
+    w = EvaluationWindow(ev.start_s, ev.end_s)
+    speed = metrics.cav_speed_stats(df, w)
+    gap = metrics.cav_gap_stats(df, w)
+    cav_ids = scene.cav_ids
+    target = scene.target_id
+    own = controller_summary.get("overtake", {})
+    target = own.get("target") or target
+    lane = own.get("regroup_lane")
+    lane = scenario.scene.platoon_lane if lane is None else lane
+    progress = overtake_progress(df, cav_ids, target, lane, 2.5 * scenario.cav.desired_gap_m)
+    t_end = _first_time_holding(progress["past"]) if not progress.empty else None
+    t_regroup = None
+    if not progress.empty:
+        both = progress["past"] & progress["platoon"]
+        t_regroup = _first_time_holding(both)
+    t_start = own.get("t_start_s")
+    overtake = {
+        "triggered": bool(own.get("triggered", t_end is not None)),
+        "completed": t_end is not None,
+        "regrouped": t_regroup is not None,
+        "target": own.get("target", target),
+        "t_start_s": finite_or_none(t_start),
+        "t_end_s": finite_or_none(t_end),
+        "t_regrouped_s": finite_or_none(t_regroup),
+        "behaving_steps": own.get("behaving_steps"),
+        "aborted": int(own.get("aborted", 0)),
+        "abort_reasons": dict(own.get("abort_reasons", {})),
+        "lateral_holds": int(own.get("lateral_holds", 0)),
+        "blocked_hv_min_accel_mps2": finite_or_none(own.get("blocked_hv_min_accel_mps2")),
+    }
+    for key in ("manoeuvres", "behaving_interval_s", "lateral_holds_per_manoeuvre", "blocked_hvs"):
+        if key in own:  # extra (not in the contract): the swarm's own bookkeeping
+            overtake[key] = own[key]
+    ref_time = t_start if t_start is not None else ev.start_s
+    # The HVs behind the swarm's front at the decision: those beside the platoon, which the
+    # swarm blocks, rank first in their lanes; the slow vehicle itself is left out.
+    upstream = metrics.upstream_impact(
+        df,
+        ref_time,
+        n_rank=ev.upstream_ranks,
+        window=EvaluationWindow(ref_time, ev.end_s),
+        behind_of="front",
+        exclude=[target] if target else [],
+    )
+    collisions = {tuple(sorted((c.collider, c.victim))) for c in session.collisions}
+    planner_keys = (
+        "solves",
+        "solve_ms_median",
+        "solve_ms_p95",
+        "solve_ms_max",
+        "statuses",
+        "fallbacks",
+    )
+    planner = {k: None for k in planner_keys}
+    planner.update(controller_summary.get("planner", {}))
+    return {
+        "schema": SCHEMA,
+        "scenario": scenario.name,
+        "controller": controller,
+        "seed": scenario.simulation.seed,
+        "step_length_s": scenario.simulation.step_length_s,
+        "sim_end_s": float(session.time_s),
+        "cav": {
+            "count": len(cav_ids),
+            "mean_speed_mps": finite_or_none(speed.get("mean_speed_mps")),
+            "min_speed_mps": finite_or_none(speed.get("min_speed_mps")),
+            "max_speed_mps": finite_or_none(speed.get("max_speed_mps")),
+            "speed_var_m2ps2": finite_or_none(speed.get("speed_var_m2ps2")),
+            "travel_time_s": finite_or_none(metrics.travel_time_s(df, w, ev.travel_distance_m)),
+            "gap_mean_m": finite_or_none(gap.get("gap_mean_m")),
+            "gap_min_m": finite_or_none(gap.get("gap_min_m")),
+            "lat_error_rms_m": finite_or_none(controller_summary.get("lat_error_rms_m")),
+        },
+        "overtake": overtake,
+        "safety": {
+            "collisions": len(collisions),
+            "hard_brakes": metrics.hard_brakes(df),
+            # Extra (not in the contract): the same count split by kind.
+            "hard_brakes_cav": metrics.hard_brakes(df[df["kind"] == "cav"]) if len(df) else 0,
+            "hard_brakes_hv": metrics.hard_brakes(df[df["kind"] == "hv"]) if len(df) else 0,
+            "teleports": int(session.teleports),
+            "min_ttc_s": finite_or_none(metrics.min_ttc_s(df, w)),
+        },
+        "upstream": upstream,
+        "planner": planner,
+        # Extra (not in the contract): MPC solve time per CAV per solve, swarm only.
+        "tracking": controller_summary.get("mpc"),
+        # Extra: the speeds the swarm used and where they came from.
+        "speeds": controller_summary.get("speeds"),
+        "timing": {k: finite_or_none(v) for k, v in timing.items()},
+    }
