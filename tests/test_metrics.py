@@ -8,6 +8,7 @@ import math
 import pandas as pd
 import pytest
 
+from sumo_swarm.core import stats
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim import metrics
 from sumo_swarm.sim.metrics import EvaluationWindow
@@ -500,26 +501,26 @@ def test_influenced_count_per_lane(upstream_table):
 
 
 def test_lateral_rms():
-    assert metrics.lateral_rms([3.0, -4.0]) == pytest.approx(math.sqrt(12.5))
-    assert metrics.lateral_rms([3.0, None, float("nan"), -4.0]) == pytest.approx(math.sqrt(12.5))
-    assert metrics.lateral_rms([]) is None
-    assert metrics.lateral_rms([None]) is None
+    assert stats.lateral_rms([3.0, -4.0]) == pytest.approx(math.sqrt(12.5))
+    assert stats.lateral_rms([3.0, None, float("nan"), -4.0]) == pytest.approx(math.sqrt(12.5))
+    assert stats.lateral_rms([]) is None
+    assert stats.lateral_rms([None]) is None
 
 
 def test_summarise_ms():
-    summary = metrics.summarise_ms([5.0, 1.0, 3.0, 2.0, 4.0])
+    summary = stats.summarise_ms([5.0, 1.0, 3.0, 2.0, 4.0])
     # p95 interpolates: position 0.95 * 4 = 3.8 between 4 and 5
     assert summary == {
         "median": pytest.approx(3.0),
         "p95": pytest.approx(4.8),
         "max": pytest.approx(5.0),
     }
-    assert metrics.summarise_ms([], prefix="solve_ms_") == {
+    assert stats.summarise_ms([], prefix="solve_ms_") == {
         "solve_ms_median": None,
         "solve_ms_p95": None,
         "solve_ms_max": None,
     }
-    assert type(metrics.summarise_ms([1.0])["max"]) is float
+    assert type(stats.summarise_ms([1.0])["max"]) is float
 
 
 def test_upstream_behind_the_front_includes_vehicles_beside_the_swarm():

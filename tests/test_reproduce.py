@@ -412,7 +412,7 @@ def test_reproduce_has_no_process_pool_of_its_own():
     import ast
 
     for name in ("reproduce.py", "reproduce_rows.py", "reproduce_text.py"):
-        tree = ast.parse((ROOT / "sumo_swarm" / name).read_text(encoding="utf-8"))
+        tree = ast.parse((ROOT / "sumo_swarm" / "study" / name).read_text(encoding="utf-8"))
         imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
         imported |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
         assert not {"multiprocessing", "concurrent.futures", "ray"} & imported, name

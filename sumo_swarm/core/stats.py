@@ -1,6 +1,7 @@
 """Summary statistics of samples the controllers collect (solve times, tracking errors).
 
-Pure (numpy); :mod:`sumo_swarm.sim.metrics` re-exports them for the measures of a run.
+Pure (numpy), below the controllers that use them (the measures of a whole run are in
+:mod:`sumo_swarm.sim.metrics`).
 """
 
 from __future__ import annotations
