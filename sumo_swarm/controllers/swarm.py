@@ -353,14 +353,15 @@ class SwarmController:
         if self.plan is not None and grid is not None:
             hvs = [s for s in states.values() if not s.is_cav]
             cells = {vid: cav_cell(grid, states[vid], ctx.road, t_s) for vid in platoon}
-            reason = self.trigger.check(t_s, cells, hvs_in_grid(grid, hvs, t_s))
+            in_grid = hvs_in_grid(grid, hvs, t_s)  # once per step: trigger, known set, errors
+            reason = self.trigger.check(t_s, cells, in_grid)
             if reason == "new_hv":
                 # Every HV around was predicted when the plan was made, inside the grid or not:
                 # one entering the grid matters only if it claims a cell a CAV is planned in.
                 if self._new_hv_conflicts(t_s, states, hvs):
                     reason = "conflict"
                 else:
-                    self.trigger.known_hvs = frozenset(hvs_in_grid(grid, hvs, t_s))
+                    self.trigger.known_hvs = frozenset(in_grid)
                     reason = None
             if set(platoon) != set(self.plan.cav_ids):
                 ctx.event("cav_set_changed", planned=list(self.plan.cav_ids), present=platoon)
@@ -372,7 +373,7 @@ class SwarmController:
                 and t_s - self.last_check_s >= every * (self.interval_s or 0.0) - 1e-9
             ):
                 self.last_check_s = t_s
-                if self._prediction_off(t_s, states, hvs):
+                if self._prediction_off(t_s, states, in_grid):
                     reason = "prediction"
         elif self.plan is None and self.trigger.plan is not None:
             reason = self.trigger.check(t_s, {}, ())  # "initial" once the retry time has passed
@@ -385,13 +386,12 @@ class SwarmController:
             return
         self._replan(t_s, reason, states, platoon)
 
-    def _prediction_off(self, t_s: float, states, hvs: list[VehicleState]) -> bool:
-        """Is an HV in the grid farther from where the last plan predicted it than allowed?"""
+    def _prediction_off(self, t_s: float, states, in_grid: list[str]) -> bool:
+        """Is an HV in the grid (``in_grid``) farther from where the last plan predicted it than
+        allowed?"""
         if self.prediction is None or not hasattr(self.prediction[1], "error_against"):
             return False
-        near = {
-            h.vehicle_id: h for h in hvs if h.vehicle_id in set(hvs_in_grid(self.grid, hvs, t_s))
-        }
+        near = {vid: states[vid] for vid in in_grid}
         errors = self.prediction[1].error_against(near, t_s)
         limit = self.ctx.scenario.swarm.prediction_error_m
         return any(abs(e) > limit for e in errors.values())
