@@ -84,6 +84,13 @@ class CavSettings:
     width_m: float = 1.8
     cruising_speed_mps: float = 20.0
     max_speed_mps: float = 25.0
+    # Where the two speeds above come from. "config": these keys (the paper's 20 and 25 m/s).
+    # "world": the user's world, updated every step: SUMO's desired speed of the CAVs where they
+    # drive, min over the platoon of min(vType maxSpeed, lane limit * speedFactor) (what SUMO's
+    # own drivers and sumo-cacc drive at), as both the cruising and the highest speed. A user's
+    # sumocfg and attach() use "world" unless their config sets either speed; scenario files
+    # default to "config".
+    speeds: Literal["config", "world"] = "config"
     min_gap_m: float = 5.0  # minimum safety distance between CAVs
     desired_gap_m: float = 10.0  # desired safety distance between CAVs
     accel_min_mps2: float = -4.0

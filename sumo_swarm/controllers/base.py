@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 from sumo_swarm.core.model import RoadSection
@@ -24,6 +26,9 @@ CAV_LC_ACCEL_LAT_MPS2 = 40.0
 # a few metres of the vehicle ahead [s], [m]
 CAV_TAU_S = 0.2
 CAV_MIN_GAP_M = 0.5
+# [cav] speeds = "world": speed changes below this are ignored [m/s]
+WORLD_SPEED_TOLERANCE_MPS = 0.05
+WORLD_SPEED_SOURCE = "SUMO: min over the CAVs of min(vType maxSpeed, lane limit * speedFactor)"
 
 
 @dataclass
@@ -36,6 +41,7 @@ class RunContext:
     road: RoadSection
     out_dir: Any = None  # pathlib.Path of the run's output folder, or None
     events: list[dict[str, Any]] = field(default_factory=list)
+    world_speed_mps: float | None = None  # the last speed taken from the world ([cav] speeds)
 
     @property
     def dt_s(self) -> float:
@@ -48,6 +54,41 @@ class RunContext:
     def configure_cav(self, vid: str) -> None:
         """Hand CAV ``vid`` to the controllers: see :func:`configure_cav`."""
         configure_cav(self.session, vid)
+
+    def follow_world_speeds(self, cav_ids: Sequence[str]) -> None:
+        """With ``[cav] speeds = "world"``: set the cruising and highest speed of the CAVs to
+        SUMO's desired speed for them where they drive, the lowest over ``cav_ids`` of
+        min(vType maxSpeed, lane limit * speedFactor) (``session.speed_limits``)."""
+        cav = self.scenario.cav
+        limits = getattr(self.session, "speed_limits", None)
+        if cav.speeds != "world" or limits is None:
+            return
+        speed = math.inf
+        for vid in cav_ids:
+            try:
+                vtype_max, allowed = limits(vid)
+            except Exception:  # vanished this step
+                continue
+            speed = min(speed, vtype_max, allowed)
+        if not (math.isfinite(speed) and speed > 0.0):
+            return
+        if abs(speed - cav.cruising_speed_mps) > WORLD_SPEED_TOLERANCE_MPS or (
+            cav.max_speed_mps != cav.cruising_speed_mps
+        ):
+            cav = replace(cav, cruising_speed_mps=speed, max_speed_mps=speed)
+            self.scenario = replace(self.scenario, cav=cav)
+            if self.world_speed_mps is None:
+                self.event("world_speeds", cruising_speed_mps=speed, source=WORLD_SPEED_SOURCE)
+            self.world_speed_mps = speed
+
+    def speeds_block(self) -> dict[str, Any]:
+        """The ``speeds`` block of summary.json: the speeds the CAVs were given, and whence."""
+        cav = self.scenario.cav
+        return {
+            "cruising_speed_mps": cav.cruising_speed_mps,
+            "max_speed_mps": cav.max_speed_mps,
+            "source": WORLD_SPEED_SOURCE if cav.speeds == "world" else "config [cav]",
+        }
 
 
 class Controller(Protocol):

@@ -6,6 +6,7 @@ the predecessor's acceleration, bounded by the free-road law towards the cruisin
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from sumo_swarm.config import CaccSettings, CavSettings
@@ -52,10 +53,14 @@ def cacc_accel(
 
 
 def command_cacc(
-    ctx: RunContext, platoon: list[str], leader_cruise_mps: float | None = None
+    ctx: RunContext,
+    platoon: list[str],
+    leader_cruise_mps: float | None = None,
+    accel_limits: Mapping[str, float] | None = None,
 ) -> None:
     """Command one CACC step for every CAV of ``platoon`` (front-most first when
-    ``leader_cruise_mps`` is given: that CAV cruises at that speed instead)."""
+    ``leader_cruise_mps`` is given: that CAV cruises at that speed instead). ``accel_limits``:
+    upper bounds [m/s^2] of some CAVs' acceleration (a CAV making room to change lanes)."""
     states = ctx.session.states
     others = list(states.values())
     sc = ctx.scenario
@@ -72,6 +77,8 @@ def command_cacc(
                 ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav, sc.cacc,
                 ahead_is_cav=lead.is_cav, cruising_speed_mps=cruise,
             )  # fmt: skip
+        if accel_limits is not None and vid in accel_limits:
+            a = max(min(a, accel_limits[vid]), sc.cav.accel_min_mps2)
         ctx.session.set_speed(vid, ego.speed_mps + a * ctx.dt_s)
 
 
@@ -98,7 +105,9 @@ class CaccController:
         ctx = self.ctx
         self._configure_new()
         states = ctx.session.states
-        command_cacc(ctx, [v for v in ctx.cav_ids if v in states])
+        present = [v for v in ctx.cav_ids if v in states]
+        ctx.follow_world_speeds(present)
+        command_cacc(ctx, present)
 
     def summary(self) -> dict[str, Any]:
-        return {}
+        return {} if self.ctx is None else {"speeds": self.ctx.speeds_block()}

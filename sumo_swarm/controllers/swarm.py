@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from sumo_swarm.controllers.base import RunContext
-from sumo_swarm.controllers.cacc import command_cacc
+from sumo_swarm.controllers.cacc import cacc_accel, command_cacc
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
@@ -49,6 +49,7 @@ from sumo_swarm.core.swarming.decision import (
     TargetWatch,
     all_past,
     behaving_interval_s,
+    lane_speeds,
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
@@ -112,7 +113,9 @@ class SwarmController:
         self.blocked_since_s: dict[str, float] = {}
         self.blocked_min_accel: dict[str, float] = {}
         self.prediction: tuple[float, Any] | None = None
-        self._models: dict[str, DriverModel] = {}
+        self._models: dict[str, tuple[str | None, DriverModel]] = {}
+        self._reform_lane_id: int | None = None
+        self._no_gain_target: str | None = None
         self._target_lane: tuple[str | None, int] | None = None
 
     # ------------------------------------------------------------------ set-up
@@ -161,14 +164,26 @@ class SwarmController:
                 self.tracker.add(vid)
 
     def model_of(self, vid: str) -> DriverModel:
-        """The driver model of an HV, read from SUMO once per vehicle."""
-        model = self._models.get(vid)
-        if model is None:
+        """The driver model of an HV, read from SUMO once per vehicle and edge: its desired
+        speed is SUMO's, ``min(maxSpeed, lane limit * speedFactor)`` on the edge it is on."""
+        session = self.ctx.session
+        edge = session.edges.get(vid) if hasattr(session, "edges") else None
+        cached = self._models.get(vid)
+        if cached is not None and cached[0] == edge:
+            return cached[1]
+        try:
+            model = session.driver_model(vid)
+        except Exception:  # vanished, or a session without the call: a cautious default
+            model = DriverModel(model="unknown")
+        limits = getattr(session, "speed_limits", None)
+        if limits is not None:
             try:
-                model = self.ctx.session.driver_model(vid)
-            except Exception:  # vanished, or a session without the call: a cautious default
-                model = DriverModel(model="unknown")
-            self._models[vid] = model
+                allowed = limits(vid)[1]
+            except Exception:
+                allowed = math.inf
+            if math.isfinite(allowed) and allowed > 0.0:
+                model = replace(model, desired_speed_mps=min(model.desired_speed_mps, allowed))
+        self._models[vid] = (edge, model)
         return model
 
     # ------------------------------------------------------------------ main step
@@ -191,6 +206,7 @@ class SwarmController:
         platoon = ordered_platoon(states, ctx.cav_ids)
         if not platoon:
             return
+        ctx.follow_world_speeds(platoon)
         road = ctx.session.road_at(platoon[0])
         if road is not None:
             ctx.road = road
@@ -268,7 +284,30 @@ class SwarmController:
             cap_mps=self._speed_cap(platoon[:1]),
             min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
         )  # fmt: skip
+        if candidate is not None and not self._side_lane_pays(leader, candidate, states):
+            candidate = None
         return self.watch.update(t_s, candidate)
+
+    def _side_lane_pays(self, leader: VehicleState, target: VehicleState, states) -> bool:
+        """Is a lane beside the leader's faster than the target by ``min_speed_gain_mps``? The
+        swarm passes in the lanes beside it: when they are as slow as the target (dense
+        traffic), overtaking gains nothing and only disturbs them (MOBIL's incentive)."""
+        ctx = self.ctx
+        road, sw = ctx.road, ctx.scenario.swarm
+        lane = road.lane_of_y(road.y_of(leader.lane, leader.lat_m))
+        side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
+        others = [st for st in states.values() if not st.is_cav]
+        reach = sw.detect_range_m + 2.0 * ctx.scenario.cell_length_m
+        speeds = lane_speeds(leader, others, road, side, range_m=reach, cap_mps=self.cap_mps,
+                             desired_of=self._desired_speed)  # fmt: skip
+        best = max(speeds.values(), default=-math.inf)
+        pays = best - target.speed_mps >= sw.min_speed_gain_mps
+        if not pays and self._no_gain_target != target.vehicle_id:
+            self._no_gain_target = target.vehicle_id
+            ctx.event("overtake_not_worth", target=target.vehicle_id,
+                      target_speed_mps=target.speed_mps,
+                      lane_speeds_mps={str(k): round(v, 2) for k, v in speeds.items()})  # fmt: skip
+        return pays
 
     def _target_changed_lane(self, target: VehicleState | None) -> bool:
         """Has the target changed lanes on its own since the decision? Lane indices change
@@ -287,7 +326,6 @@ class SwarmController:
         """CACC following in the current lane, drifting back to the lane centre."""
         ctx = self.ctx
         sc = ctx.scenario
-        dt = ctx.dt_s
         # A stretched platoon regroups from both ends: followers may exceed the cruising speed
         # (cacc_accel), and the leader eases off by k_close per metre of excess gap behind it,
         # which is what closes up a platoon whose CAVs cannot go faster than the cruise speed.
@@ -299,12 +337,93 @@ class SwarmController:
         leader_cruise = sc.cav.cruising_speed_mps - min(
             sc.swarm.max_leader_ease_mps, sc.cacc.k_close * stretch
         )
-        command_cacc(ctx, platoon, leader_cruise)
-        for vid in platoon:
-            ego = states[vid]
-            step = sc.cav.max_lateral_speed_mps * dt
-            ctx.session.change_sublane(vid, float(np.clip(-ego.lat_m, -step, step)))
+        lane = self._reform_lane(states, platoon)
+        moves = {vid: self._steer_to_lane(states[vid], lane, states) for vid in platoon}
+        command_cacc(ctx, platoon, leader_cruise,
+                     accel_limits={vid: m[1] for vid, m in moves.items()})  # fmt: skip
+        for vid, (dlat, _) in moves.items():
+            ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)
+
+    # ------------------------------------------------------------------ re-forming
+    def _reform_lane(self, states: dict[str, VehicleState], platoon: list[str]) -> int:
+        """The lane the platoon cruises in, re-formed there after a manoeuvre or a give-up.
+
+        Of the lanes its CAVs are in (a lane ending ahead excluded), the one where the swarm can
+        drive fastest: the speed cap on a free lane, else the speed (at most the desired speed)
+        of the vehicle ahead of the front-most CAV in that lane; on a tie the lane holding more
+        CAVs. The current choice is kept unless another lane is faster by
+        ``[swarm] min_speed_gain_mps`` (no flapping between lanes)."""
+        ctx = self.ctx
+        road, sc = ctx.road, ctx.scenario
+        leader = states[platoon[0]]
+        count = Counter(road.lane_of_y(road.y_of(states[v].lane, states[v].lat_m)) for v in platoon)
+        if len(count) == 1 and self._reform_lane_id in (None, *count):
+            self._reform_lane_id = next(iter(count))
+            return self._reform_lane_id
+        ending = set()
+        edge = ctx.session.edges.get(platoon[0]) if hasattr(ctx.session, "edges") else None
+        if edge is not None and hasattr(ctx.session, "lanes_ending"):
+            ending = {lane for lane, _ in ctx.session.lanes_ending(
+                edge, leader.rear_s_m, leader.s_m + sc.swarm.detect_range_m)}  # fmt: skip
+        members = set(platoon)
+        speeds = lane_speeds(
+            leader, [st for v, st in states.items() if v not in members], road,
+            sorted(set(count) - ending or set(count)), range_m=sc.swarm.detect_range_m,
+            cap_mps=self._speed_cap(platoon[:1]), desired_of=self._desired_speed,
+        )  # fmt: skip
+        current = self._reform_lane_id
+        best = max(speeds, key=lambda lane: (round(speeds[lane] * 2.0) / 2.0, count[lane]))
+        if current in speeds and speeds[best] - speeds[current] < sc.swarm.min_speed_gain_mps:
+            best = current
+        if best != current:
+            shown = {str(k): round(v, 2) for k, v in speeds.items()}
+            ctx.event("reform_lane", lane=best, lane_speeds_mps=shown)
+        self._reform_lane_id = best
+        return best
+
+    def _desired_speed(self, vehicle: VehicleState) -> float:
+        """Speed [m/s] a vehicle wants to drive: an HV's by its model, a CAV's its own."""
+        if vehicle.is_cav:
+            return math.inf
+        return self.model_of(vehicle.vehicle_id).desired_speed_mps
+
+    def _steer_to_lane(
+        self, ego: VehicleState, lane: int, states: dict[str, VehicleState]
+    ) -> tuple[float, float]:
+        """(lateral move [m], acceleration bound [m/s^2]) of a cruising CAV towards ``lane``'s
+        centre, one lane at a time, through the same guard as in a manoeuvre. A CAV that must
+        change lanes drops in behind whatever drives ahead in the next lane (braking gently),
+        so that a gap opens where it will enter."""
+        ctx = self.ctx
+        road, sc, dt = ctx.road, ctx.scenario, ctx.dt_s
+        step = sc.cav.max_lateral_speed_mps * dt
+        y = road.y_of(ego.lane, ego.lat_m)
+        lane_now = road.lane_of_y(y)
+        if lane_now == lane:
+            return float(np.clip(road.lane_centre_y(lane) - y, -step, step)), math.inf
+        lane_next = lane_now + (1 if lane > lane_now else -1)
+        y_next = road.lane_centre_y(lane_next)
+        dlat = float(np.clip(y_next - y, -step, step))
+        others = list(states.values())
+        refusal = lateral_refusal(
+            ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
+            model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt,
+            settings=sc.guards,
+        )  # fmt: skip
+        accel = math.inf
+        ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
+        if ahead is not None:
+            lead, gap = ahead
+            accel = cacc_accel(ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav,
+                               sc.cacc, ahead_is_cav=lead.is_cav)  # fmt: skip
+            accel = max(accel, -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2)
+        if refusal is not None:
+            dlat = 0.0
+        limit = gap_accel_limit(
+            ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
+        )
+        return dlat, min(accel, limit)
 
     # ------------------------------------------------------------------ overtake
     def _start_overtake(self, t_s: float, target: VehicleState) -> None:
@@ -326,6 +445,7 @@ class SwarmController:
 
     def _finish(self, t_s: float, completed: bool, reason: str = "completed") -> None:
         self.mode = Mode.CRUISE
+        self._reform_lane_id = None  # chosen afresh from where the CAVs are now
         if self.drawer is not None:
             self.drawer.clear()
         self.plan = None
@@ -628,9 +748,7 @@ class SwarmController:
                 "triggers": dict(self.triggers),
             },
             "speeds": {
-                "cruising_speed_mps": self.ctx.scenario.cav.cruising_speed_mps
-                if self.ctx
-                else None,
+                **(self.ctx.speeds_block() if self.ctx else {}),
                 "cap_mps": self.cap_mps if math.isfinite(self.cap_mps) else None,
                 "cap_sources": dict(self.cap_sources),
             },

@@ -41,6 +41,8 @@ _FREE_GAP_M = 1e6  # SUMO's IDM free-road gap
 # Closing speed [m/s] below which a reaction counts as over: safe-speed models (Krauss) approach
 # the leader's speed only asymptotically.
 _CLOSED_MPS = 0.1
+# Time [s] a driver must have stopped closing in for its reaction to count as over.
+_SETTLED_S = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -269,13 +271,20 @@ def _reaction_peak(
     ``v_lead`` and slows at ``lead_decel`` to ``v_final`` (0: keeps its speed)."""
     sim_dt = max(step_s, 0.1)
     peak = previous = 0.0
+    closed_steps = 0
     for k in range(max(2, round(horizon_s / sim_dt))):
         acc = model_accel(m, v, v_lead, gap, step_s if k == 0 else sim_dt)
         braking = max(0.0, -acc)
         peak = max(peak, braking)
         settled = v_lead <= v_final + 1e-9
-        if k > 0 and settled and v <= v_lead + _CLOSED_MPS and braking <= previous:
+        closed = k > 0 and settled and v <= v_lead + _CLOSED_MPS
+        if closed and braking <= previous:
             break  # closing in no more and easing off: the strongest braking is behind
+        # Krauss' worst-case dawdling brakes and recovers every other step, so "easing off"
+        # may never be seen: no longer closing in for _SETTLED_S ends the reaction too.
+        closed_steps = closed_steps + 1 if closed else 0
+        if closed_steps * sim_dt >= _SETTLED_S:
+            break
         previous = braking
         dt = step_s if k == 0 else sim_dt
         v = max(0.0, v + acc * dt)
@@ -319,6 +328,10 @@ def min_entry_gap(
     gap = _smallest_ok(instant_ok, lo, tol_m, max_gap_m, max(3.0 * lo, 1.0))
     if math.isinf(gap) or peak_ok(gap):
         return gap
+    # A safe-speed driver (Krauss) far faster than the entering vehicle brakes late and hard
+    # from any gap: one look at the largest gap settles that before a long search.
+    if not peak_ok(max_gap_m):
+        return math.inf
     return _smallest_ok(peak_ok, gap, tol_m, max_gap_m, 0.02 * gap + 0.1)
 
 

@@ -101,8 +101,10 @@ class SwarmHandle:
         type_id = self.session.types[first]
         cav = self.settings.cav
         cruise = self._cruising_speed
-        if cruise is None:
-            cruise = min(api.vehicletype.getMaxSpeed(type_id), cav.max_speed_mps)
+        if cruise is None:  # [cav] speeds = "world": a start, followed step by step
+            cruise = api.vehicletype.getMaxSpeed(type_id)
+            if cav.speeds != "world":
+                cruise = min(cruise, cav.max_speed_mps)
         length = api.vehicletype.getLength(type_id)
         cav = replace(
             cav,
@@ -188,8 +190,9 @@ def attach(
     controller
         ``"swarm"`` (default), a baseline name, or a controller object.
     cruising_speed_mps
-        The swarm's cruising speed; default: ``[cav] cruising_speed_mps`` of ``config`` when one
-        is given, else the CAV vType's maxSpeed.
+        The swarm's cruising speed; default: ``[cav] cruising_speed_mps`` of ``config`` when it
+        sets the CAVs' speeds, else SUMO's desired speed of the CAVs where they drive
+        (``[cav] speeds = "world"``: min of vType maxSpeed and lane limit * speedFactor).
     out_dir
         Where the swarm writes ``plans.jsonl`` as it goes and, at :meth:`SwarmHandle.detach`,
         ``summary.json``, ``trajectories.parquet`` and ``events.jsonl`` (optional).
@@ -201,7 +204,9 @@ def attach(
     if cruising_speed_mps is not None:
         require_number("attach: cruising_speed_mps", cruising_speed_mps, gt=0.0)
     settings = default_settings(config)
-    if cruising_speed_mps is None and config is not None:
+    if cruising_speed_mps is not None:  # the caller's speed, not the world's
+        settings = replace(settings, cav=replace(settings.cav, speeds="config"))
+    elif settings.cav.speeds == "config":
         cruising_speed_mps = settings.cav.cruising_speed_mps
     if cav_ids is not None:
         wanted = frozenset(cav_ids)

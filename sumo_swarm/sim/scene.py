@@ -6,11 +6,11 @@ the CAVs' vehicle type differs, so that the baselines are judged on the same sce
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from sumo_swarm.config import Scenario, load_scenario
+from sumo_swarm.config import Scenario, load_scenario, read_toml
 
 ROUTE_ID = "main"
 CAV_TYPE = "cav"
@@ -255,9 +255,24 @@ def default_settings(config: str | Path | Scenario | None) -> Scenario:
     ``attach()``): a Scenario object, a scenario/settings TOML, or the defaults."""
     if isinstance(config, Scenario):
         return config
-    if config is not None:
-        return load_scenario(config, require_network=False)
-    return Scenario(name="attached", path=Path.cwd() / "attached.toml")
+    if config is None:
+        return _world_speeds(Scenario(name="attached", path=Path.cwd() / "attached.toml"))
+    settings = load_scenario(config, require_network=False)
+    cav = read_toml(Path(config), "scenario file").get("cav", {})
+    if not isinstance(cav, dict) or not WORLD_SPEED_KEYS & set(cav):
+        settings = _world_speeds(settings)
+    return settings
+
+
+# A user's config setting any of these keys takes the CAVs' speeds from the config, not from the
+# CAVs' vType and the lanes (``[cav] speeds``).
+WORLD_SPEED_KEYS = frozenset({"cruising_speed_mps", "max_speed_mps", "speeds"})
+
+
+def _world_speeds(settings: Scenario) -> Scenario:
+    """``settings`` with ``[cav] speeds = "world"``: on a user's network the CAVs drive at SUMO's
+    desired speed for them, never at the paper's 20 m/s."""
+    return replace(settings, cav=replace(settings.cav, speeds="world"))
 
 
 class LiveScene:

@@ -4,6 +4,8 @@
   leader in the leader's own lane, human-driven, slower than the cruise, and worth passing
   (the swarm's speed cap exceeds its speed by ``min_speed_gain_mps``: MOBIL's incentive
   criterion for the platoon as a whole).
+* :func:`lane_speeds` estimates how fast the platoon could drive in each lane (the lanes it
+  would pass in, or re-form in), from the vehicles seen ahead.
 * :class:`TargetWatch` turns a candidate into a decision once it has held the leader back for
   ``trigger_after_s``, and keeps the swarm from deciding again during a cool-down.
 * :func:`stopped_blocking` says why a target no longer needs overtaking (it left the swarm's
@@ -15,7 +17,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -54,6 +56,38 @@ def behaving_interval_s(
     if room <= 0:
         return math.inf
     return max(configured_s, cell_length_m / room)
+
+
+def lane_speeds(
+    front: VehicleState,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    lanes: Sequence[int],
+    *,
+    range_m: float,
+    cap_mps: float,
+    desired_of: Callable[[VehicleState], float] | None = None,
+) -> dict[int, float]:
+    """How fast [m/s] a platoon led by ``front`` could drive in each of ``lanes``: ``cap_mps``
+    where the lane is free for ``range_m`` ahead of ``front``'s bumper, else the speed of the
+    nearest vehicle ahead there (by its centre's lane, so a vehicle half-way out of a lane no
+    longer counts for it), at most its desired speed (``desired_of``) and the cap."""
+    nearest: dict[int, VehicleState] = {}
+    wanted = set(lanes)
+    for other in others:
+        if other.rear_s_m <= front.s_m or other.s_m - front.s_m > range_m:
+            continue
+        lane = road.lane_of_y(road.y_of(other.lane, other.lat_m))
+        if lane in wanted and (lane not in nearest or other.s_m < nearest[lane].s_m):
+            nearest[lane] = other
+    speeds = {}
+    for lane in lanes:
+        lead = nearest.get(lane)
+        speed = cap_mps if lead is None else min(cap_mps, max(lead.speed_mps, 0.0))
+        if lead is not None and desired_of is not None:
+            speed = min(speed, desired_of(lead))
+        speeds[lane] = speed
+    return speeds
 
 
 def slow_vehicle_ahead(

@@ -98,6 +98,7 @@ SPEED_QUANTUM_MPS = 0.1  # entry margins are computed for speeds rounded to this
 # Entry margins are capped here [m]: an HV that would brake harder than allowed at any gap (it
 # is far faster than the grid) claims this much of its lane ahead, not the whole road.
 MAX_MARGIN_M = 150.0
+MARGIN_TOL_M = 0.1  # margins are searched to this [m]
 
 
 @functools.lru_cache(maxsize=8192)
@@ -106,7 +107,28 @@ def _entry_gap(model: DriverModel, v_q: int, v_lead_q: int, b: float, step_s: fl
     # A driver above its desired speed slows down on a free road too: only the braking the
     # entering vehicle adds counts against b.
     free = braking_needed(model, v, None, None, step_s)
-    return min(min_entry_gap(model, v, v_lead, b + free, step_s), MAX_MARGIN_M)
+    # Searched up to the cap only (a gap beyond it is the cap anyway), to a tenth of a metre
+    # (cells are 15 m): a far larger search is what made open roads slow.
+    gap = min_entry_gap(
+        model, v, v_lead, b + free, step_s, tol_m=MARGIN_TOL_M, max_gap_m=MAX_MARGIN_M
+    )
+    return min(gap, MAX_MARGIN_M)
+
+
+# Desired speeds are rounded down to this [m/s] before the margins are cached: SUMO draws a
+# speedFactor per vehicle, so without it every HV of a flow has its own model and misses the
+# cache (a slower desired speed makes IDM brake harder: the safe side).
+DESIRED_SPEED_QUANTUM_MPS = 0.5
+
+
+def canonical_model(model: DriverModel) -> DriverModel:
+    """``model`` with its desired speed rounded down and no speedFactor: one cache entry per
+    vType and desired-speed class, not per vehicle."""
+    q = DESIRED_SPEED_QUANTUM_MPS
+    v0 = math.floor(model.desired_speed_mps / q + 1e-9) * q
+    if v0 == model.desired_speed_mps and model.speed_factor == 1.0:
+        return model
+    return replace(model, desired_speed_mps=max(v0, q), speed_factor=1.0)
 
 
 def entry_gap(
@@ -115,7 +137,7 @@ def entry_gap(
     """:func:`~sumo_swarm.core.hvmodel.min_entry_gap`, cached; the follower's speed rounded up and
     the entering vehicle's rounded down (both on the safe side)."""
     return _entry_gap(
-        model,
+        canonical_model(model),
         math.ceil(v_mps / SPEED_QUANTUM_MPS - 1e-9),
         math.floor(max(v_lead_mps, 0.0) / SPEED_QUANTUM_MPS + 1e-9),
         b,
@@ -130,7 +152,10 @@ def _block_gap(
 ) -> float:  # fmt: skip
     q = SPEED_QUANTUM_MPS
     free = braking_needed(model, v_q * q, None, None, step_s)
-    gap = min_block_gap(model, v_q * q, v_enter_q * q, v_final_q * q, decel, b + free, step_s)
+    gap = min_block_gap(
+        model, v_q * q, v_enter_q * q, v_final_q * q, decel, b + free, step_s,
+        tol_m=MARGIN_TOL_M, max_gap_m=MAX_MARGIN_M,
+    )  # fmt: skip
     return min(gap, MAX_MARGIN_M)
 
 
@@ -141,7 +166,7 @@ def block_gap(
     """:func:`~sumo_swarm.core.hvmodel.min_block_gap`, cached, speeds rounded on the safe side."""
     q = SPEED_QUANTUM_MPS
     return _block_gap(
-        model, math.ceil(v_mps / q - 1e-9), math.floor(v_enter_mps / q + 1e-9),
+        canonical_model(model), math.ceil(v_mps / q - 1e-9), math.floor(v_enter_mps / q + 1e-9),
         math.floor(max(v_final_mps, 0.0) / q + 1e-9), decel, b, step_s,
     )  # fmt: skip
 
