@@ -291,3 +291,27 @@ def test_a_queue_forms_behind_a_slow_vehicle():
         assert s2 < s1 - 5.0
     assert p.predict(hv1, 0.0, 40.0).speed_mps == pytest.approx(10.0, abs=0.3)
     assert p.predict(hv2, 0.0, 40.0).speed_mps == pytest.approx(10.0, abs=0.3)
+
+
+def _peak_by_brute_force(m, v, v_lead, gap, step_s, horizon_s=60.0):
+    """The whole reaction simulated to the horizon, no early end: the strongest braking."""
+    peak = 0.0
+    for k in range(round(horizon_s / 0.1)):
+        dt = step_s if k == 0 else 0.1
+        acc = model_accel(m, v, v_lead, gap, dt)
+        peak = max(peak, -acc)
+        v = max(0.0, v + acc * dt)
+        gap += (v_lead - v) * dt
+    return peak
+
+
+@pytest.mark.parametrize(
+    ("v", "v_lead", "gap"), [(25.0, 14.0, 80.0), (22.0, 18.0, 30.0), (18.0, 18.0, 20.0)]
+)
+def test_reaction_with_worst_case_dawdling_ends_early_and_misses_nothing(v, v_lead, gap):
+    # Krauss with sigma 0.5, dawdling at its worst every step, never "eases off" steadily: the
+    # reaction ends once it has stopped closing in for 2 s, with the same peak as 60 s of it.
+    m = DriverModel("Krauss", 2.6, 4.5, 9.0, 1.0, 2.5, desired_speed_mps=27.0, sigma=0.5)
+    assert peak_braking(m, v, v_lead, gap, 0.1) == pytest.approx(
+        _peak_by_brute_force(m, v, v_lead, gap, 0.1), abs=1e-9
+    )

@@ -13,6 +13,7 @@ from sumo_swarm.core.swarming.decision import (
     Progress,
     TargetWatch,
     behaving_interval_s,
+    lane_speeds,
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
@@ -151,3 +152,35 @@ def test_plan_log_writes_lines_and_drops_a_failing_listener(tmp_path):
     lines = [json.loads(x) for x in (tmp_path / "plans.jsonl").read_text().splitlines()]
     assert [r["time_s"] for r in lines] == [1.0, 2.0] and lines[0]["cells"] == [1, 2]
     assert len(seen) == 2 and broken not in log.listeners
+
+
+# --------------------------------------------------------------------------- lane speeds
+def test_lane_speeds_from_the_nearest_vehicle_ahead_in_each_lane():
+    leader = car("c0", 100.0, 1, 15.0, cav=True)
+    others = [
+        car("slow", 140.0, 0, 12.0),  # nearest ahead in lane 0
+        car("far", 300.0, 0, 5.0),  # beyond the range
+        car("behind", 90.0, 2, 30.0),  # behind the leader: does not slow the lane
+        car("leaving", 130.0, 2, 11.0, lat=-1.7),  # its centre is in lane 1 already
+        car("fast", 150.0, 1, 26.0),
+    ]
+    speeds = lane_speeds(leader, others, ROAD, [0, 1, 2], range_m=100.0, cap_mps=25.0)
+    # lane 1: "leaving" counts there (its centre is across the line), nearer than "fast"
+    assert speeds == {0: 12.0, 1: 11.0, 2: 25.0}
+    desired = lane_speeds(leader, others, ROAD, [0, 1], range_m=100.0, cap_mps=25.0,
+                          desired_of=lambda v: 10.0 if v.vehicle_id == "slow" else 99.0)
+    assert desired == {0: 10.0, 1: 11.0}  # "slow" drives 12 m/s but wants 10
+    assert lane_speeds(leader, [], ROAD, [2], range_m=100.0, cap_mps=22.0) == {2: 22.0}
+
+
+def test_margins_cached_per_desired_speed_class_on_the_safe_side():
+    from sumo_swarm.core.hvmodel import min_entry_gap
+    from sumo_swarm.core.swarming.manoeuvre import canonical_model, entry_gap
+
+    a = DriverModel(model="IDM", desired_speed_mps=27.93, speed_factor=1.07)
+    b = DriverModel(model="IDM", desired_speed_mps=27.51, speed_factor=0.99)
+    assert canonical_model(a) == canonical_model(b)
+    assert canonical_model(a).desired_speed_mps == 27.5 and canonical_model(a).speed_factor == 1
+    assert entry_gap(a, 24.0, 18.0, 2.0, 0.1) == entry_gap(b, 24.0, 18.0, 2.0, 0.1)
+    # A slower desired speed makes IDM brake harder: the cached margin is never the smaller.
+    assert entry_gap(a, 24.0, 18.0, 2.0, 0.1) >= min_entry_gap(a, 24.0, 18.0, 2.0, 0.1) - 0.1

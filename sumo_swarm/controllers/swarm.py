@@ -339,6 +339,7 @@ class SwarmController:
         )
         lane = self._reform_lane(states, platoon)
         moves = {vid: self._steer_to_lane(states[vid], lane, states) for vid in platoon}
+        self._make_room(states, platoon, lane, moves)
         command_cacc(ctx, platoon, leader_cruise,
                      accel_limits={vid: m[1] for vid, m in moves.items()})  # fmt: skip
         for vid, (dlat, _) in moves.items():
@@ -381,6 +382,36 @@ class SwarmController:
             ctx.event("reform_lane", lane=best, lane_speeds_mps=shown)
         self._reform_lane_id = best
         return best
+
+    def _make_room(
+        self, states: dict[str, VehicleState], platoon: list[str], lane: int,
+        moves: dict[str, tuple[float, float]],
+    ) -> None:  # fmt: skip
+        """A CAV in the platoon's lane lets a CAV next to that lane merge in front of it: it
+        follows the merging CAV as if it were already ahead (braking gently), so a gap opens
+        there instead of the platoon streaming past a CAV that cannot get in."""
+        road, sc = self.ctx.road, self.ctx.scenario
+        lane_of = {v: road.lane_of_y(road.y_of(states[v].lane, states[v].lat_m)) for v in platoon}
+        merging = [states[v] for v in platoon if abs(lane_of[v] - lane) == 1]
+        if not merging:
+            return
+        others = list(states.values())
+        gentle = -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
+        for vid in platoon:
+            if lane_of[vid] != lane:
+                continue
+            ego = states[vid]
+            ahead = [m for m in merging if m.s_m > ego.s_m]
+            if not ahead:
+                continue
+            m = min(ahead, key=lambda x: x.s_m)
+            gap = m.rear_s_m - ego.s_m
+            real = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
+            if real is not None and real[1] <= gap:
+                continue  # its own leader is nearer: the merging CAV slots in further ahead
+            accel = cacc_accel(ego.speed_mps, gap, m.speed_mps, m.accel_mps2, sc.cav, sc.cacc)
+            dlat, bound = moves[vid]
+            moves[vid] = (dlat, min(bound, max(accel, gentle)))
 
     def _desired_speed(self, vehicle: VehicleState) -> float:
         """Speed [m/s] a vehicle wants to drive: an HV's by its model, a CAV's its own."""

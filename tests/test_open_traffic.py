@@ -1,0 +1,102 @@
+"""The swarm in traffic it was not tuned for (issue 12), through real SUMO: a target that leaves
+the platoon's lane, side lanes as slow as the target, and a user's road whose CAVs are faster
+than the paper's 20 m/s. Each swarm run is compared with a baseline on the same scene."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from sumo_swarm.sim.netbuild import HighwaySpec
+from sumo_swarm.sim.runner import run_scenario, run_sumocfg
+from sumo_swarm.study.batch import load_sweep
+from tests.usercases import write_user_case
+
+pytestmark = pytest.mark.sumo
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _events(run_dir: Path) -> list[dict]:
+    lines = (run_dir / "events.jsonl").read_text(encoding="utf-8").splitlines()
+    return [json.loads(line) for line in lines if line.strip()]
+
+
+def _cav_lanes_at_end(run_dir: Path) -> set[int]:
+    df = pd.read_parquet(run_dir / "trajectories.parquet")
+    cav = df[df["kind"] == "cav"]
+    return set(cav[cav["time_s"] == cav["time_s"].max()]["lane"])
+
+
+def test_platoon_reforms_in_one_lane_when_the_target_leaves_its_lane(tmp_path):
+    # Variant 10 of scenarios/variants.toml: 11 CAVs, a 16.5 m/s truck that changes to the
+    # right lane at about 8 s, while the swarm is spread over all three lanes.
+    sweep = load_sweep(ROOT / "scenarios" / "variants.toml")
+    spec = next(
+        r for r in sweep.runs
+        if r.controller == "swarm" and r.params["cav.count"] == 11
+        and r.params["scene.hv.hv_target.speed_mps"] == pytest.approx(16.51)
+    )  # fmt: skip
+    scenario = spec.scenario()
+    swarm = run_scenario(scenario, "swarm", tmp_path / "swarm", seed=spec.seed, progress=False)
+    cacc = run_scenario(scenario, "cacc", tmp_path / "cacc", seed=spec.seed, progress=False)
+    ends = [e for e in _events(tmp_path / "swarm") if e["event"] == "overtake_end"]
+    assert ends and ends[0]["reason"] == "target_changed_lane"
+    assert any(e["event"] == "reform_lane" for e in _events(tmp_path / "swarm"))
+    assert len(_cav_lanes_at_end(tmp_path / "swarm")) == 1  # one platoon again
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["cav"]["gap_min_m"] >= 5.0
+    assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
+
+
+def _slow_side_lanes(folder: Path) -> Path:
+    """The user case with a car ahead in each side lane as slow as the truck."""
+    cfg = write_user_case(folder, HighwaySpec(length_m=2500, lanes=3), platoon_lane=1)
+    routes = folder / "routes.rou.xml"
+    slow = [
+        f'  <vehicle id="slow{lane}" type="car" route="r" depart="0" departLane="{lane}" '
+        f'departPos="{330 + 20 * lane}" departSpeed="16"/>'
+        for lane in (0, 2)
+    ]
+    text = routes.read_text(encoding="utf-8").replace("</routes>", "\n".join(slow) + "\n</routes>")
+    routes.write_text(text, encoding="utf-8")
+    return cfg
+
+
+def test_no_overtake_when_the_side_lanes_are_as_slow_as_the_target(tmp_path):
+    cfg = _slow_side_lanes(tmp_path / "net")
+    swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
+    cacc = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False, notify=print)
+    assert not swarm["overtake"]["triggered"]
+    worth = [e for e in _events(tmp_path / "swarm") if e["event"] == "overtake_not_worth"]
+    assert worth and worth[0]["target"] == "truck"
+    assert swarm["safety"]["collisions"] == 0
+    assert swarm["cav"]["mean_speed_mps"] >= 0.99 * cacc["cav"]["mean_speed_mps"]
+
+
+def test_cavs_drive_at_the_speed_of_the_users_world(tmp_path):
+    # The user's CAVs may drive 30 m/s on a 27.78 m/s road: SUMO's desired speed for them is
+    # min(maxSpeed, limit * speedFactor), never the paper's 20 m/s.
+    cfg = write_user_case(tmp_path / "net", HighwaySpec(length_m=2500, lanes=3), end_s=40.0)
+    routes = tmp_path / "net" / "routes.rou.xml"
+    routes.write_text(
+        routes.read_text(encoding="utf-8").replace(
+            'maxSpeed="20" accel="3"', 'maxSpeed="30" accel="3"'
+        ),
+        encoding="utf-8",
+    )
+    out = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False, notify=print)
+    speeds = out["speeds"]
+    assert speeds["source"].startswith("SUMO")
+    assert 22.0 < speeds["cruising_speed_mps"] <= 30.0  # 27.78 x a speedFactor near 1
+    assert out["cav"]["max_speed_mps"] <= speeds["max_speed_mps"] + 0.1
+    # A config that sets the speeds keeps them.
+    config = tmp_path / "mine.toml"
+    config.write_text("[cav]\ncruising_speed_mps = 18.0\nmax_speed_mps = 22.0\n", encoding="utf-8")
+    mine = run_sumocfg(cfg, "cav", "cacc", tmp_path / "mine", config=config, progress=False,
+                       notify=print)  # fmt: skip
+    assert mine["speeds"]["source"] == "config [cav]"
+    assert mine["speeds"]["cruising_speed_mps"] == 18.0
+    assert mine["cav"]["max_speed_mps"] <= 22.1
