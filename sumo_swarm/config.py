@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from sumo_swarm.checks import SEED_MAX, check_fields, is_number
+from sumo_swarm.checks import SEED_MAX, check_fields, is_number, require_number
 from sumo_swarm.core.grid import GridSettings
 from sumo_swarm.core.planner import PlannerSettings
 from sumo_swarm.core.swarming.guards import GuardSettings
@@ -292,6 +292,11 @@ class SwarmSettings:
     # "cruise": replan in a grid moving at the cruising speed (CAVs keep more speed while they
     # merge, but on a curved 3-lane road a CAV was left between lanes: see docs/closed-loop.md).
     regroup_grid_speed: Literal["target", "cruise"] = "target"
+    # Who regroups the CAVs once every one is past the target. "planner": the cell MIP goes on
+    # until they share the regroup lane (the paper's Fig. 6, step 4). "cruise": the manoeuvre
+    # is complete when all are past, and the cruise mode re-forms the platoon in the fastest
+    # lane it occupies (lane changes through the guards, CAVs in that lane opening gaps).
+    regroup_by: Literal["planner", "cruise"] = "planner"
     # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
     # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
@@ -369,6 +374,13 @@ class HvModelSettings:
     # A blocker that enters at a faster lane's speed then slows it at this share of the
     # planner's b_safe.
     block_decel_share: float = 0.7
+    # Entry margins in front of an HV faster than the grid: a CAV speeds up towards that lane's
+    # speed before it changes lanes (the tracker's speed matching), by up to this much above the
+    # grid's speed [m/s], and then slows the lane to the grid's speed as a blocker does. The
+    # margin is the gap at which the HV, reacting by its model, brakes no harder than b for
+    # that whole entry; much smaller than for an entry at the grid's speed, so CAVs fit into the
+    # gaps of a faster lane. 0: an entry at the grid's speed (the previous rule).
+    entry_speed_gain_mps: float = 3.0
     margin_rule: Literal["model", "headway"] = "model"
     predictor: Literal["car-following", "constant-speed"] = "car-following"
     prediction_dt_s: float = 0.25
@@ -382,6 +394,7 @@ class HvModelSettings:
             "target_b_mps2",
             "block_decel_share",
         )
+        require_number("entry_speed_gain_mps", self.entry_speed_gain_mps, ge=0.0)
         if self.planner_share > 1.0:
             raise ConfigError(f"planner_share must be <= 1, got {self.planner_share}")
 

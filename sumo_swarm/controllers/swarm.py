@@ -135,6 +135,7 @@ class SwarmController:
                 margin_rule=sc.hvmodel.margin_rule, predictor=sc.hvmodel.predictor,
                 prediction_dt_s=sc.hvmodel.prediction_dt_s, target_b_mps2=sc.hvmodel.target_b_mps2,
                 block_decel_share=sc.hvmodel.block_decel_share,
+                entry_speed_gain_mps=sc.hvmodel.entry_speed_gain_mps,
                 a_min_mps2=sc.cav.accel_min_mps2, a_max_mps2=sc.cav.accel_max_mps2,
                 max_lateral_speed_mps=sc.cav.max_lateral_speed_mps,
             ),
@@ -493,6 +494,8 @@ class SwarmController:
         sc = self.ctx.scenario
         if not all_past(target, cavs, sc.cav.min_gap_m):
             return False
+        if sc.swarm.regroup_by == "cruise":
+            return True  # the cruise mode re-forms the platoon
         y_lane = road.lane_centre_y(self.regroup_lane_used)
         tol = sc.swarm.in_lane_tolerance_m
         return all(abs(road.y_of(c.lane, c.lat_m) - y_lane) <= tol for c in cavs.values())

@@ -73,6 +73,7 @@ class ManoeuvreSettings:
     a_min_mps2: float
     a_max_mps2: float
     max_lateral_speed_mps: float
+    entry_speed_gain_mps: float = 0.0  # [hvmodel]: 0 = entries at the grid's speed
 
 
 @dataclass
@@ -227,7 +228,9 @@ class ManoeuvrePlanner:
         levels = RELAXATION[: RELAXATION.index(relax_to) + 1]
         try:
             for level in levels:
-                front_margin = self._front_margin(level, models, grid_speed_mps, step_s, target_id)
+                front_margin = self._front_margin(
+                    level, models, grid_speed_mps, step_s, target_id, cap_mps
+                )
                 target_margin = front_margin(target)[1] if front_margin else None
                 gs = st.grid
                 if st.margin_rule == "headway":  # the paper's constant headway, scaled down
@@ -290,10 +293,13 @@ class ManoeuvrePlanner:
         v_cav: float,
         step_s: float,
         target_id: str,
+        cap_mps: float = math.inf,
     ) -> Callable[[VehicleState], tuple[float, float]] | None:
         """(hard, entry) margins in front of an HV: the hard one is its own minGap (no CAV is
         ever planned closer), the entry one the gap at which it would brake at the level's
-        share of b_safe for a CAV entering at the grid's speed."""
+        share of b_safe for a CAV entering at the grid's speed, or, in front of a faster HV, for
+        a CAV that matched speed by up to ``entry_speed_gain_mps`` and then slows to the grid's
+        speed as a blocker does."""
         st = self.settings
         if st.margin_rule == "headway":
             return None
@@ -303,8 +309,16 @@ class ManoeuvrePlanner:
             model = models.get(hv.vehicle_id)
             if model is None:  # a lane end or other standing obstacle
                 return st.grid.gap_behind_m, st.grid.gap_behind_m
-            b_hv = min(b, st.target_b_mps2) if hv.vehicle_id == target_id else b
-            gap = entry_gap(model, hv.speed_mps, v_cav, b_hv, step_s)
+            if hv.vehicle_id == target_id:
+                gap = entry_gap(model, hv.speed_mps, v_cav, min(b, st.target_b_mps2), step_s)
+                return model.min_gap_m, max(gap, model.min_gap_m)
+            v_enter = min(hv.speed_mps, cap_mps, v_cav + st.entry_speed_gain_mps)
+            if v_enter <= v_cav + SPEED_QUANTUM_MPS:
+                gap = entry_gap(model, hv.speed_mps, v_cav, b, step_s)
+            else:
+                gap = block_gap(
+                    model, hv.speed_mps, v_enter, v_cav, st.block_decel_share * b, b, step_s
+                )
             return model.min_gap_m, max(gap, model.min_gap_m)
 
         return margin
