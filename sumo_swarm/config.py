@@ -297,6 +297,9 @@ class SwarmSettings:
     # is complete when all are past, and the cruise mode re-forms the platoon in the fastest
     # lane it occupies (lane changes through the guards, CAVs in that lane opening gaps).
     regroup_by: Literal["planner", "cruise"] = "planner"
+    # A cruising CAV cut off from the platoon by a slow vehicle passes it on its own, in the
+    # faster lane beside; it gives that up after this long [s] and heads for the platoon's lane.
+    max_pass_s: float = 30.0
     # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
     # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
@@ -342,7 +345,7 @@ class SwarmSettings:
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
             "cooldown_s", "max_block_s", "prediction_error_m",
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
-            "hold_episode_s",
+            "hold_episode_s", "max_pass_s",
         )  # fmt: skip
         if self.give_up_no_progress_intervals < 1:
             raise ConfigError(

@@ -100,3 +100,45 @@ def test_cavs_drive_at_the_speed_of_the_users_world(tmp_path):
     assert mine["speeds"]["source"] == "config [cav]"
     assert mine["speeds"]["cruising_speed_mps"] == 18.0
     assert mine["cav"]["max_speed_mps"] <= 22.1
+
+
+def test_cavs_cut_off_by_a_slow_vehicle_pass_it_and_rejoin(tmp_path):
+    # A platoon whose leader is free but whose last two CAVs are stuck behind a slow car that
+    # drives between them (as after a give-up, or a cut-in): they pass it one by one in the
+    # faster lane beside and come back to the platoon's lane, where cacc would stay behind.
+    cfg = write_user_case(tmp_path / "net", HighwaySpec(length_m=2500, lanes=3), cav_count=0,
+                          end_s=70.0)  # fmt: skip
+    routes = tmp_path / "net" / "routes.rou.xml"
+    text = routes.read_text(encoding="utf-8")
+    truck = 'departPos="322.0" departSpeed="16.0"'
+    assert truck in text
+    text = text.replace(truck, 'departPos="2400" departSpeed="16.0"')  # far away
+    text = text.replace(
+        '<vType id="car"', '<vType id="slowcar" maxSpeed="12" carFollowModel="IDM" speedDev="0" '
+        'lcSpeedGain="0" lcKeepRight="0"/>\n  <vType id="car"'
+    )  # fmt: skip
+    cars = [
+        '  <vehicle id="c0" type="cav" route="r" depart="0" departLane="1" departPos="300" '
+        'departSpeed="16"/>',
+        '  <vehicle id="slow" type="slowcar" route="r" depart="0" departLane="1" departPos="280" '
+        'departSpeed="12"/>',
+        '  <vehicle id="c1" type="cav" route="r" depart="0" departLane="1" departPos="260" '
+        'departSpeed="12"/>',
+        '  <vehicle id="c2" type="cav" route="r" depart="0" departLane="1" departPos="245" '
+        'departSpeed="12"/>',
+    ]
+    routes.write_text(text.replace("</routes>", "\n".join(cars) + "\n</routes>"), encoding="utf-8")
+    swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
+    cacc = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False, notify=print)
+    events = _events(tmp_path / "swarm")
+    assert {e["vehicle"] for e in events if e["event"] == "passing_start"} == {"c1", "c2"}
+    assert {e["vehicle"] for e in events if e["event"] == "passing_end" and e["past"]} == {
+        "c1",
+        "c2",
+    }
+    df = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    last = df[df["time_s"] == df["time_s"].max()].set_index("vehicle")
+    assert len(set(last.loc[["c0", "c1", "c2"], "lane"])) == 1
+    assert (last.loc[["c1", "c2"], "s_m"] > last.loc["slow", "s_m"]).all()
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]

@@ -116,6 +116,7 @@ class SwarmController:
         self._models: dict[str, tuple[str | None, DriverModel]] = {}
         self._reform_lane_id: int | None = None
         self._no_gain_target: str | None = None
+        self._passing: dict[str, tuple[str, int, float]] = {}  # CAV -> (slow HV, lane, since)
         self._target_lane: tuple[str | None, int] | None = None
 
     # ------------------------------------------------------------------ set-up
@@ -249,7 +250,7 @@ class SwarmController:
         if self.mode is Mode.OVERTAKE and self.plan is not None:
             self._track(t_s, states, platoon)
         else:
-            self._cruise(states, platoon)
+            self._cruise(t_s, states, platoon)
 
     # ------------------------------------------------------------------ decision
     def _slow_below(self) -> float:
@@ -323,7 +324,7 @@ class SwarmController:
         return target.lane != self._target_lane[1] and abs(target.lat_m) < 0.5
 
     # ------------------------------------------------------------------ cruise
-    def _cruise(self, states: dict[str, VehicleState], platoon: list[str]) -> None:
+    def _cruise(self, t_s: float, states: dict[str, VehicleState], platoon: list[str]) -> None:
         """CACC following in the current lane, drifting back to the lane centre."""
         ctx = self.ctx
         sc = ctx.scenario
@@ -339,8 +340,9 @@ class SwarmController:
             sc.swarm.max_leader_ease_mps, sc.cacc.k_close * stretch
         )
         lane = self._reform_lane(states, platoon)
-        moves = {vid: self._steer_to_lane(states[vid], lane, states) for vid in platoon}
-        self._make_room(states, platoon, lane, moves)
+        goals = self._lane_goals(t_s, states, platoon, lane)
+        moves = {vid: self._steer_to_lane(states[vid], goals[vid], states) for vid in platoon}
+        self._make_room(states, [v for v in platoon if v not in self._passing], lane, moves)
         command_cacc(ctx, platoon, leader_cruise,
                      accel_limits={vid: m[1] for vid, m in moves.items()})  # fmt: skip
         for vid, (dlat, _) in moves.items():
@@ -383,6 +385,53 @@ class SwarmController:
             ctx.event("reform_lane", lane=best, lane_speeds_mps=shown)
         self._reform_lane_id = best
         return best
+
+    def _lane_goals(
+        self, t_s: float, states: dict[str, VehicleState], platoon: list[str], lane: int
+    ) -> dict[str, int]:
+        """The lane each cruising CAV heads for: the platoon's, except for a CAV cut off from
+        the CAV ahead of it by a slow vehicle in that lane (left behind by a give-up, or an HV
+        that cut in): it passes that vehicle on its own in the faster lane beside, through the
+        guards, and comes back to the platoon's lane once past it (``passing`` events)."""
+        ctx = self.ctx
+        road, sc = ctx.road, ctx.scenario
+        sw = sc.swarm
+        members = set(platoon)
+        others = [st for v, st in states.items() if v not in members]
+        goals = {}
+        for i, vid in enumerate(platoon):
+            ego = states[vid]
+            goals[vid] = lane
+            passing = self._passing.get(vid)
+            if passing is not None:
+                slow_id, side, since = passing
+                slow = states.get(slow_id)
+                done = slow is None or ego.rear_s_m >= slow.s_m + sc.cav.min_gap_m
+                if done or t_s - since > sw.max_pass_s:
+                    del self._passing[vid]
+                    ctx.event("passing_end", vehicle=vid, slow=slow_id, past=done)
+                else:
+                    goals[vid] = side
+                continue
+            if i == 0 or road.lane_of_y(road.y_of(ego.lane, ego.lat_m)) != lane:
+                continue
+            ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
+            if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
+                continue
+            slow = ahead[0]
+            if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
+                continue
+            if states[platoon[i - 1]].rear_s_m <= slow.s_m:
+                continue  # the CAV ahead is behind it too: the swarm decides for them
+            side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
+            speeds = lane_speeds(ego, others, road, side, range_m=sw.detect_range_m,
+                                 cap_mps=self.cap_mps, desired_of=self._desired_speed)  # fmt: skip
+            best = max(speeds, key=speeds.get, default=None)
+            if best is not None and speeds[best] - slow.speed_mps >= sw.min_speed_gain_mps:
+                self._passing[vid] = (slow.vehicle_id, best, t_s)
+                goals[vid] = best
+                ctx.event("passing_start", vehicle=vid, slow=slow.vehicle_id, lane=best)
+        return goals
 
     def _make_room(
         self, states: dict[str, VehicleState], platoon: list[str], lane: int,
