@@ -286,9 +286,23 @@ class SwarmController:
             cap_mps=self._speed_cap(platoon[:1]),
             min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
         )  # fmt: skip
+        if candidate is not None and self._lane_ends_soon(platoon[0], leader):
+            candidate = None  # everyone leaves that lane anyway: nothing to overtake there
         if candidate is not None and not self._side_lane_pays(leader, candidate, states):
             candidate = None
         return self.watch.update(t_s, candidate)
+
+    def _lane_ends_soon(self, vid: str, leader: VehicleState) -> bool:
+        """Does the leader's lane end within ``[swarm] detect_range_m`` plus two behaving
+        intervals at the cruising speed (an acceleration lane, a lane drop)?"""
+        session = self.ctx.session
+        sc = self.ctx.scenario
+        edge = session.edges.get(vid) if hasattr(session, "edges") else None
+        if edge is None or not hasattr(session, "lanes_ending"):
+            return False
+        reach = sc.swarm.detect_range_m + 2.0 * 3.0 * sc.cav.cruising_speed_mps
+        ending = session.lanes_ending(edge, leader.rear_s_m, leader.s_m + reach)
+        return any(lane == leader.lane for lane, _ in ending)
 
     def _side_lane_pays(self, leader: VehicleState, target: VehicleState, states) -> bool:
         """Is a lane beside the leader's faster than the target by ``min_speed_gain_mps``? The

@@ -24,6 +24,8 @@ from enum import Enum
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import vehicle_ahead
 
+# A vehicle accelerating harder than this [m/s^2] is getting up to speed, not slow.
+ACCELERATING_MPS2 = 0.5
 GAIN_STEP_M = 3.0  # a gain of the CAVs' mean position on the target that counts as progress [m]
 
 
@@ -117,8 +119,12 @@ def slow_vehicle_ahead(
         return None
     if cap_mps - vehicle.speed_mps < min_gain_mps:
         return None
-    if vehicle.lane != leader.lane and abs(vehicle.lat_m) < 0.5:
-        return None  # in another lane (the overlap was the leader's own lane change)
+    if vehicle.lane != leader.lane:
+        # In another lane, or still changing into the leader's: a car merging from a ramp is
+        # slow only while it merges, it becomes a candidate (with persistence) once in the lane.
+        return None
+    if vehicle.accel_mps2 > ACCELERATING_MPS2:
+        return None  # speeding up (e.g. after merging): not a slow vehicle
     return vehicle
 
 
