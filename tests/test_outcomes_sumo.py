@@ -1,0 +1,93 @@
+"""Outcomes measured on real SUMO runs (issue 12, items 4-6): gaps between vehicles that really
+share a lane on a road with ramps, SUMO's step length the swarm supports, and CAVs whose vType
+SUMO copied for one vehicle (``cav@c0``)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import sumo
+
+from sumo_swarm.sim import metrics
+from sumo_swarm.sim.runner import run_sumocfg
+
+pytestmark = pytest.mark.sumo
+
+NODES = """<nodes>
+  <node id="a" x="0" y="0"/> <node id="b" x="400" y="0"/> <node id="c" x="700" y="0"/>
+  <node id="d" x="1200" y="0"/> <node id="r0" x="150" y="-60"/> <node id="r1" x="950" y="-80"/>
+</nodes>
+"""
+# A 2-lane road with an on-ramp that becomes a third lane, which leaves as an off-ramp: every
+# car from the ramp changes lanes to the left, every exiting car to the right (a weaving zone).
+EDGES = """<edges>
+  <edge id="m1" from="a" to="b" numLanes="2" speed="27.78"/>
+  <edge id="m2" from="b" to="c" numLanes="3" speed="27.78"/>
+  <edge id="m3" from="c" to="d" numLanes="2" speed="27.78"/>
+  <edge id="on" from="r0" to="b" numLanes="1" speed="22.22"/>
+  <edge id="off" from="c" to="r1" numLanes="1" speed="22.22"/>
+</edges>
+"""
+ROUTES = """<routes>
+  <vType id="car"/>
+  <vType id="moto" vClass="motorcycle"/>
+  <vType id="cav" maxSpeed="25" sigma="0"/>
+  <route id="main" edges="m1 m2 m3"/>
+  <route id="merge" edges="on m2 m3"/>
+  <route id="exit" edges="m1 m2 off"/>
+  <flow id="fm" type="car" route="main" end="60" vehsPerHour="1800" departLane="best"
+        departSpeed="max"/>
+  <flow id="fon" type="car" route="merge" end="60" vehsPerHour="600" departLane="best"
+        departSpeed="max"/>
+  <flow id="fex" type="car" route="exit" end="60" vehsPerHour="600" departLane="best"
+        departSpeed="max"/>
+  <flow id="mc" type="moto" route="main" end="60" vehsPerHour="600" departLane="best"
+        departSpeed="max"/>
+  <flow id="c" type="cav" route="main" begin="2" end="30" period="5" departLane="0"
+        departSpeed="max"/>
+</routes>
+"""
+
+
+def write_ramp_case(folder: Path, step_s: float = 0.1, end_s: float = 80.0) -> Path:
+    """A user's road with ramps, SUMO's default drivers, CAVs from a flow; its sumocfg."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "ramp.nod.xml").write_text(NODES, encoding="utf-8")
+    (folder / "ramp.edg.xml").write_text(EDGES, encoding="utf-8")
+    netconvert = str(Path(sumo.SUMO_HOME) / "bin" / "netconvert")
+    cmd = [netconvert, "-n", "ramp.nod.xml", "-e", "ramp.edg.xml", "-o", "ramp.net.xml"]
+    subprocess.run([*cmd, "--no-turnarounds", "true", "--no-warnings", "true"], cwd=folder,
+                   check=True, capture_output=True)  # fmt: skip
+    (folder / "routes.rou.xml").write_text(ROUTES, encoding="utf-8")
+    cfg = folder / "user.sumocfg"
+    cfg.write_text(
+        '<configuration><input><net-file value="ramp.net.xml"/>'
+        '<route-files value="routes.rou.xml"/></input>'
+        f'<time><step-length value="{step_s}"/><end value="{end_s}"/></time></configuration>\n',
+        encoding="utf-8",
+    )
+    return cfg
+
+
+def test_gaps_on_a_road_with_ramps_are_never_negative_without_a_collision(tmp_path):
+    cfg = write_ramp_case(tmp_path / "net")
+    out = tmp_path / "cacc"
+    summary = run_sumocfg(cfg, "cav", "sumo-cacc", out, progress=False, notify=lambda _: None)
+    assert summary["safety"]["collisions"] == 0
+    assert summary["cav"]["count"] == 6
+    assert summary["cav"]["gap_min_m"] >= 0.0
+    df = pd.read_parquet(out / "trajectories.parquet")
+    g = metrics.gaps(df)
+    assert g["gap_m"].min() >= 0.0  # every vehicle, not only the CAVs
+    # vehicles part-way into a lane are paired in it: ramp cars changing lanes in front of the
+    # CAVs are some CAV's leader while their centre is still in the ramp's lane
+    cav = df["kind"] == "cav"
+    other_lane = g["leader"].notna() & cav
+    leaders = df.set_index(["time_s", "vehicle"])["lane"]
+    lead_lane = leaders.reindex(
+        pd.MultiIndex.from_arrays([g.loc[other_lane, "time_s"], g.loc[other_lane, "leader"]])
+    ).to_numpy()
+    assert (lead_lane != df.loc[other_lane, "lane"].to_numpy()).any()
