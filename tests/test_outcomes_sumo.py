@@ -11,8 +11,12 @@ import pandas as pd
 import pytest
 import sumo
 
+import sumo_swarm
 from sumo_swarm.sim import metrics
+from sumo_swarm.sim.bridge import is_of_type, sumo_binary
+from sumo_swarm.sim.netbuild import HighwaySpec
 from sumo_swarm.sim.runner import run_sumocfg
+from tests.usercases import write_user_case
 
 pytestmark = pytest.mark.sumo
 
@@ -91,3 +95,49 @@ def test_gaps_on_a_road_with_ramps_are_never_negative_without_a_collision(tmp_pa
         pd.MultiIndex.from_arrays([g.loc[other_lane, "time_s"], g.loc[other_lane, "leader"]])
     ).to_numpy()
     assert (lead_lane != df.loc[other_lane, "lane"].to_numpy()).any()
+
+
+# ------------------------------------------------------------------------------------------
+# CAVs whose vType SUMO copied for one vehicle
+
+
+def test_is_of_type_matches_the_type_and_its_per_vehicle_copies():
+    assert is_of_type("cav", "cav")
+    assert is_of_type("cav@cav0", "cav")
+    assert is_of_type("cav@a@b", "cav")
+    assert not is_of_type("cav2", "cav")
+    assert not is_of_type("cavalry@x", "cav")
+    assert not is_of_type("car@cav", "cav")
+    assert not is_of_type("cav", "cav@cav0")
+
+
+def test_attach_counts_cavs_with_their_own_copy_of_the_vtype(tmp_path):
+    import libsumo
+
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=2500, lanes=3), end_s=30.0)
+    libsumo.start(
+        [sumo_binary(), "-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
+         "--time-to-teleport", "-1", "--collision.action", "warn",
+         "--collision.mingap-factor", "0"]
+    )  # fmt: skip
+    try:
+        # a CAV added later, its vType parameters changed before it departs
+        libsumo.vehicle.add("late", "r", typeID="cav", depart="3", departLane="2", departPos="50")
+        libsumo.vehicle.setMinGap("late", 3.0)
+        libsumo.simulation.step()
+        libsumo.vehicle.setMinGap("c0", 3.0)  # a CAV already driving
+        assert libsumo.vehicle.getTypeID("c0") == "cav@c0"
+        assert libsumo.vehicle.getTypeID("late") == "cav@late"
+        handle = sumo_swarm.attach(libsumo, cav_type="cav")
+        while libsumo.simulation.getTime() < 8.0:
+            libsumo.simulation.step()
+        summary = handle.summary()
+        df = handle.recorder.frame()
+        handle.detach()
+    finally:
+        libsumo.close()
+    assert set(handle.session.cav_ids) == {f"c{i}" for i in range(6)} | {"late"}
+    assert summary["cav"]["count"] == 7
+    kinds = df.groupby("vehicle", observed=True)["kind"].first().astype(str)
+    assert kinds["c0"] == "cav" and kinds["late"] == "cav"
+    assert kinds["truck"] == "hv"

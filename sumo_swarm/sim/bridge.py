@@ -52,6 +52,16 @@ def _constants(api) -> ModuleType:
     return consts
 
 
+def is_of_type(type_id: str, vtype: str) -> bool:
+    """Whether a vehicle whose vType id is ``type_id`` belongs to vType ``vtype``.
+
+    Setting a vType parameter for one vehicle (``vehicle.setMinGap``, ``setParameter``, ...)
+    makes SUMO give that vehicle its own copy of the type, named ``vtype@vehicle_id``
+    (e.g. ``cav@cav0``): the copy still belongs to ``vtype``.
+    """
+    return type_id == vtype or type_id.startswith(vtype + "@")
+
+
 @dataclass
 class Collision:
     time_s: float

@@ -16,7 +16,7 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError, SimulationError
-from sumo_swarm.sim.bridge import SumoSession, sumo_binary
+from sumo_swarm.sim.bridge import SumoSession, is_of_type, sumo_binary
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.recorder import RunRecorder
 from sumo_swarm.sim.scene import (
@@ -72,7 +72,7 @@ def run_scenario(
     session = SumoSession(
         args,
         route_edges=sim.route_edges,
-        is_cav=lambda vid, type_id: type_id == CAV_TYPE,
+        is_cav=lambda vid, type_id: is_of_type(type_id, CAV_TYPE),
         gui=gui,
     )
     return _drive(
@@ -137,7 +137,9 @@ def run_sumocfg(
     save_sumo_configuration(cfg, args, out / "sumo" / "scenario.sumocfg")
     controller = make_controller(controller_name)
     session = SumoSession(
-        [*args, *_fcd_args(out, fcd)], is_cav=lambda vid, type_id: type_id == cav_type, gui=gui
+        [*args, *_fcd_args(out, fcd)],
+        is_cav=lambda vid, type_id: is_of_type(type_id, cav_type),
+        gui=gui,
     )
 
     def check_types(sess: SumoSession) -> None:
