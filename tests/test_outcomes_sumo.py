@@ -12,10 +12,14 @@ import pytest
 import sumo
 
 import sumo_swarm
+from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim import metrics
 from sumo_swarm.sim.bridge import is_of_type, sumo_binary
 from sumo_swarm.sim.netbuild import HighwaySpec
 from sumo_swarm.sim.runner import run_sumocfg
+from sumo_swarm.sim.steplimit import MAX_SWARM_STEP_S
+from tests.test_cli import assert_bad_input
+from tests.test_cli import sumo_swarm as cli
 from tests.usercases import write_user_case
 
 pytestmark = pytest.mark.sumo
@@ -141,3 +145,74 @@ def test_attach_counts_cavs_with_their_own_copy_of_the_vtype(tmp_path):
     kinds = df.groupby("vehicle", observed=True)["kind"].first().astype(str)
     assert kinds["c0"] == "cav" and kinds["late"] == "cav"
     assert kinds["truck"] == "hv"
+
+
+# ------------------------------------------------------------------------------------------
+# SUMO's step length: the swarm refuses steps above MAX_SWARM_STEP_S, the baselines run
+
+
+def user_case_at(folder: Path, step: str | None, end_s: float = 30.0) -> Path:
+    """The 3-lane user case with step-length ``step`` (None: no step-length, SUMO's 1 s)."""
+    cfg = write_user_case(folder, HighwaySpec(length_m=2500, lanes=3), end_s=end_s)
+    old = '<step-length value="0.1"/>'
+    new = "" if step is None else f'<step-length value="{step}"/>'
+    text = cfg.read_text(encoding="utf-8")
+    assert old in text
+    cfg.write_text(text.replace(old, new), encoding="utf-8")
+    return cfg
+
+
+@pytest.mark.parametrize(("step", "named"), [("1", "1 s"), (None, "SUMO's default"), ("0.5", "")])
+def test_run_refuses_a_sumocfg_above_the_largest_step(tmp_path, step, named):
+    cfg = user_case_at(tmp_path, step)
+    out = tmp_path / "o"
+    proc = cli("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(out))
+    assert_bad_input(proc, str(cfg), "step-length", f"{MAX_SWARM_STEP_S:g} s", named)
+    assert not (out / "summary.json").exists()
+
+
+def test_run_refuses_a_scenario_file_above_the_largest_step(scenario_file):
+    path = scenario_file('[simulation]\nnetwork = "@NET@"\nstep_length_s = 0.5\n')
+    proc = cli("run", str(path), "--out", str(path.parent / "o"))
+    assert_bad_input(proc, str(path), "step_length_s", "0.5 s", f"{MAX_SWARM_STEP_S:g} s")
+
+
+def test_baselines_run_at_sumos_default_step(tmp_path):
+    cfg = user_case_at(tmp_path, None, end_s=20.0)
+    for name in ("sumo-cacc", "cacc"):
+        summary = run_sumocfg(
+            cfg, "cav", name, tmp_path / name, progress=False, notify=lambda _: None
+        )
+        assert summary["step_length_s"] == 1.0
+        assert summary["cav"]["count"] == 6
+
+
+def test_attach_refuses_sumos_default_step_and_baselines_attach(tmp_path):
+    import libsumo
+
+    cfg = user_case_at(tmp_path, None)
+    libsumo.start(
+        [sumo_binary(), "-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true"]
+    )
+    try:
+        assert libsumo.simulation.getDeltaT() == 1.0
+        with pytest.raises(ConfigError) as err:
+            sumo_swarm.attach(libsumo, cav_type="cav")
+        message = str(err.value)
+        assert "1 s" in message and f"{MAX_SWARM_STEP_S:g} s" in message
+        assert "\n" not in message
+        handle = sumo_swarm.attach(libsumo, cav_type="cav", controller="cacc")
+        while libsumo.simulation.getTime() < 20.0:
+            libsumo.simulation.step()
+        assert handle.summary()["cav"]["count"] == 6
+        handle.detach()
+    finally:
+        libsumo.close()
+
+
+def test_the_swarm_runs_at_the_largest_step(tmp_path):
+    cfg = user_case_at(tmp_path, f"{MAX_SWARM_STEP_S:g}", end_s=60.0)
+    summary = run_sumocfg(cfg, "cav", "swarm", tmp_path / "o", progress=False, notify=print)
+    assert summary["step_length_s"] == pytest.approx(MAX_SWARM_STEP_S)
+    assert summary["safety"]["collisions"] == 0
+    assert summary["overtake"]["triggered"]

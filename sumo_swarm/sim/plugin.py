@@ -38,6 +38,7 @@ from sumo_swarm.sim.bridge import SumoSession, is_of_type
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.recorder import EMPTY_WINDOW_S, RunRecorder
 from sumo_swarm.sim.scene import LiveScene, default_settings
+from sumo_swarm.sim.steplimit import check_step_length
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +197,9 @@ def attach(
     out_dir
         Where the swarm writes ``plans.jsonl`` as it goes and, at :meth:`SwarmHandle.detach`,
         ``summary.json``, ``trajectories.parquet`` and ``events.jsonl`` (optional).
+
+    Raises :class:`~sumo_swarm.errors.ConfigError` when the swarm controller is asked to run
+    at a SUMO step longer than :data:`~sumo_swarm.sim.steplimit.MAX_SWARM_STEP_S`.
     """
     if connection is None:
         connection = importlib.import_module("libsumo")
@@ -216,8 +220,10 @@ def attach(
         def is_cav(vid: str, type_id: str) -> bool:
             return is_of_type(type_id, cav_type)
 
-    warn_if_sumo_teleports(connection)
     ctrl = make_controller(controller) if isinstance(controller, str) else controller
+    step_s = connection.simulation.getDeltaT()
+    check_step_length(step_s, getattr(ctrl, "name", ""), "attach: SUMO's --step-length")
+    warn_if_sumo_teleports(connection)
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
