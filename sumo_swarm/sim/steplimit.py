@@ -12,14 +12,17 @@ from __future__ import annotations
 
 from sumo_swarm.errors import ConfigError
 
-# Measured with tools/step_limit.py (swarm, collisions counted with --collision.mingap-factor 0):
-# paper scene, paper scene with 10 CAVs, with HV lane changes, and the first 20 cases of
+# Measured with tools/step_limit.py (swarm, collisions counted with --collision.mingap-factor 0)
+# on the paper scene, the paper scene with 10 CAVs, with HV lane changes, and cases of
 # scenarios/variants.toml:
-#   0.1, 0.2, 0.25, 0.3 s: 0 collisions and 0 hard brakes in every scene;
-#   0.5 s: 1 collision (10 CAVs), and the paper scene's overtake no longer completes;
-#   1.0 s (SUMO's default): 4 collisions on the paper scene, 4 with 10 CAVs.
-# A 3-lane user road with a 2700 veh/h flow (tools/open_road.py) had 0 collisions at 0.3, 0.5
-# and 1 s, which does not make the longer steps safe: the paper scenes collide there.
+#   1.0 s (SUMO's default): collisions in 7 of 11 scenes (4, 4, 2, 16, 12, 3 and 11);
+#   0.5 s: 1 collision (10 CAVs) in 11 scenes, and the paper scene's overtake no longer
+#          completes;
+#   0.3 s: 0 collisions and 0 hard brakes in 23 scenes (variants 0-19); 0.25 and 0.2 s: the
+#          same in 10 scenes each; 0.1 s: in 4.
+# A 3-lane user road with a 2700 veh/h flow (tools/open_road.py, truck in lane 0) had 0
+# collisions and no CAV hard brake at 0.3, 0.5 and 1 s: one road does not make the longer steps
+# safe when the paper's scenes collide there.
 MAX_SWARM_STEP_S = 0.3  # [s]
 STEP_TOLERANCE_S = 1e-9  # [s] SUMO keeps the step in milliseconds; float noise is no excess
 
