@@ -1,11 +1,11 @@
 """The largest SUMO step length the swarm drives safely at, and the check that refuses more.
 
 The swarm reads the vehicles and commands each CAV's speed and lateral move once per SUMO step;
-between two steps nothing reacts. At long steps its lane changes and the gaps it closes beside
-HVs are too coarse to stay collision-free, so ``sumo-swarm run`` (scenario file or
-``--sumocfg``) and :func:`sumo_swarm.attach` refuse a step above :data:`MAX_SWARM_STEP_S`
-with a :class:`~sumo_swarm.errors.ConfigError`. The baselines (``cacc``, ``sumo-cacc``,
-``sumo-lc``) run at any step.
+a command holds for the whole step. At long steps that is too coarse: at 1 s CAVs ran into the
+slow vehicle and into each other (rear-end overlaps in the paper scene). So ``sumo-swarm run``
+(scenario file or ``--sumocfg``) and :func:`sumo_swarm.attach` refuse a step above
+:data:`MAX_SWARM_STEP_S` with a :class:`~sumo_swarm.errors.ConfigError`. The baselines
+(``cacc``, ``sumo-cacc``, ``sumo-lc``) run at any step.
 """
 
 from __future__ import annotations
@@ -39,6 +39,6 @@ def check_step_length(step_s: float, controller: str, where: str) -> None:
     if controller in LIMITED_CONTROLLERS and step_s > MAX_SWARM_STEP_S + STEP_TOLERANCE_S:
         raise ConfigError(
             f"{where}: step length {step_s:g} s is longer than the {MAX_SWARM_STEP_S:g} s the "
-            f"swarm supports (it collides at longer steps); use a step of at most "
+            f"swarm supports (its CAVs collide at longer steps); use a step of at most "
             f"{MAX_SWARM_STEP_S:g} s, or a baseline controller"
         )
