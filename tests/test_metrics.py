@@ -294,6 +294,140 @@ def test_cav_gap_stats_over_cav_followers_only():
 
 
 # ------------------------------------------------------------------------------------------
+# gaps only between vehicles that really share a lane
+
+
+def lane_row(
+    vid: str,
+    edge: str,
+    lane: int,
+    pos: float,
+    *,
+    lat: float = 0.0,
+    width: float = 1.8,
+    length: float = 5.0,
+    s: float | None = None,
+    t: float = 0.0,
+) -> dict:
+    """One sample as sumo-swarm records it: position on the lane, width, 3.2 m lanes."""
+    return {
+        "time_s": t,
+        "vehicle": vid,
+        "kind": "cav" if vid.startswith("c") else "hv",
+        "edge": edge,
+        "lane": lane,
+        "x_m": pos,
+        "y_m": 0.0,
+        "s_m": pos if s is None else s,
+        "lat_m": lat,
+        "speed_mps": 10.0,
+        "accel_mps2": 0.0,
+        "length_m": length,
+        "lane_pos_m": pos,
+        "width_m": width,
+        "lane_width_m": 3.2,
+    }
+
+
+def recorded(rows: list[dict]) -> pd.DataFrame:
+    return pd.DataFrame.from_records(rows, columns=COLUMNS)
+
+
+def test_gaps_use_the_position_on_the_lane_not_the_route_coordinate():
+    # a car from a ramp: its route coordinate is off by 40 m, its lane position is SUMO's own
+    df = recorded(
+        [
+            lane_row("merger", "main", 0, 120.0, s=80.0),
+            lane_row("cav", "main", 0, 100.0),
+        ]
+    )
+    g = metrics.gaps(df)
+    assert g.loc[1, "leader"] == "merger"
+    assert g.loc[1, "gap_m"] == pytest.approx(15.0)  # 120 - 5 - 100 (s_m would give -25)
+
+
+def test_lanes_of_other_edges_and_junction_lanes_are_not_shared():
+    df = recorded(
+        [
+            lane_row("ramp_car", "ramp", 0, 103.0),  # lane 0 of another edge
+            lane_row("cross", ":J0_1", 0, 4.0),  # another junction lane
+            lane_row("ahead", ":J0_0", 0, 12.0),
+            lane_row("cav", ":J0_0", 0, 3.0),
+            lane_row("cav_main", "main", 0, 100.0),
+        ]
+    )
+    g = metrics.gaps(df)
+    assert g.loc[3, "leader"] == "ahead"
+    assert g.loc[3, "gap_m"] == pytest.approx(4.0)  # 12 - 5 - 3
+    assert pd.isna(g.loc[4, "leader"])
+    assert pd.isna(g.loc[1, "leader"])
+
+
+def test_side_by_side_in_one_lane_is_no_pair():
+    # sublane model: two motorcycles (0.8 m) side by side in a 3.2 m lane, overlapping in length
+    df = recorded(
+        [
+            lane_row("m_left", "e", 0, 52.0, lat=0.8, width=0.8, length=2.2),
+            lane_row("m_right", "e", 0, 51.0, lat=-0.8, width=0.8, length=2.2),
+            lane_row("car", "e", 0, 60.0, lat=0.0),
+            lane_row("m_behind", "e", 0, 40.0, lat=-0.8, width=0.8, length=2.2),
+        ]
+    )
+    g = metrics.gaps(df)
+    assert g.loc[1, "leader"] == "car"  # not the motorcycle beside it
+    assert g.loc[1, "gap_m"] == pytest.approx(4.0)  # 60 - 5 - 51
+    assert g.loc[3, "leader"] == "m_right"  # skips nobody: m_right is right ahead
+    assert g.loc[3, "gap_m"] == pytest.approx(8.8)  # 51 - 2.2 - 40
+    assert (g["gap_m"].dropna() >= 0).all()
+
+
+def test_a_vehicle_changing_lanes_is_in_both_lanes():
+    # "changer" is on lane 0 but 1.5 m to the left: its left side (1.5 + 0.9 = 2.4 m from lane
+    # 0's centre) is 0.8 m past the boundary at 1.6 m; "left_lead", at lane 1's centre, has its
+    # right side 0.7 m past that boundary: they overlap sideways by 0.1 m.
+    df = recorded(
+        [
+            lane_row("changer", "e", 0, 100.0, lat=1.5),
+            lane_row("left_lead", "e", 1, 110.0),
+            lane_row("c_left", "e", 1, 90.0),  # behind the changer in lane 1
+            lane_row("right_lead", "e", 0, 130.0),
+            lane_row("c_right", "e", 0, 80.0, lat=-0.2),  # behind it in lane 0
+        ]
+    )
+    g = metrics.gaps(df)
+    assert g.loc[0, "leader"] == "left_lead"  # the nearer of its two lanes' leaders
+    assert g.loc[0, "gap_m"] == pytest.approx(5.0)
+    assert g.loc[2, "leader"] == "changer"
+    assert g.loc[2, "gap_m"] == pytest.approx(5.0)  # 100 - 5 - 90
+    assert g.loc[4, "leader"] == "changer"
+    assert g.loc[4, "gap_m"] == pytest.approx(15.0)
+
+
+def test_reaching_into_the_next_lane_without_touching_its_vehicle_is_no_pair():
+    # 1.2 m left: its left side is 0.5 m into lane 1, the other's right side 0.7 m from the
+    # boundary: 0.2 m apart sideways
+    df = recorded(
+        [
+            lane_row("changer", "e", 0, 100.0, lat=1.2),
+            lane_row("left", "e", 1, 103.0),
+        ]
+    )
+    g = metrics.gaps(df)
+    assert pd.isna(g.loc[0, "leader"])
+
+
+def test_a_negative_gap_means_an_overlap():
+    df = recorded(
+        [
+            lane_row("lead", "e", 1, 100.0, lat=0.3),
+            lane_row("c0", "e", 1, 98.0, lat=-0.3),  # 3 m into the leader's rear
+        ]
+    )
+    assert metrics.gaps(df).loc[1, "gap_m"] == pytest.approx(-3.0)
+    assert metrics.cav_gap_stats(df)["gap_min_m"] == pytest.approx(-3.0)
+
+
+# ------------------------------------------------------------------------------------------
 # hard braking
 
 

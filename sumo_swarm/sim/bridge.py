@@ -52,6 +52,16 @@ def _constants(api) -> ModuleType:
     return consts
 
 
+def is_of_type(type_id: str, vtype: str) -> bool:
+    """Whether a vehicle whose vType id is ``type_id`` belongs to vType ``vtype``.
+
+    Setting a vType parameter for one vehicle (``vehicle.setMinGap``, ``setParameter``, ...)
+    makes SUMO give that vehicle its own copy of the type, named ``vtype@vehicle_id``
+    (e.g. ``cav@cav0``): the copy still belongs to ``vtype``.
+    """
+    return type_id == vtype or type_id.startswith(vtype + "@")
+
+
 @dataclass
 class Collision:
     time_s: float
@@ -133,6 +143,9 @@ class SumoSession:
         self._is_cav = is_cav or (lambda vid, type_id: False)
         self.kinds: dict[str, str] = {}
         self.lengths: dict[str, float] = {}
+        self.widths: dict[str, float] = {}
+        self.lane_positions: dict[str, float] = {}  # front bumper along its lane [m]
+        self._lane_widths: dict[tuple[str, int], float] = {}
         self.types: dict[str, str] = {}
         self.states: dict[str, VehicleState] = {}
         self.positions: dict[str, tuple[float, float]] = {}
@@ -243,6 +256,7 @@ class SumoSession:
         type_id = api.vehicle.getTypeID(vid)
         self.types[vid] = type_id
         self.lengths[vid] = api.vehicle.getLength(vid)
+        self.widths[vid] = api.vehicle.getWidth(vid)
         is_cav = self._is_cav(vid, type_id)
         self.kinds[vid] = "cav" if is_cav else "hv"
         if is_cav:
@@ -256,6 +270,7 @@ class SumoSession:
         states: dict[str, VehicleState] = {}
         positions: dict[str, tuple[float, float]] = {}
         edges: dict[str, str] = {}
+        lane_positions: dict[str, float] = {}
         dt = self.step_length_s
         route_s = self.frame.route_s
         for vid, r in results.items():
@@ -280,9 +295,19 @@ class SumoSession:
             x, y = r[c.VAR_POSITION]
             positions[vid] = (x, y)
             edges[vid] = edge
+            lane_positions[vid] = pos
         self.states = states
         self.positions = positions
         self.edges = edges
+        self.lane_positions = lane_positions
+
+    def lane_width_m(self, edge: str, lane: int) -> float:
+        """Width of lane ``lane`` of ``edge`` (junction edges ``:...`` too) [m], read once."""
+        key = (edge, lane)
+        width = self._lane_widths.get(key)
+        if width is None:
+            width = self._lane_widths[key] = self.api.lane.getWidth(f"{edge}_{lane}")
+        return width
 
     def has_vehicles_to_come(self) -> bool:
         return self.api.simulation.getMinExpectedNumber() > 0

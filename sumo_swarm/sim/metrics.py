@@ -4,6 +4,7 @@ Pure functions over the trajectory table (no SUMO import). The table is a pandas
 one row per vehicle per SUMO step and the columns
 
 ``time_s, vehicle, kind, edge, lane, x_m, y_m, s_m, lat_m, speed_mps, accel_mps2, length_m``
+(and, recorded by sumo-swarm for exact gaps, ``lane_pos_m, width_m, lane_width_m``)
 
 where ``kind`` is ``"cav"`` or ``"hv"``, ``lane`` is the lane index (0 = rightmost) and ``s_m``
 the front bumper along the route, one coordinate shared by all vehicles of a scenario. Each
@@ -12,13 +13,13 @@ naming any that are missing.
 
 Conventions shared by every function here:
 
-* "Same lane" means the same value in the ``lane`` column at the same ``time_s``; a vehicle
-  between two lanes (sublane model) counts in the lane SUMO reports it on. Lane indices are
-  assumed to mean the same lane across the edges of the route.
-* The *leader* of a vehicle at a step is the vehicle with the smallest ``s_m`` strictly ahead of
-  it in the same lane (ties in ``s_m`` are broken by vehicle id, so an overlapping pair still
-  gets a leader). The *gap* is bumper to bumper: ``leader.s_m - leader.length_m - s_m`` [m],
-  negative when the two overlap.
+* "Same lane" means the same lane of the same edge at the same ``time_s`` (with ``edge``;
+  junction lanes included), or reaching into it sideways, with the two vehicles' widths
+  overlapping sideways (with ``width_m``, ``lane_width_m`` and ``lat_m``): see :func:`gaps`.
+* The *leader* of a vehicle at a step is the nearest such vehicle strictly ahead of it (ties in
+  position are broken by vehicle id, so an overlapping pair still gets a leader). The *gap* is
+  bumper to bumper: ``leader position - leader.length_m - position`` [m] (positions on the lane,
+  ``lane_pos_m``, when recorded, else ``s_m``), negative only when the two overlap.
 * Everything returned for a summary is a plain Python ``int``/``float``/``str``; a measure that
   is undefined (no samples, NaN, infinite) is ``None``, so the result is valid JSON.
 """
@@ -220,13 +221,41 @@ def travel_time_s(
 # gaps, headways, time to collision
 
 
+# Optional columns of the trajectory table that make the pairing exact (recorded by sumo-swarm;
+# hand-made tables without them fall back to ``s_m`` and to vehicles as wide as their lane).
+LANE_POS = "lane_pos_m"  # front bumper along its lane [m] (SUMO's lanePosition)
+WIDTH = "width_m"  # vehicle width [m]
+LANE_WIDTH = "lane_width_m"  # width of the lane the vehicle is on [m]
+LATERAL_TOLERANCE_M = 1e-6  # [m] vehicles that only touch sideways do not overlap
+# Candidates looked at ahead of a vehicle in one lane for the first one that overlaps it
+# sideways (the others drive beside it in the same lane, sublane model).
+LEADER_LOOKAHEAD = 6
+
+
+def _finite_column(df: pd.DataFrame, column: str) -> np.ndarray | None:
+    """``df[column]`` as floats when present (NaN where unknown), else None."""
+    return df[column].to_numpy(dtype=float) if column in df.columns else None
+
+
 def gaps(df: pd.DataFrame) -> pd.DataFrame:
     """Leader, gap, headway and time to collision of every vehicle at every step.
 
-    Vectorised: rows are sorted by (time, edge, lane, s, vehicle) once and each row's leader is
-    the next row when it is at the same time in the same lane of the same edge (with an ``edge``
-    column; lane indices change at junctions and where a lane ends, so lane 1 of one edge need
-    not be lane 1 of the next: a leader just across an edge boundary is not paired).
+    Two vehicles are a follower/leader pair only when they really share a lane at that step:
+
+    * the same lane of the same edge (``edge`` and ``lane``: one SUMO lane id, junction lanes
+      ``:J_0_0`` included); lane indices change at junctions and where a lane ends, so lane 1 of
+      one edge need not be lane 1 of the next, and a leader just across an edge boundary is not
+      paired;
+    * a vehicle part-way into the neighbouring lane (sublane model, or mid lane change: its
+      ``lat_m`` plus half its ``width_m`` past half its ``lane_width_m``) is in both lanes;
+    * their widths overlap sideways: two narrow vehicles side by side in one lane are no pair.
+
+    The leader is the nearest such vehicle ahead (ties in position broken by vehicle id, so an
+    overlapping pair still gets a leader). Positions are ``lane_pos_m`` when the table has it
+    for every row (SUMO's own position on the lane, exact on any edge), else ``s_m``. Without
+    ``width_m``/``lane_width_m`` every vehicle fills its lane and pairs are by lane alone.
+    Vectorised: rows are sorted by (time, edge, lane, position, vehicle) once and each row's
+    leader is among the next ``LEADER_LOOKAHEAD`` rows of the same lane.
 
     Returns
     -------
@@ -234,8 +263,8 @@ def gaps(df: pd.DataFrame) -> pd.DataFrame:
         Same index and row order as ``df``, with columns
         ``time_s, vehicle, kind, lane`` (copied from ``df``),
         ``leader`` (vehicle id, missing when nobody is ahead in the lane), ``leader_kind``,
-        ``gap_m`` (bumper to bumper ``leader.s_m - leader.length_m - s_m`` [m], negative when
-        the two overlap; NaN without a leader),
+        ``gap_m`` (bumper to bumper ``leader position - leader.length_m - position`` [m],
+        negative only when the two overlap; NaN without a leader),
         ``headway_s`` (``gap_m / speed_mps`` [s]; ``inf`` when the follower is stopped,
         ``speed_mps <= STOPPED_MPS``; NaN without a leader),
         ``closing_speed_mps`` (``speed_mps - leader speed`` [m/s], positive when closing in),
@@ -244,37 +273,74 @@ def gaps(df: pd.DataFrame) -> pd.DataFrame:
     """
     _require(df, ["time_s", "vehicle", "kind", "lane", "s_m", "speed_mps", "length_m"])
     n = len(df)
-    edge_codes = (
+    edge = (
         pd.factorize(df["edge"].astype(str), sort=True)[0]
         if "edge" in df.columns
         else np.zeros(n, dtype=np.int64)
     )
-    order = np.lexsort(
-        (
-            pd.factorize(df["vehicle"].astype(str), sort=True)[0],
-            df["s_m"].to_numpy(dtype=float),
-            df["lane"].to_numpy(dtype=float),
-            edge_codes,
-            df["time_s"].to_numpy(dtype=float),
-        )
-    )
-    t = df["time_s"].to_numpy(dtype=float)[order]
-    lane = df["lane"].to_numpy(dtype=float)[order] + 1e4 * edge_codes[order]
-    s = df["s_m"].to_numpy(dtype=float)[order]
-    length = df["length_m"].to_numpy(dtype=float)[order]
-    speed = df["speed_mps"].to_numpy(dtype=float)[order]
-    vehicle = df["vehicle"].to_numpy(dtype=object)[order]
-    kind = df["kind"].to_numpy(dtype=object)[order]
+    lane = df["lane"].to_numpy(dtype=np.int64)
+    pos = _finite_column(df, LANE_POS)
+    if pos is None or not np.isfinite(pos).all():
+        pos = df["s_m"].to_numpy(dtype=float)
+    lat = _finite_column(df, "lat_m")
+    lat = np.zeros(n) if lat is None else np.nan_to_num(lat)
+    width = _finite_column(df, WIDTH)
+    lane_width = _finite_column(df, LANE_WIDTH)
+    if width is None or lane_width is None:
+        width = np.full(n, np.nan)
+        lane_width = np.full(n, np.nan)
+    known = np.isfinite(width) & np.isfinite(lane_width)
+    half_w = np.where(known, 0.5 * width, 0.0)
+    half_lane = np.where(known, 0.5 * lane_width, 0.0)
+    into_left = known & (lat + half_w > half_lane + LATERAL_TOLERANCE_M)
+    into_right = known & (lat - half_w < -half_lane - LATERAL_TOLERANCE_M)
 
-    has_leader = np.zeros(n, dtype=bool)
-    if n > 1:
-        has_leader[:-1] = (t[1:] == t[:-1]) & (lane[1:] == lane[:-1])
-    nxt = np.minimum(np.arange(n) + 1, max(n - 1, 0))  # index of the candidate leader
+    # One entry per lane a vehicle is in: its own, and the neighbour it reaches into.
+    rows = np.concatenate([np.arange(n), np.flatnonzero(into_left), np.flatnonzero(into_right)])
+    occ_lane = np.concatenate([lane, lane[into_left] + 1, lane[into_right] - 1])
+    t = df["time_s"].to_numpy(dtype=float)
+    vid_code = pd.factorize(df["vehicle"].astype(str), sort=True)[0]
+    order = np.lexsort((vid_code[rows], pos[rows], occ_lane, edge[rows], t[rows]))
+    rows = rows[order]
+    group_t, group_e, group_l = t[rows], edge[rows], occ_lane[order]
+    m = len(rows)
 
-    gap = np.full(n, np.nan)
-    gap[has_leader] = (s[nxt] - length[nxt] - s)[has_leader]
-    closing = np.full(n, np.nan)
-    closing[has_leader] = (speed - speed[nxt])[has_leader]
+    leader_row = np.full(m, -1, dtype=np.int64)  # per entry: the row of its leader
+    for k in range(1, LEADER_LOOKAHEAD + 1):
+        if k >= m:
+            break
+        a = rows[:-k]
+        b = rows[k:]
+        same = (group_t[k:] == group_t[:-k]) & (group_e[k:] == group_e[:-k])
+        same &= group_l[k:] == group_l[:-k]
+        # lateral distance of b's centre from a's: lanes apart times the mean lane width
+        both = known[a] & known[b]
+        centre = (lane[b] - lane[a]) * (half_lane[a] + half_lane[b]) + lat[b] - lat[a]
+        overlap = ~both | (np.abs(centre) < half_w[a] + half_w[b] - LATERAL_TOLERANCE_M)
+        take = same & overlap & (leader_row[:-k] < 0)
+        leader_row[:-k][take] = b[take]
+
+    # Per vehicle row: the nearest of the leaders found in the lanes it is in.
+    entry_gap = np.full(m, np.inf)
+    found = leader_row >= 0
+    lr = leader_row[found]
+    length = df["length_m"].to_numpy(dtype=float)
+    entry_gap[found] = pos[lr] - length[lr] - pos[rows[found]]
+    best = np.full(n, -1, dtype=np.int64)
+    best_gap = np.full(n, np.inf)
+    # a vehicle in two lanes has two candidates: sort entries by (row, gap), the first wins
+    pick = np.lexsort((entry_gap[found], rows[found]))
+    frows = rows[found][pick]
+    first = np.ones(len(frows), dtype=bool)
+    first[1:] = frows[1:] != frows[:-1]
+    best[frows[first]] = lr[pick][first]
+    best_gap[frows[first]] = entry_gap[found][pick][first]
+
+    has_leader = best >= 0
+    nxt = np.where(has_leader, best, 0)
+    speed = df["speed_mps"].to_numpy(dtype=float)
+    gap = np.where(has_leader, best_gap, np.nan)
+    closing = np.where(has_leader, speed - speed[nxt], np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         headway = np.where(speed > STOPPED_MPS, gap / np.maximum(speed, STOPPED_MPS), np.inf)
         ttc = np.where(
@@ -282,28 +348,24 @@ def gaps(df: pd.DataFrame) -> pd.DataFrame:
         )
     headway[~has_leader] = np.nan
     ttc[~has_leader] = np.nan
+    vehicle = df["vehicle"].to_numpy(dtype=object)
+    kind = df["kind"].to_numpy(dtype=object)
     leader = np.full(n, None, dtype=object)
     leader[has_leader] = vehicle[nxt][has_leader]
     leader_kind = np.full(n, None, dtype=object)
     leader_kind[has_leader] = kind[nxt][has_leader]
-
-    def unsort(sorted_values: np.ndarray) -> np.ndarray:
-        out = np.empty_like(sorted_values)
-        out[order] = sorted_values
-        return out
-
     return pd.DataFrame(
         {
             "time_s": df["time_s"].to_numpy(),
             "vehicle": df["vehicle"].to_numpy(),
             "kind": df["kind"].to_numpy(),
             "lane": df["lane"].to_numpy(),
-            "leader": unsort(leader),
-            "leader_kind": unsort(leader_kind),
-            "gap_m": unsort(gap),
-            "headway_s": unsort(headway),
-            "closing_speed_mps": unsort(closing),
-            "ttc_s": unsort(ttc),
+            "leader": leader,
+            "leader_kind": leader_kind,
+            "gap_m": gap,
+            "headway_s": headway,
+            "closing_speed_mps": closing,
+            "ttc_s": ttc,
         },
         index=df.index,
     )

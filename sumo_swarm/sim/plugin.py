@@ -14,8 +14,9 @@
     libsumo.close()
 
 The swarm runs as a StepListener: after every SUMO step it reads the vehicles and commands the
-CAVs for the next step. CAVs are the vehicles of vType ``cav_type`` or the ids in ``cav_ids``,
-including vehicles that depart later.
+CAVs for the next step. CAVs are the vehicles of vType ``cav_type`` (or of SUMO's copy of it for
+one vehicle, ``cav_type@vehicle``) or the ids in ``cav_ids``, including vehicles that depart
+later.
 """
 
 from __future__ import annotations
@@ -33,10 +34,11 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.sim.bridge import SumoSession
+from sumo_swarm.sim.bridge import SumoSession, is_of_type
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.recorder import EMPTY_WINDOW_S, RunRecorder
 from sumo_swarm.sim.scene import LiveScene, default_settings
+from sumo_swarm.sim.steplimit import check_step_length
 
 log = logging.getLogger(__name__)
 
@@ -184,6 +186,8 @@ def attach(
         ``libsumo`` (default), the ``traci`` module, or a ``traci`` connection object.
     cav_type, cav_ids
         The swarm's CAVs: every vehicle of this vType, or these vehicle ids (one is required).
+        A vehicle SUMO gave its own copy of the vType (``cav_type@vehicle``, made when a vType
+        parameter is set for that vehicle alone) is of the vType too.
     config
         A scenario or settings TOML (its ``[cav]``, ``[planner]``, ``[grid]``, ... sections), or a
         :class:`~sumo_swarm.config.Scenario`; default settings otherwise.
@@ -196,6 +200,9 @@ def attach(
     out_dir
         Where the swarm writes ``plans.jsonl`` as it goes and, at :meth:`SwarmHandle.detach`,
         ``summary.json``, ``trajectories.parquet`` and ``events.jsonl`` (optional).
+
+    Raises :class:`~sumo_swarm.errors.ConfigError` when the swarm controller is asked to run
+    at a SUMO step longer than :data:`~sumo_swarm.sim.steplimit.MAX_SWARM_STEP_S`.
     """
     if connection is None:
         connection = importlib.import_module("libsumo")
@@ -216,10 +223,12 @@ def attach(
     else:
 
         def is_cav(vid: str, type_id: str) -> bool:
-            return type_id == cav_type
+            return is_of_type(type_id, cav_type)
 
-    warn_if_sumo_teleports(connection)
     ctrl = make_controller(controller) if isinstance(controller, str) else controller
+    step_s = connection.simulation.getDeltaT()
+    check_step_length(step_s, getattr(ctrl, "name", ""), "attach: SUMO's --step-length")
+    warn_if_sumo_teleports(connection)
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)

@@ -27,7 +27,9 @@ if TYPE_CHECKING:
     from sumo_swarm.sim.bridge import SumoSession
     from sumo_swarm.sim.scene import Scene
 
-# The trajectory table's columns (the contract's, plus each vehicle's length).
+# The trajectory table's columns: the contract's, plus each vehicle's length, its position on
+# its lane, its width and its lane's width (gaps are measured between vehicles that really share
+# a lane: :func:`sumo_swarm.sim.metrics.gaps`).
 RECORD_COLUMNS = (
     "time_s",
     "vehicle",
@@ -41,6 +43,9 @@ RECORD_COLUMNS = (
     "speed_mps",
     "accel_mps2",
     "length_m",
+    "lane_pos_m",
+    "width_m",
+    "lane_width_m",
 )
 
 EMPTY_WINDOW_S = 1e-3  # the evaluation window of a run with nothing to evaluate [s]
@@ -97,6 +102,9 @@ class RunRecorder:
             rec["speed_mps"].append(st.speed_mps)
             rec["accel_mps2"].append(st.accel_mps2)
             rec["length_m"].append(st.length_m)
+            rec["lane_pos_m"].append(s.lane_positions.get(vid, float("nan")))
+            rec["width_m"].append(s.widths.get(vid, float("nan")))
+            rec["lane_width_m"].append(s.lane_width_m(s.edges[vid], st.lane))
 
     def frame(self) -> pd.DataFrame:
         """The trajectory table recorded so far (the contract's trajectories.parquet)."""

@@ -16,7 +16,7 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError, SimulationError
-from sumo_swarm.sim.bridge import SumoSession, sumo_binary
+from sumo_swarm.sim.bridge import SumoSession, is_of_type, sumo_binary
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.recorder import RunRecorder
 from sumo_swarm.sim.scene import (
@@ -26,6 +26,7 @@ from sumo_swarm.sim.scene import (
     sumo_options,
     write_sumo_inputs,
 )
+from sumo_swarm.sim.steplimit import check_step_length
 
 log = logging.getLogger(__name__)
 
@@ -62,17 +63,21 @@ def run_scenario(
     with an object of one's own (e.g. a swarm with another planner); ``controller_name`` still
     selects the CAVs' vehicle type.
     """
+    controller = controller or make_controller(controller_name)
+    where = f"{scenario.path}: simulation.step_length_s" if scenario.path else "step_length_s"
+    check_step_length(
+        scenario.simulation.step_length_s, getattr(controller, "name", controller_name), where
+    )
     out = prepare_out_dir(out_dir)
     if seed is not None:
         scenario = replace(scenario, simulation=replace(scenario.simulation, seed=seed))
-    controller = controller or make_controller(controller_name)
     cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo")
     args = ["-c", str(cfg), *sumo_options(scenario), *_fcd_args(out, fcd)]
     sim = scenario.simulation
     session = SumoSession(
         args,
         route_edges=sim.route_edges,
-        is_cav=lambda vid, type_id: type_id == CAV_TYPE,
+        is_cav=lambda vid, type_id: is_of_type(type_id, CAV_TYPE),
         gui=gui,
     )
     return _drive(
@@ -113,6 +118,8 @@ def run_sumocfg(
     begin = sumocfg_time_s(cfg, options, "begin", 0.0)
     end = sumocfg_time_s(cfg, options, "end", max_duration_s)
     require_number(f"{cfg}: step-length", step, gt=0.0)
+    default = "" if "step-length" in options else " (SUMO's default)"
+    check_step_length(step, controller_name, f"{cfg}: step-length{default}")
     if end <= begin:
         raise ConfigError(f"{cfg}: end ({end:g} s) must be after begin ({begin:g} s)")
     end = min(end, max_duration_s)
@@ -137,7 +144,9 @@ def run_sumocfg(
     save_sumo_configuration(cfg, args, out / "sumo" / "scenario.sumocfg")
     controller = make_controller(controller_name)
     session = SumoSession(
-        [*args, *_fcd_args(out, fcd)], is_cav=lambda vid, type_id: type_id == cav_type, gui=gui
+        [*args, *_fcd_args(out, fcd)],
+        is_cav=lambda vid, type_id: is_of_type(type_id, cav_type),
+        gui=gui,
     )
 
     def check_types(sess: SumoSession) -> None:

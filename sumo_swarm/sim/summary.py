@@ -21,15 +21,16 @@ REGROUP_LAT_TOL_M = 0.5  # a CAV counts as "in" its lane when its centre is this
 
 
 def overtake_progress(
-    df: pd.DataFrame, cav_ids: tuple[str, ...], target: str | None, lane: int, max_gap_m: float
+    df: pd.DataFrame, cav_ids: tuple[str, ...], target: str | None, max_gap_m: float
 ) -> pd.DataFrame:
     """Per step: whether every CAV is past ``target`` and whether they form one platoon.
 
-    *Past*: every CAV's rear bumper is ahead of the target's front bumper. *Platoon*: every CAV
-    in one lane (``lane``, the regroup lane, or, where lane indices change along the route as at
-    a lane drop on the right, the lane of the front-most CAV) within ``REGROUP_LAT_TOL_M`` of its
-    centre, no other vehicle between the first and the last of them in that lane, and no gap
-    between consecutive CAVs above ``max_gap_m``.
+    *Past*: the rear bumper of every CAV on the road is ahead of the target's front bumper
+    (False while the target is not on the road). *Platoon*: every CAV in the lane of the
+    front-most CAV (the platoon may regroup in any lane, not only the one it started in),
+    within ``REGROUP_LAT_TOL_M`` of that lane's centre, no other vehicle between the first and
+    the last of them in that lane (vehicles on edges no CAV is on, e.g. a ramp beside the road,
+    do not count), and no gap between consecutive CAVs above ``max_gap_m`` [m].
     Returns a frame indexed by time with boolean columns ``past`` and ``platoon``.
     """
     if df.empty or not cav_ids:
@@ -48,11 +49,9 @@ def overtake_progress(
         past = (cav_rear.min(axis=1) > wide[target]).fillna(False)
     else:
         past = pd.Series(False, index=wide.index)
-    in_lane = df[df["vehicle"].isin(cav_ids)].copy()
+    in_lane = df[df["vehicle"].isin(cav_ids)]
+    # The lane of the front-most CAV at each step: the platoon's lane, wherever it regroups.
     head_lane = in_lane.sort_values("s_m").groupby("time_s", observed=True)["lane"].last()
-    if lane is not None:
-        # The regroup lane where the road keeps its lane numbering, else the head's lane.
-        head_lane = head_lane.where(head_lane != lane, lane)
     in_lane = in_lane.join(head_lane.rename("head_lane"), on="time_s")
     in_lane["ok"] = (in_lane["lane"] == in_lane["head_lane"]) & (
         in_lane["lat_m"].abs() < REGROUP_LAT_TOL_M
@@ -66,9 +65,13 @@ def overtake_progress(
     sorted_rear = ordered - lengths.reindex(list(cav_ids)).mean()
     gaps = sorted_rear[:, 1:] - ordered[:, :-1]
     gaps_ok = np.all(gaps <= max_gap_m, axis=1) if gaps.shape[1] else np.ones(len(wide), bool)
-    # No foreign vehicle between the platoon's tail and head in that lane.
+    # No foreign vehicle between the platoon's tail and head in that lane, on the road the
+    # CAVs are on: lane 0 of an on-ramp is not the platoon's lane, whatever its index.
     hv = df[~df["vehicle"].isin(cav_ids)].join(head_lane.rename("head_lane"), on="time_s")
     hv = hv[hv["lane"] == hv["head_lane"]]
+    if "edge" in df.columns:
+        cav_edges = in_lane[["time_s", "edge"]].astype({"edge": str}).drop_duplicates()
+        hv = hv.astype({"edge": str}).merge(cav_edges, on=["time_s", "edge"], how="inner")
     head = cav_s.max(axis=1)
     tail = cav_s.min(axis=1)
     intruders = hv.join(head.rename("head"), on="time_s").join(tail.rename("tail"), on="time_s")
@@ -77,6 +80,51 @@ def overtake_progress(
     clean = ~wide.index.isin(intruded["time_s"].unique())
     platoon = lane_ok & pd.Series(gaps_ok & clean, index=wide.index)
     return pd.DataFrame({"past": past.astype(bool), "platoon": platoon.astype(bool)})
+
+
+def pass_times_s(
+    df: pd.DataFrame, cav_ids: tuple[str, ...], target: str | None
+) -> dict[str, float | None]:
+    """The first time [s] each CAV's rear bumper was ahead of ``target``'s front bumper, both
+    on the road (None: it never was)."""
+    out: dict[str, float | None] = {c: None for c in cav_ids}
+    if df.empty or target is None:
+        return out
+    lengths = df.groupby("vehicle", observed=True)["length_m"].first()
+    target_s = df.loc[df["vehicle"] == target, ["time_s", "s_m"]].set_index("time_s")["s_m"]
+    cav = df[df["vehicle"].isin(cav_ids)][["time_s", "vehicle", "s_m"]]
+    cav = cav.join(target_s.rename("target_s"), on="time_s", how="inner")
+    rear = cav["s_m"].to_numpy(dtype=float) - lengths.reindex(cav["vehicle"]).to_numpy()
+    ahead = cav[rear > cav["target_s"].to_numpy(dtype=float)]
+    first = ahead.groupby("vehicle", observed=True)["time_s"].min()
+    out.update({str(v): float(t) for v, t in first.items() if str(v) in out})
+    return out
+
+
+def overtake_times_s(
+    df: pd.DataFrame, cav_ids: tuple[str, ...], target: str | None, max_gap_m: float
+) -> tuple[float | None, float | None]:
+    """``(t_end_s, t_regrouped_s)`` of an overtake of ``target`` (None: not reached).
+
+    ``t_end_s``: the first time by which every CAV has been past the target (each CAV's first
+    pass, see :func:`pass_times_s`), whatever happens after (CAVs or the target leaving the
+    road). ``t_regrouped_s``: the first time at or after ``t_end_s`` from which the CAVs form
+    one platoon (:func:`overtake_progress`), ahead of the target while it is on the road, and
+    keep doing so until the table ends or the first CAV leaves the road.
+    """
+    passed = pass_times_s(df, cav_ids, target)
+    if not passed or any(t is None for t in passed.values()):
+        return None, None
+    t_end = max(t for t in passed.values() if t is not None)
+    progress = overtake_progress(df, cav_ids, target, max_gap_m)
+    cav = df[df["vehicle"].isin(cav_ids)]
+    t_last = float(cav.groupby("vehicle", observed=True)["time_s"].max().min())
+    on_road = df.loc[df["vehicle"] == target, "time_s"].unique() if target else []
+    target_gone = ~progress.index.isin(on_road)
+    ahead = progress["platoon"] & (progress["past"] | target_gone)
+    times = ahead.index.to_numpy(dtype=float)
+    ahead = ahead[(times >= t_end) & (times <= t_last)]
+    return t_end, _first_time_holding(ahead)
 
 
 def _first_time_holding(flags: pd.Series) -> float | None:
@@ -108,14 +156,7 @@ def build_summary(
     target = scene.target_id
     own = controller_summary.get("overtake", {})
     target = own.get("target") or target
-    lane = own.get("regroup_lane")
-    lane = scenario.scene.platoon_lane if lane is None else lane
-    progress = overtake_progress(df, cav_ids, target, lane, 2.5 * scenario.cav.desired_gap_m)
-    t_end = _first_time_holding(progress["past"]) if not progress.empty else None
-    t_regroup = None
-    if not progress.empty:
-        both = progress["past"] & progress["platoon"]
-        t_regroup = _first_time_holding(both)
+    t_end, t_regroup = overtake_times_s(df, cav_ids, target, 2.5 * scenario.cav.desired_gap_m)
     t_start = own.get("t_start_s")
     overtake = {
         "triggered": bool(own.get("triggered", t_end is not None)),
