@@ -16,7 +16,7 @@ Coordinates
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +53,13 @@ class RoadSection:
 
     lane_widths_m: tuple[float, ...]
     curvature_1pm: float = 0.0
+    # Lane centres from lane 0's centre [m], computed once (y_of runs for every vehicle pair).
+    _centres: tuple[float, ...] = field(init=False, repr=False, compare=False, default=())
+
+    def __post_init__(self) -> None:
+        w = self.lane_widths_m
+        centres = tuple(sum(w[:q]) + 0.5 * w[q] - 0.5 * w[0] for q in range(len(w)))
+        object.__setattr__(self, "_centres", centres)
 
     @property
     def n_lanes(self) -> int:
@@ -64,16 +71,19 @@ class RoadSection:
         Lanes outside the section (a vehicle still on an edge with more lanes) are placed by
         extending the outermost lane widths.
         """
+        centres = self._centres
+        if 0 <= lane < len(centres):
+            return centres[lane]
         widths = self.lane_widths_m
-        n = len(widths)
         if lane < 0:
             return lane * widths[0]
-        if lane >= n:
-            return self.lane_centre_y(n - 1) + (lane - n + 1) * widths[-1]
-        return sum(widths[:lane]) + 0.5 * widths[lane] - 0.5 * widths[0]
+        return centres[-1] + (lane - len(centres) + 1) * widths[-1]
 
     def y_of(self, lane: int, lat_m: float) -> float:
         """Lateral position [m], from lane 0's centre, of a point ``lat_m`` off a lane centre."""
+        centres = self._centres
+        if 0 <= lane < len(centres):
+            return centres[lane] + lat_m
         return self.lane_centre_y(lane) + lat_m
 
     def lane_of_y(self, y_m: float) -> int:
