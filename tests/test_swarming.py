@@ -184,3 +184,13 @@ def test_margins_cached_per_desired_speed_class_on_the_safe_side():
     assert entry_gap(a, 24.0, 18.0, 2.0, 0.1) == entry_gap(b, 24.0, 18.0, 2.0, 0.1)
     # A slower desired speed makes IDM brake harder: the cached margin is never the smaller.
     assert entry_gap(a, 24.0, 18.0, 2.0, 0.1) >= min_entry_gap(a, 24.0, 18.0, 2.0, 0.1) - 0.1
+
+
+def test_lateral_guard_leaves_room_to_stop_closing_in_on_the_leader():
+    ego = car("c0", 100.0, 1, 20.0, cav=True, lat=1.0)  # moving left, about to cross
+    # 6 m/s faster than the vehicle ahead there: 5 m + 6^2 / (2 * 2) = 14 m are needed.
+    assert refusal(ego, [car("h", 100.0 + 5.0 + 13.0, 2, 14.0)]) == "leader"
+    assert refusal(ego, [car("h", 100.0 + 5.0 + 14.5, 2, 14.0)]) is None
+    # Not closing in: the minimum gap is enough.
+    assert refusal(ego, [car("h", 100.0 + 5.0 + 5.5, 2, 20.0)]) is None
+    assert refusal(ego, [car("h", 100.0 + 5.0 + 4.5, 2, 20.0)]) == "leader"

@@ -89,7 +89,8 @@ def lateral_refusal(
 ) -> str | None:
     """Why the lateral move ``dlat`` [m] from ``y`` [m] must be held, or ``None`` if it is safe.
 
-        Reasons: ``"leader"`` (the vehicle ahead in the new lane is closer than ``min_gap_m``),
+        Reasons: ``"leader"`` (the vehicle ahead in the new lane is closer than ``min_gap_m``
+        plus what closing in on it at ``b_safe_mps2`` takes),
         ``"follower_gap"`` (the follower there, a CAV or an HV, is closer than ``min_gap_m``),
         ``"follower_brake"`` (the HV following there would brake harder than ``b_safe_mps2`` at
     some point of its reaction, :func:`sumo_swarm.core.hvmodel.accepts_entry`).
@@ -103,8 +104,12 @@ def lateral_refusal(
     others = list(others)
     y_probe = road.lane_centre_y(lane_next)
     ahead = vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m)
-    if ahead is not None and ahead[1] < min_gap_m:
-        return "leader"
+    if ahead is not None:
+        # Closing in on it, the CAV must be able to stop closing within the minimum gap
+        # braking no harder than b_safe: the gap it enters with is what it keeps.
+        closing = max(0.0, ego.speed_mps - ahead[0].speed_mps)
+        if ahead[1] < min_gap_m + closing * closing / (2.0 * max(b_safe_mps2, 0.1)):
+            return "leader"
     behind = vehicle_behind(ego, others, road, y_m=y_probe, width_m=width_m)
     if behind is None:
         return None
