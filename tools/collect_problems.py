@@ -4,10 +4,11 @@ The swarm gets a recording planner (the scenario's own planner behind a wrapper)
 is the real one; each call's problem (:mod:`sumo_swarm.core.planner.dump`), its warm-start
 hint cells and the plan's status, objective and time go to ``OUT`` as one JSON document:
 
-    PYTHONPATH=$PWD python tools/collect_problems.py scenarios/variants.toml 23 /tmp/p23.json
+    PYTHONPATH=$PWD python tools/collect_problems.py scenarios/variants.toml /tmp/p23.json --case 23
+    PYTHONPATH=$PWD python tools/collect_problems.py scenarios/paper.toml /tmp/paper.json
 
-``INDEX`` counts the ``[[cases]]`` of the sweep file from 0. Bad input: exit status 2 and
-one line.
+``--case`` counts the ``[[cases]]`` of a sweep file from 0; without it the file is a scenario.
+Bad input: exit status 2 and one line.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from sumo_swarm.config import load_scenario
 from sumo_swarm.controllers.swarm import SwarmController
 from sumo_swarm.core.planner import CellPlanner, Plan, PlanningProblem, make_planner
 from sumo_swarm.core.planner.dump import problem_to_dict
@@ -73,24 +75,27 @@ def find_case(sweep_path: Path, index: int, controller: str = "swarm") -> RunSpe
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("sweep", type=Path)
-    parser.add_argument("index", type=int)
+    parser.add_argument("source", type=Path, help="scenario file, or sweep file with --case")
     parser.add_argument("out", type=Path)
+    parser.add_argument("--case", type=int, help="case of a sweep file (0-based)")
     args = parser.parse_args(argv)
     try:
-        spec = find_case(args.sweep, args.index)
-        scenario = spec.scenario()
+        if args.case is None:
+            scenario, seed = load_scenario(args.source), None
+        else:
+            spec = find_case(args.source, args.case)
+            scenario, seed = spec.scenario(), spec.seed
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     recorder = RecordingPlanner(make_planner(scenario.planner))
     with tempfile.TemporaryDirectory() as tmp:
         summary = run_scenario(
-            scenario, "swarm", tmp, seed=spec.seed, progress=False,
+            scenario, "swarm", tmp, seed=seed, progress=False,
             controller=SwarmController(planner=recorder),
         )  # fmt: skip
     args.out.write_text(
-        json.dumps({"sweep": str(args.sweep), "case": args.index, "calls": recorder.records})
+        json.dumps({"source": str(args.source), "case": args.case, "calls": recorder.records})
     )
     planner = summary.get("planner", {})
     print(

@@ -38,9 +38,7 @@ def problem_to_dict(problem: PlanningProblem) -> dict[str, Any]:
         "weights": asdict(problem.weights),
         "target_form": problem.target_form,
         "delta_mode": problem.delta_mode,
-        "blockers": [
-            {**asdict(b), "cell": list(b.cell)} for b in problem.blockers
-        ],
+        "blockers": [{**asdict(b), "cell": list(b.cell)} for b in problem.blockers],
         "hv_ids": list(problem.hv_ids),
         "target_id": problem.target_id,
         "target_col": problem.target_col,
@@ -71,9 +69,12 @@ def problem_from_dict(data: Mapping[str, Any]) -> PlanningProblem:
             delta_mode=data["delta_mode"],
             blockers=tuple(
                 Blocker(
-                    int(b["cav_index"]), b["cav_id"], b["hv_id"],
-                    (int(b["cell"][0]), int(b["cell"][1])), int(b["hold_steps"]),
-                )  # fmt: skip
+                    int(b["cav_index"]),
+                    b["cav_id"],
+                    b["hv_id"],
+                    (int(b["cell"][0]), int(b["cell"][1])),
+                    int(b["hold_steps"]),
+                )
                 for b in data["blockers"]
             ),
             hv_ids=tuple(data["hv_ids"]),

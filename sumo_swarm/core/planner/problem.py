@@ -119,6 +119,15 @@ class PlannerSettings:
         How many front CAVs may be assigned as blockers (one per adjacent lane).
     num_workers
         CP-SAT search workers (keep 1 on a shared machine).
+    network_branches
+        Min-cost flows the exact network search may solve before CP-SAT is called
+        (:mod:`sumo_swarm.core.planner.network`: branch and bound over the paper's delta; a
+        problem with every delta fixed takes one). A search that finishes proves the optimum
+        (or infeasibility) and CP-SAT is not called; otherwise its best plan is CP-SAT's hint.
+        A count, not a time: the plan does not depend on the machine's load. 0: CP-SAT only.
+    network_only
+        When the network search does not finish, return its best plan (``feasible``, with the
+        search's lower bound) instead of calling CP-SAT.
     """
 
     n_steps: int = 14
@@ -133,6 +142,8 @@ class PlannerSettings:
     block_steps: int | Literal["auto"] = 1
     max_blockers: int = 2
     num_workers: int = 1
+    network_branches: int = 40
+    network_only: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.weights, Mapping):
@@ -150,6 +161,11 @@ class PlannerSettings:
             _require_int("block_steps", self.block_steps, minimum=1)
         _require_int("max_blockers", self.max_blockers, minimum=0)
         _require_int("num_workers", self.num_workers, minimum=1)
+        _require_int("network_branches", self.network_branches, minimum=0)
+        if not isinstance(self.network_only, bool):
+            raise ConfigError(
+                f"PlannerSettings.network_only must be true or false, got {self.network_only!r}"
+            )
         if self.block_steps != "auto" and self.block_steps >= self.n_steps:
             raise ConfigError(
                 f"PlannerSettings.block_steps must be < n_steps ({self.n_steps}), "
@@ -299,9 +315,10 @@ class PlanningProblem:
         for col, track in self.hv_tracks:
             if not 0 <= col < self.n_cols:
                 continue
-            for k in range(self.n_steps - 1):
-                behind = rows < track[k]
-                limits[k, col, behind] = np.minimum(limits[k, col, behind], track[k + 1])
+            track = np.asarray(track, dtype=float)
+            # [k, row]: the HV's row at k + 1 where the row is behind it at k (all steps at once).
+            step = np.where(rows[None, :] < track[:-1, None], track[1:, None], np.inf)
+            limits[:-1, col] = np.minimum(limits[:-1, col], step)
         return limits
 
     @functools.cached_property
