@@ -279,8 +279,10 @@ def solve_network(
     time_limit_s: float,
     max_branches: int = 2000,
     hint: list[int] | None = None,
+    max_work: int | None = None,
 ) -> NetworkResult:
-    """Best-bound branch and bound (see the module docstring) within ``max_branches`` flows.
+    """Best-bound branch and bound (see the module docstring) within ``max_branches`` flows,
+    and within ``max_work`` if given: flows times the network's arcs (at least 2 flows).
 
     ``hint``: edge values of a plan (e.g. the shifted last one), a first upper bound if it is a
     plan of this model. Before branching, plans that keep nobody impeded from some open step on
@@ -290,6 +292,8 @@ def solve_network(
     started = time.perf_counter()
     net = _Network(model)
     pairs = model.swap_pairs
+    if max_work is not None:
+        max_branches = min(max_branches, max(2, max_work // max(net.n_arcs, 1)))
     search = _Search(net, started, time_limit_s, max_branches)
     if hint is not None:
         search.offer_hint(np.asarray(hint[: model.n_edges], np.int64))
@@ -409,11 +413,11 @@ class _Search:
 
     def dive_prefixes(self) -> None:
         """Plans that keep CAVs impeded up to an open step at most and nobody from it on:
-        the last impeded step tried from the front while the plans get cheaper."""
+        the last impeded step tried from the front until a plan is no cheaper than the best."""
         worse = 0
         steps = self.net.open_steps
         for t in range(len(steps) + 1):
-            if self.out_of_budget or worse >= 2:
+            if self.out_of_budget or worse >= 1:
                 return
             states = {k: (ONE if j < t else ZERO) for j, k in enumerate(steps)}
             before = self.best_cost

@@ -54,19 +54,19 @@ class _FlowPlanner:
         self,
         time_limit_s: float,
         retry_without_blockers: bool = True,
-        network_branches: int = 0,
+        network_work: int = 0,
         network_only: bool = False,
     ) -> None:
         if not time_limit_s > 0:
             raise ConfigError(f"{type(self).__name__}: time_limit_s must be > 0")
-        if not isinstance(network_branches, int) or network_branches < 0:
-            raise ConfigError(f"{type(self).__name__}: network_branches must be an int >= 0")
+        if not isinstance(network_work, int) or network_work < 0:
+            raise ConfigError(f"{type(self).__name__}: network_work must be an int >= 0")
         self.time_limit_s = float(time_limit_s)
         self.retry_without_blockers = retry_without_blockers
-        # Min-cost flows the exact network search (core/planner/network.py) may solve before
-        # the MIP solver is called (0: the MIP solver only); with ``network_only`` a search
-        # that does not finish returns its best plan (FEASIBLE) instead of calling the solver.
-        self.network_branches = network_branches
+        # Work (arcs x flows) of the exact network search (core/planner/network.py) before the
+        # MIP solver is called (0: the MIP solver only); with ``network_only`` a search that
+        # does not finish returns its best plan (FEASIBLE) instead of calling the solver.
+        self.network_work = network_work
         self.network_only = network_only
 
     def plan(self, problem: PlanningProblem, hint: Plan | None = None) -> Plan:
@@ -91,7 +91,7 @@ class _FlowPlanner:
 
     def _plan_once(self, problem: PlanningProblem, hint: Plan | None, started: float) -> Plan:
         # The network search needs no constraint rows; the MIP solver's model gets them.
-        model = build_flow_model(problem, rows=not self.network_branches)
+        model = build_flow_model(problem, rows=not self.network_work)
         if model.infeasible_reason is not None:
             build_ms = (time.perf_counter() - started) * 1e3
             return failed_plan(
@@ -104,7 +104,7 @@ class _FlowPlanner:
             )
         network = None
         hints = _usable_hint(model, hint)
-        if self.network_branches:
+        if self.network_work:
             remaining = self.time_limit_s - (time.perf_counter() - started)
             if remaining <= 0:
                 build_ms = (time.perf_counter() - started) * 1e3
@@ -112,7 +112,7 @@ class _FlowPlanner:
                     PlanStatus.TIMEOUT, problem, self.backend, build_ms, "no time left", build_ms
                 )
             build_ms = (time.perf_counter() - started) * 1e3
-            network = solve_network(model, remaining, self.network_branches, hints)
+            network = solve_network(model, remaining, hint=hints, max_work=self.network_work)
         if network is not None and (
             network.status in ("optimal", "infeasible") or self.network_only
         ):
@@ -130,9 +130,7 @@ class _FlowPlanner:
                 return failed_plan(
                     PlanStatus.TIMEOUT, problem, self.backend, build_ms, "no time left", build_ms
                 )
-            status, edge_values, objective, bound, message = self._solve(
-                model, prepared, remaining
-            )
+            status, edge_values, objective, bound, message = self._solve(model, prepared, remaining)
             if network is not None:
                 status, edge_values, objective, bound, message = _better(
                     (status, edge_values, objective, bound, message), network
@@ -284,10 +282,10 @@ class CpSatPlanner(_FlowPlanner):
         num_workers: int = 1,
         retry_without_blockers: bool = True,
         work_limit: float | None = None,
-        network_branches: int = 0,
+        network_work: int = 0,
         network_only: bool = False,
     ) -> None:
-        super().__init__(time_limit_s, retry_without_blockers, network_branches, network_only)
+        super().__init__(time_limit_s, retry_without_blockers, network_work, network_only)
         self.num_workers = int(num_workers)
         if work_limit is not None and not work_limit > 0:
             raise ConfigError(f"CpSatPlanner: work_limit must be > 0, got {work_limit!r}")
@@ -410,7 +408,7 @@ def make_planner(settings: PlannerSettings) -> CellPlanner:
     if settings.backend == "cp-sat":
         return CpSatPlanner(
             settings.time_limit_s, num_workers=settings.num_workers, work_limit=settings.work_limit,
-            network_branches=settings.network_branches, network_only=settings.network_only,
+            network_work=settings.network_work, network_only=settings.network_only,
         )  # fmt: skip
     if settings.backend == "scip":
         return ScipPlanner(settings.time_limit_s)
