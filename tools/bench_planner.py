@@ -19,8 +19,9 @@ code, and puts both side by side with their ratios (baseline / current).
     python tools/bench_planner.py --quick --out /tmp/planner
     python tools/bench_planner.py --problems-only  # only the problems the swarm built
 
-The problems the swarm really built (``--problems``, default ``tests/data/planner_problems.json.gz``,
-recorded by ``tools/collect_problems.py``: the paper scene and three 12-CAV variants) are solved
+The problems the swarm really built (``--problems``, default
+``tests/data/planner_problems.json.gz``, recorded by ``tools/collect_problems.py``: the paper
+scene and three 12-CAV variants) are solved
 with the warm-start hint the swarm gave, twice: ``before`` is CP-SAT alone as the swarm ran it
 until now (``network_work = 0``, 1 s wall, work limit 0.25), ``after`` the default settings.
 Their table gives median / p95 / max of wall and cpu per source, the statuses, and the
@@ -312,12 +313,10 @@ def summarise_problems(rows: list[dict]) -> str:
         "invalid | at best known | worst excess over best known |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    sources = list(dict.fromkeys(r["source"] for r in rows)) + ["all"]
+    sources = [*dict.fromkeys(r["source"] for r in rows), "all"]
     for source in sources:
         for code in ("before", "after"):
-            items = [
-                r for r in rows if r["code"] == code and source in ("all", r["source"])
-            ]
+            items = [r for r in rows if r["code"] == code and source in ("all", r["source"])]
             if not items:
                 continue
             wall = stats([r["solve_ms"] for r in items])
