@@ -447,21 +447,25 @@ def _children(
         return [(states, forced, banned, cut | {a}), (states, forced, banned, cut | {b})]
     delta = net.actual_delta(node_use)
     k_src = model.node_k[model.edge_src]
+    gaps = {}
     for k in net.open_steps:
-        state = states.get(k, OPEN)
-        if state == OPEN:
-            # Open: branch where the relaxed cost of step k is below its true cost.
-            if delta[k]:
-                edges = (model.edge_refund > 0) & (k_src == k)
-                differs = bool((edge_use[edges] > 0).any())
-            else:
-                nodes = (model.node_refund > 0) & (model.node_k == k)
-                differs = bool((node_use[nodes] > 0).any())
-            if differs:
-                return [
-                    ({**states, k: ZERO}, forced, banned, cut),
-                    ({**states, k: ONE}, forced, banned, cut),
-                ]
+        if states.get(k, OPEN) != OPEN:
+            continue
+        # What step k's true cost exceeds its relaxed cost by: the lateral moves out of it if
+        # a CAV is impeded there, else the regroup costs waived at it.
+        if delta[k]:
+            edges = (model.edge_refund > 0) & (k_src == k)
+            gaps[k] = int(model.edge_refund[edges] @ edge_use[edges])
+        else:
+            nodes = (model.node_refund > 0) & (model.node_k == k)
+            gaps[k] = int(model.node_refund[nodes] @ node_use[nodes])
+    gaps = {k: gap for k, gap in gaps.items() if gap > 0}
+    if gaps:
+        k = min(gaps)  # the first (measured: fewer flows than the largest gap first)
+        return [
+            ({**states, k: ZERO}, forced, banned, cut),
+            ({**states, k: ONE}, forced, banned, cut),
+        ]
     # Every open step consistent and every hub without a teleport: cost == bound, so this
     # cannot happen (a planner turns the exception into an ERROR plan).
     raise AssertionError("network branch and bound: no branching step")

@@ -92,7 +92,9 @@ class PlannerSettings:
     time_limit_s
         Wall-clock budget of one planner call, model build included [s]: when it runs out the
         best plan found so far is returned (status ``feasible``), a timeout only without one.
-        A safety net: the budget that binds is ``work_limit``.
+        A safety net for a loaded machine (issue 11: max 250 ms per call): the budgets that
+        bind are ``network_work`` and, when CP-SAT runs, ``work_limit`` (at most ~0.75 s of
+        wall time: with CP-SAT alone, raise this to keep its plans load-independent).
     work_limit
         CP-SAT's deterministic time budget of one solve (its own work units, about 2-3 s of
         wall time per unit on the project's machine): the plan returned is the same however
@@ -121,13 +123,13 @@ class PlannerSettings:
         CP-SAT search workers (keep 1 on a shared machine).
     network_work
         Work budget of the exact network search (:mod:`sumo_swarm.core.planner.network`:
-        min-cost flows, branch and bound over the paper's delta) run before CP-SAT: the search
-        solves flows while the sum of their networks' arc counts stays within it (a flow
-        costs about 1.5 us per arc on the project's machine). A problem with every delta fixed
-        takes one flow and is proved at once; the paper scene's (6 CAVs, ~1300 arcs) take
-        15-18. A search that finishes proves the optimum (or infeasibility) and CP-SAT is not
-        called. A count, not a time: the plan does not depend on the machine's load.
-        0: CP-SAT only, as before.
+        min-cost flows, branch and bound over the paper's delta) run before CP-SAT: flows are
+        solved while the sum of their networks' arc counts stays within it (a flow costs about
+        1.5 us of cpu per arc). A problem with every delta fixed takes one flow and is proved
+        at once; the paper scene's (6 CAVs, 1700-2400 arcs) are proved in 15-16 flows
+        (26000-36000); a 12-CAV one (3000-3700 arcs) gets about 10 flows. A search that
+        finishes proves the optimum (or infeasibility) and CP-SAT is not called. A count, not
+        a time: the plan does not depend on the machine's load. 0: CP-SAT only, as before.
     network_only
         When the network search does not finish, return its best plan (``feasible``, with the
         search's lower bound) instead of calling CP-SAT (``false``: CP-SAT continues from that
@@ -137,7 +139,7 @@ class PlannerSettings:
     n_steps: int = 14
     behaving_interval_s: float = 3.0
     backend: str = "cp-sat"
-    time_limit_s: float = 1.0
+    time_limit_s: float = 0.25
     work_limit: float | None = 0.25
     weights: PlannerWeights = field(default_factory=PlannerWeights)
     regroup_lane: int | None = None
@@ -146,7 +148,7 @@ class PlannerSettings:
     block_steps: int | Literal["auto"] = 1
     max_blockers: int = 2
     num_workers: int = 1
-    network_work: int = 40_000
+    network_work: int = 36_000
     network_only: bool = True
 
     def __post_init__(self) -> None:
