@@ -221,3 +221,28 @@ def test_stored_problems_solved_within_budget_and_never_below_the_proven_optimum
                 proved += 1
                 assert plan.objective == pytest.approx(call["run_objective"])
     assert proved >= 10
+
+
+def test_scenario_keys_and_collector_bad_input(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from sumo_swarm.config import load_scenario
+    from tests.conftest import PAPER
+
+    sc = load_scenario(PAPER, overrides={"planner": {"network_work": 5000, "network_only": False}})
+    assert (sc.planner.network_work, sc.planner.network_only) == (5000, False)
+    with pytest.raises(ConfigError, match="network_work"):
+        load_scenario(PAPER, overrides={"planner": {"network_work": -3}})
+    root = Path(__file__).parents[1]
+    sweep = root / "scenarios" / "variants.toml"
+    env = dict(os.environ, PYTHONPATH=str(root))
+    run = subprocess.run(
+        [sys.executable, str(root / "tools" / "collect_problems.py"), str(sweep),
+         str(tmp_path / "out.json"), "--case", "400"],
+        capture_output=True, text=True, env=env, check=False,
+    )  # fmt: skip
+    err = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(err) == 1
+    assert "no case 400" in err[0] and "variants.toml" in err[0]
