@@ -254,6 +254,14 @@ def run_baseline(args: argparse.Namespace, argv: list[str]) -> list[dict]:
         return json.loads(rows_path.read_text())
 
 
+def _shown(path: str) -> str:
+    """``path`` relative to the repository when it is inside it (for the report)."""
+    try:
+        return str(Path(path).resolve().relative_to(Path(__file__).parents[1].resolve()))
+    except ValueError:
+        return path
+
+
 def load_problems(path: Path) -> list[dict]:
     """The stored problems (see tools/collect_problems.py), each with its hint as a Plan."""
     from sumo_swarm.core.planner.dump import problem_from_dict
@@ -407,7 +415,8 @@ def main(argv: list[str] | None = None) -> int:
     text += f"{summarise(rows)}\n\nPooled by CAV count:\n\n{summarise(pooled(rows))}\n"
     if not args.rows_json and args.problems:
         text += (
-            f"\nProblems the swarm built (`{args.problems}`), before (CP-SAT alone) and after "
+            f"\nProblems the swarm built (`{_shown(args.problems)}`), before (CP-SAT alone) and "
+            f"after "
             f"(the defaults), each with the run's warm-start hint:\n\n"
             f"{summarise_problems(run_problems(args))}\n"
         )
