@@ -94,7 +94,8 @@ class PlannerSettings:
         best plan found so far is returned (status ``feasible``), a timeout only without one.
         A safety net for a loaded machine (issue 11: max 250 ms per call): the budgets that
         bind are ``network_work`` and, when CP-SAT runs, ``work_limit`` (at most ~0.75 s of
-        wall time: with CP-SAT alone, raise this to keep its plans load-independent).
+        wall time: with CP-SAT alone, raise this to keep its plans load-independent; the
+        ``scip`` backend, a cross-check without the network search, needs ~1 s).
     work_limit
         CP-SAT's deterministic time budget of one solve (its own work units, about 2-3 s of
         wall time per unit on the project's machine): the plan returned is the same however
