@@ -17,12 +17,23 @@ code, and puts both side by side with their ratios (baseline / current).
     python tools/bench_planner.py                  # full run, docs/bench/planner.{csv,md}
     python tools/bench_planner.py --baseline /tmp/base --seeds 3
     python tools/bench_planner.py --quick --out /tmp/planner
+    python tools/bench_planner.py --problems-only  # only the problems the swarm built
+
+The problems the swarm really built (``--problems``, default
+``tests/data/planner_problems.json.gz``, recorded by ``tools/collect_problems.py``: the paper
+scene and three 12-CAV variants) are solved
+with the warm-start hint the swarm gave, twice: ``before`` is CP-SAT alone as the swarm ran it
+until now (``network_work = 0``, 1 s wall, work limit 0.25), ``after`` the default settings.
+Their table gives median / p95 / max of wall and cpu per source, the statuses, and the
+objectives against the best one known for each problem (either run's or the recorded run's).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
+import gzip
 import json
 import os
 import random
@@ -39,6 +50,7 @@ sys.path.insert(0, os.environ.get("SUMO_SWARM_BENCH_CODE", str(Path(__file__).pa
 from sumo_swarm.core.grid import GridSettings, build_grid
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.planner import (
+    Plan,
     PlannerSettings,
     PlanStatus,
     build_problem,
@@ -48,6 +60,7 @@ from sumo_swarm.core.planner import (
 
 SPEED_MPS = 17.5
 CODE_ENV = "SUMO_SWARM_BENCH_CODE"
+PROBLEMS = Path(__file__).parents[1] / "tests" / "data" / "planner_problems.json.gz"
 
 
 def vehicle(vid: str, s_m: float, lane: int, speed: float = SPEED_MPS) -> VehicleState:
@@ -241,6 +254,100 @@ def run_baseline(args: argparse.Namespace, argv: list[str]) -> list[dict]:
         return json.loads(rows_path.read_text())
 
 
+def _shown(path: str) -> str:
+    """``path`` relative to the repository when it is inside it (for the report)."""
+    try:
+        return str(Path(path).resolve().relative_to(Path(__file__).parents[1].resolve()))
+    except ValueError:
+        return path
+
+
+def load_problems(path: Path) -> list[dict]:
+    """The stored problems (see tools/collect_problems.py), each with its hint as a Plan."""
+    from sumo_swarm.core.planner.dump import problem_from_dict
+
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt") as handle:
+        calls = json.load(handle)["calls"]
+    out = []
+    for call in calls:
+        problem = problem_from_dict(call["problem"])
+        hint = None
+        if call["hint"]:
+            cells = tuple(tuple((r, c) for r, c in path) for path in call["hint"])
+            hint = Plan(PlanStatus.OPTIMAL, cells, None, 0.0, "hint", cav_ids=problem.cav_ids)
+        out.append({**call, "problem": problem, "hint": hint})
+    return out
+
+
+def run_problems(args: argparse.Namespace) -> list[dict]:
+    """Every stored problem solved before (CP-SAT alone) and after (the defaults)."""
+    settings = {
+        "before": PlannerSettings(network_work=0, time_limit_s=args.time_limit),
+        "after": dataclasses.replace(PlannerSettings(), time_limit_s=args.time_limit),
+    }
+    rows = []
+    for i, call in enumerate(load_problems(Path(args.problems))):
+        problem = call["problem"]
+        for code, config in settings.items():
+            planner = make_planner(config)
+            cpu_started = time.process_time()
+            plan = planner.plan(problem, hint=call["hint"])
+            cpu_ms = (time.process_time() - cpu_started) * 1e3
+            rows.append({
+                "code": code, "source": call["source"], "index": i, "cavs": problem.n_cavs,
+                "status": plan.status.value, "objective": plan.objective,
+                "best_bound": plan.best_bound, "solve_ms": round(plan.solve_ms, 2),
+                "cpu_ms": round(cpu_ms, 2), "build_ms": round(plan.build_ms, 2),
+                "valid": not validate_plan(problem, plan) if plan.ok else True,
+                "run_objective": call["run_objective"],
+            })  # fmt: skip
+        print(f"problem {i:2d} {call['source']}: " + ", ".join(
+            f"{r['code']} {r['status']} {r['solve_ms']:.0f} ms" for r in rows[-2:]
+        ), file=sys.stderr)  # fmt: skip
+    return rows
+
+
+def summarise_problems(rows: list[dict]) -> str:
+    """Before / after per source and over all problems: times, statuses, objectives."""
+    best: dict[int, float] = {}
+    for r in rows:
+        for value in (r["objective"], r["run_objective"]):
+            if value is not None:
+                best[r["index"]] = min(best.get(r["index"], value), value)
+    lines = [
+        "| problems | code | n | wall median ms | wall p95 ms | wall max ms | cpu median ms | "
+        "cpu p95 ms | cpu max ms | optimal | feasible | infeasible | timeout | error | "
+        "invalid | at best known | worst excess over best known |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    sources = [*dict.fromkeys(r["source"] for r in rows), "all"]
+    for source in sources:
+        for code in ("before", "after"):
+            items = [r for r in rows if r["code"] == code and source in ("all", r["source"])]
+            if not items:
+                continue
+            wall = stats([r["solve_ms"] for r in items])
+            cpu = stats([r["cpu_ms"] for r in items])
+            counts = {s.value: sum(r["status"] == s.value for r in items) for s in PlanStatus}
+            with_plan = [r for r in items if r["objective"] is not None]
+            at_best = sum(r["objective"] <= best[r["index"]] + 1e-9 for r in with_plan)
+            excess = [
+                (r["objective"] - best[r["index"]]) / abs(best[r["index"]])
+                for r in with_plan
+                if best[r["index"]]
+            ]
+            lines.append(
+                f"| {source} | {code} | {len(items)} | "
+                + " | ".join(f"{v:.1f}" for v in (*wall, *cpu))
+                + f" | {counts['optimal']} | {counts['feasible']} | {counts['infeasible']} | "
+                f"{counts['timeout']} | {counts['error']} | "
+                f"{sum(not r['valid'] for r in items)} | {at_best}/{len(with_plan)} | "
+                f"{max(excess, default=0.0):.2%} |"
+            )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -252,7 +359,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--backends", default="cp-sat,scip")
     parser.add_argument("--baseline", help="directory with older code to compare against")
     parser.add_argument("--rows-json", help=argparse.SUPPRESS)  # the baseline child's output
+    parser.add_argument("--problems", default=str(PROBLEMS), help="stored problems to solve")
+    parser.add_argument(
+        "--problems-only", action="store_true", help="only the stored problems, no scenes"
+    )
     args = parser.parse_args(argv)
+    if args.problems_only:
+        started = time.perf_counter()
+        load_before = os.getloadavg()[0]
+        rows = run_problems(args)
+        text = (
+            f"Stored problems: `python tools/bench_planner.py {' '.join(argv)}`\n\n"
+            f"{time.perf_counter() - started:.0f} s in all, load average {load_before:.1f} "
+            f"before and {os.getloadavg()[0]:.1f} after on {os.cpu_count()} cores.\n\n"
+            f"{summarise_problems(rows)}\n"
+        )
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.with_suffix(".md").write_text(text)
+        print(text)
+        return 0
 
     started = time.perf_counter()
     load_before = os.getloadavg()[0]
@@ -287,6 +413,13 @@ def main(argv: list[str] | None = None) -> int:
             f"Current code in full:\n\n"
         )
     text += f"{summarise(rows)}\n\nPooled by CAV count:\n\n{summarise(pooled(rows))}\n"
+    if not args.rows_json and args.problems:
+        text += (
+            f"\nProblems the swarm built (`{_shown(args.problems)}`), before (CP-SAT alone) and "
+            f"after "
+            f"(the defaults), each with the run's warm-start hint:\n\n"
+            f"{summarise_problems(run_problems(args))}\n"
+        )
     out.with_suffix(".md").write_text(text)
     print(text)
     return 0

@@ -76,6 +76,7 @@ class FlowModel:
 
     problem: PlanningProblem
     scale: int = 1  # objective in problem units = integer objective / scale
+    has_rows: bool = True  # False: built for the network search only (no rows, q or z)
     infeasible_reason: str | None = None
     n_nodes: int = 0
     node_k: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -99,6 +100,18 @@ class FlowModel:
     z_vars: list[tuple[int, int]] = field(default_factory=list)  # (z variable, its node)
     out_edge: np.ndarray = field(default_factory=lambda: np.zeros((0, 5), np.int64))  # [node, move]
     in_edges: list[list[int]] = field(default_factory=list)  # per node
+    # The objective split by where it is charged (integer units), for the network solver:
+    # a node's cost (target, and the regroup cost where delta may be 0) and what a z refunds
+    # of it when delta is 1 at its open step; an edge's move cost (lateral charged) and what a
+    # q refunds of it when delta is 0 at its source's open step. ``impeded`` per node.
+    node_cost: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    node_refund: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    edge_cost: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    edge_refund: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    impeded: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    # Pairs of opposite edges (a -> b, b -> a) of one step that cannot be uncrossed into two
+    # stays (a stay is not allowed there): both may not be used (no swapping).
+    swap_pairs: list[tuple[int, int]] = field(default_factory=list)
 
     @property
     def n_edges(self) -> int:
@@ -209,9 +222,15 @@ def _earliest_free_step(problem: PlanningProblem, reach: np.ndarray) -> int:
     return int(first.max())
 
 
-def build_flow_model(problem: PlanningProblem) -> FlowModel:
-    """Build the 0-1 program of ``problem`` (see the module docstring)."""
+def build_flow_model(problem: PlanningProblem, rows: bool = True) -> FlowModel:
+    """Build the 0-1 program of ``problem`` (see the module docstring).
+
+    ``rows=False`` leaves out the constraint rows and the ``q``/``z`` variables (what a MIP
+    solver needs): nodes, edges, bounds, deltas and the split costs are all the network search
+    of :mod:`sumo_swarm.core.planner.network` reads, and they cost a third of the build.
+    """
     model = FlowModel(problem)
+    model.has_rows = rows
     model.scale = objective_scale(problem)
     masks = move_masks(problem)
     reach = reachable_mask(problem, masks)
@@ -221,7 +240,9 @@ def build_flow_model(problem: PlanningProblem) -> FlowModel:
     _add_nodes_and_edges(model, reach, masks)
     model.lower = np.zeros(model.n_vars, np.int64)
     model.upper = np.ones(model.n_vars, np.int64)
-    _add_flow_constraints(model)
+    if rows:
+        _add_flow_constraints(model)
+    _add_swap_exclusions(model)
     _add_blockers(model)
     if model.infeasible_reason is None:
         _add_delta_and_costs(model, reach)
@@ -277,6 +298,27 @@ def _add_flow_constraints(model: FlowModel) -> None:
         if outs:
             linear.add([*ins, *outs], [1] * len(ins) + [-1] * len(outs), 0, 0)
     model.in_edges = [in_order[in_start[n] : in_start[n + 1]] for n in range(model.n_nodes)]
+
+
+def _add_swap_exclusions(model: FlowModel) -> None:
+    """No swapping where :func:`uncross_swaps` could not replace a swap by two stays."""
+    lateral_or_row = np.flatnonzero(model.edge_move != 0)
+    src, dst = model.edge_src[lateral_or_row], model.edge_dst[lateral_or_row]
+    k = model.node_k[src]
+    # The reverse move of each edge: its destination's cell at step k back to its source's.
+    reverse_move = np.array([1, 2, 1, 4, 3])[model.edge_move[lateral_or_row]]
+    back_src = model.node_id[k, model.node_row[dst], model.node_col[dst]]
+    back = np.where(back_src >= 0, model.out_edge[np.maximum(back_src, 0), reverse_move], -1)
+    # The reverse edge must end in this edge's source cell, which it does by construction.
+    for edge, rev, a, b in zip(
+        lateral_or_row.tolist(), back.tolist(), src.tolist(), back_src.tolist(), strict=True
+    ):
+        if rev <= edge:  # each pair once (and no reverse edge: nothing to exclude)
+            continue
+        if model.stay_edge[a] < 0 or model.stay_edge[b] < 0:
+            model.swap_pairs.append((edge, rev))
+            if model.has_rows:
+                model.at_most_one.append([edge, rev])
 
 
 def _add_blockers(model: FlowModel) -> None:
@@ -348,11 +390,19 @@ def _add_delta_and_costs(model: FlowModel, reach: np.ndarray) -> None:
     edge_cost = node_cost[dst] + np.where((move == 1) | (move == 2), w_lon2, 0)
     edge_cost = edge_cost + np.where(lateral & (src_paid | (node_delta[src] == -1)), w_lat2, 0)
 
+    # What a q (lateral move out of a non-impeded node at an open step, free while delta is 0)
+    # and a z (regroup cost of a non-impeded node at an open step, waived while delta is 1)
+    # give back.
+    open_nodes = (k_of >= 1) & (node_delta == -1)
+    refund_edges = lateral & ~src_paid & (node_delta[src] == -1)
+    refund_nodes = open_nodes & ~impeded & (regroup > 0)
+    model.edge_refund = np.where(refund_edges, w_lat2, 0).astype(np.int64)
+    model.node_refund = np.where(refund_nodes, regroup, 0).astype(np.int64)
     new_costs: list[tuple[int, int]] = []
     in_edges = model.in_edges
-    if model.delta_var:
+    if model.delta_var and model.has_rows:
         # q = e and not d: a lateral move out of a non-impeded node is free while delta_k = 0.
-        for edge in np.flatnonzero(lateral & ~src_paid & (node_delta[src] == -1)).tolist():
+        for edge in np.flatnonzero(refund_edges).tolist():
             d = model.delta_var[int(k_of[src[edge]])]
             q = model.new_var()
             model.implies.append((q, edge))
@@ -360,8 +410,7 @@ def _add_delta_and_costs(model: FlowModel, reach: np.ndarray) -> None:
             model.q_vars.append((q, edge))
             new_costs.append((q, -w_lat2))
         # z = y and d: the regroup cost of a non-impeded node is waived while delta_k = 1.
-        open_nodes = (k_of >= 1) & (node_delta == -1)
-        for node in np.flatnonzero(open_nodes & ~impeded & (regroup > 0)).tolist():
+        for node in np.flatnonzero(refund_nodes).tolist():
             d = model.delta_var[int(k_of[node])]
             z = model.new_var()
             ins = in_edges[node]
@@ -395,6 +444,9 @@ def _add_delta_and_costs(model: FlowModel, reach: np.ndarray) -> None:
     for var, coef in new_costs:
         objective[var] += coef
     model.objective = objective
+    model.impeded = impeded
+    model.node_cost = node_cost.astype(np.int64)
+    model.edge_cost = (edge_cost - node_cost[dst]).astype(np.int64)
 
 
 def hint_values(model: FlowModel, cells: Sequence[Sequence[Cell]]) -> list[int]:
@@ -440,6 +492,8 @@ def uncross_swaps(model: FlowModel, edge_values: Sequence[int]) -> tuple[list[in
         back = model.edge_between(k, cell_b, cell_a)
         if back is None or not values[edge] or not values[back]:
             continue
+        if model.stay_edge[a] < 0 or model.stay_edge[model.edge_src[back]] < 0:
+            continue  # excluded by the model (swap_pairs); left for the validator to report
         values[edge] = values[back] = 0
         values[int(model.stay_edge[a])] = 1
         values[int(model.stay_edge[model.edge_src[back]])] = 1

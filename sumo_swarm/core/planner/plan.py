@@ -118,7 +118,8 @@ def validate_plan(problem: PlanningProblem, plan: Plan) -> list[str]:
             if not (0 <= row < n_rows and 0 <= col < n_cols):
                 errors.append(f"CAV {cav} step {k}: {cell} outside the grid")
             if k >= 1:
-                if cell in problem.blocked[k]:
+                kept = k == 1 and cell == path[0] and cell in problem.stay_ok  # see stay_ok
+                if cell in problem.blocked[k] and not kept:
                     errors.append(f"CAV {cav} step {k}: {cell} is claimed by an HV")
                 elif not move_allowed(problem, k - 1, path[k - 1], cell):
                     errors.append(f"CAV {cav} step {k}: enters {cell} inside an HV's margin")

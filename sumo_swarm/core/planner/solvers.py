@@ -22,6 +22,7 @@ from sumo_swarm.core.planner.flow import (
     hint_values,
     uncross_swaps,
 )
+from sumo_swarm.core.planner.network import NetworkResult, solve_network
 from sumo_swarm.core.planner.plan import Plan, failed_plan
 from sumo_swarm.core.planner.problem import (
     PlannerSettings,
@@ -49,11 +50,24 @@ class _FlowPlanner:
 
     backend = "?"
 
-    def __init__(self, time_limit_s: float, retry_without_blockers: bool = True) -> None:
+    def __init__(
+        self,
+        time_limit_s: float,
+        retry_without_blockers: bool = True,
+        network_work: int = 0,
+        network_only: bool = False,
+    ) -> None:
         if not time_limit_s > 0:
             raise ConfigError(f"{type(self).__name__}: time_limit_s must be > 0")
+        if not isinstance(network_work, int) or network_work < 0:
+            raise ConfigError(f"{type(self).__name__}: network_work must be an int >= 0")
         self.time_limit_s = float(time_limit_s)
         self.retry_without_blockers = retry_without_blockers
+        # Work (arcs x flows) of the exact network search (core/planner/network.py) before the
+        # MIP solver is called (0: the MIP solver only); with ``network_only`` a search that
+        # does not finish returns its best plan (FEASIBLE) instead of calling the solver.
+        self.network_work = network_work
+        self.network_only = network_only
 
     def plan(self, problem: PlanningProblem, hint: Plan | None = None) -> Plan:
         """Solve ``problem``; ``hint`` (e.g. the shifted last plan) is a warm start only."""
@@ -76,7 +90,8 @@ class _FlowPlanner:
             return failed_plan(PlanStatus.ERROR, problem, self.backend, elapsed, repr(exc))
 
     def _plan_once(self, problem: PlanningProblem, hint: Plan | None, started: float) -> Plan:
-        model = build_flow_model(problem)
+        # The network search needs no constraint rows; the MIP solver's model gets them.
+        model = build_flow_model(problem, rows=not self.network_work)
         if model.infeasible_reason is not None:
             build_ms = (time.perf_counter() - started) * 1e3
             return failed_plan(
@@ -87,15 +102,39 @@ class _FlowPlanner:
                 model.infeasible_reason,
                 build_ms,
             )
+        network = None
         hints = _usable_hint(model, hint)
-        prepared = self._prepare(model, hints)
-        build_ms = (time.perf_counter() - started) * 1e3
-        remaining = self.time_limit_s - (time.perf_counter() - started)
-        if remaining <= 0:
-            return failed_plan(
-                PlanStatus.TIMEOUT, problem, self.backend, build_ms, "no time left", build_ms
-            )
-        status, edge_values, objective, bound, message = self._solve(model, prepared, remaining)
+        if self.network_work:
+            remaining = self.time_limit_s - (time.perf_counter() - started)
+            if remaining <= 0:
+                build_ms = (time.perf_counter() - started) * 1e3
+                return failed_plan(
+                    PlanStatus.TIMEOUT, problem, self.backend, build_ms, "no time left", build_ms
+                )
+            build_ms = (time.perf_counter() - started) * 1e3
+            network = solve_network(model, remaining, hint=hints, max_work=self.network_work)
+        if network is not None and (
+            network.status in ("optimal", "infeasible") or self.network_only
+        ):
+            status, edge_values, objective, bound, message = _network_outcome(network)
+        else:
+            if network is not None:
+                model = build_flow_model(problem)  # now with the rows (same nodes and edges)
+                hints = _usable_hint(model, hint)
+                if network.edge_values is not None:
+                    hints = _network_hint(model, network.edge_values)  # the best plan so far
+            prepared = self._prepare(model, hints)
+            build_ms = (time.perf_counter() - started) * 1e3
+            remaining = self.time_limit_s - (time.perf_counter() - started)
+            if remaining <= 0:
+                return failed_plan(
+                    PlanStatus.TIMEOUT, problem, self.backend, build_ms, "no time left", build_ms
+                )
+            status, edge_values, objective, bound, message = self._solve(model, prepared, remaining)
+            if network is not None:
+                status, edge_values, objective, bound, message = _better(
+                    (status, edge_values, objective, bound, message), network
+                )
         if edge_values is None:
             elapsed = (time.perf_counter() - started) * 1e3
             return failed_plan(status, problem, self.backend, elapsed, message, build_ms)
@@ -130,6 +169,46 @@ class _FlowPlanner:
     ) -> tuple[PlanStatus, list[int] | None, float, float | None, str]:
         """Status, edge values, integer objective and bound, message."""
         raise NotImplementedError
+
+
+def _network_outcome(
+    network: NetworkResult,
+) -> tuple[PlanStatus, list[int] | None, float, float | None, str]:
+    """The network search's result in the form of ``_solve``."""
+    status = {
+        "optimal": PlanStatus.OPTIMAL,
+        "feasible": PlanStatus.FEASIBLE,
+        "infeasible": PlanStatus.INFEASIBLE,
+    }.get(network.status, PlanStatus.TIMEOUT)
+    message = f"network: {network.message} after {network.branches} flows"
+    if network.edge_values is None:
+        return status, None, 0.0, None, message
+    return status, network.edge_values, float(network.objective), network.bound, message
+
+
+def _better(
+    solved: tuple[PlanStatus, list[int] | None, float, float | None, str],
+    network: NetworkResult,
+) -> tuple[PlanStatus, list[int] | None, float, float | None, str]:
+    """The MIP solver's outcome, or the network's best plan where the solver found no better
+    one; the bound is the higher of the two (both are valid lower bounds)."""
+    status, values, objective, bound, message = solved
+    if network.bound is not None:
+        bound = network.bound if bound is None else max(bound, network.bound)
+    if network.edge_values is not None and (values is None or network.objective < objective):
+        return (
+            PlanStatus.FEASIBLE, network.edge_values, float(network.objective), bound,
+            f"{message}; network plan kept",
+        )  # fmt: skip
+    if status is PlanStatus.TIMEOUT and network.status == "infeasible":
+        return PlanStatus.INFEASIBLE, None, 0.0, None, message
+    return status, values, objective, bound, message
+
+
+def _network_hint(model: FlowModel, edge_values: list[int]) -> list[int]:
+    """Every variable's value for the network's flow (a complete, feasible solver hint)."""
+    values, _ = uncross_swaps(model, edge_values)
+    return hint_values(model, extract_paths(model, values))
 
 
 def _usable_hint(model: FlowModel, hint: Plan | None) -> list[int] | None:
@@ -203,8 +282,10 @@ class CpSatPlanner(_FlowPlanner):
         num_workers: int = 1,
         retry_without_blockers: bool = True,
         work_limit: float | None = None,
+        network_work: int = 0,
+        network_only: bool = False,
     ) -> None:
-        super().__init__(time_limit_s, retry_without_blockers)
+        super().__init__(time_limit_s, retry_without_blockers, network_work, network_only)
         self.num_workers = int(num_workers)
         if work_limit is not None and not work_limit > 0:
             raise ConfigError(f"CpSatPlanner: work_limit must be > 0, got {work_limit!r}")
@@ -326,8 +407,9 @@ def make_planner(settings: PlannerSettings) -> CellPlanner:
     """The planner the settings name (``backend``), with their time limit."""
     if settings.backend == "cp-sat":
         return CpSatPlanner(
-            settings.time_limit_s, num_workers=settings.num_workers, work_limit=settings.work_limit
-        )
+            settings.time_limit_s, num_workers=settings.num_workers, work_limit=settings.work_limit,
+            network_work=settings.network_work, network_only=settings.network_only,
+        )  # fmt: skip
     if settings.backend == "scip":
         return ScipPlanner(settings.time_limit_s)
     raise ConfigError(f"unknown planner backend {settings.backend!r}")
