@@ -284,6 +284,8 @@ def test_cav_gap_stats_over_cav_followers_only():
     assert stats == {
         "gap_mean_m": pytest.approx(15.0),
         "gap_min_m": pytest.approx(10.0),
+        "gap_min_cav_m": pytest.approx(10.0),  # c2 behind c1
+        "gap_min_hv_m": pytest.approx(15.0),  # c1 behind h_lead at t = 1
         "samples": 3,
     }
     assert metrics.cav_gap_stats(df, EvaluationWindow(0.5, None))["gap_mean_m"] == pytest.approx(

@@ -6,7 +6,8 @@ For every scene, its ``swarm`` run against its ``cacc`` run:
 - ``overtake``: completed and regrouped, or a clean give-up (``overtake.aborted`` > 0 with the
   platoon intact at the end: every CAV in one lane, CAV-to-CAV gaps >= 5 m);
 - ``no_collision``: 0 collisions (swarm);
-- ``min_gap``: min CAV gap (``cav.gap_min_m``) >= 5 m;
+- ``min_gap``: min CAV-to-CAV gap (``cav.gap_min_cav_m``; ``cav.gap_min_m`` in older summaries)
+  >= 5 m; the gap behind HVs, which may cut in, is reported apart (``gap_min_hv_m``);
 - ``max_speed``: no CAV above the scenario's ``cav.max_speed_mps`` (+0.1 m/s);
 - ``blocked_hv_brake``: ``overtake.blocked_hv_min_accel_mps2`` >= -b_safe (the scenario's
   ``[hvmodel] b_safe_mps2``, 2.0 m/s^2 where the key does not exist); null = no HV blocked;
@@ -211,7 +212,11 @@ def judge_scene(
     collisions = _number(field(s, "safety.collisions"))
     out["collisions"] = collisions
     out["no_collision"] = NA if collisions is None else (PASS if collisions == 0 else FAIL)
-    out["gap_min_m"] = _number(field(s, "cav.gap_min_m"))
+    # The swarm's own spacing: CAV behind CAV (issue 12: gaps to HVs that cut in apart).
+    cav_gap = field(s, "cav.gap_min_cav_m")
+    out["gap_min_m"] = _number(field(s, "cav.gap_min_m") if cav_gap is MISSING else cav_gap)
+    hv_gap = field(s, "cav.gap_min_hv_m")
+    out["gap_min_hv_m"] = None if hv_gap is MISSING else _number(hv_gap)
     out["min_gap"] = _at_least(out["gap_min_m"], MIN_GAP_M)
     out["cav_max_speed_mps"] = _number(field(s, "cav.max_speed_mps"))
     out["max_speed_limit_mps"] = max_speed_mps
@@ -340,7 +345,8 @@ def sweep_figures(table: pd.DataFrame) -> pd.DataFrame:
         ("planner p95 per run [ms], median / p95 / max", _quantiles(table["solve_ms_p95"])),
         ("planner max per run [ms], median / p95 / max", _quantiles(table["solve_ms_max"])),
         ("run cost swarm/cacc, median / p95 / max", _quantiles(table["cost_ratio"])),
-        ("min CAV gap over all scenes [m]", _round(table["gap_min_m"].min())),
+        ("min CAV-to-CAV gap over all scenes [m]", _round(table["gap_min_m"].min())),
+        ("min CAV-behind-HV gap over all scenes [m]", _round(table["gap_min_hv_m"].min())),
     ]
     return pd.DataFrame(rows, columns=["measure", "value"])
 
@@ -355,6 +361,7 @@ def verdict_table(table: pd.DataFrame) -> pd.DataFrame:
     numbers = [
         "overtake_how",
         "gap_min_m",
+        "gap_min_hv_m",
         "cav_max_speed_mps",
         "blocked_hv_min_accel_mps2",
         "mean_speed_mps",

@@ -384,19 +384,25 @@ def cav_gap_stats(
     the bumper-to-bumper gap as defined by :func:`gaps`. ``max_gap_m`` (optional) drops samples
     with a larger gap, i.e. a CAV that is not following anyone in particular.
 
-    Returns ``gap_mean_m`` (mean of the samples) [m], ``gap_min_m`` (smallest sample) [m] and
+    Returns ``gap_mean_m`` (mean of the samples) [m], ``gap_min_m`` (smallest sample) [m],
+    the smallest behind a CAV (``gap_min_cav_m``: the swarm's own spacing) and behind an HV
+    (``gap_min_hv_m``: HVs may cut in closer than the swarm would ever go) [m], and
     ``samples``; the gaps are None when there is no sample.
     """
     g = gaps(_select(df, window))
     g = g[(g["kind"] == kind) & g["gap_m"].notna()]
-    values = g["gap_m"].to_numpy(dtype=float)
     if max_gap_m is not None:
-        values = values[values <= max_gap_m]
+        g = g[g["gap_m"] <= max_gap_m]
+    values = g["gap_m"].to_numpy(dtype=float)
     if values.size == 0:
-        return {"gap_mean_m": None, "gap_min_m": None, "samples": 0}
+        return {"gap_mean_m": None, "gap_min_m": None, "gap_min_cav_m": None,
+                "gap_min_hv_m": None, "samples": 0}  # fmt: skip
+    behind_cav = (g["leader_kind"] == kind).to_numpy()
     return {
         "gap_mean_m": finite_or_none(values.mean()),
         "gap_min_m": finite_or_none(values.min()),
+        "gap_min_cav_m": finite_or_none(values[behind_cav].min()) if behind_cav.any() else None,
+        "gap_min_hv_m": finite_or_none(values[~behind_cav].min()) if (~behind_cav).any() else None,
         "samples": int(values.size),
     }
 

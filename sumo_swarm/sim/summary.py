@@ -213,6 +213,8 @@ def build_summary(
             "travel_time_s": finite_or_none(metrics.travel_time_s(df, w, ev.travel_distance_m)),
             "gap_mean_m": finite_or_none(gap.get("gap_mean_m")),
             "gap_min_m": finite_or_none(gap.get("gap_min_m")),
+            "gap_min_cav_m": finite_or_none(gap.get("gap_min_cav_m")),  # CAV behind a CAV
+            "gap_min_hv_m": finite_or_none(gap.get("gap_min_hv_m")),  # CAV behind an HV
             "lat_error_rms_m": finite_or_none(controller_summary.get("lat_error_rms_m")),
         },
         "overtake": overtake,
