@@ -32,10 +32,9 @@ from collections import Counter
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-
 from sumo_swarm.controllers.base import RunContext
-from sumo_swarm.controllers.cacc import cacc_accel, command_cacc
+from sumo_swarm.controllers.cacc import command_cacc
+from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
@@ -114,9 +113,7 @@ class SwarmController:
         self.blocked_min_accel: dict[str, float] = {}
         self.prediction: tuple[float, Any] | None = None
         self._models: dict[str, tuple[str | None, DriverModel]] = {}
-        self._reform_lane_id: int | None = None
         self._no_gain_target: str | None = None
-        self._passing: dict[str, tuple[str, int, float]] = {}  # CAV -> (slow HV, lane, since)
         self._target_lane: tuple[str | None, int] | None = None
 
     # ------------------------------------------------------------------ set-up
@@ -148,6 +145,7 @@ class SwarmController:
         self.trigger = self._new_trigger()
         self.watch = TargetWatch(sc.swarm.trigger_after_s)
         self.planlog = PlanLog(ctx.out_dir)
+        self.reformer = Reformer(sc, self.model_of, ctx.event)
         self.drawer = None  # a sumo-gui plan drawer, set by the session's side (sim.gui)
 
     @property
@@ -286,23 +284,14 @@ class SwarmController:
             cap_mps=self._speed_cap(platoon[:1]),
             min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
         )  # fmt: skip
-        if candidate is not None and self._lane_ends_soon(platoon[0], leader):
-            candidate = None  # everyone leaves that lane anyway: nothing to overtake there
+        # Not in a lane that ends within reach plus two 3 s intervals at the cruise (an
+        # acceleration lane, a lane drop): everyone leaves that lane anyway.
+        reach = sw.detect_range_m + 2.0 * 3.0 * ctx.scenario.cav.cruising_speed_mps
+        if candidate is not None and leader.lane in self._ending_lanes(leader, platoon[0], reach):
+            candidate = None
         if candidate is not None and not self._side_lane_pays(leader, candidate, states):
             candidate = None
         return self.watch.update(t_s, candidate)
-
-    def _lane_ends_soon(self, vid: str, leader: VehicleState) -> bool:
-        """Does the leader's lane end within ``[swarm] detect_range_m`` plus two behaving
-        intervals at the cruising speed (an acceleration lane, a lane drop)?"""
-        session = self.ctx.session
-        sc = self.ctx.scenario
-        edge = session.edges.get(vid) if hasattr(session, "edges") else None
-        if edge is None or not hasattr(session, "lanes_ending"):
-            return False
-        reach = sc.swarm.detect_range_m + 2.0 * 3.0 * sc.cav.cruising_speed_mps
-        ending = session.lanes_ending(edge, leader.rear_s_m, leader.s_m + reach)
-        return any(lane == leader.lane for lane, _ in ending)
 
     def _side_lane_pays(self, leader: VehicleState, target: VehicleState, states) -> bool:
         """Is a lane beside the leader's faster than the target by ``min_speed_gain_mps``? The
@@ -315,7 +304,7 @@ class SwarmController:
         others = [st for st in states.values() if not st.is_cav]
         reach = sw.detect_range_m + 2.0 * ctx.scenario.cell_length_m
         speeds = lane_speeds(leader, others, road, side, range_m=reach, cap_mps=self.cap_mps,
-                             desired_of=self._desired_speed)  # fmt: skip
+                             desired_of=self.reformer.desired_speed)  # fmt: skip
         best = max(speeds.values(), default=-math.inf)
         pays = best - target.speed_mps >= sw.min_speed_gain_mps
         if not pays and self._no_gain_target != target.vehicle_id:
@@ -353,172 +342,32 @@ class SwarmController:
         leader_cruise = sc.cav.cruising_speed_mps - min(
             sc.swarm.max_leader_ease_mps, sc.cacc.k_close * stretch
         )
-        lane = self._reform_lane(states, platoon)
-        goals = self._lane_goals(t_s, states, platoon, lane)
-        moves = {vid: self._steer_to_lane(states[vid], goals[vid], states) for vid in platoon}
-        self._make_room(states, [v for v in platoon if v not in self._passing], lane, moves)
+        reformer, road = self.reformer, ctx.road
+        reformer.scenario = sc  # the speeds may follow the world
+        cap = self._speed_cap(platoon[:1])
+        ending = self._ending_lanes(states[platoon[0]], platoon[0])
+        lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap)
+        goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap)
+        moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
         command_cacc(ctx, platoon, leader_cruise,
                      accel_limits={vid: m[1] for vid, m in moves.items()})  # fmt: skip
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)
 
-    # ------------------------------------------------------------------ re-forming
-    def _reform_lane(self, states: dict[str, VehicleState], platoon: list[str]) -> int:
-        """The lane the platoon cruises in, re-formed there after a manoeuvre or a give-up.
-
-        Of the lanes its CAVs are in (a lane ending ahead excluded), the one where the swarm can
-        drive fastest: the speed cap on a free lane, else the speed (at most the desired speed)
-        of the vehicle ahead of the front-most CAV in that lane; on a tie the lane holding more
-        CAVs. The current choice is kept unless another lane is faster by
-        ``[swarm] min_speed_gain_mps`` (no flapping between lanes)."""
-        ctx = self.ctx
-        road, sc = ctx.road, ctx.scenario
-        leader = states[platoon[0]]
-        count = Counter(road.lane_of_y(road.y_of(states[v].lane, states[v].lat_m)) for v in platoon)
-        if len(count) == 1 and self._reform_lane_id in (None, *count):
-            self._reform_lane_id = next(iter(count))
-            return self._reform_lane_id
-        ending = set()
-        edge = ctx.session.edges.get(platoon[0]) if hasattr(ctx.session, "edges") else None
-        if edge is not None and hasattr(ctx.session, "lanes_ending"):
-            ending = {lane for lane, _ in ctx.session.lanes_ending(
-                edge, leader.rear_s_m, leader.s_m + sc.swarm.detect_range_m)}  # fmt: skip
-        members = set(platoon)
-        speeds = lane_speeds(
-            leader, [st for v, st in states.items() if v not in members], road,
-            sorted(set(count) - ending or set(count)), range_m=sc.swarm.detect_range_m,
-            cap_mps=self._speed_cap(platoon[:1]), desired_of=self._desired_speed,
-        )  # fmt: skip
-        current = self._reform_lane_id
-        best = max(speeds, key=lambda lane: (round(speeds[lane] * 2.0) / 2.0, count[lane]))
-        if current in speeds and speeds[best] - speeds[current] < sc.swarm.min_speed_gain_mps:
-            best = current
-        if best != current:
-            shown = {str(k): round(v, 2) for k, v in speeds.items()}
-            ctx.event("reform_lane", lane=best, lane_speeds_mps=shown)
-        self._reform_lane_id = best
-        return best
-
-    def _lane_goals(
-        self, t_s: float, states: dict[str, VehicleState], platoon: list[str], lane: int
-    ) -> dict[str, int]:
-        """The lane each cruising CAV heads for: the platoon's, except for a CAV cut off from
-        the CAV ahead of it by a slow vehicle in that lane (left behind by a give-up, or an HV
-        that cut in): it passes that vehicle on its own in the faster lane beside, through the
-        guards, and comes back to the platoon's lane once past it (``passing`` events)."""
-        ctx = self.ctx
-        road, sc = ctx.road, ctx.scenario
-        sw = sc.swarm
-        members = set(platoon)
-        others = [st for v, st in states.items() if v not in members]
-        goals = {}
-        for i, vid in enumerate(platoon):
-            ego = states[vid]
-            goals[vid] = lane
-            passing = self._passing.get(vid)
-            if passing is not None:
-                slow_id, side, since = passing
-                slow = states.get(slow_id)
-                done = slow is None or ego.rear_s_m >= slow.s_m + sc.cav.min_gap_m
-                if done or t_s - since > sw.max_pass_s:
-                    del self._passing[vid]
-                    ctx.event("passing_end", vehicle=vid, slow=slow_id, past=done)
-                else:
-                    goals[vid] = side
-                continue
-            if i == 0 or road.lane_of_y(road.y_of(ego.lane, ego.lat_m)) != lane:
-                continue
-            ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
-            if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
-                continue
-            slow = ahead[0]
-            if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
-                continue
-            if states[platoon[i - 1]].rear_s_m <= slow.s_m:
-                continue  # the CAV ahead is behind it too: the swarm decides for them
-            side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
-            speeds = lane_speeds(ego, others, road, side, range_m=sw.detect_range_m,
-                                 cap_mps=self.cap_mps, desired_of=self._desired_speed)  # fmt: skip
-            best = max(speeds, key=speeds.get, default=None)
-            if best is not None and speeds[best] - slow.speed_mps >= sw.min_speed_gain_mps:
-                self._passing[vid] = (slow.vehicle_id, best, t_s)
-                goals[vid] = best
-                ctx.event("passing_start", vehicle=vid, slow=slow.vehicle_id, lane=best)
-        return goals
-
-    def _make_room(
-        self, states: dict[str, VehicleState], platoon: list[str], lane: int,
-        moves: dict[str, tuple[float, float]],
-    ) -> None:  # fmt: skip
-        """A CAV in the platoon's lane lets a CAV next to that lane merge in front of it: it
-        follows the merging CAV as if it were already ahead (braking gently), so a gap opens
-        there instead of the platoon streaming past a CAV that cannot get in."""
-        road, sc = self.ctx.road, self.ctx.scenario
-        lane_of = {v: road.lane_of_y(road.y_of(states[v].lane, states[v].lat_m)) for v in platoon}
-        merging = [states[v] for v in platoon if abs(lane_of[v] - lane) == 1]
-        if not merging:
-            return
-        others = list(states.values())
-        gentle = -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
-        for vid in platoon:
-            if lane_of[vid] != lane:
-                continue
-            ego = states[vid]
-            ahead = [m for m in merging if m.s_m > ego.s_m]
-            if not ahead:
-                continue
-            m = min(ahead, key=lambda x: x.s_m)
-            gap = m.rear_s_m - ego.s_m
-            real = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
-            if real is not None and real[1] <= gap:
-                continue  # its own leader is nearer: the merging CAV slots in further ahead
-            accel = cacc_accel(ego.speed_mps, gap, m.speed_mps, m.accel_mps2, sc.cav, sc.cacc)
-            dlat, bound = moves[vid]
-            moves[vid] = (dlat, min(bound, max(accel, gentle)))
-
-    def _desired_speed(self, vehicle: VehicleState) -> float:
-        """Speed [m/s] a vehicle wants to drive: an HV's by its model, a CAV's its own."""
-        if vehicle.is_cav:
-            return math.inf
-        return self.model_of(vehicle.vehicle_id).desired_speed_mps
-
-    def _steer_to_lane(
-        self, ego: VehicleState, lane: int, states: dict[str, VehicleState]
-    ) -> tuple[float, float]:
-        """(lateral move [m], acceleration bound [m/s^2]) of a cruising CAV towards ``lane``'s
-        centre, one lane at a time, through the same guard as in a manoeuvre. A CAV that must
-        change lanes drops in behind whatever drives ahead in the next lane (braking gently),
-        so that a gap opens where it will enter."""
-        ctx = self.ctx
-        road, sc, dt = ctx.road, ctx.scenario, ctx.dt_s
-        step = sc.cav.max_lateral_speed_mps * dt
-        y = road.y_of(ego.lane, ego.lat_m)
-        lane_now = road.lane_of_y(y)
-        if lane_now == lane:
-            return float(np.clip(road.lane_centre_y(lane) - y, -step, step)), math.inf
-        lane_next = lane_now + (1 if lane > lane_now else -1)
-        y_next = road.lane_centre_y(lane_next)
-        dlat = float(np.clip(y_next - y, -step, step))
-        others = list(states.values())
-        refusal = lateral_refusal(
-            ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
-            model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt,
-            settings=sc.guards,
-        )  # fmt: skip
-        accel = math.inf
-        ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
-        if ahead is not None:
-            lead, gap = ahead
-            accel = cacc_accel(ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav,
-                               sc.cacc, ahead_is_cav=lead.is_cav)  # fmt: skip
-            accel = max(accel, -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2)
-        if refusal is not None:
-            dlat = 0.0
-        limit = gap_accel_limit(
-            ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
-        )
-        return dlat, min(accel, limit)
+    def _ending_lanes(
+        self, leader: VehicleState, vid: str, range_m: float | None = None
+    ) -> set[int]:
+        """Lanes that end within ``range_m`` (default ``[swarm] detect_range_m``) ahead of the
+        leader ``vid``."""
+        session = self.ctx.session
+        edge = session.edges.get(vid) if hasattr(session, "edges") else None
+        if edge is None or not hasattr(session, "lanes_ending"):
+            return set()
+        if range_m is None:
+            range_m = self.ctx.scenario.swarm.detect_range_m
+        reach = leader.s_m + range_m
+        return {lane for lane, _ in session.lanes_ending(edge, leader.rear_s_m, reach)}
 
     # ------------------------------------------------------------------ overtake
     def _start_overtake(self, t_s: float, target: VehicleState) -> None:
@@ -540,7 +389,7 @@ class SwarmController:
 
     def _finish(self, t_s: float, completed: bool, reason: str = "completed") -> None:
         self.mode = Mode.CRUISE
-        self._reform_lane_id = None  # chosen afresh from where the CAVs are now
+        self.reformer.reset()  # the platoon's lane chosen afresh from where the CAVs are now
         if self.drawer is not None:
             self.drawer.clear()
         self.plan = None

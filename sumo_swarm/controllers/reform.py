@@ -1,0 +1,237 @@
+"""Re-forming the platoon while the swarm cruises (no plan in force).
+
+After an overtake, a give-up, a target that left the lane, or CAVs that started spread out, the
+CAVs are brought back into one platoon:
+
+* :meth:`Reformer.lane` picks the lane: of the lanes its CAVs are in (a lane ending ahead
+  excluded), the one where the swarm can drive fastest (:func:`lane_speeds`), on a tie the one
+  holding more CAVs; the choice is kept unless another lane is faster by ``min_speed_gain_mps``.
+* :meth:`Reformer.goals` gives each CAV its lane: the platoon's, except for a CAV cut off from
+  the CAV ahead of it by a slow vehicle in that lane, which passes it on its own in the faster
+  lane beside and then comes back (at most ``[swarm] max_pass_s``).
+* :meth:`Reformer.moves` turns the goals into a lateral move and an acceleration bound per CAV:
+  one lane at a time, through the same lateral guard as in a manoeuvre; a CAV that must change
+  lanes drops in behind whatever drives ahead in the next lane, and the CAVs in the platoon's
+  lane open a gap for a CAV merging next to them.
+
+Pure apart from the ``event`` callback: tested without SUMO (tests/test_reform.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sumo_swarm.config import Scenario
+from sumo_swarm.controllers.cacc import cacc_accel
+from sumo_swarm.core.hvmodel import DriverModel
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.neighbours import vehicle_ahead
+from sumo_swarm.core.swarming.decision import lane_speeds
+from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal
+
+Move = tuple[float, float]  # (lateral move [m], acceleration bound [m/s^2])
+
+
+def lane_index(road: RoadSection, vehicle: VehicleState) -> int:
+    """The lane a vehicle's centre is in (mid lane change: the one it is crossing into)."""
+    return road.lane_of_y(road.y_of(vehicle.lane, vehicle.lat_m))
+
+
+@dataclass
+class Reformer:
+    """The platoon's lane and the CAVs passing on their own, from one step to the next."""
+
+    scenario: Scenario
+    model_of: Callable[[str], DriverModel]
+    event: Callable[..., Any] = lambda kind, **data: None
+    lane_id: int | None = None
+    # CAV -> (the slow vehicle it passes, the lane it passes in, since when [s])
+    passing: dict[str, tuple[str, int, float]] = field(default_factory=dict)
+
+    def reset(self) -> None:
+        """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
+        self.lane_id = None
+
+    def desired_speed(self, vehicle: VehicleState) -> float:
+        """Speed [m/s] a vehicle wants to drive: an HV's by its model, a CAV's unbounded."""
+        if vehicle.is_cav:
+            return math.inf
+        return self.model_of(vehicle.vehicle_id).desired_speed_mps
+
+    # ------------------------------------------------------------------ the platoon's lane
+    def lane(
+        self,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        *,
+        ending: Collection[int],
+        cap_mps: float,
+    ) -> int:
+        """The lane the platoon cruises in (``ending``: lanes that end ahead of the leader)."""
+        sc = self.scenario
+        leader = states[platoon[0]]
+        count = Counter(lane_index(road, states[v]) for v in platoon)
+        if len(count) == 1 and self.lane_id in (None, *count):
+            self.lane_id = next(iter(count))
+            return self.lane_id
+        members = set(platoon)
+        speeds = lane_speeds(
+            leader, [st for v, st in states.items() if v not in members], road,
+            sorted(set(count) - set(ending) or set(count)), range_m=sc.swarm.detect_range_m,
+            cap_mps=cap_mps, desired_of=self.desired_speed,
+        )  # fmt: skip
+        current = self.lane_id
+        best = max(speeds, key=lambda lane: (round(speeds[lane] * 2.0) / 2.0, count[lane]))
+        if current in speeds and speeds[best] - speeds[current] < sc.swarm.min_speed_gain_mps:
+            best = current
+        if best != current:
+            shown = {str(k): round(v, 2) for k, v in speeds.items()}
+            self.event("reform_lane", lane=best, lane_speeds_mps=shown)
+        self.lane_id = best
+        return best
+
+    # ------------------------------------------------------------------ each CAV's lane
+    def goals(
+        self,
+        t_s: float,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        lane: int,
+        *,
+        cap_mps: float,
+    ) -> dict[str, int]:
+        """The lane each CAV heads for (``passing_start``/``passing_end`` events)."""
+        sc = self.scenario
+        sw = sc.swarm
+        members = set(platoon)
+        others = [st for v, st in states.items() if v not in members]
+        goals = {}
+        for i, vid in enumerate(platoon):
+            ego = states[vid]
+            goals[vid] = lane
+            passing = self.passing.get(vid)
+            if passing is not None:
+                slow_id, side, since = passing
+                slow = states.get(slow_id)
+                done = slow is None or ego.rear_s_m >= slow.s_m + sc.cav.min_gap_m
+                if done or t_s - since > sw.max_pass_s:
+                    del self.passing[vid]
+                    self.event("passing_end", vehicle=vid, slow=slow_id, past=done)
+                else:
+                    goals[vid] = side
+                continue
+            if i == 0 or lane_index(road, ego) != lane:
+                continue
+            ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
+            if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
+                continue
+            slow = ahead[0]
+            if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
+                continue
+            if states[platoon[i - 1]].rear_s_m <= slow.s_m:
+                continue  # the CAV ahead is behind it too: the swarm decides for them
+            side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
+            speeds = lane_speeds(ego, others, road, side, range_m=sw.detect_range_m,
+                                 cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip
+            best = max(speeds, key=speeds.get, default=None)
+            if best is not None and speeds[best] - slow.speed_mps >= sw.min_speed_gain_mps:
+                self.passing[vid] = (slow.vehicle_id, best, t_s)
+                goals[vid] = best
+                self.event("passing_start", vehicle=vid, slow=slow.vehicle_id, lane=best)
+        return goals
+
+    # ------------------------------------------------------------------ commands
+    def moves(
+        self,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        lane: int,
+        goals: Mapping[str, int],
+        step_s: float,
+    ) -> dict[str, Move]:
+        """Lateral move and acceleration bound of every CAV of ``platoon``."""
+        moves = {vid: self._steer(states[vid], goals[vid], states, road, step_s) for vid in platoon}
+        self._make_room(states, [v for v in platoon if v not in self.passing], road, lane, moves)
+        return moves
+
+    def _steer(
+        self,
+        ego: VehicleState,
+        lane: int,
+        states: Mapping[str, VehicleState],
+        road: RoadSection,
+        step_s: float,
+    ) -> Move:
+        """Towards ``lane``'s centre, one lane at a time, held by the lateral guard; a CAV that
+        must change lanes drops in behind whatever drives ahead in the next lane (braking
+        gently), so that a gap opens where it will enter."""
+        sc = self.scenario
+        step = sc.cav.max_lateral_speed_mps * step_s
+        y = road.y_of(ego.lane, ego.lat_m)
+        lane_now = road.lane_of_y(y)
+        if lane_now == lane:
+            return float(np.clip(road.lane_centre_y(lane) - y, -step, step)), math.inf
+        y_next = road.lane_centre_y(lane_now + (1 if lane > lane_now else -1))
+        dlat = float(np.clip(y_next - y, -step, step))
+        others = list(states.values())
+        refusal = lateral_refusal(
+            ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
+            model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
+            settings=sc.guards,
+        )  # fmt: skip
+        accel = math.inf
+        ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
+        if ahead is not None:
+            lead, gap = ahead
+            accel = cacc_accel(ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav,
+                               sc.cacc, ahead_is_cav=lead.is_cav)  # fmt: skip
+            accel = max(accel, -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2)
+        if refusal is not None:
+            dlat = 0.0
+        limit = gap_accel_limit(
+            ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
+        )
+        return dlat, min(accel, limit)
+
+    def _make_room(
+        self,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        lane: int,
+        moves: dict[str, Move],
+    ) -> None:
+        """A CAV in the platoon's lane lets a CAV next to that lane merge in front of it: it
+        follows the merging CAV as if it were already ahead (braking gently), so a gap opens
+        there instead of the platoon streaming past a CAV that cannot get in."""
+        sc = self.scenario
+        lane_of = {v: lane_index(road, states[v]) for v in platoon}
+        merging = [states[v] for v in platoon if abs(lane_of[v] - lane) == 1]
+        if not merging:
+            return
+        others = list(states.values())
+        gentle = -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
+        for vid in platoon:
+            if lane_of[vid] != lane:
+                continue
+            ego = states[vid]
+            ahead = [m for m in merging if m.s_m > ego.s_m]
+            if not ahead:
+                continue
+            m = min(ahead, key=lambda x: x.s_m)
+            gap = m.rear_s_m - ego.s_m
+            real = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
+            if real is not None and real[1] <= gap:
+                continue  # its own leader is nearer: the merging CAV slots in further ahead
+            accel = cacc_accel(ego.speed_mps, gap, m.speed_mps, m.accel_mps2, sc.cav, sc.cacc)
+            dlat, bound = moves[vid]
+            moves[vid] = (dlat, min(bound, max(accel, gentle)))
