@@ -90,6 +90,7 @@ def summary_row(run_dir: Path) -> dict[str, Any]:
     df = pd.read_parquet(run_dir / "trajectories.parquet")
     cav = df[df["kind"] == "cav"]
     brakes = hard_brake_events(cav)
+    passed, ahead_at_end = cavs_past_truck(df)
     ends = [
         e.get("reason", "")
         for e in _events(run_dir / "events.jsonl")
@@ -103,6 +104,8 @@ def summary_row(run_dir: Path) -> dict[str, Any]:
         "collisions": s["safety"]["collisions"],
         "hard_brakes": s["safety"]["hard_brakes"],
         "hard_brakes_cav": int(brakes["vehicle"].nunique()),
+        "cavs_passed_truck": passed,
+        "cavs_ahead_at_end": ahead_at_end,
         "triggered": ot["triggered"],
         "target": ot["target"],
         "completed": ot["completed"],
@@ -120,6 +123,24 @@ def summary_row(run_dir: Path) -> dict[str, Any]:
             for r in brakes.itertuples()
         ],
     }
+
+
+def cavs_past_truck(df: pd.DataFrame, truck: str = "truck") -> tuple[int, int]:
+    """CAVs that were ever ahead of the truck (front bumpers, distance along the route, at the
+    same step), and those ahead of it at the last step both were in the simulation."""
+    s_m = df.pivot_table(index="time_s", columns="vehicle", values="s_m")
+    if truck not in s_m:
+        return 0, 0
+    cavs = [v for v in df.loc[df["kind"] == "cav", "vehicle"].unique() if v in s_m]
+    ever = last = 0
+    for vid in cavs:
+        both = s_m[[vid, truck]].dropna()
+        if both.empty:
+            continue
+        ahead = both[vid] > both[truck]
+        ever += bool(ahead.any())
+        last += bool(ahead.iloc[-1])
+    return ever, last
 
 
 def _events(path: Path) -> Iterable[dict[str, Any]]:
@@ -153,6 +174,8 @@ TABLE_COLUMNS = {
     "hard_brakes_cav": "hard brakes (CAV)",
     "cav_min_accel_mps2": "CAV min accel [m/s^2]",
     "cav_gap_min_m": "min CAV gap [m]",
+    "cavs_passed_truck": "CAVs past truck",
+    "cavs_ahead_at_end": "ahead at end",
     "completed": "completed",
     "regrouped": "regrouped",
     "aborted": "aborted",
