@@ -183,6 +183,7 @@ TABLE_COLUMNS = {
     "planner_p95_ms": "planner p95 [ms]",
     "planner_max_ms": "planner max [ms]",
     "wall_s": "wall [s]",
+    "controller_s": "controller [s]",
 }
 
 
@@ -197,6 +198,13 @@ def markdown(df: pd.DataFrame, commit: str, command: str, end_s: float) -> str:
         '15 m/s ahead of 5 CAVs (vType `cav`, SUMO\'s defaults but `sigma="0"`) in the same '
         "lane; `sumo-swarm run --sumocfg ... --cav-type cav` per run.",
         "",
+        "Measures: CAV mean speed, collisions, hard brakes (vehicles braking harder than "
+        "4 m/s^2), min CAV gap and the overtake flags are the run's summary.json; CAV min "
+        "accel and the CAVs ever past the truck (and still ahead of it when both were last "
+        "seen) come from trajectories.parquet; planner p95/max are the MIP solves alone "
+        "(summary `planner`), wall and controller seconds the run's `timing` (SUMO start-up "
+        "excluded). A run the CLI refuses (exit 2) is `refused`.",
+        "",
     ]
     for (road, step), rows in df.groupby(["road", "step_s"], sort=False):
         out += [f"## {road}, step {step} s", "", f"{ROADS[road].about}.", ""]
@@ -209,11 +217,13 @@ def markdown(df: pd.DataFrame, commit: str, command: str, end_s: float) -> str:
         if row.status not in ("ok", "refused"):
             what.append(f"{row.status}: {getattr(row, 'message', '')}")
         if row.status == "refused":
-            what.append(f"refused: {row.message}")
-        if isinstance(row.collision_lines, list) and row.collision_lines:
-            what += row.collision_lines
-        if isinstance(row.hard_brake_episodes_cav, list) and row.hard_brake_episodes_cav:
-            what += [f"CAV hard brake {e}" for e in row.hard_brake_episodes_cav]
+            what.append(f"refused: {getattr(row, 'message', '')}")
+        collisions = getattr(row, "collision_lines", None)
+        if isinstance(collisions, list):
+            what += collisions
+        brakes = getattr(row, "hard_brake_episodes_cav", None)
+        if isinstance(brakes, list):
+            what += [f"CAV hard brake {e}" for e in brakes]
         if what:
             failures.append(f"- {row.road}, step {row.step_s} s, {row.controller}:")
             failures += [f"  - {w}" for w in what]
@@ -262,12 +272,16 @@ def main(argv: list[str] | None = None) -> int:
     with ThreadPoolExecutor(max_workers=max(1, args.workers)) as pool:
         done = dict(zip(order, pool.map(lambda j: run_job(j, args.timeout), order), strict=True))
     df = pd.DataFrame([done[j] for j in jobs])
+    df.insert(0, "commit", git_commit())
     command = "python tools/user_roads.py " + " ".join(argv if argv is not None else sys.argv[1:])
     text = markdown(df, git_commit(), command.strip(), args.end)
     print(text)
     args.table.parent.mkdir(parents=True, exist_ok=True)
     args.table.with_suffix(".md").write_text(text, encoding="utf-8")
-    csv = df.drop(columns=["collision_lines", "hard_brake_episodes_cav"], errors="ignore")
+    csv = df.copy()
+    for col in ("collision_lines", "hard_brake_episodes_cav"):
+        if col in csv:
+            csv[col] = csv[col].map(lambda v: " | ".join(v) if isinstance(v, list) else "")
     csv.to_csv(args.table.with_suffix(".csv"), index=False)
     return 0
 

@@ -33,8 +33,11 @@ from sumo_swarm.sim.netbuild import (
 CAV_TYPE = "cav"
 CAV_COUNT = 5
 TRUCK_SPEED_MPS = 15.0
-# The truck leads at this position of the first edge [m]; the CAVs follow 15 m apart.
+# The truck leads at this position of the first edge [m]; the CAVs follow 15 m apart. CAVs
+# departing from a flow enter at the start of the road, so the truck starts nearer to it there
+# (the CAVs meet it within the first 30 s).
 TRUCK_POS_M = 320.0
+TRUCK_POS_CAV_FLOW_M = 100.0
 CAV_SPACING_M = 15.0
 
 VTYPES = (
@@ -47,9 +50,10 @@ VTYPES = (
 def _truck_and_cavs(route: str, lane: int, *, cav_flow: bool = False) -> list[str]:
     """The slow truck and, behind it in lane ``lane``, 5 CAVs: placed vehicles or, with
     ``cav_flow``, a ``<flow>`` of CAVs entering the road one every 2 s behind the truck."""
+    truck_pos_m = TRUCK_POS_CAV_FLOW_M if cav_flow else TRUCK_POS_M
     lines = [
         f'  <vehicle id="truck" type="truck" route="{route}" depart="0" departLane="{lane}" '
-        f'departPos="{TRUCK_POS_M:g}" departSpeed="{TRUCK_SPEED_MPS:g}"/>'
+        f'departPos="{truck_pos_m:g}" departSpeed="{TRUCK_SPEED_MPS:g}"/>'
     ]
     if cav_flow:
         lines.append(
