@@ -39,6 +39,8 @@ CONTROLLERS = ("swarm", "cacc", "sumo-cacc", "sumo-lc")
 # Step lengths [s]; None is SUMO's default (1 s): the sumocfg does not name a step.
 STEPS: dict[str, float | None] = {"0.1": 0.1, "1 (default)": None}
 EXIT_BAD_INPUT = 2
+# SUMO's warning for a collision: "Warning: Vehicle 'a'; collision with vehicle 'b', lane=...".
+COLLISION_WARNING = "collision with"
 
 
 @dataclass(frozen=True)
@@ -79,7 +81,7 @@ def run_job(job: Job, timeout_s: float) -> dict[str, Any]:
         return row
     row["status"] = "ok"
     row.update(summary_row(job.out))
-    row["collision_lines"] = [line for line in lines if "collision" in line.lower()]
+    row["collision_lines"] = [line for line in lines if COLLISION_WARNING in line]
     return row
 
 
@@ -118,11 +120,19 @@ def summary_row(run_dir: Path) -> dict[str, Any]:
         "planner_max_ms": s["planner"]["solve_ms_max"],
         "wall_s": s["timing"]["wall_s"],
         "controller_s": s["timing"]["controller_s"],
-        "hard_brake_episodes_cav": [
-            f"{r.vehicle} {r.start_s:.1f}-{r.end_s:.1f} s ({r.min_accel_mps2:.2f} m/s^2)"
-            for r in brakes.itertuples()
-        ],
+        "hard_brake_episodes_cav": brake_lines(brakes),
     }
+
+
+def brake_lines(episodes: pd.DataFrame) -> list[str]:
+    """One line per vehicle: its hard-braking episodes, when, and the strongest [m/s^2]."""
+    lines = []
+    for vid, eps in episodes.groupby("vehicle", sort=False):
+        lines.append(
+            f"{vid}: {len(eps)} episode(s), {eps['start_s'].min():.1f}-{eps['end_s'].max():.1f} s, "
+            f"strongest {eps['min_accel_mps2'].min():.2f} m/s^2"
+        )
+    return lines
 
 
 def cavs_past_truck(df: pd.DataFrame, truck: str = "truck") -> tuple[int, int]:
@@ -187,12 +197,13 @@ TABLE_COLUMNS = {
 }
 
 
-def markdown(df: pd.DataFrame, commit: str, command: str, end_s: float) -> str:
+def markdown(df: pd.DataFrame, command: str, end_s: float) -> str:
     """The report: a table per road and step, ratios below it, then every failure seen."""
     out = [
         "# Users' roads: swarm, cacc, sumo-cacc and sumo-lc side by side",
         "",
-        f"Commit `{commit}`; `{command}`; {end_s:g} s simulated per run, SUMO's seed. Roads "
+        f"Runs at commit {', '.join(f'`{c}`' for c in df['commit'].unique())}, "
+        f"report by `{command}`; {end_s:g} s simulated per run, SUMO's seed. Roads "
         "(sumo_swarm/sim/userroads.py), written as a new user would: SUMO's default vType for "
         'the traffic, `<flow>` with `departLane="best"` and `departSpeed="max"`, a truck at '
         '15 m/s ahead of 5 CAVs (vType `cav`, SUMO\'s defaults but `sigma="0"`) in the same '
@@ -231,6 +242,25 @@ def markdown(df: pd.DataFrame, commit: str, command: str, end_s: float) -> str:
     return "\n".join(out)
 
 
+def report_again(jobs: list[Job], csv: Path) -> pd.DataFrame:
+    """The rows of ``csv`` (runs made earlier, with their commit, status and process time)
+    with every measure read again from the run folders."""
+    old = pd.read_csv(csv, dtype={"step_s": str}).set_index(["road", "step_s", "controller"])
+    rows = []
+    for job in jobs:
+        prev = old.loc[(job.road, job.step, job.controller)]
+        row = {"commit": prev["commit"], "road": job.road, "step_s": job.step}
+        row.update(controller=job.controller, process_s=prev["process_s"], status=prev["status"])
+        if "message" in prev and isinstance(prev["message"], str):
+            row["message"] = prev["message"]
+        if row["status"] == "ok":
+            row.update(summary_row(job.out))
+            log = (job.out / "run.log").read_text(encoding="utf-8").splitlines()
+            row["collision_lines"] = [line for line in log if COLLISION_WARNING in line]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def git_commit() -> str:
     """The commit of this checkout, ``+dirty`` when tracked files differ from it."""
     rev = subprocess.run(
@@ -260,21 +290,32 @@ def main(argv: list[str] | None = None) -> int:
         default=ROOT / "docs" / "bench" / "user_roads",
         help="write TABLE.md and TABLE.csv (default docs/bench/user_roads)",
     )
+    ap.add_argument(
+        "--report-only",
+        action="store_true",
+        help="rebuild the report from the run folders of TABLE.csv's runs, without running",
+    )
     args = ap.parse_args(argv)
     jobs = []
     for road in args.roads:
         for step_name in args.steps:
             folder = args.out / road / ("step-0.1" if STEPS[step_name] else "step-default")
-            cfg = write_road(road, folder, end_s=args.end, step_length_s=STEPS[step_name])
+            cfg = folder / "user.sumocfg"
+            if not args.report_only:
+                write_road(road, folder, end_s=args.end, step_length_s=STEPS[step_name])
             jobs += [Job(road, step_name, c, cfg, folder / c) for c in args.controllers]
     # The slowest runs (the swarm at 0.1 s) first, so that the workers finish together.
-    order = sorted(jobs, key=lambda j: (j.controller != "swarm", j.step != "0.1"))
-    with ThreadPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        done = dict(zip(order, pool.map(lambda j: run_job(j, args.timeout), order), strict=True))
-    df = pd.DataFrame([done[j] for j in jobs])
-    df.insert(0, "commit", git_commit())
+    if args.report_only:
+        df = report_again(jobs, args.table.with_suffix(".csv"))
+    else:
+        order = sorted(jobs, key=lambda j: (j.controller != "swarm", j.step != "0.1"))
+        with ThreadPoolExecutor(max_workers=max(1, args.workers)) as pool:
+            runs = pool.map(lambda j: run_job(j, args.timeout), order)
+            done = dict(zip(order, runs, strict=True))
+        df = pd.DataFrame([done[j] for j in jobs])
+        df.insert(0, "commit", git_commit())
     command = "python tools/user_roads.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    text = markdown(df, git_commit(), command.strip(), args.end)
+    text = markdown(df, command.strip(), args.end)
     print(text)
     args.table.parent.mkdir(parents=True, exist_ok=True)
     args.table.with_suffix(".md").write_text(text, encoding="utf-8")
