@@ -126,3 +126,16 @@ def test_swarm_at_sumos_default_step_refuses_or_drives_safely(tmp_path):
     assert proc.returncode == 0, proc.stderr
     summary = json.loads((tmp_path / "swarm" / "summary.json").read_text())
     assert summary["safety"]["collisions"] == 0, proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"through_lanes": 0}, "through_lanes must be >= 1"),
+        ({"ramp_m": 0.0}, "must be > 0"),
+        ({"accel_lane_m": float("nan")}, "must be > 0"),
+    ],
+)
+def test_motorway_spec_refuses_impossible_geometry(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        MotorwaySpec(**kwargs)
