@@ -1,0 +1,141 @@
+"""Users' roads (sim/userroads.py), written as a new user would, run through
+``sumo-swarm run --sumocfg`` with real SUMO: each builds, SUMO's own CAV models drive them without
+a collision, and the swarm drives them without a collision or a CAV braking harder than 4 m/s^2.
+How fast the swarm is there is reported by tools/user_roads.py, not asserted here."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import sumolib
+
+from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.metrics import hard_brake_events
+from sumo_swarm.sim.netbuild import MotorwaySpec
+from sumo_swarm.sim.runner import read_sumocfg_options, run_sumocfg
+from sumo_swarm.sim.userroads import CAV_COUNT, ROADS, write_road
+
+pytestmark = pytest.mark.sumo
+
+# Simulated seconds per run: long enough for the swarm to meet the truck and start to pass it.
+END_S = 40.0
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def road_cfgs(tmp_path_factory) -> dict[str, Path]:
+    base = tmp_path_factory.mktemp("roads")
+    return {name: write_road(name, base / name, end_s=END_S) for name in ROADS}
+
+
+def _net(cfg: Path) -> sumolib.net.Net:
+    return sumolib.net.readNet(str(cfg.parent / read_sumocfg_options(cfg)["net-file"]))
+
+
+def test_motorway_ramps_have_an_acceleration_and_a_deceleration_lane(road_cfgs):
+    net = _net(road_cfgs["motorway-ramps"])
+    n = MotorwaySpec().through_lanes
+    lanes = {e: net.getEdge(e).getLaneNumber() for e in ("up", "acc", "mid", "dec", "down")}
+    assert lanes == {"up": n, "acc": n + 1, "mid": n, "dec": n + 1, "down": n}
+    acc = net.getEdge("acc")
+    # The on-ramp feeds the acceleration lane (lane 0), which ends with its edge.
+    assert [c.getToLane().getID() for c in net.getEdge("on").getLanes()[0].getOutgoing()] == [
+        "acc_0"
+    ]
+    assert acc.getLanes()[0].getOutgoing() == []
+    assert [c.getToLane().getID() for c in acc.getLanes()[1].getOutgoing()] == ["mid_0"]
+    # The deceleration lane (lane 0 of dec) leads to the off-ramp only, and through lanes do not.
+    dec = net.getEdge("dec")
+    assert [c.getToLane().getID() for c in dec.getLanes()[0].getOutgoing()] == ["off_0"]
+    assert all(
+        c.getToLane().getEdge().getID() == "down"
+        for lane in dec.getLanes()[1:]
+        for c in lane.getOutgoing()
+    )
+
+
+def test_every_road_builds_with_a_truck_ahead_of_the_cavs_in_its_lane(road_cfgs):
+    for name, cfg in road_cfgs.items():
+        routes = (cfg.parent / "routes.rou.xml").read_text()
+        assert routes.count('type="truck"') == 1
+        assert 'departLane="best"' in routes or name == "2-lane-passing-flow"
+        options = read_sumocfg_options(cfg)
+        assert options["step-length"] == "0.1" and "lateral-resolution" not in options
+        assert len(_net(cfg).getEdges()) >= 1
+
+
+def test_default_step_leaves_the_step_to_sumo(tmp_path):
+    cfg = write_road("2-lane-passing-flow", tmp_path, end_s=10.0, step_length_s=None)
+    assert "step-length" not in read_sumocfg_options(cfg)
+
+
+def test_unknown_road_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="unknown road 'nowhere'"):
+        write_road("nowhere", tmp_path)
+
+
+def _cav_min_accel_mps2(run_dir: Path) -> tuple[float, pd.DataFrame]:
+    df = pd.read_parquet(run_dir / "trajectories.parquet")
+    cav = df[df["kind"] == "cav"]
+    return float(cav["accel_mps2"].min()), hard_brake_events(cav)
+
+
+@pytest.mark.parametrize("controller", ["sumo-lc", "sumo-cacc"])
+@pytest.mark.parametrize("name", list(ROADS))
+def test_sumo_models_drive_every_road_without_collision(road_cfgs, tmp_path, name, controller):
+    summary = run_sumocfg(
+        road_cfgs[name], "cav", controller, tmp_path, progress=False, notify=lambda _: None
+    )
+    assert summary["cav"]["count"] == CAV_COUNT
+    assert summary["safety"]["collisions"] == 0
+    # The runner counts physical overlaps: SUMO's collision check without a minimum gap.
+    options = read_sumocfg_options(tmp_path / "sumo" / "scenario.sumocfg")
+    assert options["collision.mingap-factor"] == "0"
+
+
+@pytest.mark.parametrize("name", list(ROADS))
+def test_swarm_drives_every_road_without_collision_or_cav_hard_brake(road_cfgs, tmp_path, name):
+    summary = run_sumocfg(
+        road_cfgs[name], "cav", "swarm", tmp_path, progress=False, notify=lambda _: None
+    )
+    assert summary["cav"]["count"] == CAV_COUNT
+    assert summary["safety"]["collisions"] == 0
+    min_accel, episodes = _cav_min_accel_mps2(tmp_path)
+    assert summary["safety"]["hard_brakes_cav"] == 0, episodes.to_string()
+    assert min_accel >= -4.0 - 1e-6, episodes.to_string()
+
+
+def test_swarm_at_sumos_default_step_refuses_or_drives_safely(tmp_path):
+    """At SUMO's default 1 s step the swarm either refuses to start (exit 2, one line naming the
+    step) or drives without a collision."""
+    cfg = write_road("3-lane-900", tmp_path / "road", end_s=END_S, step_length_s=None)
+    cmd = [
+        sys.executable, "-m", "sumo_swarm", "run", "--sumocfg", str(cfg), "--cav-type", "cav",
+        "--controller", "swarm", "--out", str(tmp_path / "swarm"),
+    ]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
+    if proc.returncode == 2:
+        lines = [line for line in proc.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and "step" in lines[0], proc.stderr
+        return
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "swarm" / "summary.json").read_text())
+    assert summary["safety"]["collisions"] == 0, proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"through_lanes": 0}, "through_lanes must be >= 1"),
+        ({"ramp_m": 0.0}, "must be > 0"),
+        ({"accel_lane_m": float("nan")}, "must be > 0"),
+    ],
+)
+def test_motorway_spec_refuses_impossible_geometry(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        MotorwaySpec(**kwargs)
