@@ -65,6 +65,8 @@ from sumo_swarm.core.swarming.tracker import Tracker
 from sumo_swarm.core.trajectory import Reference
 
 log = logging.getLogger(__name__)
+# A CAV above the speed cap slows to it at this rate [m/s^2] (well inside the 4 m/s^2 line).
+CAP_DECEL_MPS2 = 2.0
 
 LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane that ends [m]
 # Replans that a safety check demands: they are not rate-limited.
@@ -640,7 +642,10 @@ class SwarmController:
                 ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
             )
             accel = min(max(min(accel, limit), sc.cav.accel_min_mps2), sc.cav.accel_max_mps2)
-            ctx.session.set_speed(vid, min(max(ego.speed_mps + accel * dt, 0.0), cap))
+            # Above the cap (a CAV that departed faster, a lower limit ahead) it comes down to
+            # it gently, never by a jump in the commanded speed (SUMO would brake at decel).
+            v_cmd = min(ego.speed_mps + accel * dt, max(cap, ego.speed_mps - CAP_DECEL_MPS2 * dt))
+            ctx.session.set_speed(vid, max(v_cmd, 0.0))
             ctx.session.change_sublane(vid, dlat)
 
     def _count_hold(self, vid: str, refusal: str | None, lane: int, t_s: float) -> None:
