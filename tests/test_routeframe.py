@@ -156,3 +156,19 @@ def test_the_bridge_coordinate_is_the_replays(tmp_path):
     assert [(i, lane) for i, lane, _ in frame.lane_ends] == [(0, ending)]
     assert frame.lane_ends[0][2] == pytest.approx(geometry.edges[0].length_m)
     assert ending_ahead == [(ending, frame.lane_ends[0][2])]
+
+
+def test_lane_shifts_where_lanes_are_added_or_dropped_on_the_right():
+    # a -> b: lanes map 0 -> 0, 1 -> 1 (no shift); b -> c: 2 lanes become 1 (a lane drop).
+    frame = RouteFrame(network(), ["a", "b", "c"])
+    assert frame.lane_shifts_m == [310.0]
+    assert frame.near_lane_shift(290.0, 25.0) and frame.near_lane_shift(330.0, 25.0)
+    assert not frame.near_lane_shift(250.0, 25.0)
+    # An acceleration lane added on the right: a's lane 0 continues as d's lane 1.
+    lanes = {
+        "a_0": (100.0, 3.5, STRAIGHT, [("d_1", ":j_0_0")]),
+        ":j_0_0": (10.0, 3.5, STRAIGHT, [("d_1", "")]),
+        "d_0": (200.0, 3.5, STRAIGHT, []),
+        "d_1": (200.0, 3.5, STRAIGHT, []),
+    }
+    assert RouteFrame(TableNetwork(lanes), ["a", "d"]).lane_shifts_m == [100.0]

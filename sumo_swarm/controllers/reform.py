@@ -50,7 +50,10 @@ class Reformer:
     scenario: Scenario
     model_of: Callable[[str], DriverModel]
     event: Callable[..., Any] = lambda kind, **data: None
+    # hold(ego, y, dlat): a lane change to hold besides the guard's refusals (lane shifts)
+    hold: Callable[[VehicleState, float, float], bool] = lambda ego, y, dlat: False
     lane_id: int | None = None
+    edge: str | None = None  # the edge whose lane indices lane_id is in
     # CAV -> (the slow vehicle it passes, the lane it passes in, since when [s])
     passing: dict[str, tuple[str, int, float]] = field(default_factory=dict)
 
@@ -73,22 +76,33 @@ class Reformer:
         *,
         ending: Collection[int],
         cap_mps: float,
+        edge: str | None = None,
     ) -> int:
-        """The lane the platoon cruises in (``ending``: lanes that end ahead of the leader)."""
+        """The lane the platoon cruises in (``ending``: lanes that end ahead of the leader;
+        ``edge``: the leader's edge, whose lane indices the choice is in)."""
         sc = self.scenario
+        if edge != self.edge:  # lane indices change between edges (ramps, lane drops)
+            self.edge, self.lane_id = edge, None
         leader = states[platoon[0]]
         count = Counter(lane_index(road, states[v]) for v in platoon)
-        if len(count) == 1 and self.lane_id in (None, *count):
+        if len(count) == 1 and self.lane_id in (None, *count) and not set(count) & set(ending):
             self.lane_id = next(iter(count))
             return self.lane_id
+        candidates = set(count) - set(ending)
+        if not candidates:  # every CAV is in a lane that ends: the nearest one that does not
+            free = [q for q in range(road.n_lanes) if q not in ending]
+            occupied = min(count)
+            candidates = {min(free, key=lambda q: abs(q - occupied))} if free else set(count)
         members = set(platoon)
         speeds = lane_speeds(
             leader, [st for v, st in states.items() if v not in members], road,
-            sorted(set(count) - set(ending) or set(count)), range_m=sc.swarm.detect_range_m,
-            cap_mps=cap_mps, desired_of=self.desired_speed,
+            sorted(candidates), range_m=sc.swarm.detect_range_m, cap_mps=cap_mps,
+            desired_of=self.desired_speed,
         )  # fmt: skip
         current = self.lane_id
         best = max(speeds, key=lambda lane: (round(speeds[lane] * 2.0) / 2.0, count[lane]))
+        if current not in candidates:
+            current = None  # it ends ahead, or belongs to another edge
         if current in speeds and speeds[best] - speeds[current] < sc.swarm.min_speed_gain_mps:
             best = current
         if best != current:
@@ -195,7 +209,7 @@ class Reformer:
             accel = cacc_accel(ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav,
                                sc.cacc, ahead_is_cav=lead.is_cav)  # fmt: skip
             accel = max(accel, -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2)
-        if refusal is not None:
+        if refusal is not None or self.hold(ego, y, dlat):
             dlat = 0.0
         limit = gap_accel_limit(
             ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards

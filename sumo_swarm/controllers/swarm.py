@@ -65,6 +65,8 @@ from sumo_swarm.core.swarming.tracker import Tracker
 from sumo_swarm.core.trajectory import Reference
 
 log = logging.getLogger(__name__)
+# No lane change this close to a place where lane indices shift (see lane_shift_hold) [m].
+LANE_SHIFT_HOLD_M = 40.0
 # A CAV above the speed cap slows to it at this rate [m/s^2] (well inside the 4 m/s^2 line).
 CAP_DECEL_MPS2 = 2.0
 
@@ -147,7 +149,7 @@ class SwarmController:
         self.trigger = self._new_trigger()
         self.watch = TargetWatch(sc.swarm.trigger_after_s)
         self.planlog = PlanLog(ctx.out_dir)
-        self.reformer = Reformer(sc, self.model_of, ctx.event)
+        self.reformer = Reformer(sc, self.model_of, ctx.event, hold=self.lane_shift_hold)
         self.drawer = None  # a sumo-gui plan drawer, set by the session's side (sim.gui)
 
     @property
@@ -347,8 +349,11 @@ class SwarmController:
         reformer, road = self.reformer, ctx.road
         reformer.scenario = sc  # the speeds may follow the world
         cap = self._speed_cap(platoon[:1])
-        ending = self._ending_lanes(states[platoon[0]], platoon[0])
-        lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap)
+        # Never re-form in a lane that ends within 10 s at the cruise (an acceleration lane).
+        reach = sc.swarm.detect_range_m + 10.0 * sc.cav.cruising_speed_mps
+        ending = self._ending_lanes(states[platoon[0]], platoon[0], reach)
+        edge = ctx.session.edges.get(platoon[0]) if hasattr(ctx.session, "edges") else None
+        lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap, edge=edge)
         goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap)
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
         command_cacc(ctx, platoon, leader_cruise,
@@ -356,6 +361,19 @@ class SwarmController:
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)
+
+    def lane_shift_hold(self, ego: VehicleState, y: float, dlat: float) -> bool:
+        """Hold a lane change near a place where lane indices shift (a lane added or dropped
+        on the right: on-ramps, lane drops): there the vehicles on either side of the junction
+        count their lanes differently, so the neighbour look-ups cannot be trusted."""
+        road = self.ctx.road
+        near = getattr(self.ctx.session, "near_lane_shift", None)
+        if near is None or abs(dlat) < 1e-6:
+            return False
+        crossing = road.lane_of_y(
+            y + dlat + math.copysign(self.ctx.scenario.guards.lane_probe_m, dlat)
+        ) != road.lane_of_y(y)
+        return crossing and near(ego.s_m, LANE_SHIFT_HOLD_M + ego.length_m)
 
     def _ending_lanes(
         self, leader: VehicleState, vid: str, range_m: float | None = None
@@ -623,9 +641,10 @@ class SwarmController:
                 width_m=sc.cav.width_m, model_of=self.model_of,
                 b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt, settings=sc.guards,
             )  # fmt: skip
-            dlat = 0.0 if refusal else cmd.dlat_m
+            shift = self.lane_shift_hold(ego, y, cmd.dlat_m)
+            dlat = 0.0 if refusal or shift else cmd.dlat_m
             self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)
-            self.tracker.commit(ego, cmd, refusal is not None, road, dt)
+            self.tracker.commit(ego, cmd, refusal is not None or shift, road, dt)
             accel = cmd.accel_mps2
             # Into a faster lane at that lane's speed (up to the cap); with an HV close behind,
             # slow down only gently (that is how a blocker brings a lane down to its speed).

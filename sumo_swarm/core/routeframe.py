@@ -75,6 +75,9 @@ class RouteFrame:
         self.edge_offset_m: dict[str, float] = {}
         self.via_end: dict[str, tuple[float, float]] = {}  # junction lane: (end s, length) [m]
         self.lane_ends: list[tuple[int, int, float]] = []  # (route edge index, lane, end s [m])
+        # Route positions [m] where lane indices shift (a lane added or dropped on the right:
+        # lane i of one edge continues as lane j != i of the next).
+        self.lane_shifts_m: list[float] = []
         offset = 0.0
         for i, edge in enumerate(edges):
             self.edge_offset_m[edge] = offset
@@ -85,17 +88,26 @@ class RouteFrame:
             # offset; each junction lane is placed so that it ends where that edge starts.
             vias: dict[str, float] = {}
             edge_end = offset
+            shifted = False
             for lane in range(net.lane_count(edge)):
                 continues = False
                 for to_lane, via in net.lane_links(f"{edge}_{lane}"):
-                    if to_lane.rsplit("_", 1)[0] == edges[i + 1] and via:
+                    to_edge, to_index = to_lane.rsplit("_", 1)
+                    if to_edge == edges[i + 1] and via:
                         vias[via] = net.lane_length_m(via)
                         continues = True
+                        shifted = shifted or int(to_index) != lane
                 if not continues:  # no connection into the next route edge: the lane ends
                     self.lane_ends.append((i, lane, edge_end))
+            if shifted or net.lane_count(edges[i + 1]) != net.lane_count(edge):
+                self.lane_shifts_m.append(edge_end)
             offset += min(vias.values(), default=0.0)
             for via, length in vias.items():
                 self.via_end[via] = (offset, length)
+
+    def near_lane_shift(self, s_m: float, within_m: float) -> bool:
+        """Is route position ``s_m`` within ``within_m`` of a place where lane indices shift?"""
+        return any(abs(s_m - b) <= within_m for b in self.lane_shifts_m)
 
     def route_s(self, edge: str, lane: int, pos_m: float) -> float | None:
         """Route position [m] of lane position ``pos_m`` on ``edge``'s lane ``lane``; None off

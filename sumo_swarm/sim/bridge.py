@@ -211,6 +211,10 @@ class SumoSession:
     def route_edges(self) -> list[str]:
         return list(self._route_edges)
 
+    def near_lane_shift(self, s_m: float, within_m: float) -> bool:
+        """See :meth:`RouteFrame.near_lane_shift`."""
+        return self.frame.near_lane_shift(s_m, within_m)
+
     def lanes_ending(self, edge: str, s_from_m: float, s_to_m: float) -> list[tuple[int, float]]:
         """Lanes that end between ``s_from_m`` and ``s_to_m`` [m]: see
         :meth:`RouteFrame.lanes_ending`."""
