@@ -79,15 +79,15 @@ def test_speed_cap_and_drivable_interval():
 
 
 def test_target_stops_blocking():
-    kw = dict(slow_below_mps=19.0, any_past=False)
+    kw = dict(slow_below_mps=19.0)
     truck = car("truck", 130.0, 1, 15.0)
     assert stopped_blocking(None, False, **kw) == "target_left"
     assert stopped_blocking(truck, True, **kw) == "target_changed_lane"
     fast = car("truck", 130.0, 1, 20.0)
     assert stopped_blocking(fast, False, **kw) == "target_sped_up"
     assert stopped_blocking(truck, False, **kw) is None
-    # Once CAVs are past, the manoeuvre goes on (they regroup wherever they planned).
-    assert stopped_blocking(truck, True, slow_below_mps=19.0, any_past=True) is None
+    # With CAVs past it too (the cruise re-forms the platoon, passes a CAV left behind).
+    assert stopped_blocking(truck, True, slow_below_mps=19.0) == "target_changed_lane"
 
 
 def test_progress_and_giving_up():
@@ -167,8 +167,15 @@ def test_lane_speeds_from_the_nearest_vehicle_ahead_in_each_lane():
     speeds = lane_speeds(leader, others, ROAD, [0, 1, 2], range_m=100.0, cap_mps=25.0)
     # lane 1: "leaving" counts there (its centre is across the line), nearer than "fast"
     assert speeds == {0: 12.0, 1: 11.0, 2: 25.0}
-    desired = lane_speeds(leader, others, ROAD, [0, 1], range_m=100.0, cap_mps=25.0,
-                          desired_of=lambda v: 10.0 if v.vehicle_id == "slow" else 99.0)
+    desired = lane_speeds(
+        leader,
+        others,
+        ROAD,
+        [0, 1],
+        range_m=100.0,
+        cap_mps=25.0,
+        desired_of=lambda v: 10.0 if v.vehicle_id == "slow" else 99.0,
+    )
     assert desired == {0: 10.0, 1: 11.0}  # "slow" drives 12 m/s but wants 10
     assert lane_speeds(leader, [], ROAD, [2], range_m=100.0, cap_mps=22.0) == {2: 22.0}
 

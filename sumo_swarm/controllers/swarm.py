@@ -224,14 +224,13 @@ class SwarmController:
         if self.mode is Mode.OVERTAKE:
             target = states.get(self.target_id)
             cavs = {v: states[v] for v in platoon}
-            any_past = target is not None and any(
-                c.rear_s_m >= target.s_m + sc.cav.min_gap_m for c in cavs.values()
-            )
             stop = stopped_blocking(
                 target, self._target_changed_lane(target),
-                slow_below_mps=self._slow_below(), any_past=any_past,
+                slow_below_mps=self._slow_below(),
             )  # fmt: skip
-            if stop is not None:
+            if stop is not None and target is not None and all_past(target, cavs, sc.cav.min_gap_m):
+                self._finish(t_s, completed=True)  # all past: the cruise re-forms the platoon
+            elif stop is not None:
                 self._finish(t_s, completed=False, reason=stop)
             elif self._overtake_done(target, cavs):
                 self._finish(t_s, completed=True)

@@ -158,20 +158,20 @@ def stopped_blocking(
     changed_lane: bool,
     *,
     slow_below_mps: float,
-    any_past: bool,
 ) -> str | None:
     """Why the target no longer needs overtaking, or ``None``.
 
     ``"target_left"``: it is no longer in the simulation; ``"target_changed_lane"``: it moved to
     another lane (``changed_lane``: a lane change of its own, not a renumbering where a lane
-    ends) and no CAV is past it yet (once CAVs are past, the swarm regroups in whatever lane it
-    chose); ``"target_sped_up"``: it drives at the cruise again.
+    ends); ``"target_sped_up"``: it drives at the cruise again. Also with CAVs past it: the
+    cruise then re-forms the platoon, and a CAV the target left stuck behind it (it moved into
+    that CAV's lane) passes it on its own, where the plan, made for the old lane, kept it waiting.
     """
     if target is None:
         return "target_left"
-    if changed_lane and not any_past:
+    if changed_lane:
         return "target_changed_lane"
-    if target.speed_mps >= slow_below_mps and not any_past:
+    if target.speed_mps >= slow_below_mps:
         return "target_sped_up"
     return None
 
