@@ -239,3 +239,19 @@ def test_derivatives_are_consistent_with_finite_differences():
     y_minus, dy_minus, _ = ref.evaluate_space(s - h)
     np.testing.assert_allclose((y_plus - y_minus) / (2 * h), dy, atol=1e-7)
     np.testing.assert_allclose((dy_plus - dy_minus) / (2 * h), ddy, atol=1e-7)
+
+
+def test_point_evaluation_equals_the_vectorised_one():
+    cells = [(2, 1), (3, 1), (3, 2), (4, 2), (4, 1)]
+    ref = reference_from_cells(cells, FRAME, t_now=10.0, s_now=104.0, v_now=18.0, y_now=3.0)
+    t = dense_times(ref, dt_s=0.37)
+    s, v, a = ref.evaluate_time(t)
+    for k in range(len(t)):  # every piece, before the first break and after the last
+        assert ref.s_at(t[k]) == pytest.approx(s[k], abs=1e-9)
+        assert ref.v_at(t[k]) == pytest.approx(v[k], abs=1e-9)
+        assert ref.a_at(t[k]) == pytest.approx(a[k], abs=1e-9)
+    positions = np.linspace(s.min() - 50.0, s.max() + 50.0, 97)
+    y, dy, _ = ref.evaluate_space(positions)
+    for k, s_k in enumerate(positions):
+        assert ref.y_at_s(s_k) == pytest.approx(y[k], abs=1e-9)
+        assert ref.dy_ds_at_s(s_k) == pytest.approx(dy[k], abs=1e-12)

@@ -94,6 +94,9 @@ class PlanOutcome:
 
 
 SPEED_QUANTUM_MPS = 0.1  # entry margins are computed for speeds rounded to this [m/s]
+# Blocking and speed-matched entry margins depend on three speeds: coarser, so that a run
+# computes a few hundred of them, not thousands (each is a simulated reaction) [m/s].
+BLOCK_SPEED_QUANTUM_MPS = 0.5
 
 
 # Entry margins are capped here [m]: an HV that would brake harder than allowed at any gap (it
@@ -151,7 +154,7 @@ def _block_gap(
     model: DriverModel, v_q: int, v_enter_q: int, v_final_q: int, decel: float, b: float,
     step_s: float,
 ) -> float:  # fmt: skip
-    q = SPEED_QUANTUM_MPS
+    q = BLOCK_SPEED_QUANTUM_MPS
     free = braking_needed(model, v_q * q, None, None, step_s)
     gap = min_block_gap(
         model, v_q * q, v_enter_q * q, v_final_q * q, decel, b + free, step_s,
@@ -164,8 +167,9 @@ def block_gap(
     model: DriverModel, v_mps: float, v_enter_mps: float, v_final_mps: float, decel: float,
     b: float, step_s: float,
 ) -> float:  # fmt: skip
-    """:func:`~sumo_swarm.core.hvmodel.min_block_gap`, cached, speeds rounded on the safe side."""
-    q = SPEED_QUANTUM_MPS
+    """:func:`~sumo_swarm.core.hvmodel.min_block_gap`, cached, speeds rounded on the safe side
+    (the HV's up, the entering and final ones down) to :data:`BLOCK_SPEED_QUANTUM_MPS`."""
+    q = BLOCK_SPEED_QUANTUM_MPS
     return _block_gap(
         canonical_model(model), math.ceil(v_mps / q - 1e-9), math.floor(v_enter_mps / q + 1e-9),
         math.floor(max(v_final_mps, 0.0) / q + 1e-9), decel, b, step_s,
