@@ -220,9 +220,11 @@ def brute_force(problem: PlanningProblem) -> float | None:
     return best
 
 
-@pytest.mark.parametrize("seed", range(12))
-def test_random_small_grids_match_brute_force_and_backends_agree(seed):
-    rng = random.Random(seed)
+def random_small_problem(
+    rng: random.Random, *, max_w_regroup: int = 4, delta_modes: tuple[str, ...] = ("swarm", "cav")
+) -> PlanningProblem:
+    """A random grid of 2-4 rows x 1-3 lanes, 3-4 steps, 1-2 CAVs and up to 2 blocked cells,
+    small enough for :func:`brute_force`."""
     n_rows, n_cols = rng.randint(2, 4), rng.randint(1, 3)
     n_steps = rng.randint(3, 4)
     n_cavs = rng.randint(1, 2)
@@ -230,18 +232,21 @@ def test_random_small_grids_match_brute_force_and_backends_agree(seed):
     starts = rng.sample(cells, n_cavs)
     free = [cell for cell in cells if cell not in starts]
     blocked = frozenset(rng.sample(free, rng.randint(0, min(2, len(free)))))
-    problem = small_problem(
-        n_rows,
-        n_cols,
-        n_steps,
-        starts,
+    return small_problem(
+        n_rows, n_cols, n_steps, starts,
         goal_row=rng.randint(1, n_rows - 1) if n_rows > 1 else 0,
-        lane=rng.randrange(n_cols),
-        blocked=blocked,
-        weights=PlannerWeights(rng.randint(1, 12), rng.randint(0, 3), rng.randint(0, 4)),
+        lane=rng.randrange(n_cols), blocked=blocked,
+        weights=PlannerWeights(
+            rng.randint(1, 12), rng.randint(0, 3), rng.randint(0, max_w_regroup)
+        ),
         target_form=rng.choice(["paper", "distance"]),
-        delta_mode=rng.choice(["swarm", "cav"]),
-    )
+        delta_mode=rng.choice(delta_modes),
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_random_small_grids_match_brute_force_and_backends_agree(seed):
+    problem = random_small_problem(random.Random(seed))
     expected = brute_force(problem)
     plans = [CpSatPlanner(10.0).plan(problem), ScipPlanner(10.0).plan(problem)]
     for plan in plans:

@@ -24,7 +24,7 @@ from sumo_swarm.core.planner.dump import problem_from_dict, problem_to_dict
 from sumo_swarm.core.planner.flow import build_flow_model, hint_values
 from sumo_swarm.core.planner.network import solve_network
 from sumo_swarm.errors import ConfigError
-from tests.test_planner import brute_force, fig7_problem, small_problem
+from tests.test_planner import brute_force, fig7_problem, random_small_problem, small_problem
 
 PROBLEMS = Path(__file__).parent / "data" / "planner_problems.json.gz"
 
@@ -79,22 +79,9 @@ def test_swap_without_stays_is_excluded():
 def test_random_small_grids_match_brute_force(seed):
     # The generator of test_planner's brute-force test, with the weights of the delta trap
     # (w_tar small against the regroup cost) drawn often: the search must branch there.
-    rng = random.Random(seed)
-    n_rows, n_cols = rng.randint(2, 4), rng.randint(1, 3)
-    n_steps = rng.randint(3, 4)
-    n_cavs = rng.randint(1, 2)
-    cells = [(r, c) for r in range(n_rows) for c in range(n_cols)]
-    starts = rng.sample(cells, n_cavs)
-    free = [cell for cell in cells if cell not in starts]
-    blocked = frozenset(rng.sample(free, rng.randint(0, min(2, len(free)))))
-    problem = small_problem(
-        n_rows, n_cols, n_steps, starts,
-        goal_row=rng.randint(1, n_rows - 1) if n_rows > 1 else 0,
-        lane=rng.randrange(n_cols), blocked=blocked,
-        weights=PlannerWeights(rng.randint(1, 12), rng.randint(0, 3), rng.randint(0, 8)),
-        target_form=rng.choice(["paper", "distance"]),
-        delta_mode=rng.choice(["swarm", "swarm", "cav"]),
-    )  # fmt: skip
+    problem = random_small_problem(
+        random.Random(seed), max_w_regroup=8, delta_modes=("swarm", "swarm", "cav")
+    )
     expected = brute_force(problem)
     plan = network_planner().plan(problem)
     if expected is None:

@@ -3,28 +3,18 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import pandas as pd
 import pytest
 
+from tests.toolload import load_tool
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _tool(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-ur = _tool("user_roads")
+ur = load_tool("user_roads")
 
 
 def _rows(samples: list[tuple[float, str, str, float]]) -> pd.DataFrame:

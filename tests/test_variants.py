@@ -9,34 +9,23 @@ generator's pure parts are tested first, on hand-made cases with known answers.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import pandas as pd
 import pytest
 
 from sumo_swarm.study.batch import load_sweep, run_batch
+from tests.toolload import load_tool
 
 ROOT = Path(__file__).resolve().parent.parent
 SEED = 11
 SCENES = 6
 
 
-def _tool(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-mv = _tool("make_variants")
-vr = _tool("variants_report")
-sr = _tool("stress_report")
+mv = load_tool("make_variants")
+vr = load_tool("variants_report")
+sr = load_tool("stress_report")
 
 # The ranges of issue 11 and the key of each in a case.
 RANGES = {
