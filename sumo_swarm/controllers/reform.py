@@ -209,7 +209,9 @@ class Reformer:
             accel = cacc_accel(ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav,
                                sc.cacc, ahead_is_cav=lead.is_cav)  # fmt: skip
             accel = max(accel, -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2)
-        if refusal is not None or self.hold(ego, y, dlat):
+        if self.hold(ego, y, dlat):  # back to the lane centre: never straddle two lanes there
+            dlat = float(np.clip(road.lane_centre_y(lane_now) - y, -step, step))
+        elif refusal is not None:
             dlat = 0.0
         limit = gap_accel_limit(
             ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
@@ -238,7 +240,9 @@ class Reformer:
             if lane_of[vid] != lane:
                 continue
             ego = states[vid]
-            ahead = [m for m in merging if m.s_m > ego.s_m]
+            # Only for a CAV already ahead of it: one alongside drops back instead (braking a
+            # whole lane for a CAV stuck beside it slowed the platoon to 12 m/s).
+            ahead = [m for m in merging if m.rear_s_m > ego.s_m]
             if not ahead:
                 continue
             m = min(ahead, key=lambda x: x.s_m)

@@ -32,6 +32,8 @@ from collections import Counter
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
+
 from sumo_swarm.controllers.base import RunContext
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.reform import Reformer
@@ -641,7 +643,10 @@ class SwarmController:
                 b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt, settings=sc.guards,
             )  # fmt: skip
             shift = self.lane_shift_hold(ego, y, cmd.dlat_m)
-            dlat = 0.0 if refusal or shift else cmd.dlat_m
+            dlat = 0.0 if refusal else cmd.dlat_m
+            if shift:  # back to the lane centre: never straddle two lanes near the junction
+                step = sc.cav.max_lateral_speed_mps * dt
+                dlat = float(np.clip(road.lane_centre_y(road.lane_of_y(y)) - y, -step, step))
             self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)
             self.tracker.commit(ego, cmd, refusal is not None or shift, road, dt)
             accel = cmd.accel_mps2

@@ -31,6 +31,7 @@ class VehicleState:
     length_m: float
     accel_mps2: float = 0.0
     is_cav: bool = False
+    width_m: float = 1.8
 
     @property
     def rear_s_m(self) -> float:

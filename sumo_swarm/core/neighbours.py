@@ -12,6 +12,8 @@ VEHICLE_WIDTH_M = 1.8  # lateral extent used for overlap tests [m]
 # is in its lane (in the stress sweep HVs cutting in ahead of CAVs made gaps of 2.2 m).
 CUT_IN_LAT_M = 0.3
 CUT_IN_EXTRA_WIDTH_M = 1.2
+# Half of SUMO's lateral resolution as the swarm runs it (0.5 m sublanes) [m]
+SUBLANE_MARGIN_M = 0.25
 
 
 def lateral_overlap(a_y: float, b_y: float, width_m: float = VEHICLE_WIDTH_M) -> bool:
@@ -33,7 +35,11 @@ def _nearest(
         if other.vehicle_id == ego.vehicle_id or (other.s_m > ego.s_m) != ahead:
             continue
         drifting = not other.is_cav and abs(other.lat_m) > CUT_IN_LAT_M
-        band = width_m + (CUT_IN_EXTRA_WIDTH_M if drifting else 0.0)
+        # Both half-widths (a truck is wider than a car) and SUMO's sublane granularity: with
+        # the sublane model a vehicle occupies every sublane it touches, so SUMO sees a leader
+        # (and brakes for it) a little before the two bodies overlap.
+        band = 0.5 * (width_m + other.width_m) + SUBLANE_MARGIN_M
+        band += CUT_IN_EXTRA_WIDTH_M if drifting else 0.0
         if other.s_m == ego.s_m or not lateral_overlap(
             ego_y, road.y_of(other.lane, other.lat_m), band
         ):

@@ -295,6 +295,7 @@ class SumoSession:
                 self.lengths.get(vid, 5.0),
                 r[c.VAR_ACCELERATION],
                 kind == "cav",
+                self.widths.get(vid, 1.8),
             )
             x, y = r[c.VAR_POSITION]
             positions[vid] = (x, y)
