@@ -195,9 +195,13 @@ def test_margins_cached_per_desired_speed_class_on_the_safe_side():
 
 def test_lateral_guard_leaves_room_to_stop_closing_in_on_the_leader():
     ego = car("c0", 100.0, 1, 20.0, cav=True, lat=1.0)  # moving left, about to cross
-    # 6 m/s faster than the vehicle ahead there: 5 m + 6^2 / (2 * 2) = 14 m are needed.
-    assert refusal(ego, [car("h", 100.0 + 5.0 + 13.0, 2, 14.0)]) == "leader"
-    assert refusal(ego, [car("h", 100.0 + 5.0 + 14.5, 2, 14.0)]) is None
+    # 6 m/s faster than the vehicle ahead there: closing at b_safe needs 6^2 / (2 * 2) = 9 m,
+    # stopping behind it at 4 m/s^2 (20^2 - 14^2) / 8 = 25.5 m: 5 + 25.5 m are needed.
+    assert refusal(ego, [car("h", 100.0 + 5.0 + 30.0, 2, 14.0)]) == "leader"
+    assert refusal(ego, [car("h", 100.0 + 5.0 + 31.0, 2, 14.0)]) is None
+    slow = car("c0", 100.0, 1, 8.0, cav=True, lat=1.0)  # 6 m/s faster but slow: 9 m rule
+    assert refusal(slow, [car("h", 100.0 + 5.0 + 13.5, 2, 2.0)]) == "leader"
+    assert refusal(slow, [car("h", 100.0 + 5.0 + 14.5, 2, 2.0)]) is None
     # Not closing in: the minimum gap is enough.
     assert refusal(ego, [car("h", 100.0 + 5.0 + 5.5, 2, 20.0)]) is None
     assert refusal(ego, [car("h", 100.0 + 5.0 + 4.5, 2, 20.0)]) == "leader"

@@ -200,7 +200,7 @@ class Reformer:
         refusal = lateral_refusal(
             ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
             model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
-            settings=sc.guards,
+            settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
         )  # fmt: skip
         accel = math.inf
         ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)

@@ -641,6 +641,7 @@ class SwarmController:
                 ego, y, cmd.dlat_m, others, road, min_gap_m=sc.cav.min_gap_m,
                 width_m=sc.cav.width_m, model_of=self.model_of,
                 b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt, settings=sc.guards,
+                brake_mps2=-sc.cav.accel_min_mps2,
             )  # fmt: skip
             shift = self.lane_shift_hold(ego, y, cmd.dlat_m)
             dlat = 0.0 if refusal else cmd.dlat_m

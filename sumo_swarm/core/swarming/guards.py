@@ -86,11 +86,13 @@ def lateral_refusal(
     b_safe_mps2: float,
     step_s: float,
     settings: GuardSettings = DEFAULT,
+    brake_mps2: float = 4.0,
 ) -> str | None:
     """Why the lateral move ``dlat`` [m] from ``y`` [m] must be held, or ``None`` if it is safe.
 
         Reasons: ``"leader"`` (the vehicle ahead in the new lane is closer than ``min_gap_m``
-        plus what closing in on it at ``b_safe_mps2`` takes),
+        plus what closing in on it at ``b_safe_mps2``, or stopping behind it at
+        ``brake_mps2``, takes),
         ``"follower_gap"`` (the follower there, a CAV or an HV, is closer than ``min_gap_m``),
         ``"follower_brake"`` (the HV following there would brake harder than ``b_safe_mps2`` at
     some point of its reaction, :func:`sumo_swarm.core.hvmodel.accepts_entry`).
@@ -105,10 +107,17 @@ def lateral_refusal(
     y_probe = road.lane_centre_y(lane_next)
     ahead = vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m)
     if ahead is not None:
-        # Closing in on it, the CAV must be able to stop closing within the minimum gap
-        # braking no harder than b_safe: the gap it enters with is what it keeps.
-        closing = max(0.0, ego.speed_mps - ahead[0].speed_mps)
-        if ahead[1] < min_gap_m + closing * closing / (2.0 * max(b_safe_mps2, 0.1)):
+        # Closing in on it, the CAV must be able to stop closing within the minimum gap braking
+        # no harder than b_safe (the gap it enters with is what it keeps), and to stop behind it
+        # braking at most ``brake_mps2`` should it stop (SUMO's safe speed, which brakes at the
+        # vType's decel the moment the CAV's body enters the lane).
+        v, v_lead = ego.speed_mps, ahead[0].speed_mps
+        closing = max(0.0, v - v_lead)
+        need = max(
+            closing * closing / (2.0 * max(b_safe_mps2, 0.1)),
+            (v * v - v_lead * v_lead) / (2.0 * max(brake_mps2, 0.1)),
+        )
+        if ahead[1] < min_gap_m + need:
             return "leader"
     behind = vehicle_behind(ego, others, road, y_m=y_probe, width_m=width_m)
     if behind is None:
