@@ -66,9 +66,13 @@ def gap_accel_limit(
             continue
         lead, gap = ahead
         d = min_gap_m + settings.gap_extra_m
+        # Plus the leader's braking as it happens (feedforward): behind a braking leader the
+        # gap would otherwise shrink for a moment below the minimum (4.99 m seen).
         limit = min(
             limit,
-            settings.gap_gain * (gap - d) + settings.speed_gain * (lead.speed_mps - ego.speed_mps),
+            settings.gap_gain * (gap - d)
+            + settings.speed_gain * (lead.speed_mps - ego.speed_mps)
+            + min(0.0, lead.accel_mps2),
         )
     return limit
 
