@@ -163,6 +163,9 @@ def with_v2_checks(
     if lc_passed is not None:
         passed = lc["run_id"].map(lc_passed).astype("boolean")
     out["sumo_lc_passed"] = passed
+    # The swarm's own target (its summary's completed/regrouped are about it): hv_target, or
+    # none when it never started an overtake.
+    out["swarm_target"] = swarm.get("overtake.target")
     cav_gap = swarm.get("cav.gap_min_cav_m")
     out["gap_min_cav_m"] = (
         swarm["cav.gap_min_m"] if cav_gap is None else cav_gap.fillna(swarm["cav.gap_min_m"])
