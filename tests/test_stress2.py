@@ -214,6 +214,13 @@ def test_failing_view_names_the_failed_checks(table):
     ]
 
 
+def test_failures_by_check_counts_lane_change_scenes_apart(table):
+    got = sr.failures_by_check(table).set_index("check")
+    assert got.loc["passes_where_sumo_lc_passes"].tolist() == [2, 1]  # scenes 2 (lc) and 3
+    assert got.loc["cav_gap_ok"].tolist() == [1, 1]
+    assert got.loc["ran"].tolist() == [0, 0]
+
+
 def test_without_sumo_lc_the_table_is_v1s():
     v1 = _results()
     v1 = v1[v1["controller"] != "sumo-lc"]

@@ -227,6 +227,16 @@ def done_when(table: pd.DataFrame, total_scenes: int) -> pd.DataFrame:
     return frame
 
 
+def failures_by_check(table: pd.DataFrame) -> pd.DataFrame:
+    """Per check: the scenes failing it, and how many of them have HV lane changes."""
+    lane_changes = table["hv.lane_changes"].astype(bool)
+    rows = [
+        (check, int((~table[check]).sum()), int((~table[check] & lane_changes).sum()))
+        for check in checks_of(table)
+    ]
+    return pd.DataFrame(rows, columns=["check", "scenes failing", "of which lane-change"])
+
+
 def _min(values: pd.Series) -> float:
     values = pd.to_numeric(values, errors="coerce").dropna()
     return float("nan") if values.empty else float(values.min())
@@ -340,7 +350,11 @@ def main(argv: list[str] | None = None) -> int:
         total = total_scenes(sweep)
         head = f"partial: {len(table)} of {total} scenes\n\n" if len(table) < total else ""
         goals = done_when(table, total).to_markdown(index=False)
-        md = f'{head}Issue 12\'s "Done when":\n\n{goals}\n\nAll figures:\n\n{md}'
+        by_check = failures_by_check(table).to_markdown(index=False)
+        md = (
+            f'{head}Issue 12\'s "Done when":\n\n{goals}\n\nScenes failing each check:\n\n'
+            f"{by_check}\n\nAll figures:\n\n{md}"
+        )
     if not failing.empty:
         md += "\n\nScenes failing a check:\n\n" + failing_view(failing).to_markdown(index=False)
     (args.folder / "stress.md").write_text(md + "\n", encoding="utf-8")
