@@ -8,29 +8,19 @@ included), the sweep's "Done when" figures. The sweep itself runs with `sumo-swa
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import pandas as pd
 import pytest
 
+from tests.toolload import load_tool
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _tool(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-ms = _tool("make_stress")
-sr = _tool("stress_report")
+ms = load_tool("make_stress")
+sr = load_tool("stress_report")
 
 # --------------------------------------------------------------------------- generator
 
