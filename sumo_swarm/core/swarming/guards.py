@@ -44,6 +44,8 @@ class GuardSettings:
 
 
 DEFAULT = GuardSettings()
+# The gap guard feeds forward a leader's braking beyond this [m/s^2]
+FEEDFORWARD_FROM_MPS2 = 1.0
 
 
 def gap_accel_limit(
@@ -66,13 +68,16 @@ def gap_accel_limit(
             continue
         lead, gap = ahead
         d = min_gap_m + settings.gap_extra_m
-        # Plus the leader's braking as it happens (feedforward): behind a braking leader the
-        # gap would otherwise shrink for a moment below the minimum (4.99 m seen).
+        # Plus the leader's braking beyond FEEDFORWARD_FROM_MPS2, as it happens: behind a
+        # leader braking hard the gap would otherwise shrink for a moment below the minimum
+        # (4.99 m seen); milder braking (dawdling, speed keeping) is left to the gains, which a
+        # full feedforward made so cautious that the paper scene stalled with noisy states.
+        feedforward = min(0.0, lead.accel_mps2 + FEEDFORWARD_FROM_MPS2)
         limit = min(
             limit,
             settings.gap_gain * (gap - d)
             + settings.speed_gain * (lead.speed_mps - ego.speed_mps)
-            + min(0.0, lead.accel_mps2),
+            + feedforward,
         )
     return limit
 
