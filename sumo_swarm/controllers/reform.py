@@ -205,10 +205,7 @@ class Reformer:
         accel = math.inf
         ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
         if ahead is not None:
-            lead, gap = ahead
-            accel = cacc_accel(ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav,
-                               sc.cacc, ahead_is_cav=lead.is_cav)  # fmt: skip
-            accel = max(accel, -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2)
+            accel = self._follow_gently(ego, *ahead)
         if self.hold(ego, y, dlat):  # back to the lane centre: never straddle two lanes there
             dlat = float(np.clip(road.lane_centre_y(lane_now) - y, -step, step))
         elif refusal is not None:
@@ -235,7 +232,6 @@ class Reformer:
         if not merging:
             return
         others = list(states.values())
-        gentle = -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
         for vid in platoon:
             if lane_of[vid] != lane:
                 continue
@@ -250,6 +246,14 @@ class Reformer:
             real = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
             if real is not None and real[1] <= gap:
                 continue  # its own leader is nearer: the merging CAV slots in further ahead
-            accel = cacc_accel(ego.speed_mps, gap, m.speed_mps, m.accel_mps2, sc.cav, sc.cacc)
             dlat, bound = moves[vid]
-            moves[vid] = (dlat, min(bound, max(accel, gentle)))
+            moves[vid] = (dlat, min(bound, self._follow_gently(ego, m, gap)))
+
+    def _follow_gently(self, ego: VehicleState, lead: VehicleState, gap_m: float) -> float:
+        """CACC acceleration [m/s^2] of ``ego`` behind ``lead`` at ``gap_m`` (a vehicle in the
+        lane it moves into, or a CAV merging in front of it), braking no harder than the
+        planner's share of b_safe: room is made gently, never by a hard brake."""
+        sc = self.scenario
+        accel = cacc_accel(ego.speed_mps, gap_m, lead.speed_mps, lead.accel_mps2, sc.cav,
+                           sc.cacc, ahead_is_cav=lead.is_cav)  # fmt: skip
+        return max(accel, -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2)

@@ -173,7 +173,7 @@ class SwarmController:
         """The driver model of an HV, read from SUMO once per vehicle and edge: its desired
         speed is SUMO's, ``min(maxSpeed, lane limit * speedFactor)`` on the edge it is on."""
         session = self.ctx.session
-        edge = session.edges.get(vid) if hasattr(session, "edges") else None
+        edge = self._edge_of(vid)
         cached = self._models.get(vid)
         if cached is not None and cached[0] == edge:
             return cached[1]
@@ -353,7 +353,7 @@ class SwarmController:
         # Never re-form in a lane that ends within 10 s at the cruise (an acceleration lane).
         reach = sc.swarm.detect_range_m + 10.0 * sc.cav.cruising_speed_mps
         ending = self._ending_lanes(states[platoon[0]], platoon[0], reach)
-        edge = ctx.session.edges.get(platoon[0]) if hasattr(ctx.session, "edges") else None
+        edge = self._edge_of(platoon[0])
         lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap, edge=edge)
         goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap)
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
@@ -376,13 +376,18 @@ class SwarmController:
         ) != road.lane_of_y(y)
         return crossing and near(ego.s_m, LANE_SHIFT_HOLD_M + ego.length_m)
 
+    def _edge_of(self, vid: str) -> str | None:
+        """The edge ``vid`` is on (None if unknown, or a session without edges)."""
+        edges = getattr(self.ctx.session, "edges", None)
+        return None if edges is None else edges.get(vid)
+
     def _ending_lanes(
         self, leader: VehicleState, vid: str, range_m: float | None = None
     ) -> set[int]:
         """Lanes that end within ``range_m`` (default ``[swarm] detect_range_m``) ahead of the
         leader ``vid``."""
         session = self.ctx.session
-        edge = session.edges.get(vid) if hasattr(session, "edges") else None
+        edge = self._edge_of(vid)
         if edge is None or not hasattr(session, "lanes_ending"):
             return set()
         if range_m is None:
