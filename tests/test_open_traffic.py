@@ -51,6 +51,40 @@ def test_platoon_reforms_in_one_lane_when_the_target_leaves_its_lane(tmp_path):
     assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
 
 
+@pytest.mark.parametrize("scene", [155, 181])
+def test_target_moving_into_the_front_cavs_lane_is_not_overtaken_again(tmp_path, scene):
+    # Stress v2 scenes (scenarios/stress2.toml): the truck moves right at about 8 s, into the
+    # lane where the plan had put the front CAV, behind it. The swarm took that CAV as its
+    # leader and overtook the same truck again in a lane full of traffic: 16.48 m/s (155) and
+    # 15.87 m/s (181) against cacc's 19.13 and 17.93, whose platoon simply drove on.
+    sweep = load_sweep(ROOT / "scenarios" / "stress2.toml")
+    spec = _stress_spec(sweep, scene)
+    scenario = spec.scenario()
+    swarm = run_scenario(scenario, "swarm", tmp_path / "swarm", seed=spec.seed, progress=False)
+    cacc = run_scenario(scenario, "cacc", tmp_path / "cacc", seed=spec.seed, progress=False)
+    starts = [e for e in _events(tmp_path / "swarm") if e["event"] == "overtake_start"]
+    ends = [e for e in _events(tmp_path / "swarm") if e["event"] == "overtake_end"]
+    assert ends and ends[0]["reason"] == "target_changed_lane"
+    assert len(starts) == 1  # not the same truck again from the lane it moved into
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["cav"]["gap_min_cav_m"] >= 5.0
+    assert swarm["cav"]["mean_speed_mps"] >= 0.97 * cacc["cav"]["mean_speed_mps"]
+
+
+def _stress_spec(sweep, scene: int):
+    """The swarm run of case ``scene`` (0-based, in the file's order) of a sweep."""
+    import tomllib
+
+    data = tomllib.loads((ROOT / "scenarios" / "stress2.toml").read_text(encoding="utf-8"))
+    want = data["cases"][scene]
+    return next(
+        r for r in sweep.runs
+        if r.controller == "swarm"
+        and all(r.params[k] == pytest.approx(v) if isinstance(v, float) else r.params[k] == v
+                for k, v in want.items())
+    )  # fmt: skip
+
+
 def _slow_side_lanes(folder: Path) -> Path:
     """The user case with a car ahead in each side lane as slow as the truck."""
     cfg = write_user_case(folder, HighwaySpec(length_m=2500, lanes=3), platoon_lane=1)

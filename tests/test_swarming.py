@@ -103,6 +103,35 @@ def test_progress_and_giving_up():
     assert p.give_up_reason(25.0, 18.0, 5.0, has_plan=False) == "no_feasible_plan"
 
 
+def test_progress_counts_only_the_cavs_still_behind():
+    # Two CAVs past the truck drive away from it at 5 m/s; the third stays stuck behind it.
+    truck = car("truck", 200.0, 0, 12.0)
+    p = Progress(started_s=0.0)
+    for t in range(0, 20):
+        cavs = [
+            car("c0", 240.0 + 5.0 * t, 1, 17.0, cav=True),
+            car("c1", 225.0 + 5.0 * t, 1, 17.0, cav=True),
+            car("c2", 185.0, 0, 12.0, cav=True),
+        ]
+        p.update(float(t), truck, cavs, 5.0)
+    assert (
+        p.give_up_reason(19.0, no_progress_s=18.0, no_plan_s=30.0, has_plan=True) == "no_progress"
+    )
+    # The stuck CAV closing in on the truck by 4 m (> GAIN_STEP_M) is progress.
+    p.update(19.5, truck, [*cavs[:2], car("c2", 189.0, 0, 12.0, cav=True)], 5.0)
+    assert p.give_up_reason(20.0, 18.0, 30.0, True) is None
+
+
+def test_failed_replans_give_up_although_an_old_plan_is_kept():
+    p = Progress(started_s=0.0)
+    p.planned(2.0)
+    p.failed()  # the replan failed; the swarm drives the old plan on
+    assert p.give_up_reason(11.0, no_progress_s=99.0, no_plan_s=10.0, has_plan=True) is None
+    assert p.give_up_reason(12.5, 99.0, 10.0, True) == "no_feasible_plan"
+    p.planned(12.0)  # a usable plan again
+    assert p.give_up_reason(12.5, 99.0, 10.0, True) is None
+
+
 def test_gap_guard_hand_computed():
     ego = car("c0", 100.0, 1, 20.0, cav=True)
     lead = car("h", 120.0, 1, 18.0)  # bumper gap 15 m

@@ -36,7 +36,7 @@ import numpy as np
 
 from sumo_swarm.controllers.base import RunContext
 from sumo_swarm.controllers.cacc import command_cacc
-from sumo_swarm.controllers.reform import Reformer
+from sumo_swarm.controllers.reform import Reformer, lane_index
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
@@ -94,6 +94,7 @@ class SwarmController:
         self.references: dict[str, Reference] = {}
         self.configured: set[str] = set()
         self.solve_ms: list[float] = []
+        self.solve_cpu_ms: list[float] = []  # the same solves' process time (one core)
         self.statuses: Counter[str] = Counter()
         self.triggers: Counter[str] = Counter()
         self.fallbacks = 0
@@ -282,7 +283,7 @@ class SwarmController:
         sw = ctx.scenario.swarm
         if ctx.road.n_lanes < 2 or t_s < sw.start_after_s:
             return None
-        leader = states[platoon[0]]
+        leader = states[self._decision_leader(states, platoon)]
         candidate = slow_vehicle_ahead(
             leader, list(states.values()), ctx.road,
             slow_below_mps=self._slow_below(), detect_range_m=sw.detect_range_m,
@@ -297,6 +298,20 @@ class SwarmController:
         if candidate is not None and not self._side_lane_pays(leader, candidate, states):
             candidate = None
         return self.watch.update(t_s, candidate)
+
+    def _decision_leader(self, states, platoon: list[str]) -> str:
+        """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.
+        A CAV ahead of it in another lane is merging back (or passing on its own): a slow
+        vehicle in front of it is not the platoon's. (After a target moved into the lane of
+        the front CAV, the swarm took that CAV as its leader and overtook the same truck again,
+        in a lane full of traffic, while the plain platoon drove on.)"""
+        lane = self.reformer.lane_id
+        if lane is not None and self.reformer.edge == self._edge_of(platoon[0]):
+            road = self.ctx.road
+            for vid in platoon:
+                if lane_index(road, states[vid]) == lane:
+                    return vid
+        return platoon[0]
 
     def _side_lane_pays(self, leader: VehicleState, target: VehicleState, states) -> bool:
         """Is a lane beside the leader's faster than the target by ``min_speed_gain_mps``? The
@@ -557,6 +572,8 @@ class SwarmController:
                 }  # fmt: skip
         if outcome.plan is not None:
             self.solve_ms.append(outcome.plan.solve_ms)
+            if outcome.plan.cpu_ms is not None:
+                self.solve_cpu_ms.append(outcome.plan.cpu_ms)
             self.statuses[outcome.plan.status.value] += 1
         else:
             self.statuses["error"] += 1
@@ -593,6 +610,8 @@ class SwarmController:
             self.statuses[record["status"]] += 1
             self.planlog.write(record)
         self.fallbacks += 1
+        if self.progress is not None:
+            self.progress.failed()
         self.replan_not_before_s = t_s + self.ctx.scenario.swarm.retry_after_s
         keep = self.plan is not None and reason != "plan_done"
         self.ctx.event("planner_fallback", trigger=reason, kept_last_plan=keep)
@@ -722,6 +741,7 @@ class SwarmController:
             "planner": {
                 "solves": len(self.solve_ms),
                 **summarise_ms(self.solve_ms, prefix="solve_ms_"),
+                **summarise_ms(self.solve_cpu_ms, prefix="solve_cpu_ms_"),
                 "statuses": dict(self.statuses),
                 "fallbacks": self.fallbacks,
                 "relaxations": dict(self.relaxations),

@@ -78,6 +78,10 @@ class RunRecorder:
         self.controller_s = 0.0
         self._wall0 = time.perf_counter()
         self._wall_end: float | None = None  # set when the run ends
+        # Process time [s]: the run's cost on one core, whatever else the machine runs (a
+        # batch runs one simulation per process).
+        self._cpu0 = time.process_time()
+        self._cpu_end: float | None = None
         self._t0_s: float | None = None  # simulated time when recording began [s]
         self._closed = False
 
@@ -116,15 +120,17 @@ class RunRecorder:
         return df
 
     def timing(self) -> dict[str, float | None]:
-        """summary.json's ``timing`` block: wall, SUMO and controller time [s] and the
-        simulated time per wall time since the recorder was made."""
+        """summary.json's ``timing`` block: wall, SUMO and controller time [s], the process
+        time ``cpu_s`` [s] and the simulated time per wall time since the recorder was made."""
         wall = (self._wall_end or time.perf_counter()) - self._wall0
+        cpu = (self._cpu_end or time.process_time()) - self._cpu0
         sumo = self.sumo_s if self.sumo_s is not None else max(wall - self.controller_s, 0.0)
         simulated = self.session.time_s - self._t0_s if self._t0_s is not None else 0.0
         return {
             "wall_s": wall,
             "sumo_s": sumo,
             "controller_s": self.controller_s,
+            "cpu_s": cpu,
             "realtime_factor": simulated / wall if wall > 0 else None,
         }
 
@@ -172,6 +178,7 @@ class RunRecorder:
         """End the run: close the controller, write trajectories.parquet, events.jsonl and
         summary.json into ``out``; return the summary. The run's wall time ends here."""
         self._wall_end = self._wall_end or time.perf_counter()
+        self._cpu_end = self._cpu_end or time.process_time()
         self.close_controller()
         df = self.frame()
         write_parquet_atomic(out / "trajectories.parquet", df)

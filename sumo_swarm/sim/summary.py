@@ -192,6 +192,9 @@ def build_summary(
         "solve_ms_median",
         "solve_ms_p95",
         "solve_ms_max",
+        "solve_cpu_ms_median",
+        "solve_cpu_ms_p95",
+        "solve_cpu_ms_max",
         "statuses",
         "fallbacks",
     )

@@ -21,7 +21,8 @@ class Plan:
     initial cell, time ``t0_s + k * behaving_interval_s``); ``None`` unless a solution was found.
     ``objective`` is in the units of the weights; ``best_bound`` the solver's lower bound.
     ``solve_ms`` is the wall time of the whole call (model build included), ``build_ms`` the
-    part spent building the model.
+    part spent building the model, ``cpu_ms`` the process time of the call: what it costs on
+    one free core (wall time grows with whatever else the machine runs).
     """
 
     status: PlanStatus
@@ -36,6 +37,7 @@ class Plan:
     build_ms: float = 0.0
     t0_s: float = 0.0
     behaving_interval_s: float = 3.0
+    cpu_ms: float | None = None
 
     @property
     def ok(self) -> bool:

@@ -72,6 +72,10 @@ class _FlowPlanner:
     def plan(self, problem: PlanningProblem, hint: Plan | None = None) -> Plan:
         """Solve ``problem``; ``hint`` (e.g. the shifted last plan) is a warm start only."""
         started = time.perf_counter()
+        cpu_started = time.process_time()
+        return _with_cpu(self._plan_timed(problem, hint, started), cpu_started)
+
+    def _plan_timed(self, problem: PlanningProblem, hint: Plan | None, started: float) -> Plan:
         try:
             result = self._plan_once(problem, hint, started)
             if (
@@ -413,3 +417,8 @@ def make_planner(settings: PlannerSettings) -> CellPlanner:
     if settings.backend == "scip":
         return ScipPlanner(settings.time_limit_s)
     raise ConfigError(f"unknown planner backend {settings.backend!r}")
+
+
+def _with_cpu(plan: Plan, cpu_started: float) -> Plan:
+    """``plan`` with the process time [ms] since ``cpu_started``."""
+    return replace(plan, cpu_ms=(time.process_time() - cpu_started) * 1e3)

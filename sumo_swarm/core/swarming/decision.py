@@ -191,16 +191,23 @@ class Progress:
         self.last_plan_ok_s = self.started_s
 
     best_out: int = 0
+    failing: bool = False  # the replans since the last usable plan all failed
 
     def update(
         self, t_s: float, target: VehicleState, platoon: Sequence[VehicleState], min_gap_m: float
     ) -> None:
         """Progress is any of: more CAVs past the target, more CAVs out of its lane (cut
-        through), or the CAVs' mean position relative to it up by GAIN_STEP_M."""
-        past = sum(cav.rear_s_m >= target.s_m + min_gap_m for cav in platoon)
+        through), or the CAVs still behind it closer to passing by GAIN_STEP_M in all.
+
+        Only the CAVs still behind count for the gain: CAVs already past drifting away from a
+        target at a few m/s looked like progress while the last CAV stayed stuck behind it
+        (a stress scene held a stale plan for 27 s that way)."""
+        line = target.s_m + min_gap_m
+        past = sum(cav.rear_s_m >= line for cav in platoon)
         out = sum(cav.lane != target.lane and cav.rear_s_m < target.s_m for cav in platoon)
-        # Gain: the mean CAV position relative to the target [m], grows as the swarm passes.
-        gain = sum(cav.s_m - target.s_m for cav in platoon) / max(len(platoon), 1)
+        # Gain [m]: how far the CAVs behind the target still are from passing it (negative),
+        # summed, so that any one CAV closing in by GAIN_STEP_M counts.
+        gain = sum(min(cav.rear_s_m - line, 0.0) for cav in platoon)
         if past > self.best_past or out > self.best_out or gain > self.best_gain_m + GAIN_STEP_M:
             self.last_progress_s = t_s
             self.best_gain_m = max(self.best_gain_m, gain)
@@ -209,12 +216,18 @@ class Progress:
 
     def planned(self, t_s: float) -> None:
         self.last_plan_ok_s = t_s
+        self.failing = False
+
+    def failed(self) -> None:
+        """A replan failed (the last plan may still be driven while it lasts)."""
+        self.failing = True
 
     def give_up_reason(
         self, t_s: float, no_progress_s: float, no_plan_s: float, has_plan: bool
     ) -> str | None:
-        """``"no_progress"`` or ``"no_feasible_plan"`` when it is time to give up."""
-        if not has_plan and t_s - self.last_plan_ok_s > no_plan_s:
+        """``"no_progress"`` or ``"no_feasible_plan"`` when it is time to give up: no plan, or
+        only failed replans, for ``no_plan_s`` since the last usable one."""
+        if (not has_plan or self.failing) and t_s - self.last_plan_ok_s > no_plan_s:
             return "no_feasible_plan"
         if t_s - self.last_progress_s > no_progress_s:
             return "no_progress"

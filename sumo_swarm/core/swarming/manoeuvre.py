@@ -271,6 +271,7 @@ class ManoeuvrePlanner:
             grid = outcome.grid
             record.update(
                 status=plan.status.value, solve_ms=plan.solve_ms, build_ms=plan.build_ms,
+                cpu_ms=plan.cpu_ms,
                 objective=plan.objective, best_bound=getattr(plan, "best_bound", None),
                 blockers=plan.blockers, violations=violations, message=plan.message,
                 block_steps={b.cav_id: b.hold_steps for b in outcome.problem.blockers},
