@@ -234,3 +234,19 @@ def test_lateral_guard_leaves_room_to_stop_closing_in_on_the_leader():
     # Not closing in: the minimum gap is enough.
     assert refusal(ego, [car("h", 100.0 + 5.0 + 5.5, 2, 20.0)]) is None
     assert refusal(ego, [car("h", 100.0 + 5.0 + 4.5, 2, 20.0)]) == "leader"
+
+
+def test_an_idle_plan_is_one_that_keeps_every_cav_in_its_cell():
+    from sumo_swarm.controllers.swarm import plan_is_idle
+    from sumo_swarm.core.planner import Plan, PlanStatus
+
+    def plan(*paths):
+        cells = tuple(tuple(p) for p in paths)
+        return Plan(PlanStatus.OPTIMAL, cells, 0.0, 1.0, "test", cav_ids=("c0", "c1"))
+
+    waiting = plan([(2, 0)] * 4, [(1, 0)] * 4)
+    assert plan_is_idle(waiting, 0) and plan_is_idle(waiting, 3)
+    moving_later = plan([(2, 0), (2, 0), (2, 0), (2, 1)], [(1, 0)] * 4)
+    assert not plan_is_idle(moving_later, 0)
+    assert plan_is_idle(moving_later, 3)  # the move is behind it: it only holds from now on
+    assert not plan_is_idle(Plan(PlanStatus.INFEASIBLE, None, None, 1.0, "test"), 0)
