@@ -324,6 +324,11 @@ class SwarmSettings:
     # intervals, or without a usable plan for give_up_no_plan_s, is given up: the CAVs re-form a
     # platoon and follow; no new decision for cooldown_s.
     give_up_no_progress_intervals: int = 6
+    # With some CAVs past the target and the others stuck behind it, the ones past wait at the
+    # target's speed in the passing lane (the paper's regroup), holding that lane back: give up
+    # after this many intervals without progress instead, so they drive on and the ones behind
+    # pass on their own (2-lane-change stress scenes: three CAVs at a truck's 14.4 m/s for 20 s).
+    give_up_partial_intervals: int = 3
     give_up_no_plan_s: float = 10.0
     cooldown_s: float = 15.0
     # An HV is held back by blockers for at most this long per manoeuvre [s] (the impact on
@@ -347,6 +352,10 @@ class SwarmSettings:
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s", "max_pass_s",
         )  # fmt: skip
+        if self.give_up_partial_intervals < 1:
+            raise ConfigError(
+                f"give_up_partial_intervals must be >= 1, got {self.give_up_partial_intervals}"
+            )
         if self.give_up_no_progress_intervals < 1:
             raise ConfigError(
                 "give_up_no_progress_intervals must be >= 1, got "

@@ -44,6 +44,7 @@ def test_paper_scenario_holds_section_iv_c(paper_path):
         ("[lateral]\nwheelbase_m = 3.0\n", "lateral.wheelbase_m is not set here"),
         ("[hvmodel]\nplanner_share = 1.5\n", "planner_share must be <= 1"),
         ("[swarm]\ngive_up_no_progress_intervals = 0\n", "give_up_no_progress_intervals"),
+        ("[swarm]\ngive_up_partial_intervals = 0\n", "give_up_partial_intervals"),
         ('[cell]\nrule = "fixed"\ncell_length_m = 2.0\n', "must be at least as long as a CAV"),
         ("[bogus]\nx = 1\n", "unknown section '[bogus]'"),
         ("[evaluation]\nend_s = 500.0\n", "is after simulation.duration_s"),

@@ -122,6 +122,20 @@ def test_progress_counts_only_the_cavs_still_behind():
     assert p.give_up_reason(20.0, 18.0, 30.0, True) is None
 
 
+def test_partly_past_gives_up_sooner():
+    truck = car("truck", 200.0, 0, 12.0)
+    p = Progress(started_s=0.0)
+    cavs = [car("c0", 240.0, 1, 12.0, cav=True), car("c1", 185.0, 0, 12.0, cav=True)]
+    p.update(0.0, truck, cavs, 5.0)  # one of two past
+    kw = dict(no_progress_s=18.0, no_plan_s=99.0, has_plan=True, n_cavs=2)
+    assert p.give_up_reason(8.0, partial_s=9.0, **kw) is None
+    assert p.give_up_reason(9.5, partial_s=9.0, **kw) == "no_progress"
+    assert p.give_up_reason(9.5, **kw) is None  # without the partial limit: 18 s
+    behind = Progress(started_s=0.0)
+    behind.update(0.0, truck, [car("c0", 185.0, 0, 12.0, cav=True)] * 2, 5.0)  # none past
+    assert behind.give_up_reason(9.5, partial_s=9.0, **kw) is None
+
+
 def test_failed_replans_give_up_although_an_old_plan_is_kept():
     p = Progress(started_s=0.0)
     p.planned(2.0)

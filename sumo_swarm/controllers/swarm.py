@@ -239,12 +239,14 @@ class SwarmController:
                 self._finish(t_s, completed=True)
             else:
                 self.progress.update(t_s, target, list(cavs.values()), sc.cav.min_gap_m)
+                interval = self.interval_s or self.planner_settings.behaving_interval_s
                 give_up = self.progress.give_up_reason(
                     t_s,
-                    sc.swarm.give_up_no_progress_intervals
-                    * (self.interval_s or self.planner_settings.behaving_interval_s),
+                    sc.swarm.give_up_no_progress_intervals * interval,
                     sc.swarm.give_up_no_plan_s,
                     self.plan is not None,
+                    partial_s=sc.swarm.give_up_partial_intervals * interval,
+                    n_cavs=len(cavs),
                 )
                 if give_up is not None:
                     self._finish(t_s, completed=False, reason=give_up)

@@ -223,13 +223,24 @@ class Progress:
         self.failing = True
 
     def give_up_reason(
-        self, t_s: float, no_progress_s: float, no_plan_s: float, has_plan: bool
+        self,
+        t_s: float,
+        no_progress_s: float,
+        no_plan_s: float,
+        has_plan: bool,
+        partial_s: float | None = None,
+        n_cavs: int | None = None,
     ) -> str | None:
         """``"no_progress"`` or ``"no_feasible_plan"`` when it is time to give up: no plan, or
-        only failed replans, for ``no_plan_s`` since the last usable one."""
+        only failed replans, for ``no_plan_s`` since the last usable one; no progress for
+        ``no_progress_s``, or for ``partial_s`` once some but not all of the ``n_cavs`` CAVs
+        have been past the target."""
         if (not has_plan or self.failing) and t_s - self.last_plan_ok_s > no_plan_s:
             return "no_feasible_plan"
-        if t_s - self.last_progress_s > no_progress_s:
+        limit = no_progress_s
+        if partial_s is not None and n_cavs is not None and 0 < self.best_past < n_cavs:
+            limit = min(limit, partial_s)
+        if t_s - self.last_progress_s > limit:
             return "no_progress"
         return None
 
