@@ -264,3 +264,13 @@ def test_an_idle_plan_is_one_that_keeps_every_cav_in_its_cell():
     assert not plan_is_idle(moving_later, 0)
     assert plan_is_idle(moving_later, 3)  # the move is behind it: it only holds from now on
     assert not plan_is_idle(Plan(PlanStatus.INFEASIBLE, None, None, 1.0, "test"), 0)
+
+
+def test_lateral_guard_keeps_a_cav_follower_from_braking_hard():
+    ego = car("c4", 100.0, 1, 10.0, cav=True, lat=-1.0)  # moving right, into lane 0
+    # A CAV in lane 0 with a 10 m bumper gap, closing at 5 m/s: it needs 5^2 / (2 * 2) =
+    # 6.25 m beyond the 5 m minimum gap to stop closing at b_safe; 10 < 11.25, held.
+    fast = car("c5", 85.0, 0, 15.0, cav=True)
+    assert refusal(ego, [fast], dlat=-0.3) == "follower_gap"
+    # The same CAV at the ego's speed may follow at the minimum gap: the move goes ahead.
+    assert refusal(ego, [car("c5", 85.0, 0, 10.0, cav=True)], dlat=-0.3) is None
