@@ -274,3 +274,25 @@ def test_lateral_guard_keeps_a_cav_follower_from_braking_hard():
     assert refusal(ego, [fast], dlat=-0.3) == "follower_gap"
     # The same CAV at the ego's speed may follow at the minimum gap: the move goes ahead.
     assert refusal(ego, [car("c5", 85.0, 0, 10.0, cav=True)], dlat=-0.3) is None
+
+
+def test_a_cav_waits_for_a_swarm_cav_clearing_the_lane_it_enters():
+    from sumo_swarm.core.swarming.guards import yields_to_cav
+
+    ego = car("c1", 100.0, 1, 16.0, cav=True, lat=1.0)  # moving left, into lane 2
+    y = ROAD.y_of(ego.lane, ego.lat_m)
+    kw = dict(min_gap_m=5.0, width_m=1.8)
+    passing = car("c0", 103.0, 2, 21.0, cav=True)  # alongside, pulling away at 5 m/s
+    assert yields_to_cav(ego, y, 0.3, [ego, passing], ROAD, **kw) == "c0"
+    dropping = car("c2", 99.0, 2, 12.0, cav=True)  # alongside, dropping back
+    assert yields_to_cav(ego, y, 0.3, [ego, dropping], ROAD, **kw) == "c2"
+    # Not for a CAV at the same speed (a real conflict: the guard holds it), nor an HV.
+    same = car("c0", 103.0, 2, 16.0, cav=True)
+    assert yields_to_cav(ego, y, 0.3, [ego, same], ROAD, **kw) is None
+    assert yields_to_cav(ego, y, 0.3, [ego, car("h", 103.0, 2, 21.0)], ROAD, **kw) is None
+    # Clear by the minimum gap, or moving within its own lane: nothing to wait for.
+    assert (
+        yields_to_cav(ego, y, 0.3, [ego, car("c0", 112.0, 2, 21.0, cav=True)], ROAD, **kw) is None
+    )
+    assert yields_to_cav(car("c1", 100.0, 1, 16.0, cav=True), ROAD.y_of(1, 0.0), 0.05,
+                         [ego, passing], ROAD, **kw) is None  # fmt: skip

@@ -60,6 +60,7 @@ from sumo_swarm.core.swarming.guards import (
     gentle_for_follower,
     lane_speed_match,
     lateral_refusal,
+    yields_to_cav,
 )
 from sumo_swarm.core.swarming.manoeuvre import ManoeuvrePlanner, ManoeuvreSettings
 from sumo_swarm.core.swarming.planlog import PlanLog
@@ -105,6 +106,8 @@ class SwarmController:
         self.overtakes = 0
         self.aborts: Counter[str] = Counter()
         self.lateral_holds = 0
+        self.lateral_yields = 0  # waits for a swarm CAV clearing a lane (tracker timing)
+        self._yielding: dict[str, float] = {}
         self.holds_per_manoeuvre: list[int] = []
         self._holding: dict[str, float] = {}
         self.regroup_lane_used: int | None = None
@@ -676,19 +679,27 @@ class SwarmController:
             cmd = self.tracker.command(t_s, ego, ref, road, dt, solve)
             self.lat_errors.append(cmd.lat_error_m)
             y = road.y_of(ego.lane, ego.lat_m)
-            refusal = lateral_refusal(
+            waits_for = yields_to_cav(
                 ego, y, cmd.dlat_m, others, road, min_gap_m=sc.cav.min_gap_m,
-                width_m=sc.cav.width_m, model_of=self.model_of,
-                b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt, settings=sc.guards,
-                brake_mps2=-sc.cav.accel_min_mps2,
+                width_m=sc.cav.width_m, settings=sc.guards,
             )  # fmt: skip
+            refusal = None
+            if waits_for is None:
+                refusal = lateral_refusal(
+                    ego, y, cmd.dlat_m, others, road, min_gap_m=sc.cav.min_gap_m,
+                    width_m=sc.cav.width_m, model_of=self.model_of,
+                    b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt, settings=sc.guards,
+                    brake_mps2=-sc.cav.accel_min_mps2,
+                )  # fmt: skip
+            else:
+                self._count_yield(vid, t_s)
             shift = self.lane_shift_hold(ego, y, cmd.dlat_m)
-            dlat = 0.0 if refusal else cmd.dlat_m
+            dlat = 0.0 if refusal or waits_for is not None else cmd.dlat_m
             if shift:  # back to the lane centre: never straddle two lanes near the junction
                 step = sc.cav.max_lateral_speed_mps * dt
                 dlat = float(np.clip(road.lane_centre_y(road.lane_of_y(y)) - y, -step, step))
             self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)
-            self.tracker.commit(ego, cmd, refusal is not None or shift, road, dt)
+            self.tracker.commit(ego, cmd, dlat != cmd.dlat_m, road, dt)
             accel = cmd.accel_mps2
             # Into a faster lane at that lane's speed (up to the cap); with an HV close behind,
             # slow down only gently (that is how a blocker brings a lane down to its speed).
@@ -710,6 +721,13 @@ class SwarmController:
             v_cmd = min(ego.speed_mps + accel * dt, max(cap, ego.speed_mps - CAP_DECEL_MPS2 * dt))
             ctx.session.set_speed(vid, max(v_cmd, 0.0))
             ctx.session.change_sublane(vid, dlat)
+
+    def _count_yield(self, vid: str, t_s: float) -> None:
+        """One ``lateral_yields`` per episode: a CAV waiting for a swarm CAV to clear a lane."""
+        last = self._yielding.get(vid)
+        self._yielding[vid] = t_s
+        if last is None or t_s - last > self.ctx.scenario.swarm.hold_episode_s:
+            self.lateral_yields += 1
 
     def _count_hold(self, vid: str, refusal: str | None, lane: int, t_s: float) -> None:
         """One ``lateral_hold`` per episode: a CAV held, not held again within hold_episode_s."""
@@ -749,6 +767,7 @@ class SwarmController:
                 "aborted": sum(self.aborts.values()),
                 "abort_reasons": dict(self.aborts),
                 "lateral_holds": self.lateral_holds,
+                "lateral_yields": self.lateral_yields,
                 "lateral_holds_per_manoeuvre": list(self.holds_per_manoeuvre),
                 "blocked_hv_min_accel_mps2": blocked,
                 "blocked_hvs": sorted(self.blocked_min_accel),

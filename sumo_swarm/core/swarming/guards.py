@@ -150,6 +150,50 @@ def lateral_refusal(
     return "follower_brake"
 
 
+# A CAV alongside clears the lane being entered when it pulls away (or drops back) at least
+# this fast relative to the ego [m/s].
+CLEARING_MPS = 0.5
+
+
+def yields_to_cav(
+    ego: VehicleState,
+    y: float,
+    dlat: float,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    *,
+    min_gap_m: float,
+    width_m: float,
+    settings: GuardSettings = DEFAULT,
+) -> str | None:
+    """The swarm CAV ``ego`` waits for before entering the next lane, or ``None``.
+
+    Within a behaving interval two CAVs' cells may swap in time: one moves into a lane that
+    another CAV still occupies alongside and is leaving, faster ahead or slower behind (the plan
+    has them one row apart at the interval's end). Entering waits until that CAV is clear by
+    ``min_gap_m``; that is the tracker's timing, below the planner's resolution, not a move the
+    guard refuses (the guard still checks the move once the CAV is clear)."""
+    if abs(dlat) < 1e-6:
+        return None
+    lane_now = road.lane_of_y(y)
+    lane_next = road.lane_of_y(y + dlat + math.copysign(settings.lane_probe_m, dlat))
+    if lane_next == lane_now:
+        return None
+    others = list(others)
+    y_probe = road.lane_centre_y(lane_next)
+    ahead = vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m)
+    if ahead is not None:
+        lead, gap = ahead
+        if lead.is_cav and gap < min_gap_m and lead.speed_mps >= ego.speed_mps + CLEARING_MPS:
+            return lead.vehicle_id
+    behind = vehicle_behind(ego, others, road, y_m=y_probe, width_m=width_m)
+    if behind is not None:
+        back, gap = behind
+        if back.is_cav and gap < min_gap_m and back.speed_mps <= ego.speed_mps - CLEARING_MPS:
+            return back.vehicle_id
+    return None
+
+
 def lane_speed_match(
     ego: VehicleState,
     lane: int,
