@@ -172,7 +172,14 @@ def build_summary(
         "lateral_holds": int(own.get("lateral_holds", 0)),
         "blocked_hv_min_accel_mps2": finite_or_none(own.get("blocked_hv_min_accel_mps2")),
     }
-    for key in ("manoeuvres", "behaving_interval_s", "lateral_holds_per_manoeuvre", "blocked_hvs"):
+    extra = (
+        "manoeuvres",
+        "behaving_interval_s",
+        "lateral_holds_per_manoeuvre",
+        "lateral_yields",
+        "blocked_hvs",
+    )
+    for key in extra:
         if key in own:  # extra (not in the contract): the swarm's own bookkeeping
             overtake[key] = own[key]
     ref_time = t_start if t_start is not None else ev.start_s
