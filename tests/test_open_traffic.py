@@ -13,7 +13,7 @@ import pytest
 from sumo_swarm.sim.netbuild import HighwaySpec
 from sumo_swarm.sim.runner import run_scenario, run_sumocfg
 from sumo_swarm.study.batch import load_sweep
-from tests.usercases import write_user_case
+from tests.usercases import write_exit_case, write_user_case
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
@@ -174,5 +174,27 @@ def test_cavs_cut_off_by_a_slow_vehicle_pass_it_and_rejoin(tmp_path):
     last = df[df["time_s"] == df["time_s"].max()].set_index("vehicle")
     assert len(set(last.loc[["c0", "c1", "c2"], "lane"])) == 1
     assert (last.loc[["c1", "c2"], "s_m"] > last.loc["slow", "s_m"]).all()
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
+
+
+def test_cavs_whose_routes_part_take_their_exit_and_none_enters_a_lane_that_ends(tmp_path):
+    # A 3-lane motorway with an on-ramp (acceleration lane) and an off-ramp, SUMO's default
+    # cars at 600 veh/h/lane: c1 and c3 take the off-ramp, the others drive through. The
+    # controllers' lane-change mode lets SUMO change no lane, so an exiting CAV kept in the
+    # platoon would stop at the end of its lane; and a CAV the plan's columns sent into the
+    # acceleration lane stopped at its end (0 m/s from 44 s on).
+    cfg = write_exit_case(tmp_path / "case")
+    swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False)
+    cacc = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False)
+    leaves = [e for e in _events(tmp_path / "swarm") if e["event"] == "cav_leaves"]
+    assert sorted(e["vehicle"] for e in leaves) == ["c1", "c3"]
+    df = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    cav = df[df["kind"] == "cav"]
+    edges = cav.groupby("vehicle", observed=True)["edge"].agg(lambda e: set(e.astype(str)))
+    assert "off" in edges["c1"] and "off" in edges["c3"]
+    assert all("down" in edges[v] for v in ("c0", "c2", "c4"))
+    on_acceleration_lane = cav[(cav["edge"] == "acc") & (cav["lane"] == 0)]
+    assert on_acceleration_lane.empty
     assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
     assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]

@@ -71,3 +71,52 @@ def write_user_case(
         encoding="utf-8",
     )
     return cfg
+
+
+def write_exit_case(
+    folder: Path, *, exiting: tuple[int, ...] = (1, 3), end_s: float = 100.0
+) -> Path:
+    """A 3-lane motorway with an on- and an off-ramp (netbuild), SUMO's default cars at
+    600 veh/h/lane, a slow truck and 5 CAVs (``c0``..``c4``) behind it in the right lane; the
+    CAVs in ``exiting`` take the off-ramp, the others drive through. Returns the sumocfg."""
+    from sumo_swarm.sim.netbuild import (
+        MOTORWAY_THROUGH,
+        MOTORWAY_TO_RAMP,
+        MotorwaySpec,
+        build_motorway,
+    )
+
+    spec = MotorwaySpec(through_lanes=3, upstream_m=700.0, weave_m=900.0, downstream_m=600.0)
+    net = build_motorway(spec, folder, name="road")
+    lines = [
+        "<routes>",
+        '  <vType id="car"/>',
+        '  <vType id="truck" vClass="truck" maxSpeed="15"/>',
+        '  <vType id="cav" sigma="0" color="0,160,255"/>',
+        f'  <route id="through" edges="{" ".join(MOTORWAY_THROUGH)}"/>',
+        f'  <route id="exit" edges="{" ".join(MOTORWAY_TO_RAMP)}"/>',
+        '  <vehicle id="truck" type="truck" route="through" depart="0" departLane="0" '
+        'departPos="320" departSpeed="15"/>',
+    ]
+    for i in range(5):
+        route = "exit" if i in exiting else "through"
+        lines.append(
+            f'  <vehicle id="c{i}" type="cav" route="{route}" depart="0" departLane="0" '
+            f'departPos="{300 - 15 * i}" departSpeed="15"/>'
+        )
+    lines += [
+        f'  <flow id="f{lane}" type="car" route="through" begin="0" end="{end_s:g}" '
+        f'vehsPerHour="600" departLane="{lane}" departSpeed="max"/>'
+        for lane in range(3)
+    ]
+    lines.append("</routes>")
+    (folder / "routes.rou.xml").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    cfg = folder / "user.sumocfg"
+    cfg.write_text(
+        "<configuration>\n  <input>\n"
+        f'    <net-file value="{net.name}"/>\n    <route-files value="routes.rou.xml"/>\n'
+        '  </input>\n  <time>\n    <step-length value="0.1"/>\n'
+        f'    <end value="{end_s:g}"/>\n  </time>\n</configuration>\n',
+        encoding="utf-8",
+    )
+    return cfg

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
@@ -105,6 +106,60 @@ class Controller(Protocol):
         """Blocks of summary.json this controller fills (``overtake``, ``planner``, ...).
 
         May be called at any time, also while the run goes on."""
+
+
+@dataclass
+class RouteWatch:
+    """CAVs whose routes part from the platoon's leave it before the parting point.
+
+    The platoon's route is that of its front CAV among those heading for the most common
+    destination; a CAV whose own route leaves it within ``reach_s`` at its speed (at least
+    ``reach_min_m``) is handed back to SUMO (its own car-following and lane changing, so it
+    makes the lane changes its exit needs: the controllers' lane-change mode allows none) and a
+    ``cav_leaves`` event says so. Checked every ``every_s``; a session without routes (a test
+    double) leaves nobody."""
+
+    every_s: float = 1.0
+    reach_s: float = 25.0
+    reach_min_m: float = 600.0
+    left: set[str] = field(default_factory=set)
+    _checked_s: float = -math.inf
+
+    def members(self, ctx: RunContext, t_s: float, platoon: Sequence[str]) -> list[str]:
+        """``platoon`` (front first) without the CAVs that left it; those follow whatever is
+        ahead of them by CACC (``follow``) while SUMO changes their lanes."""
+        if t_s - self._checked_s >= self.every_s and hasattr(ctx.session, "route_of"):
+            self._checked_s = t_s
+            self._check(ctx, [v for v in platoon if v not in self.left])
+        return [v for v in platoon if v not in self.left]
+
+    def follow(self, ctx: RunContext) -> None:
+        """One CACC step for every CAV that left (a no-op while none has)."""
+        if self.left:
+            from sumo_swarm.controllers.cacc import command_cacc  # cacc imports this module
+
+            command_cacc(ctx, [v for v in self.left if v in ctx.session.states])
+
+    def _check(self, ctx: RunContext, platoon: list[str]) -> None:
+        session = ctx.session
+        routes = {vid: session.route_of(vid) for vid in platoon}
+        routes = {vid: r for vid, r in routes.items() if r is not None and r[0]}
+        if len(routes) < 2:
+            return
+        main = Counter(route[-1] for route, _ in routes.values()).most_common(1)[0][0]
+        front = next(vid for vid in platoon if vid in routes and routes[vid][0][-1] == main)
+        ours = frozenset(routes[front][0])
+        for vid, (route, index) in routes.items():
+            if route[-1] == main:
+                continue
+            distance = session.distance_to_parting_m(vid, route, index, ours)
+            state = session.states.get(vid)
+            speed = state.speed_mps if state is not None else 0.0
+            if distance is not None and distance <= max(self.reach_min_m, self.reach_s * speed):
+                self.left.add(vid)
+                session.release(vid)
+                ctx.event("cav_leaves", vehicle=vid, reason="route_parts",
+                          parting_in_m=round(distance, 1))  # fmt: skip
 
 
 def close_controller(controller: Controller) -> None:

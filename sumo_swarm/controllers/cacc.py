@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from sumo_swarm.config import CaccSettings, CavSettings
-from sumo_swarm.controllers.base import RunContext
+from sumo_swarm.controllers.base import RouteWatch, RunContext
 from sumo_swarm.core.neighbours import vehicle_ahead
 
 
@@ -90,6 +90,7 @@ class CaccController:
     def __init__(self) -> None:
         self.ctx: RunContext | None = None
         self._configured: set[str] = set()
+        self.routes = RouteWatch()  # CAVs whose routes part leave the platoon
 
     def attach(self, ctx: RunContext) -> None:
         self.ctx = ctx
@@ -105,7 +106,8 @@ class CaccController:
         ctx = self.ctx
         self._configure_new()
         states = ctx.session.states
-        present = [v for v in ctx.cav_ids if v in states]
+        present = self.routes.members(ctx, t_s, [v for v in ctx.cav_ids if v in states])
+        self.routes.follow(ctx)
         ctx.follow_world_speeds(present)
         command_cacc(ctx, present)
 

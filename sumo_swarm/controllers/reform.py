@@ -52,6 +52,8 @@ class Reformer:
     event: Callable[..., Any] = lambda kind, **data: None
     # hold(ego, y, dlat): a lane change to hold besides the guard's refusals (lane shifts)
     hold: Callable[[VehicleState, float, float], bool] = lambda ego, y, dlat: False
+    # escape(ego, y, dlat, step): the lateral move instead of dlat when ego's lane ends ahead
+    escape: Callable[[VehicleState, float, float, float], float] = lambda ego, y, dlat, step: dlat
     lane_id: int | None = None
     edge: str | None = None  # the edge whose lane indices lane_id is in
     # CAV -> (the slow vehicle it passes, the lane it passes in, since when [s])
@@ -192,11 +194,15 @@ class Reformer:
         step = sc.cav.max_lateral_speed_mps * step_s
         y = road.y_of(ego.lane, ego.lat_m)
         lane_now = road.lane_of_y(y)
+        others = list(states.values())
         if lane_now == lane:
-            return float(np.clip(road.lane_centre_y(lane) - y, -step, step)), math.inf
+            centre = float(np.clip(road.lane_centre_y(lane) - y, -step, step))
+            escape = self.escape(ego, y, centre, step)
+            if escape == centre:
+                return centre, math.inf
+            lane = lane_now + (1 if escape > 0 else -1)  # its lane ends: out of it first
         y_next = road.lane_centre_y(lane_now + (1 if lane > lane_now else -1))
         dlat = float(np.clip(y_next - y, -step, step))
-        others = list(states.values())
         refusal = lateral_refusal(
             ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
             model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from sumo_swarm.controllers.base import RunContext
+from sumo_swarm.controllers.base import RouteWatch, RunContext
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.reform import Reformer, lane_index
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
@@ -70,6 +70,11 @@ from sumo_swarm.core.trajectory import Reference
 log = logging.getLogger(__name__)
 # No lane change this close to a place where lane indices shift (see lane_shift_hold) [m].
 LANE_SHIFT_HOLD_M = 40.0
+# No CAV moves into a lane that ends within this many seconds at its speed (at least
+# LANE_END_MIN_M ahead); a CAV whose lane ends within LANE_END_ESCAPE_S heads out of it.
+LANE_END_HOLD_S = 12.0
+LANE_END_ESCAPE_S = 8.0
+LANE_END_MIN_M = 300.0  # an on-ramp's acceleration lane is 250 m in netbuild's motorway
 # A CAV above the speed cap slows to it at this rate [m/s^2] (well inside the 4 m/s^2 line).
 CAP_DECEL_MPS2 = 2.0
 
@@ -155,7 +160,10 @@ class SwarmController:
         self.trigger = self._new_trigger()
         self.watch = TargetWatch(sc.swarm.trigger_after_s)
         self.planlog = PlanLog(ctx.out_dir)
-        self.reformer = Reformer(sc, self.model_of, ctx.event, hold=self.lane_shift_hold)
+        self.routes = RouteWatch()
+        self.reformer = Reformer(
+            sc, self.model_of, ctx.event, hold=self.lane_shift_hold, escape=self.lane_end_escape
+        )
         self.drawer = None  # a sumo-gui plan drawer, set by the session's side (sim.gui)
 
     @property
@@ -213,7 +221,8 @@ class SwarmController:
         sc = ctx.scenario
         states = ctx.session.states
         self._configure_new(states)
-        platoon = ordered_platoon(states, ctx.cav_ids)
+        platoon = self.routes.members(ctx, t_s, ordered_platoon(states, ctx.cav_ids))
+        self.routes.follow(ctx)
         if not platoon:
             return
         ctx.follow_world_speeds(platoon)
@@ -390,15 +399,57 @@ class SwarmController:
     def lane_shift_hold(self, ego: VehicleState, y: float, dlat: float) -> bool:
         """Hold a lane change near a place where lane indices shift (a lane added or dropped
         on the right: on-ramps, lane drops): there the vehicles on either side of the junction
-        count their lanes differently, so the neighbour look-ups cannot be trusted."""
+        count their lanes differently, so the neighbour look-ups cannot be trusted. Also hold
+        one into a lane that ends ahead (an acceleration lane, a lane drop) within
+        LANE_END_HOLD_S at the CAV's speed: a CAV moved into an on-ramp's acceleration lane,
+        which the plan's columns took for a through lane, and stopped at its end."""
         road = self.ctx.road
-        near = getattr(self.ctx.session, "near_lane_shift", None)
-        if near is None or abs(dlat) < 1e-6:
+        if abs(dlat) < 1e-6:
             return False
         crossing = road.lane_of_y(
             y + dlat + math.copysign(self.ctx.scenario.guards.lane_probe_m, dlat)
         ) != road.lane_of_y(y)
-        return crossing and near(ego.s_m, LANE_SHIFT_HOLD_M + ego.length_m)
+        if not crossing:
+            return False
+        entering = ego.lane + (1 if dlat > 0 else -1)
+        if entering in self._lanes_ending_ahead(ego, LANE_END_HOLD_S):
+            return True
+        near = getattr(self.ctx.session, "near_lane_shift", None)
+        return near is not None and near(ego.s_m, LANE_SHIFT_HOLD_M + ego.length_m)
+
+    def _lanes_ending_ahead(self, ego: VehicleState, horizon_s: float) -> set[int]:
+        """Lanes of ``ego``'s own edge that end within ``horizon_s`` at its speed (at least
+        LANE_END_MIN_M) ahead of it."""
+        session = self.ctx.session
+        edge = self._edge_of(ego.vehicle_id)
+        if edge is None or not hasattr(session, "lanes_ending"):
+            return set()
+        reach = ego.s_m + max(LANE_END_MIN_M, horizon_s * ego.speed_mps)
+        return {lane for lane, _ in session.lanes_ending(edge, ego.rear_s_m, reach)}
+
+    def lane_end_escape(self, ego: VehicleState, y: float, dlat: float, step_m: float) -> float:
+        """The lateral move [m] of ``ego`` this step: ``dlat``, unless its lane ends within
+        LANE_END_ESCAPE_S: then towards the neighbouring lane that goes on (left first: lanes
+        end on the right at on-ramps), through the lateral guard like any other move."""
+        ending = self._lanes_ending_ahead(ego, LANE_END_ESCAPE_S)
+        if ego.lane not in ending:
+            return dlat
+        n_lanes = self._lane_count(ego)
+        for side in (1, -1):
+            lane = ego.lane + side
+            if 0 <= lane < n_lanes and lane not in ending:
+                return side * step_m
+        return dlat
+
+    def _lane_count(self, ego: VehicleState) -> int:
+        frame = getattr(self.ctx.session, "frame", None)
+        edge = self._edge_of(ego.vehicle_id)
+        if frame is None or edge is None:
+            return self.ctx.road.n_lanes
+        try:
+            return frame.net.lane_count(edge)
+        except Exception:
+            return self.ctx.road.n_lanes
 
     def _edge_of(self, vid: str) -> str | None:
         """The edge ``vid`` is on (None if unknown, or a session without edges)."""
@@ -679,6 +730,10 @@ class SwarmController:
             cmd = self.tracker.command(t_s, ego, ref, road, dt, solve)
             self.lat_errors.append(cmd.lat_error_m)
             y = road.y_of(ego.lane, ego.lat_m)
+            step_m = sc.cav.max_lateral_speed_mps * dt
+            escape = self.lane_end_escape(ego, y, cmd.dlat_m, step_m)
+            if escape != cmd.dlat_m:
+                cmd = replace(cmd, dlat_m=escape)
             waits_for = yields_to_cav(
                 ego, y, cmd.dlat_m, others, road, min_gap_m=sc.cav.min_gap_m,
                 width_m=sc.cav.width_m, settings=sc.guards,

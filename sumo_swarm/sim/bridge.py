@@ -24,6 +24,10 @@ from sumo_swarm.errors import SimulationError
 log = logging.getLogger(__name__)
 
 DEFAULT_WIDTHS_M = (3.2, 3.2)  # the road assumed until a route is known (SUMO's lane width) [m]
+# SUMO's default lane-change mode, for a CAV that leaves the swarm: every lane-change motive on
+# while respecting others' speed and gaps (TraCI's documented default).
+LC_MODE_DEFAULT = 0b011001010101
+RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
 
 
 def sumo_binary(gui: bool = False) -> str:
@@ -145,6 +149,7 @@ class SumoSession:
         self.lengths: dict[str, float] = {}
         self.widths: dict[str, float] = {}
         self.lane_positions: dict[str, float] = {}  # front bumper along its lane [m]
+        self.released: set[str] = set()  # CAVs handed back to SUMO (they left the swarm)
         self._lane_widths: dict[tuple[str, int], float] = {}
         self.types: dict[str, str] = {}
         self.states: dict[str, VehicleState] = {}
@@ -294,7 +299,7 @@ class SumoSession:
                 speed,
                 self.lengths.get(vid, 5.0),
                 r[c.VAR_ACCELERATION],
-                kind == "cav",
+                kind == "cav" and vid not in self.released,  # released: SUMO drives it
                 self.widths.get(vid, 1.8),
             )
             x, y = r[c.VAR_POSITION]
@@ -355,6 +360,46 @@ class SumoSession:
         self.api.vehicle.unsubscribe(vid)
         self.api.vehicle.remove(vid)
         self.states.pop(vid, None)
+
+    def route_of(self, vid: str) -> tuple[tuple[str, ...], int] | None:
+        """``vid``'s route edges and the index of the edge it is on (None if it vanished)."""
+        vehicle = self.api.vehicle
+        try:
+            return tuple(vehicle.getRoute(vid)), int(vehicle.getRouteIndex(vid))
+        except Exception:
+            return None
+
+    def distance_to_parting_m(
+        self, vid: str, route: tuple[str, ...], index: int, ours: frozenset[str]
+    ) -> float | None:
+        """Distance [m] from ``vid``'s front along ``route`` (from edge ``index``) to the first
+        edge not in ``ours``; None if the rest of the route stays within ``ours``."""
+        position = self.lane_positions.get(vid)
+        if position is None or not 0 <= index < len(route):
+            return None
+        distance = -position
+        for edge in route[index:]:
+            if edge not in ours:
+                return max(distance, 0.0)
+            distance += self.frame.net.lane_length_m(f"{edge}_0")
+        return None
+
+    def release(self, vid: str) -> None:
+        """Let SUMO change ``vid``'s lanes again (its default lane-change mode: strategic
+        changes for its own route included); it leaves the swarm for its own route. Its speed
+        stays commanded (a controller follows with CACC): handed back to SUMO's car-following
+        at the platoon's short gap, SUMO braked it at 4.9 m/s^2 to open a gap at once."""
+        vehicle = self.api.vehicle
+        self.released.add(vid)
+        self.set_modes(vid, None, LC_MODE_DEFAULT)
+        try:
+            type_id = vehicle.getTypeID(vid)
+            # SUMO's own lane changes may brake at up to decel (4.5 m/s^2 by default): a CAV,
+            # even one that left the swarm, stays inside the 4 m/s^2 hard-brake line.
+            decel = self.api.vehicletype.getDecel(type_id)
+            vehicle.setDecel(vid, min(decel, RELEASED_DECEL_MPS2))
+        except Exception:  # vanished: nothing to hand back
+            pass
 
     def set_speed(self, vid: str, speed_mps: float) -> None:
         self._command(vid, self.api.vehicle.setSpeed, max(0.0, speed_mps))
