@@ -27,6 +27,7 @@ from tqdm import tqdm
 
 from sumo_swarm.config import Scenario, load_scenario
 from sumo_swarm.controllers import CONTROLLERS
+from sumo_swarm.core.planner import PlannerSettings
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.files import write_json_atomic
 from sumo_swarm.sim import metrics
@@ -78,9 +79,26 @@ class ReproRun:
     changes: Callable[[Scenario], dict[str, Any]] = field(default=lambda sc: {})
 
 
+# The paper's evaluation proves every plan optimal: the swarm's runs get this network-search
+# budget (``[planner] network_work``) where the scenario leaves it at the default, which the
+# paper scene's third plan outgrows (feasible, 0.26 % above the bound; proven with 150000, at
+# a planner p95 of about 85 ms CPU against 66 ms). `sumo-swarm run` keeps the default.
+PROOF_WORK = 150_000
+
+
+def _proof(sc: Scenario) -> dict[str, Any]:
+    if sc.planner.network_work != PlannerSettings().network_work:
+        return {}  # the scenario (or --set) chose a budget: keep it
+    return {"planner.network_work": PROOF_WORK}
+
+
 DEFAULT_RUNS = (
-    *(ReproRun(c, c) for c in CONTROLLERS),
-    ReproRun(CAPPED, "swarm", lambda sc: {"cav.max_speed_mps": sc.cav.cruising_speed_mps}),
+    *(ReproRun(c, c, _proof if c == "swarm" else lambda sc: {}) for c in CONTROLLERS),
+    ReproRun(
+        CAPPED,
+        "swarm",
+        lambda sc: {"cav.max_speed_mps": sc.cav.cruising_speed_mps, **_proof(sc)},
+    ),
 )
 
 
