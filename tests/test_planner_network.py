@@ -99,7 +99,7 @@ def test_search_branches_on_delta_and_proves_the_mip_optimum():
     result = solve_network(model, 30.0)
     assert result.status == "optimal" and result.branches > 1
     assert result.objective == result.bound == 3210
-    plan = make_planner(PlannerSettings()).plan(problem)
+    plan = make_planner(PlannerSettings(network_work=28_000)).plan(problem)  # proves it
     check(problem, plan, 3210.0)
     assert plan.message.startswith("network: proved")
     assert plan.cells_of("cav0")[1] == (5, 2) and plan.cells_of("cav1")[1] == (4, 0)
