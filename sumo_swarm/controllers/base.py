@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -133,12 +133,11 @@ class RouteWatch:
             self._check(ctx, [v for v in platoon if v not in self.left])
         return [v for v in platoon if v not in self.left]
 
-    def follow(self, ctx: RunContext) -> None:
-        """One CACC step for every CAV that left (a no-op while none has)."""
+    def follow(self, ctx: RunContext, command: Callable[[RunContext, list[str]], None]) -> None:
+        """Drive every CAV that left with ``command`` (the controllers give their CACC step,
+        ``cacc.command_cacc``); a no-op while none has left."""
         if self.left:
-            from sumo_swarm.controllers.cacc import command_cacc  # cacc imports this module
-
-            command_cacc(ctx, [v for v in self.left if v in ctx.session.states])
+            command(ctx, [v for v in self.left if v in ctx.session.states])
 
     def _check(self, ctx: RunContext, platoon: list[str]) -> None:
         session = ctx.session

@@ -107,7 +107,7 @@ class CaccController:
         self._configure_new()
         states = ctx.session.states
         present = self.routes.members(ctx, t_s, [v for v in ctx.cav_ids if v in states])
-        self.routes.follow(ctx)
+        self.routes.follow(ctx, command_cacc)
         ctx.follow_world_speeds(present)
         command_cacc(ctx, present)
 

@@ -222,7 +222,7 @@ class SwarmController:
         states = ctx.session.states
         self._configure_new(states)
         platoon = self.routes.members(ctx, t_s, ordered_platoon(states, ctx.cav_ids))
-        self.routes.follow(ctx)
+        self.routes.follow(ctx, command_cacc)
         if not platoon:
             return
         ctx.follow_world_speeds(platoon)
