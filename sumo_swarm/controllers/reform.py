@@ -52,8 +52,8 @@ class Reformer:
     event: Callable[..., Any] = lambda kind, **data: None
     # hold(ego, y, dlat): a lane change to hold besides the guard's refusals (lane shifts)
     hold: Callable[[VehicleState, float, float], bool] = lambda ego, y, dlat: False
-    # escape(ego, y, dlat, step): the lateral move instead of dlat when ego's lane ends ahead
-    escape: Callable[[VehicleState, float, float, float], float] = lambda ego, y, dlat, step: dlat
+    # escape(ego, dlat, step): the lateral move instead of dlat when ego's lane ends ahead
+    escape: Callable[[VehicleState, float, float], float] = lambda ego, dlat, step: dlat
     lane_id: int | None = None
     edge: str | None = None  # the edge whose lane indices lane_id is in
     # CAV -> (the slow vehicle it passes, the lane it passes in, since when [s])
@@ -197,7 +197,7 @@ class Reformer:
         others = list(states.values())
         if lane_now == lane:
             centre = float(np.clip(road.lane_centre_y(lane) - y, -step, step))
-            escape = self.escape(ego, y, centre, step)
+            escape = self.escape(ego, centre, step)
             if escape == centre:
                 return centre, math.inf
             lane = lane_now + (1 if escape > 0 else -1)  # its lane ends: out of it first

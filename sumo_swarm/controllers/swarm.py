@@ -56,6 +56,7 @@ from sumo_swarm.core.swarming.decision import (
     stopped_blocking,
 )
 from sumo_swarm.core.swarming.guards import (
+    entering_lane,
     gap_accel_limit,
     gentle_for_follower,
     lane_speed_match,
@@ -403,13 +404,7 @@ class SwarmController:
         one into a lane that ends ahead (an acceleration lane, a lane drop) within
         LANE_END_HOLD_S at the CAV's speed: a CAV moved into an on-ramp's acceleration lane,
         which the plan's columns took for a through lane, and stopped at its end."""
-        road = self.ctx.road
-        if abs(dlat) < 1e-6:
-            return False
-        crossing = road.lane_of_y(
-            y + dlat + math.copysign(self.ctx.scenario.guards.lane_probe_m, dlat)
-        ) != road.lane_of_y(y)
-        if not crossing:
+        if entering_lane(self.ctx.road, y, dlat, self.ctx.scenario.guards) is None:
             return False
         entering = ego.lane + (1 if dlat > 0 else -1)
         if entering in self._lanes_ending_ahead(ego, LANE_END_HOLD_S):
@@ -420,14 +415,10 @@ class SwarmController:
     def _lanes_ending_ahead(self, ego: VehicleState, horizon_s: float) -> set[int]:
         """Lanes of ``ego``'s own edge that end within ``horizon_s`` at its speed (at least
         LANE_END_MIN_M) ahead of it."""
-        session = self.ctx.session
-        edge = self._edge_of(ego.vehicle_id)
-        if edge is None or not hasattr(session, "lanes_ending"):
-            return set()
-        reach = ego.s_m + max(LANE_END_MIN_M, horizon_s * ego.speed_mps)
-        return {lane for lane, _ in session.lanes_ending(edge, ego.rear_s_m, reach)}
+        reach_m = max(LANE_END_MIN_M, horizon_s * ego.speed_mps)
+        return self._ending_lanes(ego, ego.vehicle_id, reach_m)
 
-    def lane_end_escape(self, ego: VehicleState, y: float, dlat: float, step_m: float) -> float:
+    def lane_end_escape(self, ego: VehicleState, dlat: float, step_m: float) -> float:
         """The lateral move [m] of ``ego`` this step: ``dlat``, unless its lane ends within
         LANE_END_ESCAPE_S: then towards the neighbouring lane that goes on (left first: lanes
         end on the right at on-ramps), through the lateral guard like any other move."""
@@ -447,7 +438,7 @@ class SwarmController:
         if frame is None or edge is None:
             return self.ctx.road.n_lanes
         try:
-            return frame.net.lane_count(edge)
+            return frame.lane_count(edge)
         except Exception:
             return self.ctx.road.n_lanes
 
@@ -731,7 +722,7 @@ class SwarmController:
             self.lat_errors.append(cmd.lat_error_m)
             y = road.y_of(ego.lane, ego.lat_m)
             step_m = sc.cav.max_lateral_speed_mps * dt
-            escape = self.lane_end_escape(ego, y, cmd.dlat_m, step_m)
+            escape = self.lane_end_escape(ego, cmd.dlat_m, step_m)
             if escape != cmd.dlat_m:
                 cmd = replace(cmd, dlat_m=escape)
             waits_for = yields_to_cav(

@@ -72,6 +72,9 @@ class RouteFrame:
         edges = list(edges)
         net = self.net
         self.route_edges = edges
+        # Lane counts of the route's edges (static; the swarm asks for them every step).
+        self._lane_counts = {edge: net.lane_count(edge) for edge in edges}
+        self._edge_index = {edge: i for i, edge in reversed(list(enumerate(edges)))}
         self.edge_offset_m: dict[str, float] = {}
         self.via_end: dict[str, tuple[float, float]] = {}  # junction lane: (end s, length) [m]
         self.lane_ends: list[tuple[int, int, float]] = []  # (route edge index, lane, end s [m])
@@ -89,7 +92,7 @@ class RouteFrame:
             vias: dict[str, float] = {}
             edge_end = offset
             shifted = False
-            for lane in range(net.lane_count(edge)):
+            for lane in range(self._lane_counts[edge]):
                 continues = False
                 for to_lane, via in net.lane_links(f"{edge}_{lane}"):
                     to_edge, to_index = to_lane.rsplit("_", 1)
@@ -99,7 +102,7 @@ class RouteFrame:
                         shifted = shifted or int(to_index) != lane
                 if not continues:  # no connection into the next route edge: the lane ends
                     self.lane_ends.append((i, lane, edge_end))
-            if shifted or net.lane_count(edges[i + 1]) != net.lane_count(edge):
+            if shifted or self._lane_counts[edges[i + 1]] != self._lane_counts[edge]:
                 self.lane_shifts_m.append(edge_end)
             offset += min(vias.values(), default=0.0)
             for via, length in vias.items():
@@ -128,14 +131,14 @@ class RouteFrame:
         of lanes (so the lane indices still mean the same lanes), are reported.
         """
         edges = self.route_edges
-        if edge not in edges:
+        first = self._edge_index.get(edge)
+        if first is None or not self.lane_ends:
             return []
-        first = edges.index(edge)
-        n_lanes = self.net.lane_count(edge)
+        n_lanes = self.lane_count(edge)
         last = first
         while (
             last + 1 < len(edges)
-            and self.net.lane_count(edges[last + 1]) == n_lanes
+            and self.lane_count(edges[last + 1]) == n_lanes
             and not any(i == last for i, _, _ in self.lane_ends)
         ):
             last += 1
@@ -144,6 +147,11 @@ class RouteFrame:
             for i, lane, end in self.lane_ends
             if first <= i <= last and s_from_m < end <= s_to_m
         ]
+
+    def lane_count(self, edge: str) -> int:
+        """Number of lanes of ``edge`` (read once for the route's edges)."""
+        count = self._lane_counts.get(edge)
+        return self.net.lane_count(edge) if count is None else count
 
     def road_section(self, edge: str) -> RoadSection:
         """Lane widths of ``edge`` [m] (0 = rightmost) and its mean curvature [1/m] (left > 0),

@@ -73,7 +73,8 @@ class _FlowPlanner:
         """Solve ``problem``; ``hint`` (e.g. the shifted last plan) is a warm start only."""
         started = time.perf_counter()
         cpu_started = time.process_time()
-        return _with_cpu(self._plan_timed(problem, hint, started), cpu_started)
+        plan = self._plan_timed(problem, hint, started)
+        return replace(plan, cpu_ms=(time.process_time() - cpu_started) * 1e3)
 
     def _plan_timed(self, problem: PlanningProblem, hint: Plan | None, started: float) -> Plan:
         try:
@@ -417,8 +418,3 @@ def make_planner(settings: PlannerSettings) -> CellPlanner:
     if settings.backend == "scip":
         return ScipPlanner(settings.time_limit_s)
     raise ConfigError(f"unknown planner backend {settings.backend!r}")
-
-
-def _with_cpu(plan: Plan, cpu_started: float) -> Plan:
-    """``plan`` with the process time [ms] since ``cpu_started``."""
-    return replace(plan, cpu_ms=(time.process_time() - cpu_started) * 1e3)

@@ -48,6 +48,17 @@ DEFAULT = GuardSettings()
 FEEDFORWARD_FROM_MPS2 = 1.0
 
 
+def entering_lane(
+    road: RoadSection, y: float, dlat: float, settings: GuardSettings = DEFAULT
+) -> int | None:
+    """The lane a lateral move ``dlat`` [m] from ``y`` [m] enters (its side within
+    ``settings.lane_probe_m`` of the next lane), or ``None`` if it stays in its lane."""
+    if abs(dlat) < 1e-6:
+        return None
+    lane_next = road.lane_of_y(y + dlat + math.copysign(settings.lane_probe_m, dlat))
+    return None if lane_next == road.lane_of_y(y) else lane_next
+
+
 def gap_accel_limit(
     ego: VehicleState,
     y_now: float,
@@ -108,11 +119,8 @@ def lateral_refusal(
         ``"follower_brake"`` (the HV following there would brake harder than ``b_safe_mps2`` at
     some point of its reaction, :func:`sumo_swarm.core.hvmodel.accepts_entry`).
     """
-    if abs(dlat) < 1e-6:
-        return None
-    lane_now = road.lane_of_y(y)
-    lane_next = road.lane_of_y(y + dlat + math.copysign(settings.lane_probe_m, dlat))
-    if lane_next == lane_now:
+    lane_next = entering_lane(road, y, dlat, settings)
+    if lane_next is None:
         return None
     others = list(others)
     y_probe = road.lane_centre_y(lane_next)
@@ -173,11 +181,8 @@ def yields_to_cav(
     has them one row apart at the interval's end). Entering waits until that CAV is clear by
     ``min_gap_m``; that is the tracker's timing, below the planner's resolution, not a move the
     guard refuses (the guard still checks the move once the CAV is clear)."""
-    if abs(dlat) < 1e-6:
-        return None
-    lane_now = road.lane_of_y(y)
-    lane_next = road.lane_of_y(y + dlat + math.copysign(settings.lane_probe_m, dlat))
-    if lane_next == lane_now:
+    lane_next = entering_lane(road, y, dlat, settings)
+    if lane_next is None:
         return None
     others = list(others)
     y_probe = road.lane_centre_y(lane_next)
