@@ -99,7 +99,17 @@ class CavSettings:
     # with a steering ratio of 15 that is +-30 deg at the wheels (see tracking.LateralSettings).
     steering_wheel_range_deg: float = 450.0
     steering_ratio: float = 15.0
-    max_lateral_speed_mps: float = 2.0  # SUMO vType maxSpeedLat
+    # The CAVs' lateral speed limit [m/s]: the trajectories plan lane changes under it, and every
+    # CAV handed to the controllers gets it as its maxSpeedLat (SUMO caps changeSublane there;
+    # a user's vType left at SUMO's default 1 m/s made each lane change take twice the time the
+    # plan gave it).
+    max_lateral_speed_mps: float = 2.0
+    # With speeds = "world": "type" gives every CAV its vType's speedFactor (the mean of the
+    # distribution SUMO draws from), so the platoon cruises at the lane limit times that one
+    # factor; "vehicle" keeps SUMO's draw per CAV and the platoon cruises at its lowest (with
+    # SUMO's default speedDev 0.1, five CAVs drew 0.83 on a 120 km/h road: 27.7 instead of
+    # 33.3 m/s, while the same CAVs as SUMO drivers averaged 30.7 m/s).
+    speed_factor: Literal["type", "vehicle"] = "type"
     wheelbase_m: float = 2.8
 
     def __post_init__(self) -> None:

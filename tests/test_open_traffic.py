@@ -10,6 +10,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+import sumo_swarm
+from sumo_swarm.sim.bridge import sumo_binary
 from sumo_swarm.sim.netbuild import HighwaySpec
 from sumo_swarm.sim.runner import run_scenario, run_sumocfg
 from sumo_swarm.study.batch import load_sweep
@@ -111,21 +113,30 @@ def test_no_overtake_when_the_side_lanes_are_as_slow_as_the_target(tmp_path):
 
 
 def test_cavs_drive_at_the_speed_of_the_users_world(tmp_path):
-    # The user's CAVs may drive 30 m/s on a 27.78 m/s road: SUMO's desired speed for them is
+    # The user's CAVs may drive 40 m/s on a 33.33 m/s road: SUMO's desired speed for them is
     # min(maxSpeed, limit * speedFactor), never the paper's 20 m/s.
     cfg = write_user_case(tmp_path / "net", HighwaySpec(length_m=2500, lanes=3), end_s=40.0)
     routes = tmp_path / "net" / "routes.rou.xml"
     routes.write_text(
         routes.read_text(encoding="utf-8").replace(
-            'maxSpeed="20" accel="3"', 'maxSpeed="30" accel="3"'
+            'maxSpeed="20" accel="3"', 'maxSpeed="40" accel="3"'
         ),
         encoding="utf-8",
     )
     out = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False, notify=print)
     speeds = out["speeds"]
-    assert speeds["source"].startswith("SUMO")
-    assert 22.0 < speeds["cruising_speed_mps"] <= 30.0  # 27.78 x a speedFactor near 1
+    assert speeds["source"].startswith("SUMO") and "vType's speedFactor" in speeds["source"]
+    # Every CAV got its vType's speedFactor (1.0, SUMO's mean): the lane limit exactly, not the
+    # lowest of five draws with SUMO's default speedDev 0.1.
+    assert speeds["cruising_speed_mps"] == pytest.approx(33.33, abs=0.01)
     assert out["cav"]["max_speed_mps"] <= speeds["max_speed_mps"] + 0.1
+    drawn = tmp_path / "drawn.toml"
+    drawn.write_text('[cav]\nspeed_factor = "vehicle"\n', encoding="utf-8")
+    own = run_sumocfg(cfg, "cav", "cacc", tmp_path / "drawn", config=drawn, progress=False,
+                      notify=print)  # fmt: skip
+    assert "vType's" not in own["speeds"]["source"]
+    assert 25.0 < own["speeds"]["cruising_speed_mps"] <= 40.0  # 33.33 x the lowest draw
+    assert own["speeds"]["cruising_speed_mps"] != pytest.approx(33.33, abs=0.01)
     # A config that sets the speeds keeps them.
     config = tmp_path / "mine.toml"
     config.write_text("[cav]\ncruising_speed_mps = 18.0\nmax_speed_mps = 22.0\n", encoding="utf-8")
@@ -134,6 +145,32 @@ def test_cavs_drive_at_the_speed_of_the_users_world(tmp_path):
     assert mine["speeds"]["source"] == "config [cav]"
     assert mine["speeds"]["cruising_speed_mps"] == 18.0
     assert mine["cav"]["max_speed_mps"] <= 22.1
+
+
+def test_cavs_change_lanes_at_the_lateral_speed_their_plans_assume(tmp_path):
+    # A user's CAV vType at SUMO's default maxSpeedLat (1 m/s): the controller plans lane
+    # changes at [cav] max_lateral_speed_mps (2 m/s), and SUMO capped them at half of it.
+    import libsumo
+
+    cfg = write_exit_case(tmp_path, exiting=(), end_s=20.0)
+    libsumo.start(
+        [sumo_binary(), "-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
+         "--time-to-teleport", "-1", "--collision.action", "warn"]
+    )  # fmt: skip
+    try:
+        assert libsumo.vehicletype.getMaxSpeedLat("cav") == pytest.approx(1.0)
+        handle = sumo_swarm.attach(libsumo, cav_type="cav")
+        while libsumo.simulation.getTime() < 2.0:
+            libsumo.simulation.step()
+        lateral = {v: libsumo.vehicle.getMaxSpeedLat(v) for v in ("c0", "c3")}
+        factors = {v: libsumo.vehicle.getSpeedFactor(v) for v in ("c0", "c3")}
+        truck_factor = libsumo.vehicle.getSpeedFactor("truck")
+        handle.detach()
+    finally:
+        libsumo.close()
+    assert lateral == {"c0": pytest.approx(2.0), "c3": pytest.approx(2.0)}
+    assert factors == {"c0": pytest.approx(1.0), "c3": pytest.approx(1.0)}
+    assert truck_factor != pytest.approx(1.0)  # an HV keeps SUMO's draw
 
 
 def test_cavs_cut_off_by_a_slow_vehicle_pass_it_and_rejoin(tmp_path):

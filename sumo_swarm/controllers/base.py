@@ -30,6 +30,10 @@ CAV_MIN_GAP_M = 0.5
 # [cav] speeds = "world": speed changes below this are ignored [m/s]
 WORLD_SPEED_TOLERANCE_MPS = 0.05
 WORLD_SPEED_SOURCE = "SUMO: min over the CAVs of min(vType maxSpeed, lane limit * speedFactor)"
+# [cav] speed_factor = "type": the CAVs were given their vType's speedFactor (configure_cav)
+WORLD_SPEED_SOURCE_TYPE = (
+    "SUMO: min over the CAVs of min(vType maxSpeed, lane limit * the vType's speedFactor)"
+)
 
 
 @dataclass
@@ -54,7 +58,11 @@ class RunContext:
 
     def configure_cav(self, vid: str) -> None:
         """Hand CAV ``vid`` to the controllers: see :func:`configure_cav`."""
-        configure_cav(self.session, vid)
+        cav = self.scenario.cav
+        configure_cav(
+            self.session, vid, lateral_speed_mps=cav.max_lateral_speed_mps,
+            type_speed_factor=cav.speeds == "world" and cav.speed_factor == "type",
+        )  # fmt: skip
 
     def follow_world_speeds(self, cav_ids: Sequence[str]) -> None:
         """With ``[cav] speeds = "world"``: set the cruising and highest speed of the CAVs to
@@ -79,8 +87,12 @@ class RunContext:
             cav = replace(cav, cruising_speed_mps=speed, max_speed_mps=speed)
             self.scenario = replace(self.scenario, cav=cav)
             if self.world_speed_mps is None:
-                self.event("world_speeds", cruising_speed_mps=speed, source=WORLD_SPEED_SOURCE)
+                self.event("world_speeds", cruising_speed_mps=speed, source=self._world_source())
             self.world_speed_mps = speed
+
+    def _world_source(self) -> str:
+        type_factor = self.scenario.cav.speed_factor == "type"
+        return WORLD_SPEED_SOURCE_TYPE if type_factor else WORLD_SPEED_SOURCE
 
     def speeds_block(self) -> dict[str, Any]:
         """The ``speeds`` block of summary.json: the speeds the CAVs were given, and whence."""
@@ -88,7 +100,7 @@ class RunContext:
         return {
             "cruising_speed_mps": cav.cruising_speed_mps,
             "max_speed_mps": cav.max_speed_mps,
-            "source": WORLD_SPEED_SOURCE if cav.speeds == "world" else "config [cav]",
+            "source": self._world_source() if cav.speeds == "world" else "config [cav]",
         }
 
 
@@ -168,12 +180,25 @@ def close_controller(controller: Controller) -> None:
         close()
 
 
-def configure_cav(session: SumoSession, vid: str) -> None:
+def configure_cav(
+    session: SumoSession,
+    vid: str,
+    *,
+    lateral_speed_mps: float | None = None,
+    type_speed_factor: bool = False,
+) -> None:
     """Hand CAV ``vid`` to our controllers, whatever vType the user gave it: the controllers'
     SUMO modes (:data:`SPEED_MODE_SAFE`, :data:`LC_MODE_CONTROLLED`), lcAccelLat, tau and minGap
-    (module constants). A vehicle that vanished is left alone."""
+    (module constants), the lateral speed the trajectories plan with as maxSpeedLat [m/s] (None:
+    the vType's), and with ``type_speed_factor`` its vType's speedFactor instead of SUMO's draw
+    for it (one platoon, one desired speed). A vehicle that vanished is left alone."""
     if session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_CONTROLLED):
         vehicle = session.api.vehicle
         vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", f"{CAV_LC_ACCEL_LAT_MPS2:g}")
         vehicle.setTau(vid, CAV_TAU_S)
         vehicle.setMinGap(vid, CAV_MIN_GAP_M)
+        if lateral_speed_mps is not None:
+            vehicle.setMaxSpeedLat(vid, lateral_speed_mps)
+        if type_speed_factor:
+            type_id = vehicle.getTypeID(vid)  # its own copy (``cav@vid``) has the same factor
+            vehicle.setSpeedFactor(vid, session.api.vehicletype.getSpeedFactor(type_id))
