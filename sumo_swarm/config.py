@@ -632,7 +632,10 @@ def load_scenario(
                     raise ConfigError(f"{section}.{key} is not set here: it comes from {source}")
         sections = {key: _convert(value, SECTIONS[key], key) for key, value in data.items()}
         scenario = Scenario(name=name, path=path.resolve(), **sections)
-        _check_consistency(scenario)
+        # A settings file for a user's sumocfg or attach() runs at SUMO's step, not this file's
+        # (unless the file names one): the behaving interval is not checked against it.
+        step_given = require_network or "step_length_s" in data.get("simulation", {})
+        _check_consistency(scenario, step_given=step_given)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     if require_network:
@@ -673,8 +676,9 @@ def _check_network(sc: Scenario, path: Path) -> None:
             raise ConfigError(f"{path}: {key} = {lane}, but the road has lanes 0..{first - 1}")
 
 
-def _check_consistency(sc: Scenario) -> None:
-    """Cross-section checks that no single section can make."""
+def _check_consistency(sc: Scenario, *, step_given: bool = True) -> None:
+    """Cross-section checks that no single section can make (the step-length one only where
+    the scenario's step is the simulation's: ``step_given``)."""
     if sc.cell_length_m < sc.cav.length_m:
         raise ConfigError(
             f"cell.cell_length_m: a cell ({sc.cell_length_m} m) must be at least as long as a "
@@ -687,7 +691,7 @@ def _check_consistency(sc: Scenario) -> None:
         )
     interval = sc.planner.behaving_interval_s
     steps = interval / sc.simulation.step_length_s
-    if abs(steps - round(steps)) > 1e-6:
+    if step_given and abs(steps - round(steps)) > 1e-6:
         raise ConfigError(
             f"planner.behaving_interval_s ({interval}) must be a whole number of "
             f"simulation.step_length_s ({sc.simulation.step_length_s})"

@@ -103,3 +103,20 @@ def test_one_source_for_each_physical_quantity(tmp_path, paper_path):
     assert sc.lateral.wheelbase_m == sc.cav.wheelbase_m
     assert sc.lateral.delta_max == pytest.approx(math.radians(450.0 / 10.0))
     assert sc.lateral.delta_min == -sc.lateral.delta_max
+
+
+def test_a_settings_file_for_a_sumocfg_is_not_held_to_the_papers_step(tmp_path):
+    # The swarm's settings for a user's sumocfg (run --config, attach(config=...)) run at the
+    # sumocfg's step (0.1 s, 1 s, ...); the 0.03 s default step of a scenario file does not apply.
+    from sumo_swarm.sim.scene import default_settings
+
+    path = tmp_path / "mine.toml"
+    path.write_text("[planner]\nbehaving_interval_s = 2.0\n", encoding="utf-8")
+    assert default_settings(path).planner.behaving_interval_s == 2.0
+    # A file that names its step is still checked against it.
+    path.write_text(
+        "[simulation]\nstep_length_s = 0.3\n[planner]\nbehaving_interval_s = 2.0\n",
+        encoding="utf-8",
+    )
+    with pytest.raises(ConfigError, match="whole number of"):
+        default_settings(path)
