@@ -599,3 +599,26 @@ def test_malformed_hint_is_ignored():
     junk = dataclasses.replace(plan_of(problem, [[(0, 0)] * 3] * 2), cells=((1, 2, 3), (4,)))
     plan = CpSatPlanner(10.0).plan(problem, hint=junk)
     assert plan.status is PlanStatus.OPTIMAL and plan.objective == 19
+
+
+def test_an_hv_claims_the_cells_it_drives_through_between_steps():
+    # A 35 m/s HV in lane 1 behind a grid moving at 15 m/s (3 s steps): its centre is at
+    # (-62.5 + 20 t) m from the grid's origin, i.e. rows -4.2, -0.2, 3.8 and 7.8 at steps 0-3
+    # (15 m cells). Between steps 2 and 3 it drives through rows 4-6, beyond which the 7-row grid
+    # ends: checked at the steps alone (the paper), a CAV planned there at step 3 is "behind" it.
+    road = RoadSection((3.2, 3.2, 3.2))
+    cavs = [VehicleState(f"c{i}", 300.0 - 15 * i, 0, 0.0, 15.0, 5.0, is_cav=True) for i in (0, 1)]
+    target = VehicleState("truck", 330.0, 0, 0.0, 15.0, 12.0)
+    fast = VehicleState("fast", 215.0, 1, 0.0, 35.0, 5.0)
+    lane1 = {}
+    for sweep in (False, True):
+        gs = GridSettings(hv_sweep=sweep)
+        grid = build_grid(cavs, target, road, 0.0, 15.0, gs)
+        assert (grid.origin_s_m, grid.n_rows) == (275.0, 7)
+        problem = build_problem(grid, cavs, [fast], target, 0.0, PlannerSettings(n_steps=4), gs)
+        lane1[sweep] = [{r for r, c in step if c == 1} for step in problem.blocked]
+    assert lane1[False][3] == set()
+    assert lane1[True][3] == {4, 5, 6}  # passed through during the last interval
+    assert lane1[True][0] == {0, 1}  # passed through during the first interval
+    for step in range(4):  # the sweep only adds
+        assert lane1[False][step] <= lane1[True][step]

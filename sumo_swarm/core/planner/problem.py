@@ -510,6 +510,33 @@ class _HvCells:
     tracks: tuple[tuple[int, tuple[float, ...]], ...]
 
 
+def _swept_cells(
+    grid: MovingGrid,
+    before: VehicleState,
+    after: VehicleState,
+    t0_s: float,
+    t1_s: float,
+    gs: GridSettings,
+    front_margin: FrontMargin | None,
+) -> frozenset[Cell]:
+    """Cells an HV drives through between its predicted states ``before`` (at ``t0_s``) and
+    ``after`` (at ``t1_s``), relative to the moving grid: its footprint and hard margin at one
+    sample per row it moves (none when it moves less than a row)."""
+    row0 = (before.centre_s_m - grid.origin_at(t0_s)) / grid.cell_length_m
+    row1 = (after.centre_s_m - grid.origin_at(t1_s)) / grid.cell_length_m
+    samples = math.ceil(abs(row1 - row0))
+    if samples < 2:
+        return frozenset()
+    cells: set[Cell] = set()
+    for j in range(1, samples):
+        share = j / samples
+        t = t0_s + share * (t1_s - t0_s)
+        state = replace(after, s_m=before.s_m + share * (after.s_m - before.s_m))
+        margin = None if front_margin is None else front_margin(state)[0]
+        cells |= hv_blocked_cells(grid, state, t, gs, margin)
+    return frozenset(cells)
+
+
 def _hv_cells(
     grid: MovingGrid,
     all_hvs: Mapping[str, VehicleState],
@@ -531,8 +558,14 @@ def _hv_cells(
         first: list[frozenset[Cell]] = []
         first_states: list[VehicleState] = []
         rows: list[float] = []
+        previous: VehicleState | None = None
         for k, t in enumerate(times):
             state = predictor.predict(hv, now_s, t)
+            if gs.hv_sweep and previous is not None:
+                swept = _swept_cells(grid, previous, state, times[k - 1], t, gs, front_margin)
+                hard[k - 1] |= swept
+                hard[k] |= swept
+            previous = state
             rows.append((state.centre_s_m - grid.origin_at(t)) / grid.cell_length_m - 0.5)
             if front_margin is None:
                 hard[k] |= hv_blocked_cells(grid, state, t, gs)
