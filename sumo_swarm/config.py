@@ -307,6 +307,13 @@ class SwarmSettings:
     # is complete when all are past, and the cruise mode re-forms the platoon in the fastest
     # lane it occupies (lane changes through the guards, CAVs in that lane opening gaps).
     regroup_by: Literal["planner", "cruise"] = "planner"
+    # With "planner": the manoeuvre is also complete once every CAV is past the target and they
+    # form one platoon in any lane (the check of summary.json's "regrouped"), not only in the
+    # regroup lane. A 3-lane road: all five CAVs were in the passing lane, 15 m apart, ahead of
+    # a 15 m/s truck at 30 s; the plan then cut them back in front of it at the truck's speed
+    # for 20 s. The cruise mode takes the platoon on (and moves it over as a unit if another
+    # lane is faster). False: only in the regroup lane (the paper's Fig. 6 step 4).
+    regroup_anywhere: bool = True
     # A cruising CAV cut off from the platoon by a slow vehicle passes it on its own, in the
     # faster lane beside; it gives that up after this long [s] and heads for the platoon's lane.
     max_pass_s: float = 30.0
@@ -339,8 +346,22 @@ class SwarmSettings:
     # after this many intervals without progress instead, so they drive on and the ones behind
     # pass on their own (2-lane-change stress scenes: three CAVs at a truck's 14.4 m/s for 20 s).
     give_up_partial_intervals: int = 3
+    # Give up once this many fresh plans in a row keep some CAVs in their cells behind the target
+    # for the whole horizon while they take the others on (0 = never): the planner sees no way
+    # past for them, and the CAVs past waited at the target's speed in the passing lane. After
+    # the give-up the CAVs past drive on and the ones behind pass on their own, through the
+    # guards (a 3-lane road at 900 veh/h/lane: two CAVs stranded from 14 s to 42 s).
+    give_up_stranded_plans: int = 2
     give_up_no_plan_s: float = 10.0
     cooldown_s: float = 15.0
+    # After a give-up for no progress or stranded CAVs (not after failed plans: the platoon
+    # then follows, the safe fallback) the leader too passes the target on its own for this
+    # long [s] (the others already do, each once the CAV ahead is past), through the lateral
+    # guard; 0 = the platoon follows the target until the next decision. Where the cells find
+    # no way past together (a stream 15 m/s faster than the target in every other lane: 900
+    # veh/h/lane), the CAVs get past as SUMO's own drivers do, one gap at a time, and re-form
+    # ahead.
+    pass_singly_s: float = 60.0
     # An HV is held back by blockers for at most this long per manoeuvre [s] (the impact on
     # the traffic behind is bounded; the swarm gives up rather than hold a lane forever).
     max_block_s: float = 30.0
@@ -358,10 +379,14 @@ class SwarmSettings:
         check_non_negative(
             self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
-            "cooldown_s", "max_block_s", "prediction_error_m",
+            "cooldown_s", "pass_singly_s", "max_block_s", "prediction_error_m",
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s", "max_pass_s",
         )  # fmt: skip
+        if self.give_up_stranded_plans < 0:
+            raise ConfigError(
+                f"give_up_stranded_plans must be >= 0, got {self.give_up_stranded_plans}"
+            )
         if self.give_up_partial_intervals < 1:
             raise ConfigError(
                 f"give_up_partial_intervals must be >= 1, got {self.give_up_partial_intervals}"

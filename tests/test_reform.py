@@ -80,6 +80,29 @@ def test_a_cav_cut_off_by_a_slow_vehicle_passes_it_and_comes_back():
     assert goals["c2"] == 1 and events[-1][1] == {"vehicle": "c2", "slow": "slow", "past": False}
 
 
+def test_after_a_give_up_the_leader_too_passes_the_target_on_its_own():
+    events = []
+    r = reformer(events)
+    st = states(
+        car("truck", 260.0, 1, 12.0),
+        car("c0", 240.0, 1, 12.0, cav=True),
+        car("c1", 225.0, 1, 12.0, cav=True),
+    )  # fmt: skip
+    platoon = ["c0", "c1"]
+    # The swarm decides for its leader: no passing of its own.
+    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}
+    r.singly = ("truck", 60.0)  # the swarm gave up overtaking the truck together
+    goals = r.goals(1.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    assert goals == {"c0": 0, "c1": 1}  # lane 0 first when both sides are free
+    assert events == [("passing_start", {"vehicle": "c0", "slow": "truck", "lane": 0})]
+    # Another slow vehicle, or the time is over: the swarm decides again.
+    r2 = reformer()
+    r2.singly = ("someone_else", 60.0)
+    assert r2.goals(1.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}
+    r2.singly = ("truck", 60.0)
+    assert r2.goals(61.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}
+
+
 def test_no_passing_when_no_lane_beside_is_faster_by_the_gain():
     r = reformer()
     st = states(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -14,9 +15,11 @@ from sumo_swarm.core.swarming.decision import (
     TargetWatch,
     behaving_interval_s,
     lane_speeds,
+    one_platoon,
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
+    stranded_cavs,
 )
 from sumo_swarm.core.swarming.guards import GuardSettings, gap_accel_limit, lateral_refusal
 from sumo_swarm.core.swarming.planlog import PlanLog
@@ -136,6 +139,41 @@ def test_partly_past_gives_up_sooner():
     assert behind.give_up_reason(9.5, partial_s=9.0, **kw) is None
 
 
+def test_a_plan_that_keeps_cavs_in_their_cells_strands_them():
+    cells = {
+        "c0": [(7, 1), (7, 1), (7, 1)],  # past, waiting in its cell: not behind
+        "c2": [(2, 0), (2, 0), (2, 0)],  # behind, never moves: stranded
+        "c3": [(1, 0), (1, 0), (1, 1)],  # behind, cuts out at the end: not stranded
+        "c4": [(0, 0), (1, 0), (1, 0)],  # behind, moves up a row: not stranded
+    }
+    assert stranded_cavs(cells, ["c2", "c3", "c4"]) == {"c2"}
+    assert stranded_cavs(cells, ["c0", "c2"]) == {"c0", "c2"}  # whoever the caller says is behind
+    assert stranded_cavs(cells, ["gone"]) == set()
+
+
+def test_plans_stranding_some_cavs_give_up_after_the_configured_number():
+    p = Progress(started_s=0.0)
+    kw = dict(no_progress_s=99.0, no_plan_s=99.0, has_plan=True, stranding_plans=2)
+    p.plan_strands({"c3", "c4"}, 5)
+    assert p.give_up_reason(3.0, **kw) is None  # one plan in a row
+    p.plan_strands({"c3", "c4"}, 5)
+    assert p.give_up_reason(6.0, **kw) == "cavs_stranded"
+    assert p.give_up_reason(6.0, **{**kw, "stranding_plans": 0}) is None  # switched off
+    p.plan_strands(set(), 5)  # a plan with a way past for everyone starts the count again
+    assert p.give_up_reason(9.0, **kw) is None
+    every = {f"c{i}" for i in range(5)}
+    p.plan_strands(every, 5)  # every CAV kept in place: not "some", the progress rule decides
+    p.plan_strands(every, 5)
+    assert p.give_up_reason(12.0, **kw) is None
+    # A plan that finds a way for some of the stranded CAVs is progress: the count restarts.
+    q = Progress(started_s=0.0)
+    q.plan_strands({"c1", "c2", "c3"}, 5)
+    q.plan_strands({"c1"}, 5)
+    assert q.give_up_reason(6.0, **kw) is None
+    q.plan_strands({"c1", "c2"}, 5)  # more stranded than the plan before: counts
+    assert q.give_up_reason(9.0, **kw) == "cavs_stranded"
+
+
 def test_failed_replans_give_up_although_an_old_plan_is_kept():
     p = Progress(started_s=0.0)
     p.planned(2.0)
@@ -230,10 +268,21 @@ def test_margins_cached_per_desired_speed_class_on_the_safe_side():
     a = DriverModel(model="IDM", desired_speed_mps=27.93, speed_factor=1.07)
     b = DriverModel(model="IDM", desired_speed_mps=27.51, speed_factor=0.99)
     assert canonical_model(a) == canonical_model(b)
-    assert canonical_model(a).desired_speed_mps == 27.5 and canonical_model(a).speed_factor == 1
+    assert canonical_model(a).desired_speed_mps == 28.0 and canonical_model(a).speed_factor == 1
     assert entry_gap(a, 24.0, 18.0, 2.0, 0.1) == entry_gap(b, 24.0, 18.0, 2.0, 0.1)
-    # A slower desired speed makes IDM brake harder: the cached margin is never the smaller.
-    assert entry_gap(a, 24.0, 18.0, 2.0, 0.1) >= min_entry_gap(a, 24.0, 18.0, 2.0, 0.1) - 0.1
+    # Rounded up by at most 0.5 m/s, IDM's desired speed hardly changes its braking.
+    assert entry_gap(a, 24.0, 18.0, 2.0, 0.1) == pytest.approx(
+        min_entry_gap(a, 24.0, 18.0, 2.0, 0.1), abs=0.5
+    )
+    # A driver at its own desired speed is not above the cached class's: a 34.8 m/s Krauss
+    # driver, 19.8 m/s faster than a CAV entering at 15 m/s, would brake harder than 1.4 m/s^2
+    # at any gap (no gap within the cap is enough), so it claims the whole 150 m cap (rounded
+    # down to 34.5 m/s, it "braked" 3 m/s^2 on a free road and claimed 106 m).
+    krauss = DriverModel(
+        model="Krauss", tau_s=1.0, min_gap_m=2.5, desired_speed_mps=34.8, sigma=0.5
+    )
+    assert min_entry_gap(krauss, 34.8, 15.0, 1.4, 0.1, max_gap_m=150.0) == math.inf
+    assert entry_gap(krauss, 34.8, 15.0, 1.4, 0.1) == 150.0
 
 
 def test_lateral_guard_leaves_room_to_stop_closing_in_on_the_leader():
@@ -296,3 +345,19 @@ def test_a_cav_waits_for_a_swarm_cav_clearing_the_lane_it_enters():
     )
     assert yields_to_cav(car("c1", 100.0, 1, 16.0, cav=True), ROAD.y_of(1, 0.0), 0.05,
                          [ego, passing], ROAD, **kw) is None  # fmt: skip
+
+
+def test_one_platoon_in_any_lane():
+    road = RoadSection((3.2, 3.2, 3.2))
+    cavs = [car(f"c{i}", 300.0 - 15.0 * i, 1, 20.0, cav=True) for i in range(3)]  # 10 m gaps
+    kw = dict(tolerance_m=0.3, max_gap_m=25.0)
+    assert one_platoon(cavs, [], road, **kw)
+    truck = car("truck", 250.0, 0, 15.0)  # behind, another lane: no matter
+    assert one_platoon(cavs, [truck], road, **kw)
+    between = car("hv", 280.0, 1, 20.0)  # an HV in their lane between two CAVs
+    assert not one_platoon(cavs, [between], road, **kw)
+    spread = [*cavs[:2], car("c2", 240.0, 1, 20.0, cav=True)]  # a 35 m gap
+    assert not one_platoon(spread, [], road, **kw)
+    astride = [*cavs[:2], dataclasses.replace(cavs[2], lat_m=0.8)]  # half into the next lane
+    assert not one_platoon(astride, [], road, **kw)
+    assert not one_platoon([], [], road, **kw)

@@ -62,6 +62,7 @@ class RunContext:
         configure_cav(
             self.session, vid, lateral_speed_mps=cav.max_lateral_speed_mps,
             type_speed_factor=cav.speeds == "world" and cav.speed_factor == "type",
+            decel_mps2=-cav.accel_min_mps2,
         )  # fmt: skip
 
     def follow_world_speeds(self, cav_ids: Sequence[str]) -> None:
@@ -186,12 +187,17 @@ def configure_cav(
     *,
     lateral_speed_mps: float | None = None,
     type_speed_factor: bool = False,
+    decel_mps2: float | None = None,
 ) -> None:
     """Hand CAV ``vid`` to our controllers, whatever vType the user gave it: the controllers'
     SUMO modes (:data:`SPEED_MODE_SAFE`, :data:`LC_MODE_CONTROLLED`), lcAccelLat, tau and minGap
     (module constants), the lateral speed the trajectories plan with as maxSpeedLat [m/s] (None:
     the vType's), and with ``type_speed_factor`` its vType's speedFactor instead of SUMO's draw
-    for it (one platoon, one desired speed). A vehicle that vanished is left alone."""
+    for it (one platoon, one desired speed), and a vType decel above ``decel_mps2`` [m/s^2]
+    lowered to it: our controllers never brake harder, and SUMO's safe-speed net under them
+    brakes at the vType's decel (SUMO's default 4.5: a CAV cut in 17 m ahead of a CAV 3.3 m/s
+    faster at 32 m/s, within the guard's rule, braked its follower at 4.5 m/s^2). A vehicle
+    that vanished is left alone."""
     if session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_CONTROLLED):
         vehicle = session.api.vehicle
         vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", f"{CAV_LC_ACCEL_LAT_MPS2:g}")
@@ -199,6 +205,14 @@ def configure_cav(
         vehicle.setMinGap(vid, CAV_MIN_GAP_M)
         if lateral_speed_mps is not None:
             vehicle.setMaxSpeedLat(vid, lateral_speed_mps)
+        if decel_mps2 is not None and vehicle.getDecel(vid) > decel_mps2:
+            vehicle.setDecel(vid, decel_mps2)
         if type_speed_factor:
             type_id = vehicle.getTypeID(vid)  # its own copy (``cav@vid``) has the same factor
-            vehicle.setSpeedFactor(vid, session.api.vehicletype.getSpeedFactor(type_id))
+            factor = session.api.vehicletype.getSpeedFactor(type_id)
+            # Never below the speed it drives now (a CAV that departed at "max" with a higher
+            # draw): SUMO would brake it to the new limit at its decel in one step.
+            limit = vehicle.getAllowedSpeed(vid) / max(vehicle.getSpeedFactor(vid), 1e-6)
+            if limit > 0.0:
+                factor = max(factor, vehicle.getSpeed(vid) / limit)
+            vehicle.setSpeedFactor(vid, factor)

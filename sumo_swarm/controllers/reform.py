@@ -54,10 +54,16 @@ class Reformer:
     hold: Callable[[VehicleState, float, float], bool] = lambda ego, y, dlat: False
     # escape(ego, dlat, step): the lateral move instead of dlat when ego's lane ends ahead
     escape: Callable[[VehicleState, float, float], float] = lambda ego, dlat, step: dlat
+    # ends(ego): the lanes that end ahead of ego, where it never passes (the hold refuses them:
+    # a CAV waited 30 s to pass a truck in an on-ramp's acceleration lane)
+    ends: Callable[[VehicleState], Collection[int]] = lambda ego: ()
     lane_id: int | None = None
     edge: str | None = None  # the edge whose lane indices lane_id is in
     # CAV -> (the slow vehicle it passes, the lane it passes in, since when [s])
     passing: dict[str, tuple[str, int, float]] = field(default_factory=dict)
+    # The vehicle the swarm gave up overtaking together: its leader too passes it on its own
+    # (the others follow one by one, each once the CAV ahead is past), until this time [s].
+    singly: tuple[str, float] | None = None
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
@@ -124,7 +130,8 @@ class Reformer:
         *,
         cap_mps: float,
     ) -> dict[str, int]:
-        """The lane each CAV heads for (``passing_start``/``passing_end`` events)."""
+        """The lane each CAV heads for (``passing_start``/``passing_end`` events); a CAV never
+        passes in a lane that ends ahead of it (``ends``: an acceleration lane)."""
         sc = self.scenario
         sw = sc.swarm
         members = set(platoon)
@@ -144,7 +151,7 @@ class Reformer:
                 else:
                     goals[vid] = side
                 continue
-            if i == 0 or lane_index(road, ego) != lane:
+            if lane_index(road, ego) != lane:
                 continue
             ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
             if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
@@ -152,9 +159,14 @@ class Reformer:
             slow = ahead[0]
             if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
                 continue
-            if states[platoon[i - 1]].rear_s_m <= slow.s_m:
+            if i == 0:
+                singly = self.singly
+                if singly is None or singly[0] != slow.vehicle_id or t_s > singly[1]:
+                    continue  # the swarm decides for the leader
+            elif states[platoon[i - 1]].rear_s_m <= slow.s_m:
                 continue  # the CAV ahead is behind it too: the swarm decides for them
-            side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
+            ending = self.ends(ego)
+            side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes and q not in ending]
             speeds = lane_speeds(ego, others, road, side, range_m=sw.detect_range_m,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip
             best = max(speeds, key=speeds.get, default=None)

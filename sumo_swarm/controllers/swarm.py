@@ -29,6 +29,7 @@ import itertools
 import logging
 import math
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import replace
 from typing import Any
 
@@ -45,15 +46,18 @@ from sumo_swarm.core.planner import CellPlanner, Plan, ReplanTrigger, make_plann
 from sumo_swarm.core.planner.problem import LANE_END_PREFIX, hvs_in_grid
 from sumo_swarm.core.stats import lateral_rms, summarise_ms
 from sumo_swarm.core.swarming.decision import (
+    REGROUPED_GAP_FACTOR,
     Mode,
     Progress,
     TargetWatch,
     all_past,
     behaving_interval_s,
     lane_speeds,
+    one_platoon,
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
+    stranded_cavs,
 )
 from sumo_swarm.core.swarming.guards import (
     entering_lane,
@@ -69,6 +73,11 @@ from sumo_swarm.core.swarming.tracker import Tracker
 from sumo_swarm.core.trajectory import Reference
 
 log = logging.getLogger(__name__)
+
+# Give-ups after which the CAVs pass the target one by one ([swarm] pass_singly_s): plans that
+# found no way past together. A planner that fails (no_feasible_plan) leaves the platoon behind
+# the target, the safe fallback.
+PASS_SINGLY_AFTER = frozenset({"cavs_stranded", "no_progress"})
 # No lane change this close to a place where lane indices shift (see lane_shift_hold) [m].
 LANE_SHIFT_HOLD_M = 40.0
 # No CAV moves into a lane that ends within this many seconds at its speed (at least
@@ -163,8 +172,9 @@ class SwarmController:
         self.planlog = PlanLog(ctx.out_dir)
         self.routes = RouteWatch()
         self.reformer = Reformer(
-            sc, self.model_of, ctx.event, hold=self.lane_shift_hold, escape=self.lane_end_escape
-        )
+            sc, self.model_of, ctx.event, hold=self.lane_shift_hold, escape=self.lane_end_escape,
+            ends=lambda ego: self._lanes_ending_ahead(ego, LANE_END_HOLD_S),
+        )  # fmt: skip
         self.drawer = None  # a sumo-gui plan drawer, set by the session's side (sim.gui)
 
     @property
@@ -248,7 +258,7 @@ class SwarmController:
                 self._finish(t_s, completed=True)  # all past: the cruise re-forms the platoon
             elif stop is not None:
                 self._finish(t_s, completed=False, reason=stop)
-            elif self._overtake_done(target, cavs):
+            elif self._overtake_done(target, cavs, states.values()):
                 self._finish(t_s, completed=True)
             else:
                 self.progress.update(t_s, target, list(cavs.values()), sc.cav.min_gap_m)
@@ -260,10 +270,15 @@ class SwarmController:
                     self.plan is not None,
                     partial_s=sc.swarm.give_up_partial_intervals * interval,
                     n_cavs=len(cavs),
+                    stranding_plans=sc.swarm.give_up_stranded_plans,
                 )
                 if give_up is not None:
                     self._finish(t_s, completed=False, reason=give_up)
                     self.watch.cool_down(t_s + sc.swarm.cooldown_s)
+                    if sc.swarm.pass_singly_s > 0.0 and give_up in PASS_SINGLY_AFTER:
+                        # No way past together: the CAVs pass it one by one, as SUMO's
+                        # drivers do, through the guards, and re-form the platoon ahead.
+                        self.reformer.singly = (self.target_id, t_s + sc.swarm.pass_singly_s)
                 else:
                     self._maybe_replan(t_s, states, platoon)
         if self.mode is Mode.OVERTAKE and self.plan is not None:
@@ -493,15 +508,25 @@ class SwarmController:
             self.aborts[reason] += 1
         self.ctx.event("overtake_end", target=self.target_id, completed=completed, reason=reason)
 
-    def _overtake_done(self, target: VehicleState, cavs: dict[str, VehicleState]) -> bool:
+    def _overtake_done(
+        self,
+        target: VehicleState,
+        cavs: dict[str, VehicleState],
+        others: Iterable[VehicleState] = (),
+    ) -> bool:
         road = self.ctx.road
         sc = self.ctx.scenario
         if not all_past(target, cavs, sc.cav.min_gap_m):
             return False
         if sc.swarm.regroup_by == "cruise":
             return True  # the cruise mode re-forms the platoon
-        y_lane = road.lane_centre_y(self.regroup_lane_used)
         tol = sc.swarm.in_lane_tolerance_m
+        if sc.swarm.regroup_anywhere and one_platoon(
+            list(cavs.values()), others, road, tolerance_m=tol,
+            max_gap_m=REGROUPED_GAP_FACTOR * sc.cav.desired_gap_m,
+        ):  # fmt: skip
+            return True
+        y_lane = road.lane_centre_y(self.regroup_lane_used)
         return all(abs(road.y_of(c.lane, c.lat_m) - y_lane) <= tol for c in cavs.values())
 
     def _maybe_replan(self, t_s: float, states: dict[str, VehicleState], platoon: list[str]):
@@ -649,6 +674,10 @@ class SwarmController:
         self.trigger.planned(plan, t_s, outcome.problem.hv_ids)
         self.tracker.reset()
         self.progress.planned(t_s)
+        line = target.s_m + sc.cav.min_gap_m
+        behind = [cav.vehicle_id for cav in cavs if cav.rear_s_m < line]
+        stranded = stranded_cavs(dict(zip(plan.cav_ids, plan.cells, strict=True)), behind)
+        self.progress.plan_strands(stranded, len(cavs))
         for blocker in outcome.problem.blockers:
             self.blocked_since_s.setdefault(blocker.hv_id, t_s)
             until = t_s + (blocker.hold_steps + 1) * interval

@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 
 from sumo_swarm.checks import finite_or_none
+from sumo_swarm.core.swarming.decision import REGROUPED_GAP_FACTOR
 from sumo_swarm.sim import metrics
 from sumo_swarm.sim.metrics import EvaluationWindow
 
@@ -156,7 +157,9 @@ def build_summary(
     target = scene.target_id
     own = controller_summary.get("overtake", {})
     target = own.get("target") or target
-    t_end, t_regroup = overtake_times_s(df, cav_ids, target, 2.5 * scenario.cav.desired_gap_m)
+    t_end, t_regroup = overtake_times_s(
+        df, cav_ids, target, REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m
+    )
     t_start = own.get("t_start_s")
     overtake = {
         "triggered": bool(own.get("triggered", t_end is not None)),

@@ -16,8 +16,9 @@
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -192,6 +193,8 @@ class Progress:
 
     best_out: int = 0
     failing: bool = False  # the replans since the last usable plan all failed
+    stranding_plans: int = 0  # fresh plans in a row that leave CAVs behind the target for good
+    stranded: frozenset[str] = frozenset()  # the CAVs the last of them left behind
 
     def update(
         self, t_s: float, target: VehicleState, platoon: Sequence[VehicleState], min_gap_m: float
@@ -218,6 +221,20 @@ class Progress:
         self.last_plan_ok_s = t_s
         self.failing = False
 
+    def plan_strands(self, stranded: Iterable[str], n_cavs: int) -> None:
+        """A fresh plan leaves the CAVs ``stranded`` (of ``n_cavs``) behind the target for its
+        whole horizon while it takes the others on (see :func:`stranded_cavs`). Plans count in
+        a row while each strands at least the CAVs the one before did: a plan that finds a way
+        for some of them is progress (a stress scene went from three stranded CAVs to one and
+        then regrouped)."""
+        now = frozenset(stranded)
+        if not 0 < len(now) < n_cavs:
+            self.stranding_plans, self.stranded = 0, frozenset()
+            return
+        keeps = self.stranding_plans > 0 and now >= self.stranded
+        self.stranding_plans = self.stranding_plans + 1 if keeps else 1
+        self.stranded = now
+
     def failed(self) -> None:
         """A replan failed (the last plan may still be driven while it lasts)."""
         self.failing = True
@@ -230,19 +247,67 @@ class Progress:
         has_plan: bool,
         partial_s: float | None = None,
         n_cavs: int | None = None,
+        stranding_plans: int = 0,
     ) -> str | None:
-        """``"no_progress"`` or ``"no_feasible_plan"`` when it is time to give up: no plan, or
-        only failed replans, for ``no_plan_s`` since the last usable one; no progress for
-        ``no_progress_s``, or for ``partial_s`` once some but not all of the ``n_cavs`` CAVs
-        have been past the target."""
+        """``"no_progress"``, ``"no_feasible_plan"`` or ``"cavs_stranded"`` when it is time to
+        give up: no plan, or only failed replans, for ``no_plan_s`` since the last usable one;
+        no progress for ``no_progress_s``, or for ``partial_s`` once some but not all of the
+        ``n_cavs`` CAVs have been past the target; ``stranding_plans`` fresh plans in a row
+        (0: never) that leave some CAVs behind the target for good."""
         if (not has_plan or self.failing) and t_s - self.last_plan_ok_s > no_plan_s:
             return "no_feasible_plan"
+        if stranding_plans > 0 and self.stranding_plans >= stranding_plans:
+            return "cavs_stranded"
         limit = no_progress_s
         if partial_s is not None and n_cavs is not None and 0 < self.best_past < n_cavs:
             limit = min(limit, partial_s)
         if t_s - self.last_progress_s > limit:
             return "no_progress"
         return None
+
+
+def stranded_cavs(cells: Mapping[str, Sequence[Sequence[int]]], behind: Iterable[str]) -> set[str]:
+    """The CAVs of ``behind`` (still behind the target) that a plan keeps in their cell, row and
+    lane, for its whole horizon: the planner found no way past for them."""
+    return {
+        vid for vid in behind
+        if vid in cells and all(tuple(cell) == tuple(cells[vid][0]) for cell in cells[vid])
+    }  # fmt: skip
+
+
+# A platoon again: bumper gaps between consecutive CAVs up to this many desired gaps (the
+# swarm's own check and summary.json's "regrouped" use the same).
+REGROUPED_GAP_FACTOR = 2.5
+
+
+def one_platoon(
+    cavs: Sequence[VehicleState],
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    *,
+    tolerance_m: float,
+    max_gap_m: float,
+) -> bool:
+    """Do ``cavs`` form one platoon, in whatever lane: every centre within ``tolerance_m`` of
+    the front CAV's lane centre, bumper gaps between consecutive CAVs at most ``max_gap_m``,
+    and none of ``others`` (vehicles that are not these CAVs) in that lane between them."""
+    if not cavs:
+        return False
+    ordered = sorted(cavs, key=lambda c: c.s_m)
+    lane = road.lane_of_y(road.y_of(ordered[-1].lane, ordered[-1].lat_m))
+    centre = road.lane_centre_y(lane)
+    if any(abs(road.y_of(c.lane, c.lat_m) - centre) > tolerance_m for c in ordered):
+        return False
+    if any(b.rear_s_m - a.s_m > max_gap_m for a, b in itertools.pairwise(ordered)):
+        return False
+    ids = {c.vehicle_id for c in ordered}
+    rear, front = ordered[0].rear_s_m, ordered[-1].s_m
+    return not any(
+        o.vehicle_id not in ids
+        and rear < o.centre_s_m < front
+        and road.lane_of_y(road.y_of(o.lane, o.lat_m)) == lane
+        for o in others
+    )
 
 
 def all_past(target: VehicleState, platoon: Mapping[str, VehicleState], min_gap_m: float) -> bool:
