@@ -119,21 +119,17 @@ def _entry_gap(model: DriverModel, v_q: int, v_lead_q: int, b: float, step_s: fl
     return min(gap, MAX_MARGIN_M)
 
 
-# Desired speeds are rounded up to this [m/s] before the margins are cached: SUMO draws a
+# Desired speeds are rounded down to this [m/s] before the margins are cached: SUMO draws a
 # speedFactor per vehicle, so without it every HV of a flow has its own model and misses the
-# cache. Up, not down: rounded down, an HV driving at its desired speed (34.8 m/s) looked
-# above it (34.5) and "braked" 3 m/s^2 on a free road in the model, which the margins allow on
-# top of b; its entry margin came out 106 m instead of 150, and the guard, which reads the
-# true model, refused the cut-ins planned there. (A faster desired speed makes IDM brake a
-# little less; the guard checks the true one.)
+# cache (a slower desired speed makes IDM brake harder: the safe side).
 DESIRED_SPEED_QUANTUM_MPS = 0.5
 
 
 def canonical_model(model: DriverModel) -> DriverModel:
-    """``model`` with its desired speed rounded up and no speedFactor: one cache entry per
+    """``model`` with its desired speed rounded down and no speedFactor: one cache entry per
     vType and desired-speed class, not per vehicle."""
     q = DESIRED_SPEED_QUANTUM_MPS
-    v0 = math.ceil(model.desired_speed_mps / q - 1e-9) * q
+    v0 = math.floor(model.desired_speed_mps / q + 1e-9) * q
     if v0 == model.desired_speed_mps and model.speed_factor == 1.0:
         return model
     return replace(model, desired_speed_mps=max(v0, q), speed_factor=1.0)
