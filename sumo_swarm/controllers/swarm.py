@@ -797,20 +797,21 @@ class SwarmController:
             ctx.session.set_speed(vid, max(v_cmd, 0.0))
             ctx.session.change_sublane(vid, dlat)
 
+    def _new_episode(self, seen: dict[str, float], vid: str, t_s: float) -> bool:
+        """Record ``vid`` in ``seen`` at ``t_s``: a new episode unless it was there within
+        ``[swarm] hold_episode_s``."""
+        last = seen.get(vid)
+        seen[vid] = t_s
+        return last is None or t_s - last > self.ctx.scenario.swarm.hold_episode_s
+
     def _count_yield(self, vid: str, t_s: float) -> None:
         """One ``lateral_yields`` per episode: a CAV waiting for a swarm CAV to clear a lane."""
-        last = self._yielding.get(vid)
-        self._yielding[vid] = t_s
-        if last is None or t_s - last > self.ctx.scenario.swarm.hold_episode_s:
+        if self._new_episode(self._yielding, vid, t_s):
             self.lateral_yields += 1
 
     def _count_hold(self, vid: str, refusal: str | None, lane: int, t_s: float) -> None:
         """One ``lateral_hold`` per episode: a CAV held, not held again within hold_episode_s."""
-        if refusal is None:
-            return
-        last = self._holding.get(vid)
-        self._holding[vid] = t_s
-        if last is not None and t_s - last <= self.ctx.scenario.swarm.hold_episode_s:
+        if refusal is None or not self._new_episode(self._holding, vid, t_s):
             return
         self.lateral_holds += 1
         if self.holds_per_manoeuvre:

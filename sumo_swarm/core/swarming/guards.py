@@ -59,6 +59,28 @@ def entering_lane(
     return None if lane_next == road.lane_of_y(y) else lane_next
 
 
+def _next_lane_neighbours(
+    ego: VehicleState,
+    y: float,
+    dlat: float,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    width_m: float,
+    settings: GuardSettings,
+) -> tuple[tuple[VehicleState, float] | None, tuple[VehicleState, float] | None] | None:
+    """(vehicle ahead, vehicle behind) of ``ego`` in the lane the move ``dlat`` enters, each
+    with its bumper gap [m], or ``None`` when the move stays in ``ego``'s lane."""
+    lane_next = entering_lane(road, y, dlat, settings)
+    if lane_next is None:
+        return None
+    others = list(others)
+    y_probe = road.lane_centre_y(lane_next)
+    return (
+        vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m),
+        vehicle_behind(ego, others, road, y_m=y_probe, width_m=width_m),
+    )
+
+
 def gap_accel_limit(
     ego: VehicleState,
     y_now: float,
@@ -119,12 +141,10 @@ def lateral_refusal(
         ``"follower_brake"`` (the HV following there would brake harder than ``b_safe_mps2`` at
     some point of its reaction, :func:`sumo_swarm.core.hvmodel.accepts_entry`).
     """
-    lane_next = entering_lane(road, y, dlat, settings)
-    if lane_next is None:
+    near = _next_lane_neighbours(ego, y, dlat, others, road, width_m, settings)
+    if near is None:
         return None
-    others = list(others)
-    y_probe = road.lane_centre_y(lane_next)
-    ahead = vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m)
+    ahead, behind = near
     if ahead is not None:
         # Closing in on it, the CAV must be able to stop closing within the minimum gap braking
         # no harder than b_safe (the gap it enters with is what it keeps), and to stop behind it
@@ -138,7 +158,6 @@ def lateral_refusal(
         )
         if ahead[1] < min_gap_m + need:
             return "leader"
-    behind = vehicle_behind(ego, others, road, y_m=y_probe, width_m=width_m)
     if behind is None:
         return None
     follower, gap = behind
@@ -181,17 +200,14 @@ def yields_to_cav(
     has them one row apart at the interval's end). Entering waits until that CAV is clear by
     ``min_gap_m``; that is the tracker's timing, below the planner's resolution, not a move the
     guard refuses (the guard still checks the move once the CAV is clear)."""
-    lane_next = entering_lane(road, y, dlat, settings)
-    if lane_next is None:
+    near = _next_lane_neighbours(ego, y, dlat, others, road, width_m, settings)
+    if near is None:
         return None
-    others = list(others)
-    y_probe = road.lane_centre_y(lane_next)
-    ahead = vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m)
+    ahead, behind = near
     if ahead is not None:
         lead, gap = ahead
         if lead.is_cav and gap < min_gap_m and lead.speed_mps >= ego.speed_mps + CLEARING_MPS:
             return lead.vehicle_id
-    behind = vehicle_behind(ego, others, road, y_m=y_probe, width_m=width_m)
     if behind is not None:
         back, gap = behind
         if back.is_cav and gap < min_gap_m and back.speed_mps <= ego.speed_mps - CLEARING_MPS:
