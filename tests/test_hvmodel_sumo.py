@@ -235,3 +235,27 @@ def test_idm_identified_with_sumo_iterations(tmp_path):
     with _session(_routes(tmp_path, "idm"), step_s=1.0) as sumo:
         sumo.step()
         assert sumo.driver_model("hv").model == "IDM"
+
+
+def test_keeps_right_read_from_the_lane_change_model(tmp_path):
+    routes = tmp_path / "lc.rou.xml"
+    routes.write_text(
+        f"""<routes>{TYPES}
+  <vType id="default" maxSpeed="30"/>
+  <vType id="lazy" lcKeepRight="0" maxSpeed="30"/>
+  <route id="r" edges="hwy"/>
+  <vehicle id="sumo" type="default" route="r" depart="0" departLane="1" departPos="100"/>
+  <vehicle id="lazy" type="lazy" route="r" depart="0" departLane="1" departPos="50"/>
+  <vehicle id="paper" type="idm" route="r" depart="0" departLane="1" departPos="10"/>
+  <vehicle id="traci" type="default" route="r" depart="0" departLane="0" departPos="100"/>
+</routes>""",
+        encoding="utf-8",
+    )
+    with _session(routes) as sumo:
+        sumo.step()
+        # SUMO's 1621 minus the right-drive bits 6-7: a user's script keeping it in its lane
+        sumo.api.vehicle.setLaneChangeMode("traci", 1621 & ~(3 << 6))
+        assert sumo.keeps_right("sumo")  # SUMO's defaults: lcKeepRight 1, mode 1621
+        assert not sumo.keeps_right("lazy")
+        assert not sumo.keeps_right("paper")  # the paper's HVs keep their lanes
+        assert not sumo.keeps_right("traci")

@@ -16,6 +16,7 @@ from sumo_swarm.core.swarming.decision import (
     behaving_interval_s,
     lane_speeds,
     one_platoon,
+    right_lane_free,
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
@@ -70,6 +71,41 @@ def test_target_watch_needs_persistence_and_respects_cool_down():
     assert watch.update(9.0, truck) is None
     assert watch.update(10.0, truck) is None  # the clock starts after the cool-down
     assert watch.update(12.0, truck) is truck
+
+
+def test_target_watch_waits_longer_for_a_target_about_to_keep_right():
+    watch = TargetWatch(trigger_after_s=2.0)
+    truck = car("truck", 130.0, 1, 15.0)
+    assert watch.update(0.0, truck, wait_s=10.0) is None
+    assert watch.update(9.9, truck, wait_s=10.0) is None
+    assert watch.update(10.0, truck, wait_s=10.0) is truck
+    # The lane on its right fills up at 5 s: no more reason to wait, the decision is due at once
+    watch = TargetWatch(trigger_after_s=2.0)
+    assert watch.update(0.0, truck, wait_s=10.0) is None
+    assert watch.update(5.0, truck) is truck
+
+
+def free(truck, *others):
+    return right_lane_free(truck, [truck, *others], ROAD, behind_s=1.0, ahead_s=4.0,
+                           closing_s=8.0, min_gap_m=2.0)  # fmt: skip
+
+
+def test_right_lane_free_hand_computed():
+    truck = car("truck", 200.0, 1, 15.0, length=12.0)  # rear at 188 m
+    assert free(truck)
+    assert not free(car("truck", 200.0, 0, 15.0))  # no lane on its right
+    # Behind in lane 0 at its speed: free from 2 + 1 s * 15 = 17 m behind its rear (171 m)
+    assert free(truck, car("a", 170.9, 0, 15.0))
+    assert not free(truck, car("a", 171.1, 0, 15.0))
+    # 5 m/s faster: also 8 s * 5 m/s = 40 m more (2 + 20 + 40 = 62 m behind: 126 m)
+    assert free(truck, car("a", 125.9, 0, 20.0))
+    assert not free(truck, car("a", 126.1, 0, 20.0))
+    assert not free(truck, car("a", 195.0, 0, 15.0))  # alongside
+    # Ahead: a slower one within 2 + 4 s * 15 = 62 m of its front holds it (rear < 262 m)
+    assert not free(truck, car("b", 266.0, 0, 14.0))  # rear at 261 m
+    assert free(truck, car("b", 268.0, 0, 14.0))
+    assert free(truck, car("b", 230.0, 0, 15.0))  # no slower: moving over loses nothing
+    assert free(truck, car("c", 150.0, 2, 30.0))  # the lane on its left does not count
 
 
 def test_speed_cap_and_drivable_interval():

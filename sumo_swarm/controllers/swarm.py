@@ -54,6 +54,7 @@ from sumo_swarm.core.swarming.decision import (
     behaving_interval_s,
     lane_speeds,
     one_platoon,
+    right_lane_free,
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
@@ -80,6 +81,11 @@ log = logging.getLogger(__name__)
 PASS_SINGLY_AFTER = frozenset({"cavs_stranded", "no_progress"})
 # No lane change this close to a place where lane indices shift (see lane_shift_hold) [m].
 LANE_SHIFT_HOLD_M = 40.0
+# The lane to a target's right is free for it (decision.right_lane_free) with nothing from
+# this long [s] at its speed behind it to nothing slower this long ahead of it.
+KEEP_RIGHT_BEHIND_S = 1.0
+KEEP_RIGHT_AHEAD_S = 4.0
+KEEP_RIGHT_CLOSING_S = 8.0  # ... and no faster vehicle there reaching it within this long [s]
 # No CAV moves into a lane that ends within this many seconds at its speed (at least
 # LANE_END_MIN_M ahead); a CAV whose lane ends within LANE_END_ESCAPE_S heads out of it.
 LANE_END_HOLD_S = 12.0
@@ -139,6 +145,7 @@ class SwarmController:
         self.prediction: tuple[float, Any] | None = None
         self._models: dict[str, tuple[str | None, DriverModel]] = {}
         self._no_gain_target: str | None = None
+        self._keep_right_target: str | None = None
         self._target_lane: tuple[str | None, int] | None = None
 
     # ------------------------------------------------------------------ set-up
@@ -327,7 +334,32 @@ class SwarmController:
             candidate = None
         if candidate is not None and not self._side_lane_pays(leader, candidate, states):
             candidate = None
-        return self.watch.update(t_s, candidate)
+        wait_s = 0.0
+        if candidate is not None and self._may_keep_right(candidate, states):
+            wait_s = sw.keep_right_wait_s
+        return self.watch.update(t_s, candidate, wait_s)
+
+    def _may_keep_right(self, target: VehicleState, states) -> bool:
+        """Will ``target`` soon move to the lane on its right of its own accord (a driver that
+        keeps right, with that lane free)? An event says so once per target."""
+        sc = self.ctx.scenario
+        if sc.swarm.keep_right_wait_s <= 0.0:
+            return False
+        keeps_right = getattr(self.ctx.session, "keeps_right", None)
+        try:
+            if keeps_right is None or not keeps_right(target.vehicle_id):
+                return False
+        except Exception:  # vanished, or TraCI cannot tell: do not wait
+            return False
+        free = right_lane_free(
+            target, states.values(), self.ctx.road, behind_s=KEEP_RIGHT_BEHIND_S,
+            ahead_s=KEEP_RIGHT_AHEAD_S, closing_s=KEEP_RIGHT_CLOSING_S, min_gap_m=sc.cav.min_gap_m,
+        )  # fmt: skip
+        if free and self._keep_right_target != target.vehicle_id:
+            self._keep_right_target = target.vehicle_id
+            self.ctx.event("target_may_keep_right", target=target.vehicle_id,
+                           wait_s=sc.swarm.keep_right_wait_s)  # fmt: skip
+        return free
 
     def _decision_leader(self, states, platoon: list[str]) -> str:
         """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.

@@ -166,6 +166,7 @@ class SumoSession:
         self._open = False
         self._owned = True
         self._driver_types: dict[str, DriverModel] = {}
+        self._keeps_right: dict[str, bool] = {}
         self._driver_models: dict[str, tuple[str, DriverModel]] = {}
 
     @classmethod
@@ -422,6 +423,20 @@ class SumoSession:
         if lane_change_mode is not None:
             return self._command(vid, vehicle.setLaneChangeMode, lane_change_mode)
         return True
+
+    def keeps_right(self, vid: str) -> bool:
+        """Does ``vid``'s lane-change model keep right: its lcKeepRight above 0 and its
+        lane-change mode allowing right-drive changes (bits 6-7)? Read once per vehicle."""
+        cached = self._keeps_right.get(vid)
+        if cached is None:
+            vehicle = self.api.vehicle
+            try:
+                eager = float(vehicle.getParameter(vid, "laneChangeModel.lcKeepRight") or 0.0)
+            except ValueError:  # a lane-change model without the parameter
+                eager = 0.0
+            cached = eager > 0.0 and (vehicle.getLaneChangeMode(vid) >> 6) & 3 != 0
+            self._keeps_right[vid] = cached
+        return cached
 
     def speed_limits(self, vid: str) -> tuple[float, float]:
         """(vType maxSpeed, speed allowed on its lane with its speedFactor) of a vehicle [m/s]."""

@@ -7,7 +7,8 @@
 * :func:`lane_speeds` estimates how fast the platoon could drive in each lane (the lanes it
   would pass in, or re-form in), from the vehicles seen ahead.
 * :class:`TargetWatch` turns a candidate into a decision once it has held the leader back for
-  ``trigger_after_s``, and keeps the swarm from deciding again during a cool-down.
+  ``trigger_after_s`` (longer for one about to keep right: :func:`right_lane_free`), and keeps
+  the swarm from deciding again during a cool-down.
 * :func:`stopped_blocking` says why a target no longer needs overtaking (it left the swarm's
   lane, sped up, or vanished).
 * :class:`Progress` measures a manoeuvre (CAVs past the target, rows gained) and says when it
@@ -129,6 +130,42 @@ def slow_vehicle_ahead(
     return vehicle
 
 
+def right_lane_free(
+    target: VehicleState,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    *,
+    behind_s: float,
+    ahead_s: float,
+    closing_s: float,
+    min_gap_m: float,
+) -> bool:
+    """Is the lane to the right of ``target`` free for it to move into? Nothing there alongside
+    it, no follower within ``behind_s`` [s] of its own speed (plus ``min_gap_m``) or reaching it
+    within ``closing_s`` [s], and nothing slower than it within ``ahead_s`` [s] at its speed
+    ahead. A driver that keeps right (SUMO's default drivers do) moves over then. False where
+    there is no lane to its right."""
+    lane = road.lane_of_y(road.y_of(target.lane, target.lat_m))
+    if lane == 0:
+        return False
+    v = target.speed_mps
+    for other in others:
+        if other.vehicle_id == target.vehicle_id:
+            continue
+        if road.lane_of_y(road.y_of(other.lane, other.lat_m)) != lane - 1:
+            continue
+        if other.s_m <= target.rear_s_m:  # behind it
+            gap = target.rear_s_m - other.s_m
+            closing = max(0.0, other.speed_mps - v)
+            if gap < min_gap_m + behind_s * other.speed_mps + closing_s * closing:
+                return False
+        elif other.rear_s_m <= target.s_m + min_gap_m:  # alongside
+            return False
+        elif other.rear_s_m - target.s_m < min_gap_m + ahead_s * v and other.speed_mps < v:
+            return False  # a slower vehicle ahead there: moving over gains the driver nothing
+    return True
+
+
 @dataclass
 class TargetWatch:
     """Persistence of the overtaking decision, and the cool-down after a give-up."""
@@ -138,14 +175,17 @@ class TargetWatch:
     since_s: float | None = None
     cooldown_until_s: float = -math.inf
 
-    def update(self, t_s: float, candidate: VehicleState | None) -> VehicleState | None:
-        """The target once the same candidate has held the platoon back long enough."""
+    def update(
+        self, t_s: float, candidate: VehicleState | None, wait_s: float = 0.0
+    ) -> VehicleState | None:
+        """The target once the same candidate has held the platoon back long enough
+        (``trigger_after_s``, or ``wait_s`` [s] if longer)."""
         if candidate is None or t_s < self.cooldown_until_s:
             self.candidate_id = self.since_s = None
             return None
         if candidate.vehicle_id != self.candidate_id:
             self.candidate_id, self.since_s = candidate.vehicle_id, t_s
-        if t_s - self.since_s + 1e-9 < self.trigger_after_s:
+        if t_s - self.since_s + 1e-9 < max(self.trigger_after_s, wait_s):
             return None
         return candidate
 
