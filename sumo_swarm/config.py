@@ -352,6 +352,15 @@ class SwarmSettings:
     # the give-up the CAVs past drive on and the ones behind pass on their own, through the
     # guards (a 3-lane road at 900 veh/h/lane: two CAVs stranded from 14 s to 42 s).
     give_up_stranded_plans: int = 2
+    # Give up once this many fresh plans in a row keep every CAV still behind the target in
+    # its cell for the first give_up_waiting_s [s] (0 = never; reason "no_way_past"): the cell
+    # planner sees a gap only that far ahead, if at all. Where a plan waited 24 s for a gap in
+    # a stream 6 m/s faster than the target, the swarm gave up after 18 s without progress and
+    # the CAVs then passed one by one through the guards within 5 s (stress v2: 27 first plans
+    # waited 12 s or more; 25 of them ended in no_progress, 6 regrouped). While a plan waits
+    # the swarm asks again every behaving interval (HVs entering the grid bring new gaps).
+    give_up_waiting_plans: int = 2
+    give_up_waiting_s: float = 12.0
     give_up_no_plan_s: float = 10.0
     cooldown_s: float = 15.0
     # After a give-up for no progress or stranded CAVs (not after failed plans: the platoon
@@ -389,8 +398,12 @@ class SwarmSettings:
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
             "cooldown_s", "pass_singly_s", "max_block_s", "prediction_error_m",
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
-            "hold_episode_s", "max_pass_s", "keep_right_wait_s",
+            "hold_episode_s", "max_pass_s", "keep_right_wait_s", "give_up_waiting_s",
         )  # fmt: skip
+        if self.give_up_waiting_plans < 0:
+            raise ConfigError(
+                f"give_up_waiting_plans must be >= 0, got {self.give_up_waiting_plans}"
+            )
         if self.give_up_stranded_plans < 0:
             raise ConfigError(
                 f"give_up_stranded_plans must be >= 0, got {self.give_up_stranded_plans}"

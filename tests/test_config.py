@@ -45,6 +45,8 @@ def test_paper_scenario_holds_section_iv_c(paper_path):
         ("[hvmodel]\nplanner_share = 1.5\n", "planner_share must be <= 1"),
         ("[swarm]\ngive_up_no_progress_intervals = 0\n", "give_up_no_progress_intervals"),
         ("[swarm]\ngive_up_partial_intervals = 0\n", "give_up_partial_intervals"),
+        ("[swarm]\ngive_up_waiting_plans = -1\n", "give_up_waiting_plans must be >= 0"),
+        ("[swarm]\nkeep_right_wait_s = -1\n", "keep_right_wait_s"),
         ('[cell]\nrule = "fixed"\ncell_length_m = 2.0\n', "must be at least as long as a CAV"),
         ("[bogus]\nx = 1\n", "unknown section '[bogus]'"),
         ("[evaluation]\nend_s = 500.0\n", "is after simulation.duration_s"),

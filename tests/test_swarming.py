@@ -21,6 +21,7 @@ from sumo_swarm.core.swarming.decision import (
     speed_cap_mps,
     stopped_blocking,
     stranded_cavs,
+    waiting_plan,
 )
 from sumo_swarm.core.swarming.guards import GuardSettings, gap_accel_limit, lateral_refusal
 from sumo_swarm.core.swarming.planlog import PlanLog
@@ -185,6 +186,35 @@ def test_a_plan_that_keeps_cavs_in_their_cells_strands_them():
     assert stranded_cavs(cells, ["c2", "c3", "c4"]) == {"c2"}
     assert stranded_cavs(cells, ["c0", "c2"]) == {"c0", "c2"}  # whoever the caller says is behind
     assert stranded_cavs(cells, ["gone"]) == set()
+
+
+def test_a_plan_that_keeps_every_cav_behind_in_its_cell_for_a_while_waits():
+    cells = {
+        "c0": [(7, 1), (7, 1), (8, 1), (8, 1), (8, 1)],  # past: not behind, does not count
+        "c1": [(2, 0), (2, 0), (2, 0), (2, 0), (3, 1)],  # moves at step 4
+        "c2": [(1, 0), (1, 0), (1, 0), (2, 0), (2, 0)],  # moves at step 3
+    }
+    assert waiting_plan(cells, ["c1", "c2"], steps=2)  # steps 0-2 all in place
+    assert not waiting_plan(cells, ["c1", "c2"], steps=3)  # c2 moves up a row at step 3
+    assert waiting_plan(cells, ["c1"], steps=3)
+    assert not waiting_plan(cells, ["c1"], steps=4)  # it cuts out at step 4
+    # A horizon shorter than the wait: in place to its end (an idle plan) is waiting
+    assert waiting_plan({"c3": [(0, 0)] * 3}, ["c3"], steps=9)
+    assert not waiting_plan(cells, [], steps=2)  # none behind: nothing waits
+    assert not waiting_plan(cells, ["gone"], steps=2)
+
+
+def test_waiting_plans_give_up_after_the_configured_number():
+    p = Progress(started_s=0.0)
+    kw = dict(no_progress_s=99.0, no_plan_s=99.0, has_plan=True, waiting_plans=2)
+    p.plan_waits(True)
+    assert p.give_up_reason(3.0, **kw) is None  # one plan in a row
+    p.plan_waits(True)
+    assert p.give_up_reason(6.0, **kw) == "no_way_past"
+    assert p.give_up_reason(6.0, **{**kw, "waiting_plans": 0}) is None  # switched off
+    p.plan_waits(False)  # a plan that moves someone now starts the count again
+    p.plan_waits(True)
+    assert p.give_up_reason(9.0, **kw) is None
 
 
 def test_plans_stranding_some_cavs_give_up_after_the_configured_number():

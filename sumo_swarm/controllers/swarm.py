@@ -59,6 +59,7 @@ from sumo_swarm.core.swarming.decision import (
     speed_cap_mps,
     stopped_blocking,
     stranded_cavs,
+    waiting_plan,
 )
 from sumo_swarm.core.swarming.guards import (
     entering_lane,
@@ -78,7 +79,7 @@ log = logging.getLogger(__name__)
 # Give-ups after which the CAVs pass the target one by one ([swarm] pass_singly_s): plans that
 # found no way past together. A planner that fails (no_feasible_plan) leaves the platoon behind
 # the target, the safe fallback.
-PASS_SINGLY_AFTER = frozenset({"cavs_stranded", "no_progress"})
+PASS_SINGLY_AFTER = frozenset({"cavs_stranded", "no_progress", "no_way_past"})
 # No lane change this close to a place where lane indices shift (see lane_shift_hold) [m].
 LANE_SHIFT_HOLD_M = 40.0
 # The lane to a target's right is free for it (decision.right_lane_free) with nothing from
@@ -278,6 +279,7 @@ class SwarmController:
                     partial_s=sc.swarm.give_up_partial_intervals * interval,
                     n_cavs=len(cavs),
                     stranding_plans=sc.swarm.give_up_stranded_plans,
+                    waiting_plans=sc.swarm.give_up_waiting_plans,
                 )
                 if give_up is not None:
                     self._finish(t_s, completed=False, reason=give_up)
@@ -596,6 +598,8 @@ class SwarmController:
                     # lane) bring new gaps, so ask again each interval (a 2-lane scene held a
                     # do-nothing plan for 18 s, then gave up, while gaps passed by).
                     reason = "idle_plan"
+                elif self._still_waiting(t_s, states):
+                    reason = "waiting_plan"  # the same for a gap it sees far ahead in time
         elif self.plan is None and self.trigger.plan is not None:
             reason = self.trigger.check(t_s, {}, ())  # "initial" once the retry time has passed
         if reason is None or t_s < self.replan_not_before_s:
@@ -606,6 +610,18 @@ class SwarmController:
         if reason not in URGENT_TRIGGERS and t_s - self.last_plan_s < min_gap:
             return
         self._replan(t_s, reason, states, platoon)
+
+    def _still_waiting(self, t_s: float, states) -> bool:
+        """Does the rest of the plan keep every CAV behind the target waiting (see
+        :func:`waiting_plan`)? Only counted when ``[swarm] give_up_waiting_plans`` is on."""
+        target = states.get(self.target_id)
+        if not self.ctx.scenario.swarm.give_up_waiting_plans or target is None or not self.plan.ok:
+            return False
+        step = max(self.trigger.current_step(t_s), 0)
+        line = target.s_m + self.ctx.scenario.cav.min_gap_m
+        behind = [v for v in self.plan.cav_ids if v in states and states[v].rear_s_m < line]
+        cells = {v: self.plan.cells_of(v)[step:] for v in self.plan.cav_ids}
+        return waiting_plan(cells, behind, self._waiting_steps())
 
     def _prediction_off(self, t_s: float, states, in_grid: list[str]) -> bool:
         """Is an HV in the grid (``in_grid``) farther from where the last plan predicted it than
@@ -708,13 +724,20 @@ class SwarmController:
         self.progress.planned(t_s)
         line = target.s_m + sc.cav.min_gap_m
         behind = [cav.vehicle_id for cav in cavs if cav.rear_s_m < line]
-        stranded = stranded_cavs(dict(zip(plan.cav_ids, plan.cells, strict=True)), behind)
-        self.progress.plan_strands(stranded, len(cavs))
+        cells = dict(zip(plan.cav_ids, plan.cells, strict=True))
+        self.progress.plan_strands(stranded_cavs(cells, behind), len(cavs))
+        self.progress.plan_waits(waiting_plan(cells, behind, self._waiting_steps()))
         for blocker in outcome.problem.blockers:
             self.blocked_since_s.setdefault(blocker.hv_id, t_s)
             until = t_s + (blocker.hold_steps + 1) * interval
             self.blocked_until_s[blocker.hv_id] = max(self.blocked_until_s.get(blocker.hv_id, 0.0),
                                                       until)  # fmt: skip
+
+    def _waiting_steps(self) -> int:
+        """Behaving steps in ``[swarm] give_up_waiting_s`` (a plan that keeps every CAV
+        behind the target in its cell that long waits)."""
+        interval = self.interval_s or self.planner_settings.behaving_interval_s
+        return max(1, math.ceil(self.ctx.scenario.swarm.give_up_waiting_s / interval - 1e-9))
 
     def _cav_ahead_of(self, target: VehicleState, states: dict[str, VehicleState]) -> bool:
         """Is a CAV the vehicle right ahead of the target, within three cells?"""

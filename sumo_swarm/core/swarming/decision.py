@@ -234,6 +234,7 @@ class Progress:
     best_out: int = 0
     failing: bool = False  # the replans since the last usable plan all failed
     stranding_plans: int = 0  # fresh plans in a row that leave CAVs behind the target for good
+    waiting_plans: int = 0  # fresh plans in a row that keep every CAV behind it waiting
     stranded: frozenset[str] = frozenset()  # the CAVs the last of them left behind
 
     def update(
@@ -275,6 +276,11 @@ class Progress:
         self.stranding_plans = self.stranding_plans + 1 if keeps else 1
         self.stranded = now
 
+    def plan_waits(self, waiting: bool) -> None:
+        """A fresh plan keeps (``waiting``) or does not keep every CAV still behind the
+        target in its cell for a while (see :func:`waiting_plan`)."""
+        self.waiting_plans = self.waiting_plans + 1 if waiting else 0
+
     def failed(self) -> None:
         """A replan failed (the last plan may still be driven while it lasts)."""
         self.failing = True
@@ -288,16 +294,20 @@ class Progress:
         partial_s: float | None = None,
         n_cavs: int | None = None,
         stranding_plans: int = 0,
+        waiting_plans: int = 0,
     ) -> str | None:
         """``"no_progress"``, ``"no_feasible_plan"`` or ``"cavs_stranded"`` when it is time to
         give up: no plan, or only failed replans, for ``no_plan_s`` since the last usable one;
         no progress for ``no_progress_s``, or for ``partial_s`` once some but not all of the
         ``n_cavs`` CAVs have been past the target; ``stranding_plans`` fresh plans in a row
-        (0: never) that leave some CAVs behind the target for good."""
+        (0: never) that leave some CAVs behind the target for good; ``"no_way_past"`` after
+        ``waiting_plans`` fresh plans in a row (0: never) that keep them all waiting."""
         if (not has_plan or self.failing) and t_s - self.last_plan_ok_s > no_plan_s:
             return "no_feasible_plan"
         if stranding_plans > 0 and self.stranding_plans >= stranding_plans:
             return "cavs_stranded"
+        if waiting_plans > 0 and self.waiting_plans >= waiting_plans:
+            return "no_way_past"
         limit = no_progress_s
         if partial_s is not None and n_cavs is not None and 0 < self.best_past < n_cavs:
             limit = min(limit, partial_s)
@@ -313,6 +323,18 @@ def stranded_cavs(cells: Mapping[str, Sequence[Sequence[int]]], behind: Iterable
         vid for vid in behind
         if vid in cells and all(tuple(cell) == tuple(cells[vid][0]) for cell in cells[vid])
     }  # fmt: skip
+
+
+def waiting_plan(
+    cells: Mapping[str, Sequence[Sequence[int]]], behind: Iterable[str], steps: int
+) -> bool:
+    """Does a plan keep every CAV of ``behind`` (still behind the target) in its cell, row and
+    lane, for its first ``steps`` behaving steps (or its whole horizon, if shorter)? With none
+    behind, it does not wait."""
+    planned = [cells[vid] for vid in behind if vid in cells]
+    return bool(planned) and all(
+        all(tuple(cell) == tuple(seq[0]) for cell in seq[: steps + 1]) for seq in planned
+    )
 
 
 # A platoon again: bumper gaps between consecutive CAVs up to this many desired gaps (the
