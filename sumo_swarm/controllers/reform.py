@@ -25,8 +25,6 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers.cacc import cacc_accel
 from sumo_swarm.core.hvmodel import DriverModel
@@ -36,6 +34,11 @@ from sumo_swarm.core.swarming.decision import lane_speeds
 from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal
 
 Move = tuple[float, float]  # (lateral move [m], acceleration bound [m/s^2])
+
+
+def clip(x: float, bound: float) -> float:
+    """``x`` within ``[-bound, bound]`` (numpy's clip costs 40 us a call, every step)."""
+    return min(max(x, -bound), bound)
 
 
 def lane_index(road: RoadSection, vehicle: VehicleState) -> int:
@@ -208,13 +211,13 @@ class Reformer:
         lane_now = road.lane_of_y(y)
         others = list(states.values())
         if lane_now == lane:
-            centre = float(np.clip(road.lane_centre_y(lane) - y, -step, step))
+            centre = clip(road.lane_centre_y(lane) - y, step)
             escape = self.escape(ego, centre, step)
             if escape == centre:
                 return centre, math.inf
             lane = lane_now + (1 if escape > 0 else -1)  # its lane ends: out of it first
         y_next = road.lane_centre_y(lane_now + (1 if lane > lane_now else -1))
-        dlat = float(np.clip(y_next - y, -step, step))
+        dlat = clip(y_next - y, step)
         refusal = lateral_refusal(
             ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
             model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
@@ -225,7 +228,7 @@ class Reformer:
         if ahead is not None:
             accel = self._follow_gently(ego, *ahead)
         if self.hold(ego, y, dlat):  # back to the lane centre: never straddle two lanes there
-            dlat = float(np.clip(road.lane_centre_y(lane_now) - y, -step, step))
+            dlat = clip(road.lane_centre_y(lane_now) - y, step)
         elif refusal is not None:
             dlat = 0.0
         limit = gap_accel_limit(

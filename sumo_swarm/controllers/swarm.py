@@ -33,11 +33,9 @@ from collections.abc import Iterable
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-
 from sumo_swarm.controllers.base import RouteWatch, RunContext
 from sumo_swarm.controllers.cacc import command_cacc
-from sumo_swarm.controllers.reform import Reformer, lane_index
+from sumo_swarm.controllers.reform import Reformer, clip, lane_index
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
@@ -827,7 +825,7 @@ class SwarmController:
             dlat = 0.0 if refusal or waits_for is not None else cmd.dlat_m
             if shift:  # back to the lane centre: never straddle two lanes near the junction
                 step = sc.cav.max_lateral_speed_mps * dt
-                dlat = float(np.clip(road.lane_centre_y(road.lane_of_y(y)) - y, -step, step))
+                dlat = clip(road.lane_centre_y(road.lane_of_y(y)) - y, step)
             self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)
             self.tracker.commit(ego, cmd, dlat != cmd.dlat_m, road, dt)
             accel = cmd.accel_mps2

@@ -238,9 +238,11 @@ def peak_braking(
     gap_m: float,
     step_s: float = 0.1,
     horizon_s: float = 60.0,
+    limit: float = math.inf,
 ) -> float:
     """Strongest deceleration [m/s^2, >= 0] over the driver's whole reaction to a leader that
-    enters at bumper gap ``gap_m`` and keeps ``v_lead_mps``.
+    enters at bumper gap ``gap_m`` and keeps ``v_lead_mps`` (any value above ``limit`` once it
+    exceeds it, see :func:`_reaction_peak`).
 
     The instantaneous :func:`braking_needed` is not enough: closing in on a slower leader, the
     driver may brake harder a few steps later than at first. The reaction is simulated with
@@ -254,7 +256,7 @@ def peak_braking(
     # The entry step is SUMO's; the rest of the reaction is simulated in steps of at least
     # 0.1 s to bound the cost, the model evaluated over the same coarser step (holding a
     # short step's Krauss deceleration for longer would overshoot its safe speed).
-    return _reaction_peak(m, v, v_lead_mps, v_lead_mps, 0.0, gap, step_s, horizon_s)
+    return _reaction_peak(m, v, v_lead_mps, v_lead_mps, 0.0, gap, step_s, horizon_s, limit)
 
 
 def _reaction_peak(
@@ -266,9 +268,12 @@ def _reaction_peak(
     gap: float,
     step_s: float,
     horizon_s: float,
+    limit: float = math.inf,
 ) -> float:
     """Strongest braking of a driver reacting to a leader that enters at ``gap`` driving
-    ``v_lead`` and slows at ``lead_decel`` to ``v_final`` (0: keeps its speed)."""
+    ``v_lead`` and slows at ``lead_decel`` to ``v_final`` (0: keeps its speed). Once it
+    exceeds ``limit`` the reaction is not followed further (the answer is then some braking
+    above ``limit``: enough for a yes/no against it, at a fraction of the cost)."""
     sim_dt = max(step_s, 0.1)
     peak = previous = 0.0
     closed_steps = 0
@@ -276,6 +281,8 @@ def _reaction_peak(
         acc = model_accel(m, v, v_lead, gap, step_s if k == 0 else sim_dt)
         braking = max(0.0, -acc)
         peak = max(peak, braking)
+        if peak > limit:
+            break
         settled = v_lead <= v_final + 1e-9
         closed = k > 0 and settled and v <= v_lead + _CLOSED_MPS
         if closed and braking <= previous:
@@ -318,7 +325,7 @@ def min_entry_gap(
         return braking_needed(m, v_mps, v_lead_mps, gap, step_s) <= b_safe_mps2
 
     def peak_ok(gap: float) -> bool:
-        return peak_braking(m, v_mps, v_lead_mps, gap, step_s) <= b_safe_mps2
+        return peak_braking(m, v_mps, v_lead_mps, gap, step_s, limit=b_safe_mps2) <= b_safe_mps2
 
     # The peak is at least the braking at entry, and most often equal to it: search with the
     # cheap instantaneous braking first, then go on with the peak only where it is larger.
@@ -368,7 +375,10 @@ def accepts_entry(
     """Whether a vehicle entering ahead at bumper gap ``gap_m`` and speed ``v_lead_mps`` makes
     this driver brake no harder than ``b_safe_mps2`` over its reaction (:func:`peak_braking`),
     outside its minGap (as :func:`min_entry_gap`)."""
-    return gap_m >= m.min_gap_m and peak_braking(m, v_mps, v_lead_mps, gap_m, step_s) <= b_safe_mps2
+    return (
+        gap_m >= m.min_gap_m
+        and peak_braking(m, v_mps, v_lead_mps, gap_m, step_s, limit=b_safe_mps2) <= b_safe_mps2
+    )
 
 
 # ---------------------------------------------------------------------- many drivers at once
@@ -620,15 +630,16 @@ def peak_braking_behind_slowing(
     gap_m: float,
     step_s: float = 0.1,
     horizon_s: float = 20.0,
+    limit: float = math.inf,
 ) -> float:
     """Strongest deceleration [m/s^2, >= 0] of this driver behind a leader that enters at
     bumper gap ``gap_m`` driving ``v_lead_mps`` and then slows at ``lead_decel_mps2`` to
     ``v_final_mps`` (a blocker: it matches the lane's speed, then brings the lane down to the
-    swarm's speed gently)."""
+    swarm's speed gently); any value above ``limit`` once it exceeds it."""
     v_lead = max(0.0, v_lead_mps)
     final = min(v_final_mps, v_lead)
     return _reaction_peak(
-        m, max(0.0, v_mps), v_lead, final, lead_decel_mps2, gap_m, step_s, horizon_s
+        m, max(0.0, v_mps), v_lead, final, lead_decel_mps2, gap_m, step_s, horizon_s, limit
     )
 
 
@@ -651,7 +662,14 @@ def min_block_gap(
     def ok(gap: float) -> bool:
         return (
             peak_braking_behind_slowing(
-                m, v_mps, v_lead_mps, v_final_mps, lead_decel_mps2, gap, step_s
+                m,
+                v_mps,
+                v_lead_mps,
+                v_final_mps,
+                lead_decel_mps2,
+                gap,
+                step_s,
+                limit=b_safe_mps2,
             )
             <= b_safe_mps2
         )

@@ -29,22 +29,25 @@ def _nearest(
     width_m: float,
     ahead: bool,
 ) -> tuple[VehicleState, float] | None:
+    # Called several times per CAV and step over every vehicle around: locals, and the cheap
+    # longitudinal test first.
     ego_y = road.y_of(ego.lane, ego.lat_m) if y_m is None else y_m
+    ego_s, ego_id = ego.s_m, ego.vehicle_id
+    y_of = road.y_of
     best: tuple[VehicleState, float] | None = None
     for other in others:
-        if other.vehicle_id == ego.vehicle_id or (other.s_m > ego.s_m) != ahead:
+        s = other.s_m
+        if s == ego_s or (s > ego_s) != ahead or other.vehicle_id == ego_id:
             continue
-        drifting = not other.is_cav and abs(other.lat_m) > CUT_IN_LAT_M
         # Both half-widths (a truck is wider than a car) and SUMO's sublane granularity: with
         # the sublane model a vehicle occupies every sublane it touches, so SUMO sees a leader
         # (and brakes for it) a little before the two bodies overlap.
         band = 0.5 * (width_m + other.width_m) + SUBLANE_MARGIN_M
-        band += CUT_IN_EXTRA_WIDTH_M if drifting else 0.0
-        if other.s_m == ego.s_m or not lateral_overlap(
-            ego_y, road.y_of(other.lane, other.lat_m), band
-        ):
+        if not other.is_cav and abs(other.lat_m) > CUT_IN_LAT_M:  # drifting: cutting in
+            band += CUT_IN_EXTRA_WIDTH_M
+        if not abs(ego_y - y_of(other.lane, other.lat_m)) < band:
             continue
-        gap = other.rear_s_m - ego.s_m if ahead else ego.rear_s_m - other.s_m
+        gap = other.rear_s_m - ego_s if ahead else ego.rear_s_m - s
         if best is None or gap < best[1]:
             best = (other, gap)
     return best
