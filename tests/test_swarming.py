@@ -17,6 +17,7 @@ from sumo_swarm.core.swarming.decision import (
     lane_speeds,
     one_platoon,
     right_lane_free,
+    secure_gap_m,
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
@@ -87,20 +88,30 @@ def test_target_watch_waits_longer_for_a_target_about_to_keep_right():
 
 
 def free(truck, *others):
-    return right_lane_free(truck, [truck, *others], ROAD, behind_s=1.0, ahead_s=4.0,
-                           closing_s=8.0, min_gap_m=2.0)  # fmt: skip
+    # Followers with SUMO's secure gap at headway 1 s and deceleration 2 m/s^2
+    return right_lane_free(
+        truck, [truck, *others], ROAD, move_s=8.0, ahead_s=4.0, min_gap_m=2.0,
+        secure_gap=lambda f, v: secure_gap_m(1.0, 2.0, f.speed_mps, v),
+    )  # fmt: skip
+
+
+def test_secure_gap_hand_computed():
+    assert secure_gap_m(1.0, 2.0, 20.0, 15.0) == pytest.approx(20.0 + (400 - 225) / 4.0)
+    assert secure_gap_m(1.2, 4.5, 20.0, 10.0) == pytest.approx(24.0 + (400 - 100) / 9.0)
+    assert secure_gap_m(1.2, 4.5, 10.0, 20.0) == 0.0  # the leader pulls away faster
+    assert secure_gap_m(0.0, 4.5, 10.0, 10.0) == 0.0
 
 
 def test_right_lane_free_hand_computed():
     truck = car("truck", 200.0, 1, 15.0, length=12.0)  # rear at 188 m
     assert free(truck)
     assert not free(car("truck", 200.0, 0, 15.0))  # no lane on its right
-    # Behind in lane 0 at its speed: free from 2 + 1 s * 15 = 17 m behind its rear (171 m)
+    # Behind in lane 0 at its speed: secure gap 1 s * 15 = 15 m, plus 2: free from 171 m back
     assert free(truck, car("a", 170.9, 0, 15.0))
     assert not free(truck, car("a", 171.1, 0, 15.0))
-    # 5 m/s faster: also 8 s * 5 m/s = 40 m more (2 + 20 + 40 = 62 m behind: 126 m)
-    assert free(truck, car("a", 125.9, 0, 20.0))
-    assert not free(truck, car("a", 126.1, 0, 20.0))
+    # 5 m/s faster: 40 m closer in 8 s, secure gap 20 + 43.75 m: free from 188 - 105.75 m
+    assert free(truck, car("a", 82.2, 0, 20.0))
+    assert not free(truck, car("a", 82.3, 0, 20.0))
     assert not free(truck, car("a", 195.0, 0, 15.0))  # alongside
     # Ahead: a slower one within 2 + 4 s * 15 = 62 m of its front holds it (rear < 262 m)
     assert not free(truck, car("b", 266.0, 0, 14.0))  # rear at 261 m

@@ -53,6 +53,7 @@ from sumo_swarm.core.swarming.decision import (
     lane_speeds,
     one_platoon,
     right_lane_free,
+    secure_gap_m,
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
@@ -80,11 +81,13 @@ log = logging.getLogger(__name__)
 PASS_SINGLY_AFTER = frozenset({"cavs_stranded", "no_progress", "no_way_past"})
 # No lane change this close to a place where lane indices shift (see lane_shift_hold) [m].
 LANE_SHIFT_HOLD_M = 40.0
-# The lane to a target's right is free for it (decision.right_lane_free) with nothing from
-# this long [s] at its speed behind it to nothing slower this long ahead of it.
-KEEP_RIGHT_BEHIND_S = 1.0
+# A keep-right driver starts moving over this long [s] after the lane to its right is free
+# for it (SUMO's LC2013/SL2015: the wish builds over KEEP_RIGHT_TIME = 5 s at lcKeepRight 1),
+# if the follower there is then at least at its secure gap; the swarm waits for it only where
+# that holds with the follower closing in at its speed till then (decision.right_lane_free),
+# and nothing slower is within KEEP_RIGHT_AHEAD_S [s] ahead there.
+KEEP_RIGHT_MOVE_S = 5.0
 KEEP_RIGHT_AHEAD_S = 4.0
-KEEP_RIGHT_CLOSING_S = 8.0  # ... and no faster vehicle there reaching it within this long [s]
 # No CAV moves into a lane that ends within this many seconds at its speed (at least
 # LANE_END_MIN_M ahead); a CAV whose lane ends within LANE_END_ESCAPE_S heads out of it.
 LANE_END_HOLD_S = 12.0
@@ -339,6 +342,15 @@ class SwarmController:
             wait_s = sw.keep_right_wait_s
         return self.watch.update(t_s, candidate, wait_s)
 
+    def _secure_gap(self, follower: VehicleState, v_lead_mps: float) -> float:
+        """SUMO's secure gap [m] of ``follower`` (an HV by its own model; a CAV by the swarm's
+        braking) behind a vehicle at ``v_lead_mps``."""
+        if follower.is_cav:
+            cav = self.ctx.scenario.cav
+            return secure_gap_m(0.0, -cav.accel_min_mps2, follower.speed_mps, v_lead_mps)
+        model = self.model_of(follower.vehicle_id)
+        return secure_gap_m(model.tau_s, model.decel_mps2, follower.speed_mps, v_lead_mps)
+
     def _may_keep_right(self, target: VehicleState, states) -> bool:
         """Will ``target`` soon move to the lane on its right of its own accord (a driver that
         keeps right, with that lane free)? An event says so once per target."""
@@ -352,8 +364,8 @@ class SwarmController:
         except Exception:  # vanished, or TraCI cannot tell: do not wait
             return False
         free = right_lane_free(
-            target, states.values(), self.ctx.road, behind_s=KEEP_RIGHT_BEHIND_S,
-            ahead_s=KEEP_RIGHT_AHEAD_S, closing_s=KEEP_RIGHT_CLOSING_S, min_gap_m=sc.cav.min_gap_m,
+            target, states.values(), self.ctx.road, move_s=KEEP_RIGHT_MOVE_S,
+            ahead_s=KEEP_RIGHT_AHEAD_S, min_gap_m=sc.cav.min_gap_m, secure_gap=self._secure_gap,
         )  # fmt: skip
         if free and self._keep_right_target != target.vehicle_id:
             self._keep_right_target = target.vehicle_id

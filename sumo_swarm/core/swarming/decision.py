@@ -135,16 +135,18 @@ def right_lane_free(
     others: Iterable[VehicleState],
     road: RoadSection,
     *,
-    behind_s: float,
+    move_s: float,
     ahead_s: float,
-    closing_s: float,
     min_gap_m: float,
+    secure_gap: Callable[[VehicleState, float], float],
 ) -> bool:
-    """Is the lane to the right of ``target`` free for it to move into? Nothing there alongside
-    it, no follower within ``behind_s`` [s] of its own speed (plus ``min_gap_m``) or reaching it
-    within ``closing_s`` [s], and nothing slower than it within ``ahead_s`` [s] at its speed
-    ahead. A driver that keeps right (SUMO's default drivers do) moves over then. False where
-    there is no lane to its right."""
+    """Will the lane to the right of ``target`` stay free for it to move into within
+    ``move_s`` [s] (the time a keep-right driver takes to decide and move over)? Nothing there
+    alongside it; every follower there, closing in at its speed for ``move_s``, still at least
+    ``min_gap_m`` plus its ``secure_gap(follower, target speed)`` [m] behind it (SUMO lets a
+    driver change lanes only in front of a follower at its secure gap); and nothing slower
+    than it within ``ahead_s`` [s] at its speed ahead (moving over would gain it nothing).
+    False where there is no lane to its right."""
     lane = road.lane_of_y(road.y_of(target.lane, target.lat_m))
     if lane == 0:
         return False
@@ -155,15 +157,22 @@ def right_lane_free(
         if road.lane_of_y(road.y_of(other.lane, other.lat_m)) != lane - 1:
             continue
         if other.s_m <= target.rear_s_m:  # behind it
-            gap = target.rear_s_m - other.s_m
-            closing = max(0.0, other.speed_mps - v)
-            if gap < min_gap_m + behind_s * other.speed_mps + closing_s * closing:
+            gap = target.rear_s_m - other.s_m - max(0.0, other.speed_mps - v) * move_s
+            if gap < min_gap_m + secure_gap(other, v):
                 return False
         elif other.rear_s_m <= target.s_m + min_gap_m:  # alongside
             return False
-        elif other.rear_s_m - target.s_m < min_gap_m + ahead_s * v and other.speed_mps < v:
-            return False  # a slower vehicle ahead there: moving over gains the driver nothing
+        elif other.speed_mps < v and other.rear_s_m - target.s_m < min_gap_m + ahead_s * v:
+            return False  # slower ahead there
     return True
+
+
+def secure_gap_m(tau_s: float, decel_mps2: float, v_mps: float, v_lead_mps: float) -> float:
+    """SUMO's secure gap [m] of a follower at ``v_mps`` (headway ``tau_s``, deceleration
+    ``decel_mps2``) behind a leader at ``v_lead_mps``: its headway distance plus the difference
+    of the two braking distances at its deceleration (never negative)."""
+    b = max(decel_mps2, 0.1)
+    return max(0.0, tau_s * v_mps + (v_mps * v_mps - v_lead_mps * v_lead_mps) / (2.0 * b))
 
 
 @dataclass
