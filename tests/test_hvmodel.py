@@ -315,3 +315,20 @@ def test_reaction_with_worst_case_dawdling_ends_early_and_misses_nothing(v, v_le
     assert peak_braking(m, v, v_lead, gap, 0.1) == pytest.approx(
         _peak_by_brute_force(m, v, v_lead, gap, 0.1), abs=1e-9
     )
+
+
+@pytest.mark.parametrize("m", [IDM, KRAUSS], ids=["IDM", "Krauss"])
+def test_a_reaction_followed_until_its_bound_gives_the_same_verdict(m):
+    # peak_braking(..., limit=b) stops once the braking exceeds b: the yes/no against b (what
+    # accepts_entry, min_entry_gap and min_block_gap ask) is the full reaction's, and a peak
+    # that stays within b is the full peak itself.
+    for v, v_lead, gap, b in itertools.product(
+        (8.0, 15.0, 20.0), (5.0, 12.0, 18.0), (3.0, 10.0, 25.0, 60.0), (0.5, 1.0, 2.0)
+    ):
+        full = peak_braking(m, v, v_lead, gap)
+        cut = peak_braking(m, v, v_lead, gap, limit=b)
+        assert (cut <= b) == (full <= b)
+        if full <= b:
+            assert cut == full
+        else:
+            assert b < cut <= full
