@@ -400,23 +400,8 @@ class SwarmSettings:
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s", "max_pass_s", "keep_right_wait_s", "give_up_waiting_s",
         )  # fmt: skip
-        if self.give_up_waiting_plans < 0:
-            raise ConfigError(
-                f"give_up_waiting_plans must be >= 0, got {self.give_up_waiting_plans}"
-            )
-        if self.give_up_stranded_plans < 0:
-            raise ConfigError(
-                f"give_up_stranded_plans must be >= 0, got {self.give_up_stranded_plans}"
-            )
-        if self.give_up_partial_intervals < 1:
-            raise ConfigError(
-                f"give_up_partial_intervals must be >= 1, got {self.give_up_partial_intervals}"
-            )
-        if self.give_up_no_progress_intervals < 1:
-            raise ConfigError(
-                "give_up_no_progress_intervals must be >= 1, got "
-                f"{self.give_up_no_progress_intervals}"
-            )
+        check_non_negative(self, "give_up_waiting_plans", "give_up_stranded_plans")
+        check_fields(self, "give_up_no_progress_intervals", "give_up_partial_intervals", ge=1)
 
 
 @dataclass(frozen=True)

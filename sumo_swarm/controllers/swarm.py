@@ -50,6 +50,8 @@ from sumo_swarm.core.swarming.decision import (
     TargetWatch,
     all_past,
     behaving_interval_s,
+    cavs_behind,
+    keeps_cell,
     lane_speeds,
     one_platoon,
     right_lane_free,
@@ -628,8 +630,8 @@ class SwarmController:
         if not self.ctx.scenario.swarm.give_up_waiting_plans or target is None or not self.plan.ok:
             return False
         step = max(self.trigger.current_step(t_s), 0)
-        line = target.s_m + self.ctx.scenario.cav.min_gap_m
-        behind = [v for v in self.plan.cav_ids if v in states and states[v].rear_s_m < line]
+        planned = [states[v] for v in self.plan.cav_ids if v in states]
+        behind = cavs_behind(target, planned, self.ctx.scenario.cav.min_gap_m)
         cells = {v: self.plan.cells_of(v)[step:] for v in self.plan.cav_ids}
         return waiting_plan(cells, behind, self._waiting_steps())
 
@@ -732,8 +734,7 @@ class SwarmController:
         self.trigger.planned(plan, t_s, outcome.problem.hv_ids)
         self.tracker.reset()
         self.progress.planned(t_s)
-        line = target.s_m + sc.cav.min_gap_m
-        behind = [cav.vehicle_id for cav in cavs if cav.rear_s_m < line]
+        behind = cavs_behind(target, cavs, sc.cav.min_gap_m)
         cells = dict(zip(plan.cav_ids, plan.cells, strict=True))
         self.progress.plan_strands(stranded_cavs(cells, behind), len(cavs))
         self.progress.plan_waits(waiting_plan(cells, behind, self._waiting_steps()))
@@ -938,11 +939,7 @@ def plan_is_idle(plan: Plan, step: int) -> bool:
     """Does ``plan`` keep every CAV in the cell it is planned in at ``step``, to the end?"""
     if not plan.ok:
         return False
-    for cav in plan.cav_ids:
-        cells = plan.cells_of(cav)[max(step, 0) :]
-        if any(cell != cells[0] for cell in cells[1:]):
-            return False
-    return True
+    return all(keeps_cell(plan.cells_of(cav)[max(step, 0) :]) for cav in plan.cav_ids)
 
 
 def _no_plan(t_s: float) -> Plan:

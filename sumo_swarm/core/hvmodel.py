@@ -660,18 +660,9 @@ def min_block_gap(
     ``b_safe_mps2``; ``math.inf`` if none up to ``max_gap_m``."""
 
     def ok(gap: float) -> bool:
-        return (
-            peak_braking_behind_slowing(
-                m,
-                v_mps,
-                v_lead_mps,
-                v_final_mps,
-                lead_decel_mps2,
-                gap,
-                step_s,
-                limit=b_safe_mps2,
-            )
-            <= b_safe_mps2
+        peak = peak_braking_behind_slowing(
+            m, v_mps, v_lead_mps, v_final_mps, lead_decel_mps2, gap, step_s, limit=b_safe_mps2
         )
+        return peak <= b_safe_mps2
 
     return _smallest_ok(ok, 0.0, tol_m, max_gap_m, max(4.0 * m.min_gap_m, 1.0))

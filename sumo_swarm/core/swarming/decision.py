@@ -325,13 +325,26 @@ class Progress:
         return None
 
 
+def keeps_cell(cells: Sequence[Sequence[int]], steps: int | None = None) -> bool:
+    """Does a CAV's planned cell sequence stay in its first cell (row and lane) for its first
+    ``steps`` behaving steps (None, or a shorter sequence: to its end)?"""
+    if not cells:
+        return True
+    first = tuple(cells[0])
+    stretch = cells if steps is None else cells[: steps + 1]
+    return all(tuple(cell) == first for cell in stretch)
+
+
+def cavs_behind(target: VehicleState, cavs: Iterable[VehicleState], min_gap_m: float) -> list[str]:
+    """Ids of the CAVs not yet past ``target``: rear not ahead of its front by ``min_gap_m``."""
+    line = target.s_m + min_gap_m
+    return [cav.vehicle_id for cav in cavs if cav.rear_s_m < line]
+
+
 def stranded_cavs(cells: Mapping[str, Sequence[Sequence[int]]], behind: Iterable[str]) -> set[str]:
     """The CAVs of ``behind`` (still behind the target) that a plan keeps in their cell, row and
     lane, for its whole horizon: the planner found no way past for them."""
-    return {
-        vid for vid in behind
-        if vid in cells and all(tuple(cell) == tuple(cells[vid][0]) for cell in cells[vid])
-    }  # fmt: skip
+    return {vid for vid in behind if vid in cells and keeps_cell(cells[vid])}
 
 
 def waiting_plan(
@@ -341,9 +354,7 @@ def waiting_plan(
     lane, for its first ``steps`` behaving steps (or its whole horizon, if shorter)? With none
     behind, it does not wait."""
     planned = [cells[vid] for vid in behind if vid in cells]
-    return bool(planned) and all(
-        all(tuple(cell) == tuple(seq[0]) for cell in seq[: steps + 1]) for seq in planned
-    )
+    return bool(planned) and all(keeps_cell(seq, steps) for seq in planned)
 
 
 # A platoon again: bumper gaps between consecutive CAVs up to this many desired gaps (the
@@ -383,4 +394,4 @@ def one_platoon(
 
 def all_past(target: VehicleState, platoon: Mapping[str, VehicleState], min_gap_m: float) -> bool:
     """Every CAV's rear is ahead of the target's front by ``min_gap_m``."""
-    return all(cav.rear_s_m >= target.s_m + min_gap_m for cav in platoon.values())
+    return not cavs_behind(target, platoon.values(), min_gap_m)
