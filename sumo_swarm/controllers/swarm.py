@@ -39,7 +39,7 @@ from sumo_swarm.controllers.reform import Reformer, clip, lane_index
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.neighbours import ordered_platoon, vehicle_ahead
+from sumo_swarm.core.neighbours import Snapshot, ordered_platoon, vehicle_ahead
 from sumo_swarm.core.planner import CellPlanner, Plan, ReplanTrigger, make_planner
 from sumo_swarm.core.planner.problem import LANE_END_PREFIX, hvs_in_grid
 from sumo_swarm.core.stats import lateral_rms, summarise_ms
@@ -804,7 +804,7 @@ class SwarmController:
         sc = ctx.scenario
         road = ctx.road
         dt = ctx.dt_s
-        others = list(states.values())
+        others = Snapshot(states.values(), road)
         solve = self.tracker.tick()
         cap = self.cap_mps if math.isfinite(self.cap_mps) else sc.cav.max_speed_mps
         gentle = sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2

@@ -73,7 +73,7 @@ def _next_lane_neighbours(
     lane_next = entering_lane(road, y, dlat, settings)
     if lane_next is None:
         return None
-    others = list(others)
+    others = others if isinstance(others, list) else list(others)
     y_probe = road.lane_centre_y(lane_next)
     return (
         vehicle_ahead(ego, others, road, y_m=y_probe, width_m=width_m),
@@ -93,7 +93,7 @@ def gap_accel_limit(
 ) -> float:
     """Largest acceleration [m/s^2] that keeps ``min_gap_m`` to whatever is ahead at ``y_now``
     or ``y_next`` (``math.inf`` with nothing ahead)."""
-    others = list(others)
+    others = others if isinstance(others, list) else list(others)
     limit = math.inf
     for y in {y_now, y_next}:
         ahead = vehicle_ahead(ego, others, road, y_m=y, width_m=width_m)
