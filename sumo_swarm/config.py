@@ -317,6 +317,12 @@ class SwarmSettings:
     # A cruising CAV cut off from the platoon by a slow vehicle passes it on its own, in the
     # faster lane beside; it gives that up after this long [s] and heads for the platoon's lane.
     max_pass_s: float = 30.0
+    # A CAV whose lane change towards its goal (the side it passes in, or the platoon's lane)
+    # the guard has refused for this long [s] in a row, with a slow vehicle ahead in its own
+    # lane, tries the lane on its other side instead (event ``passing_switch``; 0 = never): a
+    # CAV waited 30 s to pass a truck through a dense stream on its right while the lane on
+    # its left was free (paper-scene variants with 9-11 CAVs).
+    pass_switch_s: float = 6.0
     # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
     # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
@@ -398,7 +404,7 @@ class SwarmSettings:
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
             "cooldown_s", "pass_singly_s", "max_block_s", "prediction_error_m",
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
-            "hold_episode_s", "max_pass_s", "keep_right_wait_s", "give_up_waiting_s",
+            "hold_episode_s", "max_pass_s", "pass_switch_s", "keep_right_wait_s", "give_up_waiting_s",
         )  # fmt: skip
         check_non_negative(self, "give_up_waiting_plans", "give_up_stranded_plans")
         check_fields(self, "give_up_no_progress_intervals", "give_up_partial_intervals", ge=1)

@@ -134,3 +134,59 @@ def test_a_merging_cav_drops_in_behind_and_the_one_behind_opens_a_gap():
     st["c2"] = car("c2", 250.0, 1, 20.0, cav=True)
     dlat, _ = r.moves(st, platoon, ROAD, 1, {"c0": 1, "c1": 1, "c2": 1}, 0.1)["c1"]
     assert dlat == pytest.approx(SCENARIO.cav.max_lateral_speed_mps * 0.1)
+
+
+def test_a_cav_held_out_of_its_passing_lane_tries_the_other_side():
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 300.0, 1, 20.0, cav=True),
+        car("slow", 240.0, 1, 12.0),
+        car("c1", 220.0, 1, 12.0, cav=True, lat=-0.6),  # at its lane's edge, where it is held
+        car("beside", 219.0, 0, 12.0),  # alongside c1 in lane 0, where nothing is ahead
+        car("l2", 300.0, 2, 16.0),  # lane 2 is faster than the slow car, by less than lane 0
+    )  # fmt: skip
+    platoon = ["c0", "c1"]
+    goals = r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    assert goals["c1"] == 0 and events[-1][0] == "passing_start"
+    switch_s = SCENARIO.swarm.pass_switch_s
+    t, dt = 0.0, 0.1
+    while t < switch_s - dt / 2:  # the guard holds c1: a car alongside in lane 0
+        assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] == 0.0
+        t += dt
+        goals = r.goals(t, st, platoon, ROAD, 1, cap_mps=25.0)
+        assert goals["c1"] == (2 if t >= switch_s - dt / 2 else 0)
+    assert events[-1] == (
+        "passing_switch", {"vehicle": "c1", "slow": "slow", "held_lane": 0, "lane": 2}
+    )
+    assert r.passing["c1"] == ("slow", 2, 0.0)  # max_pass_s still counts from the start
+    assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] > 0.0  # lane 2 is free: it goes
+    assert "c1" not in r.held_s
+
+
+def test_a_cav_held_out_of_the_platoons_lane_behind_a_slow_car_passes_on_the_other_side():
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 300.0, 1, 20.0, cav=True),
+        car("c1", 220.0, 0, 12.0, cav=True, lat=0.6),  # in lane 0, the platoon in lane 1
+        car("slow", 240.0, 0, 12.0),  # ahead of c1 in lane 0
+        car("beside", 219.0, 1, 12.0),  # alongside c1 in the platoon's lane
+    )  # fmt: skip
+    platoon = ["c0", "c1"]
+    goals = r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    assert goals["c1"] == 1
+    for _ in range(round(SCENARIO.swarm.pass_switch_s / 0.1)):
+        assert r.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"][0] == 0.0  # held
+    # Lane 0 is the rightmost: no other side. From lane 1 the other side of lane 0 is lane 2.
+    assert r.goals(6.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1
+    assert not any(kind == "passing_switch" for kind, _ in events)
+    st["c1"] = car("c1", 220.0, 1, 12.0, cav=True, lat=-0.6)  # in lane 1, for lane 0
+    st["slow"] = car("slow", 240.0, 1, 12.0)
+    st["beside"] = car("beside", 219.0, 0, 12.0)
+    goals = r.goals(6.0, st, platoon, ROAD, 0, cap_mps=25.0)
+    assert goals["c1"] == 0
+    for _ in range(round(SCENARIO.swarm.pass_switch_s / 0.1)):
+        r.moves(st, platoon, ROAD, 0, goals, 0.1)
+    assert r.goals(12.0, st, platoon, ROAD, 0, cap_mps=25.0)["c1"] == 2
+    assert events[-1][0] == "passing_switch" and events[-1][1]["lane"] == 2

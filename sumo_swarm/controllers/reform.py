@@ -29,7 +29,7 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.controllers.cacc import cacc_accel
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import vehicle_ahead
+from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead
 from sumo_swarm.core.swarming.decision import lane_speeds
 from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal
 
@@ -67,6 +67,8 @@ class Reformer:
     # The vehicle the swarm gave up overtaking together: its leader too passes it on its own
     # (the others follow one by one, each once the CAV ahead is past), until this time [s].
     singly: tuple[str, float] | None = None
+    # CAV -> (its goal lane, how long [s] the guard has held its lane change there, in a row)
+    held_s: dict[str, tuple[int, float]] = field(default_factory=dict)
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
@@ -152,9 +154,10 @@ class Reformer:
                     del self.passing[vid]
                     self.event("passing_end", vehicle=vid, slow=slow_id, past=done)
                 else:
-                    goals[vid] = side
+                    goals[vid] = self._switch(t_s, ego, side, states, others, road, cap_mps=cap_mps)
                 continue
             if lane_index(road, ego) != lane:
+                goals[vid] = self._switch(t_s, ego, lane, states, others, road, cap_mps=cap_mps)
                 continue
             ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
             if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
@@ -179,6 +182,49 @@ class Reformer:
                 self.event("passing_start", vehicle=vid, slow=slow.vehicle_id, lane=best)
         return goals
 
+    def _switch(
+        self,
+        t_s: float,
+        ego: VehicleState,
+        goal: int,
+        states: Mapping[str, VehicleState],
+        others: Sequence[VehicleState],
+        road: RoadSection,
+        *,
+        cap_mps: float,
+    ) -> int:
+        """``goal``, or the lane on ego's other side once the guard has held ego's lane change
+        towards ``goal`` for ``[swarm] pass_switch_s`` with a slow vehicle ahead of it in its
+        own lane, and that other lane is faster than the slow vehicle by the gain: ego then
+        passes the slow vehicle there (``passing_switch`` event) and comes back after."""
+        sc = self.scenario
+        sw = sc.swarm
+        vid = ego.vehicle_id
+        held_lane, held = self.held_s.get(vid, (goal, 0.0))
+        if sw.pass_switch_s <= 0.0 or held_lane != goal or held + 1e-9 < sw.pass_switch_s:
+            return goal
+        here = lane_index(road, ego)
+        if goal == here:
+            return goal
+        other = here - (1 if goal > here else -1)
+        if not 0 <= other < road.n_lanes or other in self.ends(ego):
+            return goal
+        ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
+        if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
+            return goal
+        slow = ahead[0]
+        if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
+            return goal
+        speed = lane_speeds(ego, others, road, [other], range_m=sw.detect_range_m,
+                            cap_mps=cap_mps, desired_of=self.desired_speed)[other]  # fmt: skip
+        if speed - slow.speed_mps < sw.min_speed_gain_mps:
+            return goal
+        since = self.passing[vid][2] if vid in self.passing else t_s
+        self.passing[vid] = (slow.vehicle_id, other, since)  # max_pass_s counts from the start
+        self.held_s.pop(vid, None)
+        self.event("passing_switch", vehicle=vid, slow=slow.vehicle_id, held_lane=goal, lane=other)
+        return other
+
     # ------------------------------------------------------------------ commands
     def moves(
         self,
@@ -190,15 +236,26 @@ class Reformer:
         step_s: float,
     ) -> dict[str, Move]:
         """Lateral move and acceleration bound of every CAV of ``platoon``."""
-        moves = {vid: self._steer(states[vid], goals[vid], states, road, step_s) for vid in platoon}
-        self._make_room(states, [v for v in platoon if v not in self.passing], road, lane, moves)
+        others = Snapshot(states.values(), road)
+        moves = {vid: self._steer(states[vid], goals[vid], others, road, step_s) for vid in platoon}
+        for vid in platoon:  # how long each CAV's lane change has been held, in a row
+            here = lane_index(road, states[vid])
+            toward = goals[vid] - here
+            if toward != 0 and moves[vid][0] * toward <= 0.0:
+                lane_was, held = self.held_s.get(vid, (goals[vid], 0.0))
+                self.held_s[vid] = (goals[vid], (held if lane_was == goals[vid] else 0.0) + step_s)
+            else:
+                self.held_s.pop(vid, None)
+        self._make_room(
+            states, others, [v for v in platoon if v not in self.passing], road, lane, moves
+        )
         return moves
 
     def _steer(
         self,
         ego: VehicleState,
         lane: int,
-        states: Mapping[str, VehicleState],
+        others: Sequence[VehicleState],
         road: RoadSection,
         step_s: float,
     ) -> Move:
@@ -209,7 +266,6 @@ class Reformer:
         step = sc.cav.max_lateral_speed_mps * step_s
         y = road.y_of(ego.lane, ego.lat_m)
         lane_now = road.lane_of_y(y)
-        others = list(states.values())
         if lane_now == lane:
             centre = clip(road.lane_centre_y(lane) - y, step)
             escape = self.escape(ego, centre, step)
@@ -239,6 +295,7 @@ class Reformer:
     def _make_room(
         self,
         states: Mapping[str, VehicleState],
+        others: Sequence[VehicleState],
         platoon: Sequence[str],
         road: RoadSection,
         lane: int,
@@ -252,7 +309,6 @@ class Reformer:
         merging = [states[v] for v in platoon if abs(lane_of[v] - lane) == 1]
         if not merging:
             return
-        others = list(states.values())
         for vid in platoon:
             if lane_of[vid] != lane:
                 continue
