@@ -249,6 +249,27 @@ def test_lane_change_on_a_curve_settles_on_the_kinematic_wheel_angle(feedforward
     assert abs(lat - 3.0) < 0.05
 
 
+def test_a_centred_vehicle_on_a_straight_road_steers_zero_without_a_solve():
+    settings = LateralSettings(solver=TIGHT)
+    k1, k = settings.horizon + 1, settings.horizon
+    lane = np.full(k1, 3.2)
+    steady = LateralMpc(settings).solve(3.2, 0.0, lane, np.zeros(k1), np.zeros(k), 2.0)
+    assert steady.status == "steady"
+    assert not steady.inputs.any() and steady.objective == 0.0
+    # The QP gives the same answer there ...
+    solved = LateralMpc(settings).solve(3.2 + 1e-7, 0.0, lane, np.zeros(k1), np.zeros(k), 2.0)
+    np.testing.assert_allclose(solved.inputs, 0.0, atol=1e-8)
+    # ... and is solved whenever anything is off: an offset, a heading, a curve, a lane change.
+    for l0, phi0, kappa, l_ref in (
+        (3.21, 0.0, 0.0, lane),
+        (3.2, 0.001, 0.0, lane),
+        (3.2, 0.0, 0.002, lane),
+        (3.2, 0.0, 0.0, np.linspace(3.2, 4.0, k1)),
+    ):
+        res = LateralMpc(settings).solve(l0, phi0, l_ref, np.zeros(k1), np.full(k, kappa), 2.0)
+        assert res.status == "solved" and np.abs(res.inputs).max() > 1e-5
+
+
 # ---------------------------------------------------------------- warm start and failures
 def test_changing_ds_gives_the_same_answer_as_a_fresh_solver():
     settings = LateralSettings(solver=TIGHT)
