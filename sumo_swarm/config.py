@@ -404,7 +404,8 @@ class SwarmSettings:
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
             "cooldown_s", "pass_singly_s", "max_block_s", "prediction_error_m",
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
-            "hold_episode_s", "max_pass_s", "pass_switch_s", "keep_right_wait_s", "give_up_waiting_s",
+            "hold_episode_s", "max_pass_s", "pass_switch_s", "keep_right_wait_s",
+            "give_up_waiting_s",
         )  # fmt: skip
         check_non_negative(self, "give_up_waiting_plans", "give_up_stranded_plans")
         check_fields(self, "give_up_no_progress_intervals", "give_up_partial_intervals", ge=1)

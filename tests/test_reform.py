@@ -157,7 +157,8 @@ def test_a_cav_held_out_of_its_passing_lane_tries_the_other_side():
         goals = r.goals(t, st, platoon, ROAD, 1, cap_mps=25.0)
         assert goals["c1"] == (2 if t >= switch_s - dt / 2 else 0)
     assert events[-1] == (
-        "passing_switch", {"vehicle": "c1", "slow": "slow", "held_lane": 0, "lane": 2}
+        "passing_switch",
+        {"vehicle": "c1", "slow": "slow", "held_lane": 0, "lane": 2},
     )
     assert r.passing["c1"] == ("slow", 2, 0.0)  # max_pass_s still counts from the start
     assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] > 0.0  # lane 2 is free: it goes

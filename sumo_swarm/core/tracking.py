@@ -500,14 +500,14 @@ class LateralMpc:
         finite = np.all(np.isfinite(x_des)) and np.all(np.isfinite(x0))
         if not (finite and np.all(np.isfinite(kappa)) and math.isfinite(ds) and ds > 0.0):
             return self._fallback("invalid input", x0, x_des, np.zeros(k_steps), 0.0, started)
-        if phi0 == 0.0 and not kappa.any() and not x_des[1:, 1].any():
-            if np.all(np.abs(x_des[1:, 0] - l0) <= STEADY_TOL_M):
-                # Centred on a straight reference on a straight road: zero steering is the
-                # optimum (zero cost); most CAVs, most steps - no QP to solve.
-                inputs = np.zeros(k_steps)
-                states = np.tile(x0, (k_steps + 1, 1))
-                objective = self._qp.objective(states, inputs, x_des)
-                return TrackingResult("steady", 0.0, inputs, states, _elapsed_ms(started), objective)
+        centred = np.all(np.abs(x_des[1:, 0] - l0) <= STEADY_TOL_M)
+        if phi0 == 0.0 and not kappa.any() and not x_des[1:, 1].any() and centred:
+            # Centred on a straight reference on a straight road: zero steering is the optimum
+            # (zero cost); most CAVs, most steps - no QP to solve.
+            inputs = np.zeros(k_steps)
+            states = np.tile(x0, (k_steps + 1, 1))
+            objective = self._qp.objective(states, inputs, x_des)
+            return TrackingResult("steady", 0.0, inputs, states, _elapsed_ms(started), objective)
         self._qp.set_step(float(ds))
         # c_k of eq. (35) plus B * delta_ff (zero when the feed-forward is on)
         self._affine[:, 1] = ds * (feedforward / cfg.wheelbase_m - kappa)
