@@ -88,6 +88,8 @@ class Tracker:
             _, y_ref, dy_ref, _ = ref.sample_space(centre, ds, self.lat.horizon)
             kappa = np.full(self.lat.horizon, road.curvature_1pm)
             lres = self._lat[vid].solve(y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds)
+            if lres.status == "steady":
+                self.phi[vid] = 0.0  # centred and straight on: straight ahead
             self._inputs[vid] = (t_s, res.inputs, lres.inputs)
             self.solve_ms.append(res.solve_ms + lres.solve_ms)
         t_solved, accels, deltas = self._inputs[vid]
