@@ -191,3 +191,25 @@ def test_a_cav_held_out_of_the_platoons_lane_behind_a_slow_car_passes_on_the_oth
         r.moves(st, platoon, ROAD, 0, goals, 0.1)
     assert r.goals(12.0, st, platoon, ROAD, 0, cap_mps=25.0)["c1"] == 2
     assert events[-1][0] == "passing_switch" and events[-1][1]["lane"] == 2
+
+
+def test_a_cav_beside_a_platoon_cav_a_little_behind_it_drops_back_behind_it():
+    # c2 merges into lane 0 right beside c0, its front 2 m ahead of c0's: to vehicle_ahead c0
+    # is neither ahead nor behind. Both at 20 m/s, neither gave way (35 s side by side).
+    r = reformer()
+    st = states(
+        car("c1", 315.0, 0, 20.0, cav=True),
+        car("c0", 300.0, 0, 20.0, cav=True),
+        car("c2", 302.0, 1, 20.0, cav=True, lat=-0.6),
+        car("c3", 285.0, 0, 20.0, cav=True),
+    )  # fmt: skip
+    platoon = ["c1", "c0", "c2", "c3"]
+    goals = {"c1": 0, "c0": 0, "c2": 0, "c3": 0}
+    dlat, bound = r.moves(st, platoon, ROAD, 0, goals, 0.1)["c2"]
+    assert dlat == 0.0  # held: c0 is beside it
+    gentle = -SCENARIO.hvmodel.planner_share * SCENARIO.hvmodel.b_safe_mps2
+    assert bound == pytest.approx(gentle)  # drops back behind c0, gently
+    # Once behind c0 it follows c0 at a real gap, and c3 makes room for it.
+    st["c2"] = car("c2", 293.0, 1, 20.0, cav=True, lat=-0.6)
+    moves = r.moves(st, platoon, ROAD, 0, goals, 0.1)
+    assert moves["c2"][1] < 0.0 and moves["c3"][1] < 0.0

@@ -41,6 +41,27 @@ def clip(x: float, bound: float) -> float:
     return min(max(x, -bound), bound)
 
 
+def cav_alongside_behind(
+    ego: VehicleState,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    y_m: float,
+    width_m: float,
+) -> VehicleState | None:
+    """The CAV in the lane at ``y_m`` whose front is beside ego (between ego's rear bumper
+    and its front), if any: to :func:`vehicle_ahead` it is neither ahead nor behind."""
+    found = None
+    for other in others:
+        if not other.is_cav or other.vehicle_id == ego.vehicle_id:
+            continue
+        if not ego.rear_s_m < other.s_m <= ego.s_m:
+            continue
+        beside = abs(road.y_of(other.lane, other.lat_m) - y_m) < 0.5 * (width_m + other.width_m)
+        if beside and (found is None or other.s_m > found.s_m):
+            found = other
+    return found
+
+
 def lane_index(road: RoadSection, vehicle: VehicleState) -> int:
     """The lane a vehicle's centre is in (mid lane change: the one it is crossing into)."""
     return road.lane_of_y(road.y_of(vehicle.lane, vehicle.lat_m))
@@ -281,6 +302,12 @@ class Reformer:
         )  # fmt: skip
         accel = math.inf
         ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
+        beside = cav_alongside_behind(ego, others, road, y_next, sc.cav.width_m)
+        if beside is not None:
+            # A CAV alongside, its front a little behind ego's: ego drops back behind it (the
+            # CAVs of the platoon's lane make room only for a CAV ahead of them; two CAVs side
+            # by side at the same speed stayed so for 35 s, neither giving way).
+            ahead = (beside, beside.rear_s_m - ego.s_m)
         if ahead is not None:
             accel = self._follow_gently(ego, *ahead)
         if self.hold(ego, y, dlat):  # back to the lane centre: never straddle two lanes there
