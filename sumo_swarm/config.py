@@ -323,6 +323,12 @@ class SwarmSettings:
     # CAV waited 30 s to pass a truck through a dense stream on its right while the lane on
     # its left was free (paper-scene variants with 9-11 CAVs).
     pass_switch_s: float = 6.0
+    # A CAV held this long [s] out of the platoon's lane beside a CAV of that lane whose front
+    # is a little behind its own drops back behind that CAV (0 = never): neither counts the
+    # other as ahead, and two CAVs at the same speed stayed side by side for 35 s (stress scenes
+    # with regroup_by = "cruise"). Not at once: a CAV passing alongside for a moment braked for
+    # nothing and slowed the CAVs behind it (stress scene 81: -1.2 m/s).
+    drop_behind_s: float = 3.0
     # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
     # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
@@ -404,7 +410,7 @@ class SwarmSettings:
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
             "cooldown_s", "pass_singly_s", "max_block_s", "prediction_error_m",
             "max_leader_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
-            "hold_episode_s", "max_pass_s", "pass_switch_s", "keep_right_wait_s",
+            "hold_episode_s", "max_pass_s", "pass_switch_s", "drop_behind_s", "keep_right_wait_s",
             "give_up_waiting_s",
         )  # fmt: skip
         check_non_negative(self, "give_up_waiting_plans", "give_up_stranded_plans")

@@ -302,11 +302,13 @@ class Reformer:
         )  # fmt: skip
         accel = math.inf
         ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
-        beside = cav_alongside_behind(ego, others, road, y_next, sc.cav.width_m)
+        held_lane, held = self.held_s.get(ego.vehicle_id, (None, 0.0))
+        stuck = held_lane == lane and held + 1e-9 >= sc.swarm.drop_behind_s > 0.0
+        beside = cav_alongside_behind(ego, others, road, y_next, sc.cav.width_m) if stuck else None
         if beside is not None:
-            # A CAV alongside, its front a little behind ego's: ego drops back behind it (the
-            # CAVs of the platoon's lane make room only for a CAV ahead of them; two CAVs side
-            # by side at the same speed stayed so for 35 s, neither giving way).
+            # Held beside a CAV whose front is a little behind ego's: ego drops back behind it
+            # (the CAVs of the platoon's lane make room only for a CAV ahead of them; two CAVs
+            # side by side at the same speed stayed so for 35 s, neither giving way).
             ahead = (beside, beside.rear_s_m - ego.s_m)
         if ahead is not None:
             accel = self._follow_gently(ego, *ahead)
