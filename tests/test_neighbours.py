@@ -7,7 +7,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead, vehicle_behind
+from sumo_swarm.core.neighbours import (
+    Snapshot,
+    cav_alongside_behind,
+    vehicle_ahead,
+    vehicle_behind,
+)
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
 
@@ -52,6 +57,20 @@ def test_an_hv_drifting_towards_the_lane_counts_before_it_is_in_it():
         assert vehicle_ahead(ego, others, ROAD) is None
     for others in both([ego, drifting]):
         assert vehicle_ahead(ego, others, ROAD)[0].vehicle_id == "drifting"
+
+
+def test_a_cav_beside_with_its_front_behind_egos_is_neither_ahead_nor_behind():
+    ego = car("ego", 302.0, 1, cav=True, lat=-0.6)  # rear at 297
+    beside = car("c0", 300.0, 0, cav=True)  # front between ego's rear and front
+    y0 = ROAD.lane_centre_y(0)
+    for others in both([ego, beside]):
+        assert vehicle_ahead(ego, others, ROAD, y_m=y0) is None
+        assert vehicle_behind(ego, others, ROAD, y_m=y0)[1] < 0.0  # overlapping, not behind
+    assert cav_alongside_behind(ego, [ego, beside], ROAD, y0) is beside
+    # Not an HV, not one in another lane, not one whose front is ahead of ego's.
+    assert cav_alongside_behind(ego, [car("h", 300.0, 0)], ROAD, y0) is None
+    assert cav_alongside_behind(ego, [car("c2", 300.0, 2, cav=True)], ROAD, y0) is None
+    assert cav_alongside_behind(ego, [car("c3", 303.0, 0, cav=True)], ROAD, y0) is None
 
 
 vehicle = st.builds(

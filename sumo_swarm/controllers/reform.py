@@ -29,7 +29,7 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.controllers.cacc import cacc_accel
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead
+from sumo_swarm.core.neighbours import Snapshot, cav_alongside_behind, vehicle_ahead
 from sumo_swarm.core.swarming.decision import lane_speeds
 from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal
 
@@ -39,27 +39,6 @@ Move = tuple[float, float]  # (lateral move [m], acceleration bound [m/s^2])
 def clip(x: float, bound: float) -> float:
     """``x`` within ``[-bound, bound]`` (numpy's clip costs 40 us a call, every step)."""
     return min(max(x, -bound), bound)
-
-
-def cav_alongside_behind(
-    ego: VehicleState,
-    others: Sequence[VehicleState],
-    road: RoadSection,
-    y_m: float,
-    width_m: float,
-) -> VehicleState | None:
-    """The CAV in the lane at ``y_m`` whose front is beside ego (between ego's rear bumper
-    and its front), if any: to :func:`vehicle_ahead` it is neither ahead nor behind."""
-    found = None
-    for other in others:
-        if not other.is_cav or other.vehicle_id == ego.vehicle_id:
-            continue
-        if not ego.rear_s_m < other.s_m <= ego.s_m:
-            continue
-        beside = abs(road.y_of(other.lane, other.lat_m) - y_m) < 0.5 * (width_m + other.width_m)
-        if beside and (found is None or other.s_m > found.s_m):
-            found = other
-    return found
 
 
 def lane_index(road: RoadSection, vehicle: VehicleState) -> int:

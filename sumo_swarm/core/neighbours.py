@@ -118,6 +118,29 @@ def vehicle_ahead(
     return _nearest(ego, others, road, y_m, width_m, ahead=True)
 
 
+def cav_alongside_behind(
+    ego: VehicleState,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    y_m: float,
+    width_m: float = VEHICLE_WIDTH_M,
+) -> VehicleState | None:
+    """The CAV whose front is beside ``ego`` (between ego's rear bumper and its front) and
+    that overlaps ``ego`` moved to ``y_m``, the front-most if several: to :func:`vehicle_ahead`
+    it is neither ahead nor behind."""
+    found = None
+    for other in others:
+        if not other.is_cav or other.vehicle_id == ego.vehicle_id:
+            continue
+        if not ego.rear_s_m < other.s_m <= ego.s_m:
+            continue
+        y = road.y_of(other.lane, other.lat_m)
+        beside = lateral_overlap(y, y_m, 0.5 * (width_m + other.width_m))
+        if beside and (found is None or other.s_m > found.s_m):
+            found = other
+    return found
+
+
 def vehicle_behind(
     ego: VehicleState,
     others: Iterable[VehicleState],

@@ -69,6 +69,7 @@ _NOMINAL_SPEED_MPS = 20.0
 # a 12-CAV run were such (issue 11's run cost).
 STEADY_TOL_M = 1e-3
 STEADY_PHI_RAD = 1e-4
+STEADY = "steady"  # the status of such a call
 # The paper's front-wheel range [-450, 450] deg is the steering-wheel angle. With a steering
 # ratio of 15 (typical for passenger cars) that is +-30 deg at the front wheels.
 STEERING_RATIO = 15.0
@@ -503,15 +504,14 @@ class LateralMpc:
         finite = np.all(np.isfinite(x_des)) and np.all(np.isfinite(x0))
         if not (finite and np.all(np.isfinite(kappa)) and math.isfinite(ds) and ds > 0.0):
             return self._fallback("invalid input", x0, x_des, np.zeros(k_steps), 0.0, started)
-        offset = np.abs(x_des[1:, 0] - l0)
-        centred = abs(phi0) <= STEADY_PHI_RAD and np.all(offset <= STEADY_TOL_M)
-        if centred and not kappa.any() and not x_des[1:, 1].any():
+        straight = abs(phi0) <= STEADY_PHI_RAD and not kappa.any() and not x_des[1:, 1].any()
+        if straight and np.all(np.abs(x_des[1:, 0] - l0) <= STEADY_TOL_M):
             # Centred on a straight reference on a straight road: straight on, the heading
             # zeroed by the tracker (the optimum up to OSQP's tolerance; most CAVs, most steps).
             inputs = np.zeros(k_steps)
             states = np.tile(np.array([l0, 0.0]), (k_steps + 1, 1))
             objective = self._qp.objective(states, inputs, x_des)
-            return TrackingResult("steady", 0.0, inputs, states, _elapsed_ms(started), objective)
+            return TrackingResult(STEADY, 0.0, inputs, states, _elapsed_ms(started), objective)
         self._qp.set_step(float(ds))
         # c_k of eq. (35) plus B * delta_ff (zero when the feed-forward is on)
         self._affine[:, 1] = ds * (feedforward / cfg.wheelbase_m - kappa)

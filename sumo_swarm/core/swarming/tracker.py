@@ -16,6 +16,7 @@ import numpy as np
 
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.tracking import (
+    STEADY,
     LateralMpc,
     LateralSettings,
     LongitudinalMpc,
@@ -88,7 +89,7 @@ class Tracker:
             _, y_ref, dy_ref, _ = ref.sample_space(centre, ds, self.lat.horizon)
             kappa = np.full(self.lat.horizon, road.curvature_1pm)
             lres = self._lat[vid].solve(y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds)
-            if lres.status == "steady":
+            if lres.status == STEADY:
                 self.phi[vid] = 0.0  # centred and straight on: straight ahead
             self._inputs[vid] = (t_s, res.inputs, lres.inputs)
             self.solve_ms.append(res.solve_ms + lres.solve_ms)
