@@ -48,12 +48,18 @@ def sweep_file(tmp_path: Path):
 
 
 def finished_runs(out: Path) -> dict[str, int]:
-    """run id -> mtime (ns) of its `done` marker."""
-    return {
-        d.name: (d / "done").stat().st_mtime_ns
-        for d in (out / "runs").iterdir()
-        if (d / "done").is_file()
-    }
+    """run id -> mtime (ns) of its `done` marker, for the published run folders (a run writes
+    `done` in a hidden folder, then renames it: between a listing and a stat the hidden one may
+    be gone, which failed this helper once in CI-like load)."""
+    found = {}
+    for d in (out / "runs").iterdir():
+        if d.name.startswith("."):
+            continue
+        try:
+            found[d.name] = (d / "done").stat().st_mtime_ns
+        except FileNotFoundError:
+            continue
+    return found
 
 
 def unfinished(out: Path) -> list[str]:
