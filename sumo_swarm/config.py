@@ -329,6 +329,15 @@ class SwarmSettings:
     # with regroup_by = "cruise"). Not at once: a CAV passing alongside for a moment braked for
     # nothing and slowed the CAVs behind it (stress scene 81: -1.2 m/s).
     drop_behind_s: float = 3.0
+    # A CAV refused a lane change out of a slow vehicle's lane into a faster one (stranded
+    # behind the target after a give-up, or passing on its own) keeps this bumper gap [m]
+    # behind the slow vehicle, and runs up towards the next lane's speed when a gap there would
+    # take it at the speed it can reach (and still brake back behind the slow vehicle); 0 = it
+    # waits at the slow vehicle's speed. Entering a stream 8 m/s faster at the truck's speed
+    # makes the HV behind brake harder than b_safe at any gap the stream offers: stress scenes
+    # left a CAV behind a 12 m/s truck for 36 s beside a lane at 20 m/s with 45-60 m headways.
+    run_up_gap_m: float = 30.0
+    run_up_after_s: float = 2.0  # ...once the guard has held its lane change this long [s]
     # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
     # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
@@ -413,7 +422,13 @@ class SwarmSettings:
             "hold_episode_s", "max_pass_s", "pass_switch_s", "drop_behind_s", "keep_right_wait_s",
             "give_up_waiting_s",
         )  # fmt: skip
-        check_non_negative(self, "give_up_waiting_plans", "give_up_stranded_plans")
+        check_non_negative(
+            self,
+            "give_up_waiting_plans",
+            "give_up_stranded_plans",
+            "run_up_gap_m",
+            "run_up_after_s",
+        )
         check_fields(self, "give_up_no_progress_intervals", "give_up_partial_intervals", ge=1)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,7 @@ from sumo_swarm.config import Scenario
 from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.swarming.guards import run_up
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
 SCENARIO = Scenario(name="t", path=Path("t.toml"))  # cruise 20 m/s, min gain 2 m/s
@@ -216,3 +218,85 @@ def test_a_cav_beside_a_platoon_cav_a_little_behind_it_drops_back_behind_it():
     st["c2"] = car("c2", 293.0, 1, 20.0, cav=True, lat=-0.6)
     moves = r.moves(st, platoon, ROAD, 0, goals, 0.1)
     assert moves["c2"][1] < 0.0 and moves["c3"][1] < 0.0
+
+
+def test_run_up_speed_fits_the_room_behind_the_slow_vehicle():
+    asked = []
+
+    def entry_ok(v, tau):
+        asked.append((v, tau))
+        return True
+
+    kw = dict(desired_gap_m=10.0, accel_mps2=3.0, brake_mps2=1.4, change_s=1.6, min_gain_mps=2.0)
+    # 30 m above the desired gap: c * 1.6 + c^2 / 2.8 = 30 at c = 7.195 m/s.
+    what, v = run_up(12.0, 12.0, 40.0, 25.0, entry_ok=entry_ok, **kw)
+    assert what == "run" and v == pytest.approx(19.195, abs=1e-3)
+    assert asked[-1][1] == pytest.approx(7.195 / 3.0, abs=1e-3)  # reached at 3 m/s^2
+    # The next lane's speed is the most worth entering at.
+    assert run_up(12.0, 12.0, 40.0, 15.0, entry_ok=entry_ok, **kw) == ("run", 15.0)
+    assert asked[-1] == (15.0, pytest.approx(1.0))
+    # Already faster than that: asked at its own speed, now.
+    assert run_up(16.0, 12.0, 40.0, 15.0, entry_ok=entry_ok, **kw) == ("run", 16.0)
+    assert asked[-1] == (16.0, 0.0)
+    # A gap that takes it at 16.5 m/s at most: the fastest entry speed 1 m/s steps down to.
+    what, v = run_up(12.0, 12.0, 40.0, 25.0, entry_ok=lambda v, t: v <= 16.5, **kw)
+    assert what == "run" and v == pytest.approx(16.195, abs=1e-3)
+    # No gap takes it: hold the run-up distance.
+    assert run_up(12.0, 12.0, 40.0, 25.0, entry_ok=lambda v, t: False, **kw) == ("hold", 0.0)
+    # Closing 6 m/s with 5 m above the desired gap: brake, at most at 1.4 m/s^2.
+    assert run_up(18.0, 12.0, 15.0, 25.0, entry_ok=entry_ok, **kw) == ("brake", -1.4)
+    # Closing 1 m/s with 3 m: c * 1.6 + c^2 / 2.8 = 1.96 < 3, room enough, no brake; but the
+    # most it could enter at is 13.6 m/s, less than 2 m/s above the slow car: drop back more.
+    assert run_up(13.0, 12.0, 13.0, 25.0, entry_ok=entry_ok, **kw) == ("hold", 0.0)
+    # A gap only at 13.5 m/s: not worth a run-up either (the guard's own business).
+    assert run_up(12.0, 12.0, 40.0, 25.0, entry_ok=lambda v, t: v <= 13.5, **kw)[0] == "hold"
+
+
+def test_a_stranded_cav_holds_back_from_the_slow_car_then_runs_up_into_a_gap():
+    r = reformer()
+    platoon = ["c0", "c1"]
+    goals = {"c0": 1, "c1": 1}
+
+    def scene(slow_s, c1_speed=12.0, f_s=190.0):
+        return states(
+            car("c0", 400.0, 1, 20.0, cav=True),
+            car("c1", 220.0, 0, c1_speed, cav=True, lat=0.6),  # behind a slow car, for lane 1
+            car("slow", slow_s, 0, 12.0),
+            car("f", f_s, 1, 20.0),  # lane 1 flows 8 m/s faster: at 12 m/s c1 is refused
+        )
+
+    gentle = -SCENARIO.hvmodel.planner_share * SCENARIO.hvmodel.b_safe_mps2
+    # Refused, but not yet for run_up_after_s: it waits as before (no bound, no floor).
+    dlat, bound = r.moves(scene(240.0), platoon, ROAD, 1, goals, 0.1)["c1"]
+    assert dlat == 0.0 and bound > 0.0 and r.floors == {}
+    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    # 15 m behind the slow car, no gap takes it at the speed that room allows: it drops back.
+    dlat, bound = r.moves(scene(240.0), platoon, ROAD, 1, goals, 0.1)["c1"]
+    assert dlat == 0.0 and bound == pytest.approx(gentle) and r.floors == {}
+    # Never more than RUN_UP_DROP_MPS below the slow car's speed.
+    assert r.moves(scene(240.0, 9.9), platoon, ROAD, 1, goals, 0.1)["c1"][1] >= 0.0
+    # 40 m behind it, f 10 m farther back: running up to 19.2 m/s (2.4 s), it would be taken
+    # behind f: it accelerates at its maximum (a floor under the CACC, which would close in on
+    # the slow car more slowly). With f where it was, no: it keeps its distance.
+    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    r.moves(scene(265.0), platoon, ROAD, 1, goals, 0.1)
+    assert r.floors == {}
+    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    dlat, bound = r.moves(scene(265.0, f_s=180.0), platoon, ROAD, 1, goals, 0.1)["c1"]
+    assert dlat == 0.0 and r.floors == {"c1": SCENARIO.cav.accel_max_mps2} and bound >= 3.0
+    # An HV alongside in lane 1 as slow as the slow car: lane 1 is no faster, no run-up (it
+    # drops in behind that HV as before).
+    st = scene(240.0)
+    st["beside"] = car("beside", 221.0, 1, 12.5)
+    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    with_run_up = r.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"]
+    assert r.floors == {}
+    # A CAV following in lane 1 instead of f: it makes room (no run-up, no drop back).
+    cavs = scene(240.0)
+    cavs["f"] = car("f", 190.0, 1, 20.0, cav=True)
+    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    assert r.moves(cavs, [*platoon, "f"], ROAD, 1, {**goals, "f": 1}, 0.1)["c1"][1] > gentle
+    # Off (run_up_gap_m = 0): it waits at the slow car's speed, without dropping back.
+    r.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, run_up_gap_m=0.0))
+    assert r.moves(scene(240.0), platoon, ROAD, 1, goals, 0.1)["c1"][1] > 0.0
+    assert r.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"] == with_run_up

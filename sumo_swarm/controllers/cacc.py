@@ -57,10 +57,13 @@ def command_cacc(
     platoon: list[str],
     leader_cruise_mps: float | None = None,
     accel_limits: Mapping[str, float] | None = None,
+    accel_floors: Mapping[str, float] | None = None,
 ) -> None:
     """Command one CACC step for every CAV of ``platoon`` (front-most first when
     ``leader_cruise_mps`` is given: that CAV cruises at that speed instead). ``accel_limits``:
-    upper bounds [m/s^2] of some CAVs' acceleration (a CAV making room to change lanes)."""
+    upper bounds [m/s^2] of some CAVs' acceleration (a CAV making room to change lanes);
+    ``accel_floors``: lower bounds of some (a CAV running up to a faster lane's speed), never
+    above the CAV's upper bound."""
     states = ctx.session.states
     others = list(states.values())
     sc = ctx.scenario
@@ -79,6 +82,8 @@ def command_cacc(
             )  # fmt: skip
         if accel_limits is not None and vid in accel_limits:
             a = max(min(a, accel_limits[vid]), sc.cav.accel_min_mps2)
+        if accel_floors is not None and vid in accel_floors:
+            a = min(max(a, accel_floors[vid]), sc.cav.accel_max_mps2)
         ctx.session.set_speed(vid, ego.speed_mps + a * ctx.dt_s)
 
 

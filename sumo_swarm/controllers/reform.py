@@ -12,7 +12,10 @@ CAVs are brought back into one platoon:
 * :meth:`Reformer.moves` turns the goals into a lateral move and an acceleration bound per CAV:
   one lane at a time, through the same lateral guard as in a manoeuvre; a CAV that must change
   lanes drops in behind whatever drives ahead in the next lane, and the CAVs in the platoon's
-  lane open a gap for a CAV merging next to them.
+  lane open a gap for a CAV merging next to them. A CAV held behind a slow HV beside a faster
+  lane runs up (:func:`~sumo_swarm.core.swarming.guards.run_up`): it keeps
+  ``[swarm] run_up_gap_m`` behind the slow HV and accelerates when a gap in that lane would
+  take it at a speed it can reach, instead of asking the stream to take it at the HV's speed.
 
 Pure apart from the ``event`` callback: tested without SUMO (tests/test_reform.py).
 """
@@ -22,18 +25,28 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers.cacc import cacc_accel
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import Snapshot, cav_alongside_behind, vehicle_ahead
+from sumo_swarm.core.neighbours import (
+    Snapshot,
+    cav_alongside_behind,
+    vehicle_ahead,
+    vehicle_behind,
+)
 from sumo_swarm.core.swarming.decision import lane_speeds
-from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal
+from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal, run_up
 
 Move = tuple[float, float]  # (lateral move [m], acceleration bound [m/s^2])
+# Dropping back to its run-up gap, a CAV slows at most this much below the slow vehicle [m/s].
+RUN_UP_DROP_MPS = 2.0
+# A run-up goes on this long [s] after the last step a gap would take the CAV (the HVs do not
+# drive at the constant speeds the look-ahead assumes; a run-up stopped half-way is lost).
+RUN_UP_COMMIT_S = 1.0
 
 
 def clip(x: float, bound: float) -> float:
@@ -69,6 +82,9 @@ class Reformer:
     singly: tuple[str, float] | None = None
     # CAV -> (its goal lane, how long [s] the guard has held its lane change there, in a row)
     held_s: dict[str, tuple[int, float]] = field(default_factory=dict)
+    # CAV -> acceleration floor [m/s^2] of this step's moves (a CAV running up, see run_up)
+    floors: dict[str, float] = field(default_factory=dict)
+    running: dict[str, float] = field(default_factory=dict)  # CAV -> run-up time left [s]
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
@@ -237,6 +253,7 @@ class Reformer:
     ) -> dict[str, Move]:
         """Lateral move and acceleration bound of every CAV of ``platoon``."""
         others = Snapshot(states.values(), road)
+        self.floors = {}
         moves = {vid: self._steer(states[vid], goals[vid], others, road, step_s) for vid in platoon}
         for vid in platoon:  # how long each CAV's lane change has been held, in a row
             here = lane_index(road, states[vid])
@@ -272,7 +289,8 @@ class Reformer:
             if escape == centre:
                 return centre, math.inf
             lane = lane_now + (1 if escape > 0 else -1)  # its lane ends: out of it first
-        y_next = road.lane_centre_y(lane_now + (1 if lane > lane_now else -1))
+        next_lane = lane_now + (1 if lane > lane_now else -1)
+        y_next = road.lane_centre_y(next_lane)
         dlat = clip(y_next - y, step)
         refusal = lateral_refusal(
             ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
@@ -291,14 +309,107 @@ class Reformer:
             ahead = (beside, beside.rear_s_m - ego.s_m)
         if ahead is not None:
             accel = self._follow_gently(ego, *ahead)
+        if refusal is None:
+            self.running.pop(ego.vehicle_id, None)
         if self.hold(ego, y, dlat):  # back to the lane centre: never straddle two lanes there
             dlat = clip(road.lane_centre_y(lane_now) - y, step)
         elif refusal is not None:
+            waited = held_lane == lane and held + 1e-9 >= sc.swarm.run_up_after_s
+            if beside is None and waited and sc.swarm.run_up_gap_m > 0.0:
+                bound, floor = self._run_up(ego, y, dlat, next_lane, others, road, step_s)
+                accel = min(accel, bound)
+                if floor > 0.0:
+                    self.floors[ego.vehicle_id] = floor
             dlat = 0.0
         limit = gap_accel_limit(
             ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
         )
-        return dlat, min(accel, limit)
+        bound = min(accel, limit)
+        if ego.vehicle_id in self.floors:
+            self.floors[ego.vehicle_id] = min(self.floors[ego.vehicle_id], bound)
+        return dlat, bound
+
+    def _run_up(
+        self,
+        ego: VehicleState,
+        y: float,
+        dlat: float,
+        next_lane: int,
+        others: Sequence[VehicleState],
+        road: RoadSection,
+        step_s: float,
+    ) -> tuple[float, float]:
+        """Acceleration bound and floor [m/s^2] of a CAV whose lane change into ``next_lane``
+        the guard refused, behind a slow HV in its own lane (:func:`run_up`): running up it
+        accelerates at its maximum; ``(inf, 0)``: nothing to do."""
+        sc = self.scenario
+        sw = sc.swarm
+        nothing = (math.inf, 0.0)
+        own = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
+        if own is None or own[0].is_cav or own[1] > sw.detect_range_m:
+            return nothing
+        # A CAV of the platoon following in the next lane makes room (_make_room): no need.
+        follower = vehicle_behind(ego, others, road, y_m=road.lane_centre_y(next_lane),
+                                  width_m=sc.cav.width_m)  # fmt: skip
+        if follower is not None and follower[0].is_cav and follower[1] < sw.detect_range_m:
+            return nothing
+        slow, gap = own
+        lane_speed = lane_speeds(ego, others, road, [next_lane], range_m=sw.detect_range_m,
+                                 cap_mps=sc.cav.max_speed_mps,
+                                 desired_of=self.desired_speed)[next_lane]  # fmt: skip
+        # A vehicle alongside in the next lane sets its speed too (lane_speeds looks ahead
+        # only): a leader passing on its own ran up and fell back for 30 s beside an HV as
+        # slow as the truck, its CAVs behind it 2 m/s slower than waiting (stress scene 53).
+        for other in others:
+            if (
+                other.vehicle_id != ego.vehicle_id
+                and abs(other.centre_s_m - ego.centre_s_m) < 0.5 * (other.length_m + ego.length_m)
+                and road.lane_of_y(road.y_of(other.lane, other.lat_m)) == next_lane
+            ):
+                lane_speed = min(lane_speed, other.speed_mps)
+        if lane_speed - slow.speed_mps < sw.min_speed_gain_mps:
+            return nothing
+        reach = 2.0 * sw.detect_range_m
+
+        def entry_ok(v_enter: float, tau: float) -> bool:
+            s_ego = ego.s_m + 0.5 * (ego.speed_mps + v_enter) * tau
+            moved = [
+                replace(o, s_m=o.s_m + o.speed_mps * tau)
+                for o in others
+                if o.vehicle_id != ego.vehicle_id and abs(o.s_m - ego.s_m) < reach
+            ]
+            future = replace(ego, s_m=s_ego, speed_mps=v_enter, accel_mps2=0.0)
+            refusal = lateral_refusal(
+                future, y, dlat, moved, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
+                model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
+                settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
+            )  # fmt: skip
+            return refusal is None
+
+        what, value = run_up(
+            ego.speed_mps, slow.speed_mps, gap, lane_speed,
+            desired_gap_m=sc.cav.desired_gap_m, accel_mps2=sc.cav.accel_max_mps2,
+            brake_mps2=sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2,
+            change_s=road.lane_widths_m[next_lane] / sc.cav.max_lateral_speed_mps,
+            min_gain_mps=sw.min_speed_gain_mps, entry_ok=entry_ok,
+        )  # fmt: skip
+        vid = ego.vehicle_id
+        if what == "run":
+            self.running[vid] = RUN_UP_COMMIT_S
+            return math.inf, sc.cav.accel_max_mps2 if value > ego.speed_mps else 0.0
+        if what == "brake":
+            self.running.pop(vid, None)
+            return value, 0.0
+        if self.running.get(vid, 0.0) > 0.0:  # a run-up goes on a moment without a gap ahead
+            self.running[vid] -= step_s
+            return math.inf, sc.cav.accel_max_mps2
+        # No gap takes it: keep the run-up gap behind the slow vehicle, braking gently and
+        # dropping at most RUN_UP_DROP_MPS below its speed (the HVs behind wait too).
+        extra = max(sw.run_up_gap_m - sc.cav.desired_gap_m, 0.0)
+        bound = self._follow_gently(ego, slow, gap - extra)
+        if ego.speed_mps <= slow.speed_mps - RUN_UP_DROP_MPS:
+            bound = max(bound, 0.0)
+        return bound, 0.0
 
     def _make_room(
         self,

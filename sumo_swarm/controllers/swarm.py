@@ -453,7 +453,8 @@ class SwarmController:
         goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap)
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
         command_cacc(ctx, platoon, leader_cruise,
-                     accel_limits={vid: m[1] for vid, m in moves.items()})  # fmt: skip
+                     accel_limits={vid: m[1] for vid, m in moves.items()},
+                     accel_floors=reformer.floors)  # fmt: skip
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)

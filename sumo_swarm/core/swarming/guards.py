@@ -251,3 +251,54 @@ def gentle_for_follower(
     if behind is None or behind[0].is_cav or behind[1] > settings.follower_range_m:
         return -math.inf
     return -decel_mps2
+
+
+RUN_UP_STEP_MPS = 1.0  # entry speeds a run-up tries, this far apart [m/s]
+
+
+def run_up(
+    v_mps: float,
+    slow_speed_mps: float,
+    gap_m: float,
+    lane_speed_mps: float,
+    *,
+    desired_gap_m: float,
+    accel_mps2: float,
+    brake_mps2: float,
+    change_s: float,
+    min_gain_mps: float,
+    entry_ok: Callable[[float, float], bool],
+) -> tuple[str, float]:
+    """What a CAV refused a lane change out of a slow vehicle's lane does next: ``("run",
+    v_enter)`` (accelerate towards ``v_enter``: a gap in the next lane will take it at that
+    speed), ``("brake", a)`` (closing in on the slow vehicle too fast for the room left: brake
+    at ``a`` < 0) or ``("hold", 0)`` (no gap takes it: keep the run-up distance).
+
+    ``gap_m``: bumper gap to the slow vehicle ahead at ``slow_speed_mps``; ``lane_speed_mps``:
+    the next lane's speed, the most worth entering at. The room above ``desired_gap_m`` must
+    hold, at the closing speed c, the lane change (c * ``change_s``: the CAV still shares the
+    slow vehicle's lane meanwhile) and a stop of the closing braking at ``brake_mps2``: entry
+    speeds from the highest that fits down to ``min_gain_mps`` above the slow vehicle, each
+    reached at ``accel_mps2`` (less room than that: drop back further).
+    ``entry_ok(v_enter, tau)``: would the guard take the CAV at ``v_enter`` in ``tau`` [s]?"""
+    room = gap_m - desired_gap_m
+    closing = v_mps - slow_speed_mps
+    if closing > 0.0 and room < closing * change_s + closing * closing / (2.0 * brake_mps2):
+        return "brake", -min(brake_mps2, closing * closing / (2.0 * max(room, 0.5)))
+    # Largest closing speed c with c * change_s + c^2 / (2 b) <= room.
+    b = brake_mps2
+    c_max = b * (math.sqrt(change_s * change_s + 2.0 * max(room, 0.0) / b) - change_s)
+    v_enter = min(lane_speed_mps, slow_speed_mps + c_max)
+    lowest = slow_speed_mps + min_gain_mps  # slower entries are the guard's own business
+    if v_enter < lowest - 1e-9:
+        return "hold", 0.0
+    if v_enter <= v_mps:
+        return ("run", v_mps) if entry_ok(v_mps, 0.0) else ("hold", 0.0)
+    # The fastest entry first, then slower ones (a gap may come by before the CAV is at its
+    # fastest), RUN_UP_STEP_MPS apart, down to ``min_gain_mps`` above the slow vehicle.
+    v = v_enter
+    while v > max(v_mps, lowest - 1e-9):
+        if entry_ok(v, (v - v_mps) / accel_mps2):
+            return "run", v
+        v -= RUN_UP_STEP_MPS
+    return "hold", 0.0
