@@ -354,30 +354,27 @@ class Reformer:
         if follower is not None and follower[0].is_cav and follower[1] < sw.detect_range_m:
             return nothing
         slow, gap = own
-        lane_speed = lane_speeds(ego, others, road, [next_lane], range_m=sw.detect_range_m,
+        reach = 2.0 * sw.detect_range_m
+        vid = ego.vehicle_id
+        near = [o for o in others if o.vehicle_id != vid and abs(o.s_m - ego.s_m) < reach]
+        lane_speed = lane_speeds(ego, near, road, [next_lane], range_m=sw.detect_range_m,
                                  cap_mps=sc.cav.max_speed_mps,
                                  desired_of=self.desired_speed)[next_lane]  # fmt: skip
         # A vehicle alongside in the next lane sets its speed too (lane_speeds looks ahead
         # only): a leader passing on its own ran up and fell back for 30 s beside an HV as
         # slow as the truck, its CAVs behind it 2 m/s slower than waiting (stress scene 53).
-        for other in others:
+        for other in near:
             if (
-                other.vehicle_id != ego.vehicle_id
-                and abs(other.centre_s_m - ego.centre_s_m) < 0.5 * (other.length_m + ego.length_m)
+                abs(other.centre_s_m - ego.centre_s_m) < 0.5 * (other.length_m + ego.length_m)
                 and road.lane_of_y(road.y_of(other.lane, other.lat_m)) == next_lane
             ):
                 lane_speed = min(lane_speed, other.speed_mps)
         if lane_speed - slow.speed_mps < sw.min_speed_gain_mps:
             return nothing
-        reach = 2.0 * sw.detect_range_m
 
         def entry_ok(v_enter: float, tau: float) -> bool:
             s_ego = ego.s_m + 0.5 * (ego.speed_mps + v_enter) * tau
-            moved = [
-                replace(o, s_m=o.s_m + o.speed_mps * tau)
-                for o in others
-                if o.vehicle_id != ego.vehicle_id and abs(o.s_m - ego.s_m) < reach
-            ]
+            moved = [replace(o, s_m=o.s_m + o.speed_mps * tau) for o in near]
             future = replace(ego, s_m=s_ego, speed_mps=v_enter, accel_mps2=0.0)
             refusal = lateral_refusal(
                 future, y, dlat, moved, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
@@ -393,7 +390,6 @@ class Reformer:
             change_s=road.lane_widths_m[next_lane] / sc.cav.max_lateral_speed_mps,
             min_gain_mps=sw.min_speed_gain_mps, entry_ok=entry_ok,
         )  # fmt: skip
-        vid = ego.vehicle_id
         if what == "run":
             self.running[vid] = RUN_UP_COMMIT_S
             return math.inf, sc.cav.accel_max_mps2 if value > ego.speed_mps else 0.0
