@@ -12,6 +12,7 @@ from sumo_swarm.core.neighbours import (
     cav_alongside_behind,
     vehicle_ahead,
     vehicle_behind,
+    within,
 )
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
@@ -96,3 +97,19 @@ def test_the_snapshot_answers_as_the_scan_over_every_vehicle(vehicles, y_probe, 
             assert (slow is None) == (fast is None)
             if slow is not None:
                 assert fast[1] == slow[1]  # the same gap (on a tie, either vehicle)
+
+
+def test_within_a_reach_of_a_position_open_at_both_ends():
+    vehicles = [car(f"v{s:.0f}", s, 0) for s in (50.0, 80.0, 99.0, 120.0, 140.0, 180.0)]
+    for others in both(vehicles):
+        # 40 m around 100: 80, 99 and 120; 60 and 140 are exactly 40 away: out.
+        assert [v.vehicle_id for v in within(others, 100.0, 40.0)] == ["v80", "v99", "v120"]
+        assert within(others, 99.5, 0.6) == [vehicles[2]]
+        assert within(others, 1000.0, 40.0) == []
+    # 60 m away exactly: not within 60 m.
+    assert [v.vehicle_id for v in within(Snapshot(vehicles, ROAD), 120.0, 60.0)] == [
+        "v80",
+        "v99",
+        "v120",
+        "v140",
+    ]

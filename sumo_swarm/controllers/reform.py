@@ -37,6 +37,7 @@ from sumo_swarm.core.neighbours import (
     cav_alongside_behind,
     vehicle_ahead,
     vehicle_behind,
+    within,
 )
 from sumo_swarm.core.swarming.decision import lane_speeds
 from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal, run_up
@@ -292,11 +293,7 @@ class Reformer:
         next_lane = lane_now + (1 if lane > lane_now else -1)
         y_next = road.lane_centre_y(next_lane)
         dlat = clip(y_next - y, step)
-        refusal = lateral_refusal(
-            ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
-            model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
-            settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
-        )  # fmt: skip
+        refusal = self._refusal(ego, y, dlat, others, road, step_s)
         accel = math.inf
         ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
         held_lane, held = self.held_s.get(ego.vehicle_id, (None, 0.0))
@@ -329,6 +326,23 @@ class Reformer:
             self.floors[ego.vehicle_id] = min(self.floors[ego.vehicle_id], bound)
         return dlat, bound
 
+    def _refusal(
+        self,
+        ego: VehicleState,
+        y: float,
+        dlat: float,
+        others: Sequence[VehicleState],
+        road: RoadSection,
+        step_s: float,
+    ) -> str | None:
+        """The lateral guard (:func:`lateral_refusal`) on ego's move ``dlat`` from ``y``."""
+        sc = self.scenario
+        return lateral_refusal(
+            ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
+            model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
+            settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
+        )  # fmt: skip
+
     def _run_up(
         self,
         ego: VehicleState,
@@ -356,7 +370,7 @@ class Reformer:
         slow, gap = own
         reach = 2.0 * sw.detect_range_m
         vid = ego.vehicle_id
-        near = [o for o in others if o.vehicle_id != vid and abs(o.s_m - ego.s_m) < reach]
+        near = [o for o in within(others, ego.s_m, reach) if o.vehicle_id != vid]
         lane_speed = lane_speeds(ego, near, road, [next_lane], range_m=sw.detect_range_m,
                                  cap_mps=sc.cav.max_speed_mps,
                                  desired_of=self.desired_speed)[next_lane]  # fmt: skip
@@ -366,7 +380,7 @@ class Reformer:
         for other in near:
             if (
                 abs(other.centre_s_m - ego.centre_s_m) < 0.5 * (other.length_m + ego.length_m)
-                and road.lane_of_y(road.y_of(other.lane, other.lat_m)) == next_lane
+                and lane_index(road, other) == next_lane
             ):
                 lane_speed = min(lane_speed, other.speed_mps)
         if lane_speed - slow.speed_mps < sw.min_speed_gain_mps:
@@ -376,12 +390,7 @@ class Reformer:
             s_ego = ego.s_m + 0.5 * (ego.speed_mps + v_enter) * tau
             moved = [replace(o, s_m=o.s_m + o.speed_mps * tau) for o in near]
             future = replace(ego, s_m=s_ego, speed_mps=v_enter, accel_mps2=0.0)
-            refusal = lateral_refusal(
-                future, y, dlat, moved, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
-                model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
-                settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
-            )  # fmt: skip
-            return refusal is None
+            return self._refusal(future, y, dlat, moved, road, step_s) is None
 
         what, value = run_up(
             ego.speed_mps, slow.speed_mps, gap, lane_speed,

@@ -118,6 +118,15 @@ def vehicle_ahead(
     return _nearest(ego, others, road, y_m, width_m, ahead=True)
 
 
+def within(others: Iterable[VehicleState], s_m: float, reach_m: float) -> list[VehicleState]:
+    """The vehicles of ``others`` whose front is less than ``reach_m`` from ``s_m``, in the
+    order of ``others`` (of a :class:`Snapshot`: a slice found by bisection)."""
+    if isinstance(others, Snapshot):
+        lo, hi = bisect_right(others.s, s_m - reach_m), bisect_left(others.s, s_m + reach_m)
+        return others[lo:hi]
+    return [o for o in others if abs(o.s_m - s_m) < reach_m]
+
+
 def cav_alongside_behind(
     ego: VehicleState,
     others: Iterable[VehicleState],
