@@ -314,6 +314,17 @@ class SwarmSettings:
     # for 20 s. The cruise mode takes the platoon on (and moves it over as a unit if another
     # lane is faster). False: only in the regroup lane (the paper's Fig. 6 step 4).
     regroup_anywhere: bool = True
+    # Hand the pass over to the cruise: once every CAV has left the target's lane and settled
+    # in one other lane that is faster than the target by min_speed_gain_mps, the CAVs are a
+    # platoon passing in that lane; when the lane's speed (at most the cruise) beats the
+    # plan's pace (one cell per behaving interval above the grid) by min_speed_gain_mps, the
+    # manoeuvre ends (event reason "passing_lane", not a give-up) and the cruise drives them
+    # past at the lane's pace, as SUMO's drivers pass.
+    # The plan moves them one cell per behaving interval relative to the target (5 m/s above
+    # a truck with 15 m cells and 3 s): a 3-lane road at 900 veh/h/lane had all five CAVs in
+    # the free middle lane at 20 m/s for 10 s beside a 15 m/s truck, lanes limited to 33 m/s.
+    # False: the plan leads them past and regroups them (the paper's Fig. 6).
+    hand_over_in_lane: bool = True
     # A cruising CAV cut off from the platoon by a slow vehicle passes it on its own, in the
     # faster lane beside; it gives that up after this long [s] and heads for the platoon's lane.
     max_pass_s: float = 30.0

@@ -267,3 +267,51 @@ def test_cavs_whose_routes_part_take_their_exit_and_none_enters_a_lane_that_ends
     assert on_acceleration_lane.empty
     assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
     assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
+
+
+@pytest.mark.parametrize(
+    ("settings", "hand_over"),
+    [
+        ("[swarm]\nhand_over_in_lane = true\n", True),
+        ("[swarm]\nhand_over_in_lane = false\n", False),
+        # A cruise 1 m/s above the plan's pace beside the truck: the plan passes faster.
+        ("[cav]\ncruising_speed_mps = 21.0\nmax_speed_mps = 25.0\n", False),
+    ],
+    ids=["hand-over", "off", "cruise-barely-faster"],
+)
+def test_the_swarm_passes_at_the_lanes_pace_once_in_one_faster_lane(tmp_path, settings, hand_over):
+    """A user's 3-lane road at 900 veh/h/lane, a 15 m/s truck ahead of five CAVs whose lanes
+    allow 33 m/s: the plan moves all five into the middle lane, where they are one platoon
+    beside the truck. With the hand-over the cruise takes them past at that lane's pace (the
+    plan's one cell per behaving interval is 5 m/s above the truck), not counted as a
+    give-up; without it (``[swarm] hand_over_in_lane = false``), or with a cruise that does
+    not beat the plan's pace by ``min_speed_gain_mps``, the plan leads them past."""
+    from sumo_swarm.sim.userroads import write_road
+
+    cfg = write_road("3-lane-900", tmp_path / "road", end_s=40.0)
+    config = tmp_path / "swarm.toml"
+    config.write_text(settings)
+    out = tmp_path / "swarm"
+    summary = run_sumocfg(cfg, "cav", "swarm", out, config=config, progress=False,
+                          notify=lambda _: None)  # fmt: skip
+    assert summary["safety"]["collisions"] == 0
+    assert summary["cav"]["gap_min_m"] >= 5.0
+    ends = [e for e in _events(out) if e["event"] == "overtake_end"]
+    handed = [e for e in ends if e["reason"] == "passing_lane"]
+    assert bool(handed) == hand_over, ends
+    df = pd.read_parquet(out / "trajectories.parquet")
+    truck = df[df["vehicle"] == "truck"].set_index("time_s")["speed_mps"]
+    cav = df[df["kind"] == "cav"]
+    if hand_over:
+        assert summary["overtake"]["aborted"] == 0
+        t0 = handed[0]["time_s"]
+        later = cav[(cav["time_s"] > t0 + 5.0) & (cav["time_s"] < t0 + 10.0)]
+        # Well above the plan's pace beside the truck, every CAV
+        assert later.groupby("vehicle", observed=True)["speed_mps"].min().min() > (
+            truck.max() + 8.0
+        )
+    else:
+        start = next(e["time_s"] for e in _events(out) if e["event"] == "overtake_start")
+        during = cav[(cav["time_s"] > start) & (cav["time_s"] < start + 15.0)]
+        # The plan's pace: about one cell per 3 s above the truck, far below the lanes' 33 m/s
+        assert during["speed_mps"].max() < truck.max() + 10.0

@@ -16,6 +16,7 @@ from sumo_swarm.core.swarming.decision import (
     behaving_interval_s,
     lane_speeds,
     one_platoon,
+    passing_lane,
     right_lane_free,
     secure_gap_m,
     slow_vehicle_ahead,
@@ -427,3 +428,23 @@ def test_one_platoon_in_any_lane():
     astride = [*cavs[:2], dataclasses.replace(cavs[2], lat_m=0.8)]  # half into the next lane
     assert not one_platoon(astride, [], road, **kw)
     assert not one_platoon([], [], road, **kw)
+
+
+def test_passing_lane_is_one_settled_lane_that_is_not_the_targets():
+    truck = car("truck", 300.0, 0, 15.0)
+    kw = dict(tolerance_m=0.3)
+    cavs = [car(f"c{i}", 290.0 - 15.0 * i, 1, 20.0, cav=True) for i in range(3)]
+    assert passing_lane(truck, cavs, ROAD, **kw) == 1
+    ahead_in_2 = [car(f"c{i}", 320.0 - 15.0 * i, 2, 25.0, cav=True) for i in range(3)]
+    assert passing_lane(truck, ahead_in_2, ROAD, **kw) == 2  # past it or not: one lane
+    one_left_behind = [*cavs[:2], car("c2", 260.0, 0, 15.0, cav=True)]
+    assert passing_lane(truck, one_left_behind, ROAD, **kw) is None
+    two_lanes = [*cavs[:2], car("c2", 260.0, 2, 20.0, cav=True)]
+    assert passing_lane(truck, two_lanes, ROAD, **kw) is None
+    changing = [*cavs[:2], dataclasses.replace(cavs[2], lat_m=-1.0)]  # still moving over
+    assert passing_lane(truck, changing, ROAD, **kw) is None
+    in_its_lane = [car(f"c{i}", 290.0 - 15.0 * i, 0, 15.0, cav=True) for i in range(3)]
+    assert passing_lane(truck, in_its_lane, ROAD, **kw) is None
+    assert passing_lane(truck, [], ROAD, **kw) is None
+    moved_over = dataclasses.replace(truck, lane=1)  # the target in the CAVs' lane
+    assert passing_lane(moved_over, cavs, ROAD, **kw) is None

@@ -392,6 +392,26 @@ def one_platoon(
     )
 
 
+def passing_lane(
+    target: VehicleState, cavs: Sequence[VehicleState], road: RoadSection, *, tolerance_m: float
+) -> int | None:
+    """The lane every CAV of ``cavs`` is settled in (centre within ``tolerance_m`` of that
+    lane's), when it is one lane and not the target's; else ``None``."""
+    if not cavs:
+        return None
+    lanes = set()
+    for cav in cavs:
+        y = road.y_of(cav.lane, cav.lat_m)
+        lane = road.lane_of_y(y)
+        if abs(y - road.lane_centre_y(lane)) > tolerance_m:
+            return None
+        lanes.add(lane)
+    if len(lanes) != 1:
+        return None
+    lane = lanes.pop()
+    return None if lane == road.lane_of_y(road.y_of(target.lane, target.lat_m)) else lane
+
+
 def all_past(target: VehicleState, platoon: Mapping[str, VehicleState], min_gap_m: float) -> bool:
     """Every CAV's rear is ahead of the target's front by ``min_gap_m``."""
     return not cavs_behind(target, platoon.values(), min_gap_m)
