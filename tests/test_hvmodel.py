@@ -332,3 +332,35 @@ def test_a_reaction_followed_until_its_bound_gives_the_same_verdict(m):
             assert cut == full
         else:
             assert b < cut <= full
+
+
+def test_an_entry_speeding_up_is_judged_by_the_speeds_it_reaches():
+    # SUMO's default Krauss driver at 33 m/s (b = 4.5 m/s^2, tau = 1 s, minGap 2.5 m); a CAV
+    # enters 150 m ahead at 15 m/s. Keeping 15 m/s, the driver closes in at 18 m/s and brakes
+    # harder than 2 m/s^2 on arrival (Krauss brakes late). Speeding up at 1.5 m/s^2 to 33 m/s,
+    # the CAV lets it close in by 18 * 12 / 2 = 108 m, to 42 m at equal speeds, where Krauss'
+    # safe speed -4.5 + sqrt(4.5^2 + 33^2 + 2 * 4.5 * (42 - 2.5)) = 33.8 m/s is above its speed;
+    # at entry it is -4.5 + sqrt(4.5^2 + 15^2 + 2 * 4.5 * 147.5) = 35.2 m/s: it never brakes.
+    krauss = DriverModel("Krauss", 2.6, 4.5, 9.0, 1.0, 2.5, desired_speed_mps=33.0, sigma=0.0)
+    assert not accepts_entry(krauss, 33.0, 15.0, 150.0, 2.0, 0.1)
+    assert accepts_entry(krauss, 33.0, 15.0, 150.0, 2.0, 0.1, lead_accel_mps2=1.5,
+                         lead_final_mps=33.0)  # fmt: skip
+    # 100 m is too close even so: 108 m of closing would end inside the minimum gap.
+    assert not accepts_entry(krauss, 33.0, 15.0, 100.0, 2.0, 0.1, lead_accel_mps2=1.5,
+                             lead_final_mps=33.0)  # fmt: skip
+    # A "final" speed at or below the entry speed is an entry at constant speed.
+    for gap in (60.0, 150.0, 400.0):
+        assert accepts_entry(krauss, 33.0, 15.0, gap, 2.0, 0.1) == accepts_entry(
+            krauss, 33.0, 15.0, gap, 2.0, 0.1, lead_accel_mps2=1.5, lead_final_mps=15.0
+        )
+
+
+@pytest.mark.parametrize("m", [IDM, KRAUSS, DriverModel("Krauss", 2.6, 4.5, 9.0, 1.0, 2.5,
+                                                        desired_speed_mps=33.0)])  # fmt: skip
+def test_speeding_up_never_makes_an_entry_worse(m):
+    rng = random.Random(7)
+    for _ in range(200):
+        v, v_lead, gap = rng.uniform(5, 33), rng.uniform(0, 30), rng.uniform(3, 300)
+        if accepts_entry(m, v, v_lead, gap, 2.0, 0.1):
+            assert accepts_entry(m, v, v_lead, gap, 2.0, 0.1, lead_accel_mps2=1.0,
+                                 lead_final_mps=v_lead + rng.uniform(0, 10))  # fmt: skip

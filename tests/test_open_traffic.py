@@ -272,20 +272,22 @@ def test_cavs_whose_routes_part_take_their_exit_and_none_enters_a_lane_that_ends
 @pytest.mark.parametrize(
     ("settings", "hand_over"),
     [
-        ("[swarm]\nhand_over_in_lane = true\n", True),
-        ("[swarm]\nhand_over_in_lane = false\n", False),
+        ("[swarm]\nlane_pass = false\nhand_over_in_lane = true\n", True),
+        ("[swarm]\nlane_pass = false\nhand_over_in_lane = false\n", False),
         # A cruise 1 m/s above the plan's pace beside the truck: the plan passes faster.
-        ("[cav]\ncruising_speed_mps = 21.0\nmax_speed_mps = 25.0\n", False),
+        ("[swarm]\nlane_pass = false\n[cav]\ncruising_speed_mps = 21.0\n", False),
     ],
     ids=["hand-over", "off", "cruise-barely-faster"],
 )
 def test_the_swarm_passes_at_the_lanes_pace_once_in_one_faster_lane(tmp_path, settings, hand_over):
     """A user's 3-lane road at 900 veh/h/lane, a 15 m/s truck ahead of five CAVs whose lanes
-    allow 33 m/s: the plan moves all five into the middle lane, where they are one platoon
-    beside the truck. With the hand-over the cruise takes them past at that lane's pace (the
-    plan's one cell per behaving interval is 5 m/s above the truck), not counted as a
-    give-up; without it (``[swarm] hand_over_in_lane = false``), or with a cruise that does
-    not beat the plan's pace by ``min_speed_gain_mps``, the plan leads them past."""
+    allow 33 m/s, the cells asked to pass it (``lane_pass = false``; with it the platoon
+    moves over as a unit first): the plan moves all five into the middle lane, where they are
+    one platoon beside the truck. With the hand-over the cruise takes them past at that
+    lane's pace (the plan's one cell per behaving interval is 5 m/s above the truck), not
+    counted as a give-up; without it (``[swarm] hand_over_in_lane = false``), or with a
+    cruise that does not beat the plan's pace by ``min_speed_gain_mps``, the plan leads them
+    past."""
     from sumo_swarm.sim.userroads import write_road
 
     cfg = write_road("3-lane-900", tmp_path / "road", end_s=40.0)
@@ -315,3 +317,58 @@ def test_the_swarm_passes_at_the_lanes_pace_once_in_one_faster_lane(tmp_path, se
         during = cav[(cav["time_s"] > start) & (cav["time_s"] < start + 15.0)]
         # The plan's pace: about one cell per 3 s above the truck, far below the lanes' 33 m/s
         assert during["speed_mps"].max() < truck.max() + 10.0
+
+
+@pytest.fixture(scope="module")
+def two_lane_runs(tmp_path_factory):
+    """The user's 2-lane road with a 900 veh/h flow in the passing lane (33 m/s), a 15 m/s
+    truck ahead of five CAVs: the swarm with and without ``[swarm] lane_pass``."""
+    from sumo_swarm.sim.userroads import write_road
+
+    base = tmp_path_factory.mktemp("lane_pass")
+    cfg = write_road("2-lane-passing-flow", base / "road", end_s=90.0)
+    runs = {}
+    for lane_pass in (True, False):
+        config = base / f"swarm-{lane_pass}.toml"
+        config.write_text(f"[swarm]\nlane_pass = {str(lane_pass).lower()}\n")
+        out = base / f"swarm-{lane_pass}"
+        summary = run_sumocfg(cfg, "cav", "swarm", out, config=config, progress=False,
+                              notify=lambda _: None)  # fmt: skip
+        runs[lane_pass] = (summary, out)
+    return runs
+
+
+def test_the_platoon_moves_over_to_a_faster_lane_and_passes_there(two_lane_runs):
+    """Beside a passing lane 18 m/s faster than the truck (the cells would pass at 5 m/s above
+    it, entering at that speed in front of 33 m/s drivers, which the guard refuses), the
+    platoon moves over as a unit, each CAV entering speeding up, passes the truck at the
+    lane's pace and re-forms there: faster than with the cells alone, safe, and regrouped."""
+    summary, out = two_lane_runs[True]
+    starts = [e for e in _events(out) if e["event"] == "overtake_start"]
+    assert starts and starts[0].get("how") == "lane" and starts[0]["lane"] == 1
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["hard_brakes_cav"] == 0
+    assert summary["cav"]["gap_min_m"] >= 5.0
+    assert summary["overtake"]["completed"] and summary["overtake"]["regrouped"]
+    cells, _ = two_lane_runs[False]
+    assert summary["cav"]["mean_speed_mps"] > cells["cav"]["mean_speed_mps"] + 3.0
+    # The HV drivers of the passing lane are not braked harder than by the cells' swarm.
+    assert summary["safety"]["hard_brakes"] <= max(cells["safety"]["hard_brakes"], 1)
+
+
+def test_a_lane_pass_that_stalls_hands_the_target_to_the_cells(tmp_path):
+    """Stress v2 scene 59 (2 lanes, a 12.7 m/s truck ahead of three CAVs, the cruise 20 m/s):
+    the passing lane looks free enough at the decision, the platoon starts to move over,
+    but no CAV gets out of the truck's lane for lane_pass_stall_s; the cells then take the
+    truck over (blocking), and all CAVs get past it, safely."""
+    sweep = load_sweep(ROOT / "scenarios" / "stress2.toml")
+    spec = [r for r in sweep.runs if r.controller == "swarm"][59]
+    summary = run_scenario(spec.scenario(), "swarm", tmp_path, seed=spec.seed, progress=False)
+    ends = {e["event"] + ":" + str(e.get("reason", e.get("how")))
+            for e in _events(tmp_path) if e["event"].startswith("overtake_")}  # fmt: skip
+    assert "overtake_start:lane" in ends and "overtake_end:lane_pass_stalled" in ends
+    starts = [e for e in _events(tmp_path) if e["event"] == "overtake_start"]
+    assert [e.get("how", "cells") for e in starts[:2]] == ["lane", "cells"]
+    assert summary["overtake"]["completed"]
+    assert summary["safety"]["collisions"] == 0 and summary["safety"]["hard_brakes_cav"] == 0
+    assert summary["cav"]["gap_min_m"] >= 5.0

@@ -300,3 +300,35 @@ def test_a_stranded_cav_holds_back_from_the_slow_car_then_runs_up_into_a_gap():
     r.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, run_up_gap_m=0.0))
     assert r.moves(scene(240.0), platoon, ROAD, 1, goals, 0.1)["c1"][1] > 0.0
     assert r.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"] == with_run_up
+
+
+def test_a_cav_enters_a_faster_lane_speeding_up_where_the_guard_then_takes_it():
+    # SUMO's default Krauss driver (b = 4.5 m/s^2, Krauss brakes late) in lane 1 at 24 m/s,
+    # 120 m behind a CAV at 12 m/s that heads for lane 1, 40 m behind a slow car. Entering at
+    # 12 m/s it would close in at 12 m/s and brake harder than b_safe on arrival (refused);
+    # entering speeding up at entry_accel_mps2 to lane 1's 18 m/s (the cruise less the
+    # leader's ease) the guard takes it, and the CAV gets that floor so that it does speed up.
+    krauss = DriverModel("Krauss", 2.6, 4.5, 9.0, 1.0, 2.5, desired_speed_mps=30.0, sigma=0.0)
+    r = Reformer(SCENARIO, lambda vid: krauss)
+    sw = SCENARIO.swarm
+
+    def scene(slow_s=265.0):
+        return states(
+            car("c1", 220.0, 0, 12.0, cav=True, lat=0.6),
+            car("slow", slow_s, 0, 12.0),
+            car("f", 95.0, 1, 24.0),  # its front 120 m behind c1's rear
+        )
+
+    platoon, goals = ["c1"], {"c1": 1}
+    dlat, _ = r.moves(scene(), platoon, ROAD, 1, goals, 0.1)["c1"]
+    assert dlat > 0.0 and r.floors == {"c1": sw.entry_accel_mps2}
+    # Off: at its own speed the same entry is refused.
+    r.scenario = replace(SCENARIO, swarm=replace(sw, entry_accel_mps2=0.0))
+    dlat, _ = r.moves(scene(), platoon, ROAD, 1, goals, 0.1)["c1"]
+    assert dlat == 0.0 and r.floors == {}
+    # No room to speed up behind the slow car during the lane change (6 m, under min_gap +
+    # 1.5 * (3.2 m / max_lateral_speed)^2 / 2 = 5 + 1.92 m): it would enter at its speed, refused.
+    r.scenario = SCENARIO
+    assert SCENARIO.cav.max_lateral_speed_mps == 2.0
+    dlat, _ = r.moves(scene(slow_s=231.0), platoon, ROAD, 1, goals, 0.1)["c1"]
+    assert dlat == 0.0 and r.floors == {}

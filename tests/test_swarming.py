@@ -15,6 +15,7 @@ from sumo_swarm.core.swarming.decision import (
     TargetWatch,
     behaving_interval_s,
     lane_speeds,
+    leader_ease_cap,
     one_platoon,
     passing_lane,
     right_lane_free,
@@ -448,3 +449,53 @@ def test_passing_lane_is_one_settled_lane_that_is_not_the_targets():
     assert passing_lane(truck, [], ROAD, **kw) is None
     moved_over = dataclasses.replace(truck, lane=1)  # the target in the CAVs' lane
     assert passing_lane(moved_over, cavs, ROAD, **kw) is None
+
+
+def test_lateral_guard_judges_an_entry_speeding_up_by_the_speeds_it_reaches():
+    krauss = DriverModel("Krauss", 2.6, 4.5, 9.0, 1.0, 2.5, desired_speed_mps=33.0, sigma=0.0)
+
+    def held(ego, others, **kw):
+        y = ROAD.y_of(ego.lane, ego.lat_m)
+        return lateral_refusal(
+            ego, y, 0.3, [ego, *others], ROAD, min_gap_m=5.0, width_m=1.8,
+            model_of=lambda vid: krauss, b_safe_mps2=2.0, step_s=0.1, **kw,
+        )  # fmt: skip
+
+    ego = car("c0", 300.0, 0, 15.0, cav=True, lat=1.0)  # moving left into lane 1
+    # The driver 150 m behind at 33 m/s (see test_hvmodel): held at 15 m/s, not speeding up.
+    fast = car("h", 145.0, 1, 33.0)  # its front 150 m behind ego's rear (295 m)
+    assert held(ego, [fast]) == "follower_brake"
+    assert held(ego, [fast], ego_accel_mps2=1.5, ego_final_mps=33.0) is None
+    # Speeding up to 33 m/s behind a leader at 20 m/s 30 m ahead: closing in, held.
+    slow = car("l", 340.0, 1, 20.0)
+    assert held(ego, [slow]) is None
+    assert held(ego, [slow], ego_accel_mps2=1.5, ego_final_mps=33.0) == "leader"
+
+
+def test_the_leader_eases_off_more_only_for_a_platoon_strung_out_in_its_lane():
+    kw = dict(width_m=1.8, reach_m=60.0, ease_mps=2.0, regroup_ease_mps=5.0)
+    platoon = ["c0", "c1", "c2"]
+    strung = states_of(
+        car("c0", 500.0, 1, 20.0, cav=True), car("c1", 380.0, 1, 22.0, cav=True),
+        car("c2", 360.0, 1, 22.0, cav=True),
+    )  # fmt: skip
+    assert leader_ease_cap(strung, platoon, ROAD, **kw) == 5.0
+    # An HV between the leader and the others: easing off would hold it back, not close up.
+    assert leader_ease_cap({**strung, **states_of(car("h", 450.0, 1, 20.0))}, platoon, ROAD,
+                           **kw) == 2.0  # fmt: skip
+    # A CAV stuck in another lane (behind a truck): the leader slowing does not bring it closer.
+    stuck = {**strung, **states_of(car("c2", 360.0, 0, 12.0, cav=True))}
+    assert leader_ease_cap(stuck, platoon, ROAD, **kw) == 2.0
+    # A single CAV leading, an HV 30 m behind it: that HV would be held back.
+    alone = states_of(car("c0", 500.0, 1, 20.0, cav=True), car("h", 465.0, 1, 22.0))
+    assert leader_ease_cap(alone, ["c0"], ROAD, **kw) == 2.0
+    far = states_of(car("c0", 500.0, 1, 20.0, cav=True), car("h", 400.0, 1, 22.0))
+    assert leader_ease_cap(far, ["c0"], ROAD, **kw) == 5.0
+    # Vehicles in other lanes do not matter; no larger ease configured: the base one.
+    beside = {**strung, **states_of(car("h", 450.0, 2, 20.0))}
+    assert leader_ease_cap(beside, platoon, ROAD, **kw) == 5.0
+    assert leader_ease_cap(strung, platoon, ROAD, **{**kw, "regroup_ease_mps": 2.0}) == 2.0
+
+
+def states_of(*vehicles):
+    return {v.vehicle_id: v for v in vehicles}

@@ -86,6 +86,9 @@ class Reformer:
     # CAV -> acceleration floor [m/s^2] of this step's moves (a CAV running up, see run_up)
     floors: dict[str, float] = field(default_factory=dict)
     running: dict[str, float] = field(default_factory=dict)  # CAV -> run-up time left [s]
+    # (lane, edge): the platoon moves over to this lane as a unit (a lane pass), whatever
+    # lanes its CAVs are in now, while the leader is on that edge
+    move_to: tuple[int, str | None] | None = None
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
@@ -114,6 +117,11 @@ class Reformer:
         if edge != self.edge:  # lane indices change between edges (ramps, lane drops)
             self.edge, self.lane_id = edge, None
         leader = states[platoon[0]]
+        if self.move_to is not None and self.move_to[1] == edge and self.move_to[0] not in ending:
+            if self.lane_id != self.move_to[0]:
+                self.event("reform_lane", lane=self.move_to[0], lane_speeds_mps={})
+            self.lane_id = self.move_to[0]
+            return self.lane_id
         count = Counter(lane_index(road, states[v]) for v in platoon)
         if len(count) == 1 and self.lane_id in (None, *count) and not set(count) & set(ending):
             self.lane_id = next(iter(count))
@@ -293,7 +301,8 @@ class Reformer:
         next_lane = lane_now + (1 if lane > lane_now else -1)
         y_next = road.lane_centre_y(next_lane)
         dlat = clip(y_next - y, step)
-        refusal = self._refusal(ego, y, dlat, others, road, step_s)
+        commit = self._speed_up_into(ego, next_lane, others, road)
+        refusal = self._refusal(ego, y, dlat, others, road, step_s, commit)
         accel = math.inf
         ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
         held_lane, held = self.held_s.get(ego.vehicle_id, (None, 0.0))
@@ -318,6 +327,8 @@ class Reformer:
                 if floor > 0.0:
                     self.floors[ego.vehicle_id] = floor
             dlat = 0.0
+        if refusal is None and commit is not None and dlat != 0.0:
+            self.floors[ego.vehicle_id] = commit[0]  # as the guard was told: it speeds up
         limit = gap_accel_limit(
             ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
         )
@@ -334,14 +345,54 @@ class Reformer:
         others: Sequence[VehicleState],
         road: RoadSection,
         step_s: float,
+        commit: tuple[float, float] | None = None,
     ) -> str | None:
-        """The lateral guard (:func:`lateral_refusal`) on ego's move ``dlat`` from ``y``."""
+        """The lateral guard (:func:`lateral_refusal`) on ego's move ``dlat`` from ``y``
+        (``commit``: ego speeds up at this rate [m/s^2] to this speed [m/s] as it moves)."""
         sc = self.scenario
+        accel, final = commit if commit is not None else (0.0, None)
         return lateral_refusal(
             ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
             model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
             settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
+            ego_accel_mps2=accel, ego_final_mps=final,
         )  # fmt: skip
+
+    def _speed_up_into(
+        self,
+        ego: VehicleState,
+        next_lane: int,
+        others: Snapshot,
+        road: RoadSection,
+    ) -> tuple[float, float] | None:
+        """``(a, v)``: ego enters ``next_lane`` speeding up at ``a`` to ``v``, that lane's speed
+        ahead of it (at most the cruise), when that is faster than ego by ``min_speed_gain_mps``
+        and the vehicle ahead of ego in its own lane leaves room to speed up during the lane
+        change (``[swarm] entry_accel_mps2``; None: it enters at its speed)."""
+        sc = self.scenario
+        sw = sc.swarm
+        accel = sw.entry_accel_mps2
+        if accel <= 0.0:
+            return None
+        near = [o for o in within(others, ego.s_m, 2.0 * sw.detect_range_m)
+                if o.vehicle_id != ego.vehicle_id]  # fmt: skip
+        lane_speed = lane_speeds(ego, near, road, [next_lane], range_m=sw.detect_range_m,
+                                 cap_mps=sc.cav.cruising_speed_mps,
+                                 desired_of=self.desired_speed)[next_lane]  # fmt: skip
+        if (
+            min(lane_speed, sc.cav.cruising_speed_mps - sw.max_leader_ease_mps) - ego.speed_mps
+            < sw.min_speed_gain_mps
+        ):
+            return None
+        change_s = road.lane_widths_m[next_lane] / sc.cav.max_lateral_speed_mps
+        own = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
+        if own is not None:
+            closing = max(0.0, ego.speed_mps - own[0].speed_mps)
+            need = sc.cav.min_gap_m + closing * change_s + 0.5 * accel * change_s * change_s
+            if own[1] < need:
+                return None
+        # Never more than the cruise a leader easing off to close up would keep.
+        return accel, min(lane_speed, sc.cav.cruising_speed_mps - sw.max_leader_ease_mps)
 
     def _run_up(
         self,

@@ -53,6 +53,7 @@ from sumo_swarm.core.swarming.decision import (
     cavs_behind,
     keeps_cell,
     lane_speeds,
+    leader_ease_cap,
     one_platoon,
     passing_lane,
     right_lane_free,
@@ -152,6 +153,9 @@ class SwarmController:
         self._no_gain_target: str | None = None
         self._keep_right_target: str | None = None
         self._target_lane: tuple[str | None, int] | None = None
+        self.lane_pass: tuple[str, float] | None = None  # (target, since) of a lane pass
+        self._lane_pass_progress: tuple[int, float] = (0, 0.0)  # (CAVs out or past, since)
+        self._cells_for: str | None = None  # a target whose lane pass stalled: cells only
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:
@@ -256,7 +260,13 @@ class SwarmController:
         if self.drawer is not None and self.mode is Mode.OVERTAKE:
             self.drawer.update(t_s)
         if self.mode is Mode.CRUISE:
-            target = self._decide(t_s, states, platoon)
+            target = self._lane_pass_target(t_s, states, platoon)
+            if target is None and self.lane_pass is None:
+                target = self._decide(t_s, states, platoon)
+                lane = None if target is None else self._lane_beats_plan(target, states, platoon)
+                if lane is not None:
+                    self._start_lane_pass(t_s, target, lane, platoon)
+                    target = None
             if target is not None:
                 self._start_overtake(t_s, target)
         if self.mode is Mode.OVERTAKE:
@@ -448,7 +458,7 @@ class SwarmController:
         cap = self._speed_cap(platoon[:1])
         room = max(min(cap, sc.cav.max_speed_mps) - sc.cav.cruising_speed_mps, 0.0)
         leader_cruise = sc.cav.cruising_speed_mps - min(
-            sc.swarm.max_leader_ease_mps, max(sc.cacc.k_close * stretch - room, 0.0)
+            self._leader_ease_cap(states, platoon), max(sc.cacc.k_close * stretch - room, 0.0)
         )
         # Never re-form in a lane that ends within 10 s at the cruise (an acceleration lane).
         reach = sc.swarm.detect_range_m + 10.0 * sc.cav.cruising_speed_mps
@@ -463,6 +473,16 @@ class SwarmController:
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)
+
+    def _leader_ease_cap(self, states: dict[str, VehicleState], platoon: list[str]) -> float:
+        """How much [m/s] the cruising leader may slow to let a stretched platoon close up
+        (:func:`leader_ease_cap`)."""
+        sc = self.ctx.scenario
+        return leader_ease_cap(
+            states, platoon, self.ctx.road, width_m=sc.cav.width_m,
+            reach_m=sc.swarm.detect_range_m, ease_mps=sc.swarm.max_leader_ease_mps,
+            regroup_ease_mps=sc.swarm.regroup_ease_mps,
+        )  # fmt: skip
 
     def lane_shift_hold(self, ego: VehicleState, y: float, dlat: float) -> bool:
         """Hold a lane change near a place where lane indices shift (a lane added or dropped
@@ -570,6 +590,108 @@ class SwarmController:
         pace = max(grid_speed, target.speed_mps) + sc.cell_length_m / interval
         cruise = min(speeds[lane], sc.cav.cruising_speed_mps)
         return cruise - pace >= sw.min_speed_gain_mps
+
+    # ------------------------------------------------------------------ passing in a lane
+    def _lane_beats_plan(self, target: VehicleState, states, platoon: list[str]) -> int | None:
+        """The lane beside the leader that is faster than the cell plan's pace past ``target``
+        (one cell per behaving interval above it) by ``min_speed_gain_mps``, at most the
+        cruise, and has room for the platoon; the platoon then moves over to it and passes
+        there (``[swarm] lane_pass``). None: the cells."""
+        ctx = self.ctx
+        sc = ctx.scenario
+        road, sw = ctx.road, sc.swarm
+        if not sw.lane_pass or target.vehicle_id == self._cells_for:
+            return None
+        leader = states[self._decision_leader(states, platoon)]
+        lane = lane_index(road, leader)
+        side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
+        side = [q for q in side if q not in self._ending_lanes(leader, leader.vehicle_id)]
+        if abs(target.lat_m) > sw.in_lane_tolerance_m:  # never the lane the target moves into
+            heading = lane_index(road, target) + (1 if target.lat_m > 0.0 else -1)
+            side = [q for q in side if q != heading]
+        others = [st for st in states.values() if not st.is_cav]
+        speeds = lane_speeds(
+            leader, others, road, side, range_m=sw.detect_range_m, cap_mps=self.cap_mps,
+            desired_of=self.reformer.desired_speed,
+        )  # fmt: skip
+        # Only lanes with room for the platoon as a unit: within detect_range_m of its ends,
+        # at least n_CAVs cells per vehicle there (denser lanes: the cells make room, blocking;
+        # at 1800 veh/h/lane CAVs passing one by one ended 300 m apart with HVs between).
+        tail = states[platoon[-1]]
+        lo, hi = tail.rear_s_m - sw.detect_range_m, leader.s_m + sw.detect_range_m
+        need = len(platoon) * sc.cell_length_m
+        for q in list(speeds):
+            n = sum(1 for o in others if lo < o.centre_s_m < hi and lane_index(road, o) == q)
+            if n > 0 and (hi - lo) / n < need:
+                del speeds[q]
+        if not speeds:
+            return None
+        # Ties: the left (passing) side; SUMO numbers lanes from the right.
+        best = max(speeds, key=lambda q: (speeds[q], q > lane))
+        interval = behaving_interval_s(
+            self.planner_settings.behaving_interval_s, sc.cell_length_m, target.speed_mps,
+            self.cap_mps, sw.speed_margin_mps, sw.interval_rule,
+        )  # fmt: skip
+        pace = target.speed_mps + sc.cell_length_m / interval
+        fast = min(speeds[best], sc.cav.cruising_speed_mps) - pace >= sw.min_speed_gain_mps
+        return best if fast else None
+
+    def _start_lane_pass(
+        self, t_s: float, target: VehicleState, lane: int, platoon: list[str]
+    ) -> None:
+        """The platoon moves over to ``lane`` as a unit, each CAV through the lateral guard,
+        entering speeding up, and passes ``target`` there (the cruise's re-forming)."""
+        self.target_id = target.vehicle_id
+        self.overtakes += 1
+        if self.t_start_s is None:
+            self.t_start_s = t_s
+        self.lane_pass = (target.vehicle_id, t_s)
+        self._lane_pass_progress = (0, t_s)
+        self._target_lane = None
+        self.reformer.move_to = (lane, self._edge_of(platoon[0]))
+        self.ctx.event("overtake_start", target=target.vehicle_id, speed_cap_mps=self.cap_mps,
+                       how="lane", lane=lane)  # fmt: skip
+
+    def _lane_pass_target(self, t_s: float, states, platoon: list[str]) -> VehicleState | None:
+        """Follow a lane pass: its end once every CAV is past (or the target gone), and the
+        target, for the cell plan, once no CAV has left its lane or passed it for
+        ``[swarm] lane_pass_stall_s`` (the side lanes offer no gap: the cells block and cut
+        through); else None."""
+        if self.lane_pass is None:
+            return None
+        sc = self.ctx.scenario
+        tid = self.lane_pass[0]
+        target = states.get(tid)
+        cavs = {v: states[v] for v in platoon}
+        if target is None or all_past(target, cavs, sc.cav.min_gap_m):
+            self._end_lane_pass(t_s, completed=target is not None, reason="completed"
+                                if target is not None else "target_left")  # fmt: skip
+            return None
+        stop = stopped_blocking(target, self._target_changed_lane(target),
+                                slow_below_mps=self._slow_below())  # fmt: skip
+        if stop is not None:  # it moved over (perhaps into the lane the platoon moves to)
+            self._end_lane_pass(t_s, completed=False, reason=stop)
+            return None
+        road = self.ctx.road
+        lane = lane_index(road, target)
+        behind = set(cavs_behind(target, cavs.values(), sc.cav.min_gap_m))
+        done = sum(1 for v, c in cavs.items() if v not in behind or lane_index(road, c) != lane)
+        best, at = self._lane_pass_progress
+        if done > best or done == len(cavs):  # every CAV out of its lane: passing it
+            self._lane_pass_progress = (done, t_s)
+        elif t_s - at > sc.swarm.lane_pass_stall_s:
+            self._end_lane_pass(t_s, completed=False, reason="lane_pass_stalled")
+            self._cells_for = tid
+            return target
+        return None
+
+    def _end_lane_pass(self, t_s: float, *, completed: bool, reason: str) -> None:
+        self.lane_pass = None
+        self.reformer.move_to = None
+        if completed and self.t_done_s is None:
+            self.t_done_s = t_s
+        self.ctx.event("overtake_end", target=self.target_id, completed=completed,
+                       reason=reason, how="lane")  # fmt: skip
 
     def _finish(
         self, t_s: float, completed: bool, reason: str = "completed", abort: bool = True

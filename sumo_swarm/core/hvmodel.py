@@ -271,7 +271,8 @@ def _reaction_peak(
     limit: float = math.inf,
 ) -> float:
     """Strongest braking of a driver reacting to a leader that enters at ``gap`` driving
-    ``v_lead`` and slows at ``lead_decel`` to ``v_final`` (0: keeps its speed). Once it
+    ``v_lead`` and slows at ``lead_decel`` to ``v_final`` (0: keeps its speed; < 0: speeds up
+    to ``v_final``). Once it
     exceeds ``limit`` the reaction is not followed further (the answer is then some braking
     above ``limit``: enough for a yes/no against it, at a fraction of the cost)."""
     sim_dt = max(step_s, 0.1)
@@ -295,7 +296,10 @@ def _reaction_peak(
         previous = braking
         dt = step_s if k == 0 else sim_dt
         v = max(0.0, v + acc * dt)
-        v_lead = max(v_final, v_lead - lead_decel * dt)
+        if lead_decel >= 0.0:
+            v_lead = max(v_final, v_lead - lead_decel * dt)
+        else:  # a leader speeding up towards v_final
+            v_lead = min(v_final, v_lead - lead_decel * dt)
         gap += (v_lead - v) * dt
     return peak
 
@@ -371,14 +375,23 @@ def accepts_entry(
     gap_m: float,
     b_safe_mps2: float,
     step_s: float = 0.1,
+    *,
+    lead_accel_mps2: float = 0.0,
+    lead_final_mps: float | None = None,
 ) -> bool:
     """Whether a vehicle entering ahead at bumper gap ``gap_m`` and speed ``v_lead_mps`` makes
     this driver brake no harder than ``b_safe_mps2`` over its reaction (:func:`peak_braking`),
-    outside its minGap (as :func:`min_entry_gap`)."""
-    return (
-        gap_m >= m.min_gap_m
-        and peak_braking(m, v_mps, v_lead_mps, gap_m, step_s, limit=b_safe_mps2) <= b_safe_mps2
-    )
+    outside its minGap (as :func:`min_entry_gap`). With ``lead_accel_mps2`` > 0 the entering
+    vehicle speeds up at that rate to ``lead_final_mps`` (one that enters a faster lane
+    committed to reaching its speed)."""
+    if gap_m < m.min_gap_m:
+        return False
+    if lead_accel_mps2 <= 0.0 or lead_final_mps is None or lead_final_mps <= v_lead_mps:
+        return peak_braking(m, v_mps, v_lead_mps, gap_m, step_s, limit=b_safe_mps2) <= b_safe_mps2
+    v = max(0.0, v_mps)
+    peak = _reaction_peak(m, v, v_lead_mps, lead_final_mps, -lead_accel_mps2, gap_m, step_s,
+                          60.0, b_safe_mps2)  # fmt: skip
+    return peak <= b_safe_mps2
 
 
 # ---------------------------------------------------------------------- many drivers at once

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import vehicle_ahead
+from sumo_swarm.core.neighbours import vehicle_ahead, vehicle_behind
 
 # A vehicle accelerating harder than this [m/s^2] is getting up to speed, not slow.
 ACCELERATING_MPS2 = 0.5
@@ -410,6 +410,38 @@ def passing_lane(
         return None
     lane = lanes.pop()
     return None if lane == road.lane_of_y(road.y_of(target.lane, target.lat_m)) else lane
+
+
+def leader_ease_cap(
+    states: Mapping[str, VehicleState],
+    platoon: Sequence[str],
+    road: RoadSection,
+    *,
+    width_m: float,
+    reach_m: float,
+    ease_mps: float,
+    regroup_ease_mps: float,
+) -> float:
+    """How much [m/s] the cruising leader (``platoon[0]``) may slow to let a stretched platoon
+    close up: ``regroup_ease_mps`` when every CAV is in the leader's lane with nobody else
+    between them, and what follows the leader there is a CAV of the platoon or nothing within
+    ``reach_m`` (no HV held back; a CAV stuck behind a truck elsewhere does not come closer
+    when the leader slows); ``ease_mps`` otherwise."""
+    if regroup_ease_mps <= ease_mps or not platoon:
+        return ease_mps
+    leader, tail = states[platoon[0]], states[platoon[-1]]
+    lane = road.lane_of_y(road.y_of(leader.lane, leader.lat_m))
+    members = set(platoon)
+    for vehicle in states.values():
+        in_lane = road.lane_of_y(road.y_of(vehicle.lane, vehicle.lat_m)) == lane
+        if vehicle.vehicle_id in members and not in_lane:
+            return ease_mps
+        if vehicle.vehicle_id not in members and in_lane and tail.s_m < vehicle.s_m < leader.s_m:
+            return ease_mps
+    behind = vehicle_behind(leader, states.values(), road, width_m=width_m)
+    if behind is None or behind[1] > reach_m or behind[0].vehicle_id in members:
+        return regroup_ease_mps
+    return ease_mps
 
 
 def all_past(target: VehicleState, platoon: Mapping[str, VehicleState], min_gap_m: float) -> bool:

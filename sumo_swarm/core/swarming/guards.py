@@ -129,8 +129,14 @@ def lateral_refusal(
     step_s: float,
     settings: GuardSettings = DEFAULT,
     brake_mps2: float = 4.0,
+    ego_accel_mps2: float = 0.0,
+    ego_final_mps: float | None = None,
 ) -> str | None:
     """Why the lateral move ``dlat`` [m] from ``y`` [m] must be held, or ``None`` if it is safe.
+
+    ``ego_accel_mps2`` > 0: ego is committed to speed up at that rate to ``ego_final_mps`` once
+    it moves (a CAV entering a faster lane; the caller makes it do so): the HV follower reacts
+    to that, and closing in on the leader is judged at ``ego_final_mps``.
 
         Reasons: ``"leader"`` (the vehicle ahead in the new lane is closer than ``min_gap_m``
         plus what closing in on it at ``b_safe_mps2``, or stopping behind it at
@@ -151,6 +157,8 @@ def lateral_refusal(
         # braking at most ``brake_mps2`` should it stop (SUMO's safe speed, which brakes at the
         # vType's decel the moment the CAV's body enters the lane).
         v, v_lead = ego.speed_mps, ahead[0].speed_mps
+        if ego_accel_mps2 > 0.0 and ego_final_mps is not None:
+            v = max(v, ego_final_mps)
         closing = max(0.0, v - v_lead)
         need = max(
             closing * closing / (2.0 * max(b_safe_mps2, 0.1)),
@@ -172,7 +180,8 @@ def lateral_refusal(
     if gap < min_gap_m:
         return "follower_gap"
     model = model_of(follower.vehicle_id)
-    if accepts_entry(model, follower.speed_mps, ego.speed_mps, gap, b_safe_mps2, step_s):
+    if accepts_entry(model, follower.speed_mps, ego.speed_mps, gap, b_safe_mps2, step_s,
+                     lead_accel_mps2=ego_accel_mps2, lead_final_mps=ego_final_mps):  # fmt: skip
         return None
     return "follower_brake"
 
