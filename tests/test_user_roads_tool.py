@@ -77,3 +77,30 @@ def test_a_run_the_cli_refuses_is_recorded_as_refused(tmp_path):
     row = ur.run_job(ur.Job("r", "0.1", "swarm", cfg, tmp_path / "out"), timeout_s=120)
     assert row["status"] == "refused"
     assert "missing.net.xml" in row["message"]
+
+
+def test_over_seeds_sums_up_each_road_and_step():
+    def run(seed, controller, speed, **kw):
+        row = {"road": "3-lane-900", "step_s": "0.1", "seed": seed, "controller": controller,
+               "status": "ok", "cav_mean_speed_mps": speed, "wall_s": 1.0}  # fmt: skip
+        return {**row, **kw}
+
+    swarm = dict(cav_count=5, collisions=0, hard_brakes_cav=0)
+    df = pd.DataFrame([
+        run("1", "swarm", 27.0, cavs_passed_truck=5, regrouped=True, **swarm),
+        run("1", "sumo-lc", 30.0), run("1", "sumo-cacc", 15.0),
+        run("2", "swarm", 24.0, cavs_passed_truck=4, regrouped=True, **swarm),
+        run("2", "sumo-lc", 30.0), run("2", "sumo-cacc", 16.0),
+    ])  # fmt: skip
+    (row,) = ur.over_seeds(df).to_dict("records")
+    assert row["seeds"] == 2
+    assert row["swarm/sumo-lc mean"] == pytest.approx(0.85)  # (0.9 + 0.8) / 2
+    assert row["swarm/sumo-lc min"] == pytest.approx(0.8)
+    assert row["runs >= 0.9x sumo-lc"] == 1
+    assert row["swarm/sumo-cacc min"] == pytest.approx(1.5)  # 24 / 16
+    assert row["all past and regrouped"] == 1  # seed 2 left a CAV behind the truck
+    assert row["collisions"] == 0 and row["CAV hard brakes"] == 0
+    assert "## Over the seeds" in ur.markdown(df.assign(commit="abc"), "cmd", 90.0)
+    assert "## Over the seeds" not in ur.markdown(
+        df[df["seed"] == "1"].assign(commit="abc"), "cmd", 90.0
+    )

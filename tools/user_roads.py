@@ -7,9 +7,12 @@ Every run is what a user types, one process each (libsumo holds one simulation p
 Each road is run at the step length 0.1 s and at SUMO's default 1 s (no step-length in the
 sumocfg); a run that the swarm refuses (exit status 2) is recorded as "refused" with its message.
 Prints and writes a table per road and step (``--table``: Markdown + CSV) with the commit the
-figures came from::
+figures came from; with ``--seeds`` every run is repeated under each of SUMO's seeds (other
+draws of the same traffic, scenes the swarm was not tuned on) and a summary over the seeds
+follows the tables::
 
-    python tools/user_roads.py [--roads NAME ...] [--out DIR] [--end S] [--workers N]
+    python tools/user_roads.py [--roads NAME ...] [--seeds N ...] [--out DIR] [--end S]
+                               [--workers N]
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ class Job:
     controller: str
     cfg: Path
     out: Path
+    seed: int | None = None  # SUMO's seed; None: the configuration's
 
 
 def run_job(job: Job, timeout_s: float) -> dict[str, Any]:
@@ -62,7 +66,10 @@ def run_job(job: Job, timeout_s: float) -> dict[str, Any]:
         sys.executable, "-m", "sumo_swarm", "run", "--sumocfg", str(job.cfg),
         "--cav-type", CAV_TYPE, "--controller", job.controller, "--out", str(job.out),
     ]  # fmt: skip
+    if job.seed is not None:
+        cmd += ["--seed", str(job.seed)]
     row: dict[str, Any] = {"road": job.road, "step_s": job.step, "controller": job.controller}
+    row["seed"] = seed_name(job.seed)
     t0 = time.perf_counter()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, env=env)
@@ -159,6 +166,36 @@ def _events(path: Path) -> Iterable[dict[str, Any]]:
     return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line]
 
 
+def seed_name(seed: int | None) -> str:
+    """How a seed shows in the table: its number, or the configuration's own."""
+    return "sumocfg" if seed is None else str(seed)
+
+
+def over_seeds(df: pd.DataFrame) -> pd.DataFrame:
+    """Per road and step, over the seeds: the swarm's CAV mean speed against sumo-lc's and
+    sumo-cacc's (mean and lowest ratio), how many runs had every CAV past the truck and
+    regrouped, and the collisions and CAV hard brakes of the swarm's runs."""
+    out = []
+    for (road, step), rows in df.groupby(["road", "step_s"], sort=False):
+        per_seed = [ratios(r) for _, r in rows.groupby("seed", sort=False)]
+        swarm = rows[(rows["controller"] == "swarm") & (rows["status"] == "ok")]
+        if swarm.empty:
+            continue
+        lc = pd.Series([r["speed swarm/sumo-lc"] for r in per_seed], dtype=float)
+        cacc = pd.Series([r["speed swarm/sumo-cacc"] for r in per_seed], dtype=float)
+        passed = swarm["cavs_passed_truck"] >= swarm["cav_count"]
+        out.append({
+            "road": road, "step [s]": step, "seeds": len(per_seed),
+            "swarm/sumo-lc mean": lc.mean(), "swarm/sumo-lc min": lc.min(),
+            "runs >= 0.9x sumo-lc": int((lc >= 0.9).sum()),
+            "swarm/sumo-cacc min": cacc.min(),
+            "all past and regrouped": int((passed & swarm["regrouped"].astype(bool)).sum()),
+            "collisions": int(swarm["collisions"].sum()),
+            "CAV hard brakes": int(swarm["hard_brakes_cav"].sum()),
+        })  # fmt: skip
+    return pd.DataFrame(out)
+
+
 def ratios(rows: pd.DataFrame) -> dict[str, float]:
     """swarm / sumo-cacc and swarm / sumo-lc CAV mean speed, swarm / sumo-cacc wall time."""
     ok = rows[rows["status"] == "ok"].set_index("controller")
@@ -203,7 +240,8 @@ def markdown(df: pd.DataFrame, command: str, end_s: float) -> str:
         "# Users' roads: swarm, cacc, sumo-cacc and sumo-lc side by side",
         "",
         f"Runs at commit {', '.join(f'`{c}`' for c in df['commit'].unique())}, "
-        f"report by `{command}`; {end_s:g} s simulated per run, SUMO's seed. Roads "
+        f"report by `{command}`; {end_s:g} s simulated per run, SUMO's seed "
+        f"{', '.join(df['seed'].astype(str).unique())}. Roads "
         "(sumo_swarm/sim/userroads.py), written as a new user would: SUMO's default vType for "
         'the traffic, `<flow>` with `departLane="best"` and `departSpeed="max"`, a truck at '
         '15 m/s ahead of 5 CAVs (vType `cav`, SUMO\'s defaults but `sigma="0"`) in the same '
@@ -217,8 +255,9 @@ def markdown(df: pd.DataFrame, command: str, end_s: float) -> str:
         "excluded). A run the CLI refuses (exit 2) is `refused`.",
         "",
     ]
-    for (road, step), rows in df.groupby(["road", "step_s"], sort=False):
-        out += [f"## {road}, step {step} s", "", f"{ROADS[road].about}.", ""]
+    for (road, step, seed), rows in df.groupby(["road", "step_s", "seed"], sort=False):
+        title = f"## {road}, step {step} s" + ("" if seed == "sumocfg" else f", seed {seed}")
+        out += [title, "", f"{ROADS[road].about}.", ""]
         table = rows.reindex(columns=list(TABLE_COLUMNS)).rename(columns=TABLE_COLUMNS)
         out += [table.to_markdown(index=False, floatfmt=".2f"), ""]
         out += [", ".join(f"{k}: {v:.2f}" for k, v in ratios(rows).items()), ""]
@@ -239,17 +278,24 @@ def markdown(df: pd.DataFrame, command: str, end_s: float) -> str:
             failures.append(f"- {row.road}, step {row.step_s} s, {row.controller}:")
             failures += [f"  - {w}" for w in what]
     out += ["## Collisions, CAV hard brakes, refusals", "", *(failures or ["None."]), ""]
+    if df["seed"].nunique() > 1:
+        out += ["## Over the seeds", ""]
+        out += [over_seeds(df).to_markdown(index=False, floatfmt=".2f"), ""]
     return "\n".join(out)
 
 
 def report_again(jobs: list[Job], csv: Path) -> pd.DataFrame:
     """The rows of ``csv`` (runs made earlier, with their commit, status and process time)
     with every measure read again from the run folders."""
-    old = pd.read_csv(csv, dtype={"step_s": str}).set_index(["road", "step_s", "controller"])
+    old = pd.read_csv(csv, dtype={"step_s": str, "seed": str})
+    if "seed" not in old:
+        old["seed"] = seed_name(None)
+    old = old.set_index(["road", "step_s", "controller", "seed"])
     rows = []
     for job in jobs:
-        prev = old.loc[(job.road, job.step, job.controller)]
+        prev = old.loc[(job.road, job.step, job.controller, seed_name(job.seed))]
         row = {"commit": prev["commit"], "road": job.road, "step_s": job.step}
+        row["seed"] = seed_name(job.seed)
         row.update(controller=job.controller, process_s=prev["process_s"], status=prev["status"])
         if "message" in prev and isinstance(prev["message"], str):
             row["message"] = prev["message"]
@@ -281,6 +327,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
     ap.add_argument("--steps", nargs="+", choices=list(STEPS), default=list(STEPS))
     ap.add_argument("--end", type=float, default=90.0, help="simulated seconds per run")
+    ap.add_argument(
+        "--seeds", nargs="+", type=int, default=None,
+        help="run each road under each of these SUMO seeds (default: the configuration's)",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("/tmp/user_roads"), help="run folders")
     ap.add_argument("--workers", type=int, default=1, help="runs at once (one process each)")
     ap.add_argument("--timeout", type=float, default=3600.0, help="per run [s] of wall time")
@@ -303,7 +353,9 @@ def main(argv: list[str] | None = None) -> int:
             cfg = folder / "user.sumocfg"
             if not args.report_only:
                 write_road(road, folder, end_s=args.end, step_length_s=STEPS[step_name])
-            jobs += [Job(road, step_name, c, cfg, folder / c) for c in args.controllers]
+            for seed in args.seeds or [None]:
+                base = folder if seed is None else folder / f"seed-{seed}"
+                jobs += [Job(road, step_name, c, cfg, base / c, seed) for c in args.controllers]
     # The slowest runs (the swarm at 0.1 s) first, so that the workers finish together.
     if args.report_only:
         df = report_again(jobs, args.table.with_suffix(".csv"))
