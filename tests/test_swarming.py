@@ -11,9 +11,11 @@ import pytest
 from sumo_swarm.core.hvmodel import DriverModel, braking_needed
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.decision import (
+    LanePass,
     Progress,
     TargetWatch,
     behaving_interval_s,
+    lane_for_pass,
     lane_speeds,
     leader_ease_cap,
     one_platoon,
@@ -499,3 +501,53 @@ def test_the_leader_eases_off_more_only_for_a_platoon_strung_out_in_its_lane():
 
 def states_of(*vehicles):
     return {v.vehicle_id: v for v in vehicles}
+
+
+def test_lane_for_pass_is_a_faster_lane_with_room_not_the_one_the_target_moves_into():
+    truck = car("truck", 300.0, 0, 15.0)
+    leader, tail = car("c0", 280.0, 0, 15.0, cav=True), car("c2", 250.0, 0, 15.0, cav=True)
+    kw = dict(n_cavs=3, cell_length_m=15.0, range_m=60.0, cap_mps=33.0, cruise_mps=33.0,
+              pace_mps=20.0, min_gain_mps=2.0, tolerance_m=0.3)  # fmt: skip
+    assert lane_for_pass(leader, tail, truck, [truck], ROAD, [1], **kw) == 1  # free: 33 > 22
+    # The cruise only 1 m/s above the cells' pace: the cells.
+    assert (
+        lane_for_pass(leader, tail, truck, [truck], ROAD, [1], **{**kw, "cruise_mps": 21.0}) is None
+    )
+    # A car 40 m ahead in lane 1 at 21 m/s: the lane is no faster than the pace by the gain.
+    slow = car("s", 320.0, 1, 21.0)
+    assert lane_for_pass(leader, tail, truck, [truck, slow], ROAD, [1], **kw) is None
+    # Room: the window is 245 - 60 .. 280 + 60 m (155 m) and 3 CAVs need 45 m (3 cells) per
+    # vehicle there: three cars in lane 1 leave 51.7 m each, four 38.75 m.
+    three = [car(f"h{i}", 200.0 + 40.0 * i, 1, 33.0) for i in range(3)]  # fronts 200-280 m
+    assert lane_for_pass(leader, tail, truck, [truck, *three], ROAD, [1], **kw) == 1
+    four = [*three, car("h3", 330.0, 1, 33.0)]
+    assert lane_for_pass(leader, tail, truck, [truck, *four], ROAD, [1], **kw) is None
+    # Two free lanes: the left one (SUMO numbers lanes from the right)...
+    middle = car("c0", 280.0, 1, 15.0, cav=True)
+    in_1 = dataclasses.replace(truck, lane=1)
+    assert lane_for_pass(middle, tail, in_1, [in_1], ROAD, [0, 2], **kw) == 2
+    # ...but never the lane the target is moving into (0.8 m to the left of its centre).
+    moving_left = dataclasses.replace(in_1, lat_m=0.8)
+    assert lane_for_pass(middle, tail, moving_left, [moving_left], ROAD, [0, 2], **kw) == 0
+
+
+def test_a_lane_pass_completes_stalls_or_goes_on():
+    truck = car("truck", 300.0, 0, 15.0)
+    lp = LanePass("truck", 1, since_s=10.0)
+    kw = dict(min_gap_m=5.0, stall_s=15.0)
+    behind = [car("c0", 280.0, 0, 15.0, cav=True), car("c1", 265.0, 0, 15.0, cav=True)]
+    assert lp.update(20.0, truck, behind, ROAD, **kw) is None
+    assert lp.update(25.1, truck, behind, ROAD, **kw) == "stalled"  # 15.1 s, none out
+    lp = LanePass("truck", 1, since_s=10.0)
+    one_out = [dataclasses.replace(behind[0], lane=1), behind[1]]
+    assert lp.update(20.0, truck, one_out, ROAD, **kw) is None  # progress at 20 s
+    assert lp.update(34.0, truck, one_out, ROAD, **kw) is None
+    assert lp.update(35.1, truck, one_out, ROAD, **kw) == "stalled"
+    # Every CAV out of its lane: passing it, never stalled however long it takes.
+    lp = LanePass("truck", 1, since_s=10.0)
+    all_out = [dataclasses.replace(c, lane=1) for c in behind]
+    assert lp.update(60.0, truck, all_out, ROAD, **kw) is None
+    assert lp.update(90.0, truck, all_out, ROAD, **kw) is None
+    past = [car("c0", 330.0, 1, 25.0, cav=True), car("c1", 312.0, 1, 25.0, cav=True)]
+    assert lp.update(91.0, truck, past, ROAD, **kw) == "completed"  # rears 325, 307 > 305
+    assert lp.update(92.0, None, past, ROAD, **kw) == "target_left"

@@ -45,6 +45,7 @@ from sumo_swarm.core.planner.problem import LANE_END_PREFIX, hvs_in_grid
 from sumo_swarm.core.stats import lateral_rms, summarise_ms
 from sumo_swarm.core.swarming.decision import (
     REGROUPED_GAP_FACTOR,
+    LanePass,
     Mode,
     Progress,
     TargetWatch,
@@ -52,6 +53,7 @@ from sumo_swarm.core.swarming.decision import (
     behaving_interval_s,
     cavs_behind,
     keeps_cell,
+    lane_for_pass,
     lane_speeds,
     leader_ease_cap,
     one_platoon,
@@ -153,8 +155,7 @@ class SwarmController:
         self._no_gain_target: str | None = None
         self._keep_right_target: str | None = None
         self._target_lane: tuple[str | None, int] | None = None
-        self.lane_pass: tuple[str, float] | None = None  # (target, since) of a lane pass
-        self._lane_pass_progress: tuple[int, float] = (0, 0.0)  # (CAVs out or past, since)
+        self.lane_pass: LanePass | None = None  # a pass in a faster lane under way
         self._cells_for: str | None = None  # a target whose lane pass stalled: cells only
 
     # ------------------------------------------------------------------ set-up
@@ -593,10 +594,8 @@ class SwarmController:
 
     # ------------------------------------------------------------------ passing in a lane
     def _lane_beats_plan(self, target: VehicleState, states, platoon: list[str]) -> int | None:
-        """The lane beside the leader that is faster than the cell plan's pace past ``target``
-        (one cell per behaving interval above it) by ``min_speed_gain_mps``, at most the
-        cruise, and has room for the platoon; the platoon then moves over to it and passes
-        there (``[swarm] lane_pass``). None: the cells."""
+        """The lane the platoon moves over to and passes ``target`` in (``[swarm] lane_pass``,
+        :func:`lane_for_pass`), or None: the cells."""
         ctx = self.ctx
         sc = ctx.scenario
         road, sw = ctx.road, sc.swarm
@@ -606,35 +605,19 @@ class SwarmController:
         lane = lane_index(road, leader)
         side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
         side = [q for q in side if q not in self._ending_lanes(leader, leader.vehicle_id)]
-        if abs(target.lat_m) > sw.in_lane_tolerance_m:  # never the lane the target moves into
-            heading = lane_index(road, target) + (1 if target.lat_m > 0.0 else -1)
-            side = [q for q in side if q != heading]
-        others = [st for st in states.values() if not st.is_cav]
-        speeds = lane_speeds(
-            leader, others, road, side, range_m=sw.detect_range_m, cap_mps=self.cap_mps,
-            desired_of=self.reformer.desired_speed,
-        )  # fmt: skip
-        # Only lanes with room for the platoon as a unit: within detect_range_m of its ends,
-        # at least n_CAVs cells per vehicle there (denser lanes: the cells make room, blocking;
-        # at 1800 veh/h/lane CAVs passing one by one ended 300 m apart with HVs between).
-        tail = states[platoon[-1]]
-        lo, hi = tail.rear_s_m - sw.detect_range_m, leader.s_m + sw.detect_range_m
-        need = len(platoon) * sc.cell_length_m
-        for q in list(speeds):
-            n = sum(1 for o in others if lo < o.centre_s_m < hi and lane_index(road, o) == q)
-            if n > 0 and (hi - lo) / n < need:
-                del speeds[q]
-        if not speeds:
-            return None
-        # Ties: the left (passing) side; SUMO numbers lanes from the right.
-        best = max(speeds, key=lambda q: (speeds[q], q > lane))
         interval = behaving_interval_s(
             self.planner_settings.behaving_interval_s, sc.cell_length_m, target.speed_mps,
             self.cap_mps, sw.speed_margin_mps, sw.interval_rule,
         )  # fmt: skip
-        pace = target.speed_mps + sc.cell_length_m / interval
-        fast = min(speeds[best], sc.cav.cruising_speed_mps) - pace >= sw.min_speed_gain_mps
-        return best if fast else None
+        return lane_for_pass(
+            leader, states[platoon[-1]], target, [st for st in states.values() if not st.is_cav],
+            road, side, n_cavs=len(platoon), cell_length_m=sc.cell_length_m,
+            range_m=sw.detect_range_m, cap_mps=self.cap_mps,
+            cruise_mps=sc.cav.cruising_speed_mps,
+            pace_mps=target.speed_mps + sc.cell_length_m / interval,
+            min_gain_mps=sw.min_speed_gain_mps, tolerance_m=sw.in_lane_tolerance_m,
+            desired_of=self.reformer.desired_speed,
+        )  # fmt: skip
 
     def _start_lane_pass(
         self, t_s: float, target: VehicleState, lane: int, platoon: list[str]
@@ -645,43 +628,34 @@ class SwarmController:
         self.overtakes += 1
         if self.t_start_s is None:
             self.t_start_s = t_s
-        self.lane_pass = (target.vehicle_id, t_s)
-        self._lane_pass_progress = (0, t_s)
+        self.lane_pass = LanePass(target.vehicle_id, lane, t_s)
         self._target_lane = None
         self.reformer.move_to = (lane, self._edge_of(platoon[0]))
         self.ctx.event("overtake_start", target=target.vehicle_id, speed_cap_mps=self.cap_mps,
                        how="lane", lane=lane)  # fmt: skip
 
     def _lane_pass_target(self, t_s: float, states, platoon: list[str]) -> VehicleState | None:
-        """Follow a lane pass: its end once every CAV is past (or the target gone), and the
-        target, for the cell plan, once no CAV has left its lane or passed it for
-        ``[swarm] lane_pass_stall_s`` (the side lanes offer no gap: the cells block and cut
-        through); else None."""
+        """Follow a lane pass (:class:`LanePass`): its end once every CAV is past, the target
+        gone or no longer blocking; the target, for the cells, once it stalls; else None."""
         if self.lane_pass is None:
             return None
         sc = self.ctx.scenario
-        tid = self.lane_pass[0]
-        target = states.get(tid)
-        cavs = {v: states[v] for v in platoon}
-        if target is None or all_past(target, cavs, sc.cav.min_gap_m):
-            self._end_lane_pass(t_s, completed=target is not None, reason="completed"
-                                if target is not None else "target_left")  # fmt: skip
+        target = states.get(self.lane_pass.target_id)
+        how = self.lane_pass.update(
+            t_s, target, [states[v] for v in platoon], self.ctx.road,
+            min_gap_m=sc.cav.min_gap_m, stall_s=sc.swarm.lane_pass_stall_s,
+        )  # fmt: skip
+        if how in ("completed", "target_left"):
+            self._end_lane_pass(t_s, completed=how == "completed", reason=how)
             return None
         stop = stopped_blocking(target, self._target_changed_lane(target),
                                 slow_below_mps=self._slow_below())  # fmt: skip
         if stop is not None:  # it moved over (perhaps into the lane the platoon moves to)
             self._end_lane_pass(t_s, completed=False, reason=stop)
             return None
-        road = self.ctx.road
-        lane = lane_index(road, target)
-        behind = set(cavs_behind(target, cavs.values(), sc.cav.min_gap_m))
-        done = sum(1 for v, c in cavs.items() if v not in behind or lane_index(road, c) != lane)
-        best, at = self._lane_pass_progress
-        if done > best or done == len(cavs):  # every CAV out of its lane: passing it
-            self._lane_pass_progress = (done, t_s)
-        elif t_s - at > sc.swarm.lane_pass_stall_s:
+        if how == "stalled":
+            self._cells_for = self.lane_pass.target_id
             self._end_lane_pass(t_s, completed=False, reason="lane_pass_stalled")
-            self._cells_for = tid
             return target
         return None
 

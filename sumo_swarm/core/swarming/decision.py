@@ -412,6 +412,98 @@ def passing_lane(
     return None if lane == road.lane_of_y(road.y_of(target.lane, target.lat_m)) else lane
 
 
+def lane_for_pass(
+    leader: VehicleState,
+    tail: VehicleState,
+    target: VehicleState,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    lanes: Sequence[int],
+    *,
+    n_cavs: int,
+    cell_length_m: float,
+    range_m: float,
+    cap_mps: float,
+    cruise_mps: float,
+    pace_mps: float,
+    min_gain_mps: float,
+    tolerance_m: float,
+    desired_of: Callable[[VehicleState], float] | None = None,
+) -> int | None:
+    """The lane of ``lanes`` (beside the leader) the platoon moves over to and passes
+    ``target`` in, or None (the cells): its speed ahead of the leader (:func:`lane_speeds`, at
+    most ``cruise_mps``) beats the cells' pace past the target (``pace_mps``) by
+    ``min_gain_mps``; it has room for the platoon (within ``range_m`` of its ends, ``n_cavs``
+    cells per vehicle there; denser lanes: the cells make room, blocking); it is not the lane
+    the target is moving into (its centre more than ``tolerance_m`` off its lane's). Ties go to
+    the left, passing side (SUMO numbers lanes from the right). ``others``: the HVs."""
+    here = road.lane_of_y(road.y_of(leader.lane, leader.lat_m))
+    candidates = list(lanes)
+    if abs(target.lat_m) > tolerance_m:
+        heading = road.lane_of_y(road.y_of(target.lane, target.lat_m))
+        heading += 1 if target.lat_m > 0.0 else -1
+        candidates = [q for q in candidates if q != heading]
+    speeds = lane_speeds(leader, others, road, candidates, range_m=range_m, cap_mps=cap_mps,
+                         desired_of=desired_of)  # fmt: skip
+    lo, hi = tail.rear_s_m - range_m, leader.s_m + range_m
+    need = n_cavs * cell_length_m
+    for q in list(speeds):
+        n = sum(
+            1 for o in others
+            if lo < o.centre_s_m < hi and road.lane_of_y(road.y_of(o.lane, o.lat_m)) == q
+        )  # fmt: skip
+        if n > 0 and (hi - lo) / n < need:
+            del speeds[q]
+    if not speeds:
+        return None
+    best = max(speeds, key=lambda q: (speeds[q], q > here))
+    return best if min(speeds[best], cruise_mps) - pace_mps >= min_gain_mps else None
+
+
+@dataclass
+class LanePass:
+    """A pass in a faster lane under way (:func:`lane_for_pass`): the CAVs out of the target's
+    lane or past it, counted as progress."""
+
+    target_id: str
+    lane: int
+    since_s: float
+    done: int = 0  # CAVs out of the target's lane or past it, the most so far
+    done_s: float = 0.0  # ...since when [s]
+
+    def __post_init__(self) -> None:
+        self.done_s = self.since_s
+
+    def update(
+        self,
+        t_s: float,
+        target: VehicleState | None,
+        cavs: Sequence[VehicleState],
+        road: RoadSection,
+        *,
+        min_gap_m: float,
+        stall_s: float,
+    ) -> str | None:
+        """``"completed"`` (every CAV past the target), ``"target_left"``, ``"stalled"`` (a CAV
+        is still in the target's lane behind it and none got out of that lane or past it for
+        ``stall_s``: the cells take over), or None (going on)."""
+        if target is None:
+            return "target_left"
+        behind = set(cavs_behind(target, cavs, min_gap_m))
+        if not behind:
+            return "completed"
+        lane = road.lane_of_y(road.y_of(target.lane, target.lat_m))
+        done = sum(
+            1 for c in cavs
+            if c.vehicle_id not in behind or road.lane_of_y(road.y_of(c.lane, c.lat_m)) != lane
+        )  # fmt: skip
+        if done > self.done or done == len(cavs):  # every CAV out of its lane: passing it
+            self.done, self.done_s = done, t_s
+        elif t_s - self.done_s > stall_s:
+            return "stalled"
+        return None
+
+
 def leader_ease_cap(
     states: Mapping[str, VehicleState],
     platoon: Sequence[str],
