@@ -372,3 +372,20 @@ def test_a_lane_pass_that_stalls_hands_the_target_to_the_cells(tmp_path):
     assert summary["overtake"]["completed"]
     assert summary["safety"]["collisions"] == 0 and summary["safety"]["hard_brakes_cav"] == 0
     assert summary["cav"]["gap_min_m"] >= 5.0
+
+
+def test_no_cav_side_swipes_an_hv_straddling_a_lane_boundary(tmp_path):
+    """The user's 3-lane road at 900 veh/h/lane with 30 m cells (a cell length the config
+    accepts): at 74-76 s an HV of lane 1 stood half-way through a lane change into lane 0, its
+    side 0.25 m into it, and two CAVs of lane 0 moving left within their own lane (no lane
+    guard looks at the next lane before the CAV's side nears it) hit it: 2 side collisions
+    before the side clearance check (``[guards] side_clearance_m``)."""
+    from sumo_swarm.sim.userroads import write_road
+
+    cfg = write_road("3-lane-900", tmp_path / "road", end_s=80.0)
+    config = tmp_path / "swarm.toml"
+    config.write_text('[cell]\nrule = "fixed"\ncell_length_m = 30.0\n[swarm]\nlane_pass = false\n')
+    summary = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", config=config,
+                          progress=False, notify=lambda _: None)  # fmt: skip
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["hard_brakes_cav"] == 0

@@ -28,7 +28,12 @@ from sumo_swarm.core.swarming.decision import (
     stranded_cavs,
     waiting_plan,
 )
-from sumo_swarm.core.swarming.guards import GuardSettings, gap_accel_limit, lateral_refusal
+from sumo_swarm.core.swarming.guards import (
+    GuardSettings,
+    gap_accel_limit,
+    lateral_refusal,
+    too_close_alongside,
+)
 from sumo_swarm.core.swarming.planlog import PlanLog
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
@@ -551,3 +556,30 @@ def test_a_lane_pass_completes_stalls_or_goes_on():
     past = [car("c0", 330.0, 1, 25.0, cav=True), car("c1", 312.0, 1, 25.0, cav=True)]
     assert lp.update(91.0, truck, past, ROAD, **kw) == "completed"  # rears 325, 307 > 305
     assert lp.update(92.0, None, past, ROAD, **kw) == "target_left"
+
+
+def test_no_lateral_move_brings_a_cav_beside_an_hv_straddling_the_lane_boundary():
+    settings = GuardSettings()
+    # An HV of lane 1 stopped half-way through a lane change to the right: its centre 0.95 m
+    # right of lane 1's, its right side 0.25 m into lane 0. The CAV alongside in lane 0 at
+    # 0.2 m left of its lane centre keeps 1.6 - 0.2 - 0.9 - 0.25 = 0.25 m to it; moving 0.1 m
+    # further left leaves 0.15 m, under the 0.3 m clearance: held, though it stays in lane 0.
+    hv = car("h", 101.0, 1, 25.0, lat=-0.95)
+    ego = car("c4", 100.0, 0, 15.0, cav=True, lat=0.2)
+    y = ROAD.y_of(0, 0.2)
+    kw = dict(width_m=1.8, clearance_m=settings.side_clearance_m)
+    assert too_close_alongside(ego, y, 0.1, [ego, hv], ROAD, **kw)
+    assert not too_close_alongside(ego, y, -0.1, [ego, hv], ROAD, **kw)  # moving away
+    assert not too_close_alongside(ego, y, 0.0, [ego, hv], ROAD, **kw)
+    # Far enough ahead lengthwise (its rear 0.3 m past ego's front and more): no matter.
+    ahead = dataclasses.replace(hv, s_m=100.0 + 5.0 + 0.31)
+    assert not too_close_alongside(ego, y, 0.1, [ego, ahead], ROAD, **kw)
+    # A vehicle centred in lane 1 leaves 1.4 - 0.3 = 1.1 m after the move: fine.
+    centred = dataclasses.replace(hv, lat_m=0.0)
+    assert not too_close_alongside(ego, y, 0.1, [ego, centred], ROAD, **kw)
+    # The lateral guard holds the move, in lane or not, naming why; 0 turns the check off.
+    guard = dict(min_gap_m=5.0, width_m=1.8, model_of=lambda vid: IDM, b_safe_mps2=2.0,
+                 step_s=0.1)  # fmt: skip
+    assert lateral_refusal(ego, y, 0.1, [ego, hv], ROAD, **guard) == "alongside"
+    off = GuardSettings(side_clearance_m=0.0)
+    assert lateral_refusal(ego, y, 0.1, [ego, hv], ROAD, settings=off, **guard) is None

@@ -15,12 +15,12 @@ towards a CAV counts early.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from sumo_swarm.core.hvmodel import DriverModel, accepts_entry
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import vehicle_ahead, vehicle_behind
+from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead, vehicle_behind, within
 from sumo_swarm.errors import ConfigError
 
 
@@ -34,10 +34,13 @@ class GuardSettings:
     lane_probe_m: float = 0.9  # a move enters the next lane once the CAV's side would [m]
     match_gain: float = 1.0  # [1/s] speed matching before entering a faster lane
     follower_range_m: float = 60.0  # an HV this close behind makes a CAV brake gently [m]
+    # A lateral move never brings a CAV's side closer than this to a vehicle alongside it [m]
+    # (whatever lane that vehicle is in: HVs stop straddling a lane boundary); 0 = off.
+    side_clearance_m: float = 0.3
 
     def __post_init__(self) -> None:
         for name in ("gap_gain", "speed_gain", "gap_extra_m", "lane_probe_m", "match_gain",
-                     "follower_range_m"):  # fmt: skip
+                     "follower_range_m", "side_clearance_m"):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -57,6 +60,44 @@ def entering_lane(
         return None
     lane_next = road.lane_of_y(y + dlat + math.copysign(settings.lane_probe_m, dlat))
     return None if lane_next == road.lane_of_y(y) else lane_next
+
+
+# Fronts within this of ego's front are looked at for the side clearance [m] (a 25 m truck
+# alongside a 5 m CAV).
+ALONGSIDE_REACH_M = 40.0
+
+
+def too_close_alongside(
+    ego: VehicleState,
+    y: float,
+    dlat: float,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    width_m: float,
+    clearance_m: float,
+) -> bool:
+    """Would the lateral move ``dlat`` [m] from ``y`` bring ego's side closer than
+    ``clearance_m`` to a vehicle alongside it (bodies overlapping lengthwise, within
+    ``clearance_m``), on the side it moves to and closer than before? The lane guards look at
+    the next lane only once ego's side nears it; an HV straddling the boundary (SUMO's sublane
+    drivers stop half-way through a lane change they cannot finish) was hit by a CAV moving
+    within its own lane."""
+    if abs(dlat) < 1e-9 or clearance_m <= 0.0:
+        return False
+    ego_front, ego_rear = ego.s_m, ego.rear_s_m
+    for other in within(others, ego.s_m, ALONGSIDE_REACH_M):
+        if other.vehicle_id == ego.vehicle_id:
+            continue
+        if other.rear_s_m > ego_front + clearance_m or other.s_m < ego_rear - clearance_m:
+            continue
+        y_other = road.y_of(other.lane, other.lat_m)
+        if (y_other - y) * dlat <= 0.0:
+            continue  # on the other side
+        half = 0.5 * (width_m + other.width_m)
+        after = abs(y_other - (y + dlat)) - half
+        if after < clearance_m and after < abs(y_other - y) - half:
+            return True
+    return False
 
 
 def _next_lane_neighbours(
@@ -145,8 +186,15 @@ def lateral_refusal(
         a CAV closing in, closer than ``min_gap_m`` plus what it needs to stop closing at
         ``b_safe_mps2``),
         ``"follower_brake"`` (the HV following there would brake harder than ``b_safe_mps2`` at
-    some point of its reaction, :func:`sumo_swarm.core.hvmodel.accepts_entry`).
+    some point of its reaction, :func:`sumo_swarm.core.hvmodel.accepts_entry`),
+        ``"alongside"`` (a vehicle alongside, whatever lane it is in, would be closer to ego's
+        side than ``settings.side_clearance_m`` after the move: an HV straddling the lane
+        boundary; checked for moves within ego's own lane too).
     """
+    if not isinstance(others, list | Snapshot):
+        others = list(others)
+    if too_close_alongside(ego, y, dlat, others, road, width_m, settings.side_clearance_m):
+        return "alongside"
     near = _next_lane_neighbours(ego, y, dlat, others, road, width_m, settings)
     if near is None:
         return None
