@@ -55,11 +55,6 @@ def clip(x: float, bound: float) -> float:
     return min(max(x, -bound), bound)
 
 
-def lane_index(road: RoadSection, vehicle: VehicleState) -> int:
-    """The lane a vehicle's centre is in (mid lane change: the one it is crossing into)."""
-    return road.lane_of_y(road.y_of(vehicle.lane, vehicle.lat_m))
-
-
 @dataclass
 class Reformer:
     """The platoon's lane and the CAVs passing on their own, from one step to the next."""
@@ -122,7 +117,7 @@ class Reformer:
                 self.event("reform_lane", lane=self.move_to[0], lane_speeds_mps={})
             self.lane_id = self.move_to[0]
             return self.lane_id
-        count = Counter(lane_index(road, states[v]) for v in platoon)
+        count = Counter(road.lane_of(states[v]) for v in platoon)
         if len(count) == 1 and self.lane_id in (None, *count) and not set(count) & set(ending):
             self.lane_id = next(iter(count))
             return self.lane_id
@@ -181,7 +176,7 @@ class Reformer:
                 else:
                     goals[vid] = self._switch(t_s, ego, side, states, others, road, cap_mps=cap_mps)
                 continue
-            if lane_index(road, ego) != lane:
+            if road.lane_of(ego) != lane:
                 goals[vid] = self._switch(t_s, ego, lane, states, others, road, cap_mps=cap_mps)
                 continue
             ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
@@ -228,7 +223,7 @@ class Reformer:
         held_lane, held = self.held_s.get(vid, (goal, 0.0))
         if sw.pass_switch_s <= 0.0 or held_lane != goal or held + 1e-9 < sw.pass_switch_s:
             return goal
-        here = lane_index(road, ego)
+        here = road.lane_of(ego)
         if goal == here:
             return goal
         other = here - (1 if goal > here else -1)
@@ -265,7 +260,7 @@ class Reformer:
         self.floors = {}
         moves = {vid: self._steer(states[vid], goals[vid], others, road, step_s) for vid in platoon}
         for vid in platoon:  # how long each CAV's lane change has been held, in a row
-            here = lane_index(road, states[vid])
+            here = road.lane_of(states[vid])
             toward = goals[vid] - here
             if toward != 0 and moves[vid][0] * toward <= 0.0:
                 lane_was, held = self.held_s.get(vid, (goals[vid], 0.0))
@@ -301,7 +296,10 @@ class Reformer:
         next_lane = lane_now + (1 if lane > lane_now else -1)
         y_next = road.lane_centre_y(next_lane)
         dlat = clip(y_next - y, step)
-        commit = self._speed_up_into(ego, next_lane, others, road)
+        # The vehicles around ego, for the entry speed and the run-up
+        reach = 2.0 * sc.swarm.detect_range_m
+        near = [o for o in within(others, ego.s_m, reach) if o.vehicle_id != ego.vehicle_id]
+        commit = self._speed_up_into(ego, next_lane, near, others, road)
         refusal = self._refusal(ego, y, dlat, others, road, step_s, commit)
         accel = math.inf
         ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
@@ -322,7 +320,7 @@ class Reformer:
         elif refusal is not None:
             waited = held_lane == lane and held + 1e-9 >= sc.swarm.run_up_after_s
             if beside is None and waited and sc.swarm.run_up_gap_m > 0.0:
-                bound, floor = self._run_up(ego, y, dlat, next_lane, others, road, step_s)
+                bound, floor = self._run_up(ego, y, dlat, next_lane, near, others, road, step_s)
                 accel = min(accel, bound)
                 if floor > 0.0:
                     self.floors[ego.vehicle_id] = floor
@@ -362,27 +360,26 @@ class Reformer:
         self,
         ego: VehicleState,
         next_lane: int,
+        near: Sequence[VehicleState],
         others: Snapshot,
         road: RoadSection,
     ) -> tuple[float, float] | None:
         """``(a, v)``: ego enters ``next_lane`` speeding up at ``a`` to ``v``, that lane's speed
         ahead of it (at most the cruise), when that is faster than ego by ``min_speed_gain_mps``
         and the vehicle ahead of ego in its own lane leaves room to speed up during the lane
-        change (``[swarm] entry_accel_mps2``; None: it enters at its speed)."""
+        change (``[swarm] entry_accel_mps2``; None: it enters at its speed). ``near``: the
+        vehicles around ego, ``others``: all of them."""
         sc = self.scenario
         sw = sc.swarm
         accel = sw.entry_accel_mps2
         if accel <= 0.0:
             return None
-        near = [o for o in within(others, ego.s_m, 2.0 * sw.detect_range_m)
-                if o.vehicle_id != ego.vehicle_id]  # fmt: skip
         lane_speed = lane_speeds(ego, near, road, [next_lane], range_m=sw.detect_range_m,
                                  cap_mps=sc.cav.cruising_speed_mps,
                                  desired_of=self.desired_speed)[next_lane]  # fmt: skip
-        if (
-            min(lane_speed, sc.cav.cruising_speed_mps - sw.max_leader_ease_mps) - ego.speed_mps
-            < sw.min_speed_gain_mps
-        ):
+        # Never more than the cruise a leader easing off to close up would keep.
+        final = min(lane_speed, sc.cav.cruising_speed_mps - sw.max_leader_ease_mps)
+        if final - ego.speed_mps < sw.min_speed_gain_mps:
             return None
         change_s = road.lane_widths_m[next_lane] / sc.cav.max_lateral_speed_mps
         own = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
@@ -391,8 +388,7 @@ class Reformer:
             need = sc.cav.min_gap_m + closing * change_s + 0.5 * accel * change_s * change_s
             if own[1] < need:
                 return None
-        # Never more than the cruise a leader easing off to close up would keep.
-        return accel, min(lane_speed, sc.cav.cruising_speed_mps - sw.max_leader_ease_mps)
+        return accel, final
 
     def _run_up(
         self,
@@ -400,13 +396,15 @@ class Reformer:
         y: float,
         dlat: float,
         next_lane: int,
+        near: Sequence[VehicleState],
         others: Sequence[VehicleState],
         road: RoadSection,
         step_s: float,
     ) -> tuple[float, float]:
         """Acceleration bound and floor [m/s^2] of a CAV whose lane change into ``next_lane``
         the guard refused, behind a slow HV in its own lane (:func:`run_up`): running up it
-        accelerates at its maximum; ``(inf, 0)``: nothing to do."""
+        accelerates at its maximum; ``(inf, 0)``: nothing to do. ``near``: the vehicles around
+        ego (within twice ``detect_range_m``), ``others``: all of them."""
         sc = self.scenario
         sw = sc.swarm
         nothing = (math.inf, 0.0)
@@ -419,9 +417,7 @@ class Reformer:
         if follower is not None and follower[0].is_cav and follower[1] < sw.detect_range_m:
             return nothing
         slow, gap = own
-        reach = 2.0 * sw.detect_range_m
         vid = ego.vehicle_id
-        near = [o for o in within(others, ego.s_m, reach) if o.vehicle_id != vid]
         lane_speed = lane_speeds(ego, near, road, [next_lane], range_m=sw.detect_range_m,
                                  cap_mps=sc.cav.max_speed_mps,
                                  desired_of=self.desired_speed)[next_lane]  # fmt: skip
@@ -431,7 +427,7 @@ class Reformer:
         for other in near:
             if (
                 abs(other.centre_s_m - ego.centre_s_m) < 0.5 * (other.length_m + ego.length_m)
-                and lane_index(road, other) == next_lane
+                and road.lane_of(other) == next_lane
             ):
                 lane_speed = min(lane_speed, other.speed_mps)
         if lane_speed - slow.speed_mps < sw.min_speed_gain_mps:
@@ -480,7 +476,7 @@ class Reformer:
         follows the merging CAV as if it were already ahead (braking gently), so a gap opens
         there instead of the platoon streaming past a CAV that cannot get in."""
         sc = self.scenario
-        lane_of = {v: lane_index(road, states[v]) for v in platoon}
+        lane_of = {v: road.lane_of(states[v]) for v in platoon}
         merging = [states[v] for v in platoon if abs(lane_of[v] - lane) == 1]
         if not merging:
             return

@@ -35,7 +35,7 @@ from typing import Any
 
 from sumo_swarm.controllers.base import RouteWatch, RunContext
 from sumo_swarm.controllers.cacc import command_cacc
-from sumo_swarm.controllers.reform import Reformer, clip, lane_index
+from sumo_swarm.controllers.reform import Reformer, clip
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
@@ -401,7 +401,7 @@ class SwarmController:
         if lane is not None and self.reformer.edge == self._edge_of(platoon[0]):
             road = self.ctx.road
             for vid in platoon:
-                if lane_index(road, states[vid]) == lane:
+                if road.lane_of(states[vid]) == lane:
                     return vid
         return platoon[0]
 
@@ -411,7 +411,7 @@ class SwarmController:
         traffic), overtaking gains nothing and only disturbs them (MOBIL's incentive)."""
         ctx = self.ctx
         road, sw = ctx.road, ctx.scenario.swarm
-        lane = road.lane_of_y(road.y_of(leader.lane, leader.lat_m))
+        lane = road.lane_of(leader)
         side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
         others = [st for st in states.values() if not st.is_cav]
         reach = sw.detect_range_m + 2.0 * ctx.scenario.cell_length_m
@@ -602,7 +602,7 @@ class SwarmController:
         if not sw.lane_pass or target.vehicle_id == self._cells_for:
             return None
         leader = states[self._decision_leader(states, platoon)]
-        lane = lane_index(road, leader)
+        lane = road.lane_of(leader)
         side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
         side = [q for q in side if q not in self._ending_lanes(leader, leader.vehicle_id)]
         interval = behaving_interval_s(

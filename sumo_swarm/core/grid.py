@@ -152,7 +152,7 @@ class ConstantSpeedPredictor:
 def cav_cell(grid: MovingGrid, cav: VehicleState, road: RoadSection, t_s: float) -> Cell:
     """Cell ``(row, col)`` of a vehicle at ``t_s``: the row and the lane of its centre."""
     row = grid.row_of(cav.centre_s_m, t_s)
-    col = road.lane_of_y(road.y_of(cav.lane, cav.lat_m))
+    col = road.lane_of(cav)
     return row, col
 
 

@@ -547,7 +547,7 @@ class CarFollowingPredictor:
         self._states = {st.vehicle_id: st for st in states}
         ids = list(self._states)
         self._column = {vid: j for j, vid in enumerate(ids)}
-        lane = np.array([road.lane_of_y(road.y_of(st.lane, st.lat_m)) for st in states], int)
+        lane = np.array([road.lane_of(st) for st in states], int)
         length = np.array([st.length_m for st in states], dtype=float)
         s = np.array([st.s_m for st in states], dtype=float)
         v = np.array([max(0.0, st.speed_mps) for st in states], dtype=float)

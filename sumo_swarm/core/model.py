@@ -87,6 +87,11 @@ class RoadSection:
             return centres[lane] + lat_m
         return self.lane_centre_y(lane) + lat_m
 
+    def lane_of(self, vehicle: VehicleState) -> int:
+        """Lane index whose band holds ``vehicle``'s centre (a vehicle half-way through a lane
+        change counts in the lane it is mostly in, whatever SUMO's lane index says)."""
+        return self.lane_of_y(self.y_of(vehicle.lane, vehicle.lat_m))
+
     def lane_of_y(self, y_m: float) -> int:
         """Lane index whose band contains the lateral position ``y_m`` (clipped to the road)."""
         edge = -0.5 * self.lane_widths_m[0]

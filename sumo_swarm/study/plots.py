@@ -317,7 +317,7 @@ def plan_blocked_cells(
             for cell in hv_blocked_cells(grid, moved, t, settings):
                 claimed[k][cell] = hv.vehicle_id
             r = grid.row_of(moved.centre_s_m, t)
-            c = road.lane_of_y(road.y_of(moved.lane, moved.lat_m))
+            c = road.lane_of(moved)
             if grid.contains(r, c):
                 centres[k][hv.vehicle_id] = (r, c)
     return claimed, centres

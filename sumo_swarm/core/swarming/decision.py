@@ -81,7 +81,7 @@ def lane_speeds(
     for other in others:
         if other.rear_s_m <= front.s_m or other.s_m - front.s_m > range_m:
             continue
-        lane = road.lane_of_y(road.y_of(other.lane, other.lat_m))
+        lane = road.lane_of(other)
         if lane in wanted and (lane not in nearest or other.s_m < nearest[lane].s_m):
             nearest[lane] = other
     speeds = {}
@@ -147,14 +147,14 @@ def right_lane_free(
     driver change lanes only in front of a follower at its secure gap); and nothing slower
     than it within ``ahead_s`` [s] at its speed ahead (moving over would gain it nothing).
     False where there is no lane to its right."""
-    lane = road.lane_of_y(road.y_of(target.lane, target.lat_m))
+    lane = road.lane_of(target)
     if lane == 0:
         return False
     v = target.speed_mps
     for other in others:
         if other.vehicle_id == target.vehicle_id:
             continue
-        if road.lane_of_y(road.y_of(other.lane, other.lat_m)) != lane - 1:
+        if road.lane_of(other) != lane - 1:
             continue
         if other.s_m <= target.rear_s_m:  # behind it
             gap = target.rear_s_m - other.s_m - max(0.0, other.speed_mps - v) * move_s
@@ -376,7 +376,7 @@ def one_platoon(
     if not cavs:
         return False
     ordered = sorted(cavs, key=lambda c: c.s_m)
-    lane = road.lane_of_y(road.y_of(ordered[-1].lane, ordered[-1].lat_m))
+    lane = road.lane_of(ordered[-1])
     centre = road.lane_centre_y(lane)
     if any(abs(road.y_of(c.lane, c.lat_m) - centre) > tolerance_m for c in ordered):
         return False
@@ -385,9 +385,7 @@ def one_platoon(
     ids = {c.vehicle_id for c in ordered}
     rear, front = ordered[0].rear_s_m, ordered[-1].s_m
     return not any(
-        o.vehicle_id not in ids
-        and rear < o.centre_s_m < front
-        and road.lane_of_y(road.y_of(o.lane, o.lat_m)) == lane
+        o.vehicle_id not in ids and rear < o.centre_s_m < front and road.lane_of(o) == lane
         for o in others
     )
 
@@ -409,7 +407,7 @@ def passing_lane(
     if len(lanes) != 1:
         return None
     lane = lanes.pop()
-    return None if lane == road.lane_of_y(road.y_of(target.lane, target.lat_m)) else lane
+    return None if lane == road.lane_of(target) else lane
 
 
 def lane_for_pass(
@@ -437,10 +435,10 @@ def lane_for_pass(
     cells per vehicle there; denser lanes: the cells make room, blocking); it is not the lane
     the target is moving into (its centre more than ``tolerance_m`` off its lane's). Ties go to
     the left, passing side (SUMO numbers lanes from the right). ``others``: the HVs."""
-    here = road.lane_of_y(road.y_of(leader.lane, leader.lat_m))
+    here = road.lane_of(leader)
     candidates = list(lanes)
     if abs(target.lat_m) > tolerance_m:
-        heading = road.lane_of_y(road.y_of(target.lane, target.lat_m))
+        heading = road.lane_of(target)
         heading += 1 if target.lat_m > 0.0 else -1
         candidates = [q for q in candidates if q != heading]
     speeds = lane_speeds(leader, others, road, candidates, range_m=range_m, cap_mps=cap_mps,
@@ -450,7 +448,7 @@ def lane_for_pass(
     for q in list(speeds):
         n = sum(
             1 for o in others
-            if lo < o.centre_s_m < hi and road.lane_of_y(road.y_of(o.lane, o.lat_m)) == q
+            if lo < o.centre_s_m < hi and road.lane_of(o) == q
         )  # fmt: skip
         if n > 0 and (hi - lo) / n < need:
             del speeds[q]
@@ -492,10 +490,10 @@ class LanePass:
         behind = set(cavs_behind(target, cavs, min_gap_m))
         if not behind:
             return "completed"
-        lane = road.lane_of_y(road.y_of(target.lane, target.lat_m))
+        lane = road.lane_of(target)
         done = sum(
             1 for c in cavs
-            if c.vehicle_id not in behind or road.lane_of_y(road.y_of(c.lane, c.lat_m)) != lane
+            if c.vehicle_id not in behind or road.lane_of(c) != lane
         )  # fmt: skip
         if done > self.done or done == len(cavs):  # every CAV out of its lane: passing it
             self.done, self.done_s = done, t_s
@@ -522,10 +520,10 @@ def leader_ease_cap(
     if regroup_ease_mps <= ease_mps or not platoon:
         return ease_mps
     leader, tail = states[platoon[0]], states[platoon[-1]]
-    lane = road.lane_of_y(road.y_of(leader.lane, leader.lat_m))
+    lane = road.lane_of(leader)
     members = set(platoon)
     for vehicle in states.values():
-        in_lane = road.lane_of_y(road.y_of(vehicle.lane, vehicle.lat_m)) == lane
+        in_lane = road.lane_of(vehicle) == lane
         if vehicle.vehicle_id in members and not in_lane:
             return ease_mps
         if vehicle.vehicle_id not in members and in_lane and tail.s_m < vehicle.s_m < leader.s_m:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from sumo_swarm.core.hvmodel import DriverModel, accepts_entry
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead, vehicle_behind, within
+from sumo_swarm.core.neighbours import vehicle_ahead, vehicle_behind, within
 from sumo_swarm.errors import ConfigError
 
 
@@ -191,7 +191,7 @@ def lateral_refusal(
         side than ``settings.side_clearance_m`` after the move: an HV straddling the lane
         boundary; checked for moves within ego's own lane too).
     """
-    if not isinstance(others, list | Snapshot):
+    if not isinstance(others, list):  # a Snapshot is a list: its look-ups stay fast
         others = list(others)
     if too_close_alongside(ego, y, dlat, others, road, width_m, settings.side_clearance_m):
         return "alongside"
@@ -285,7 +285,7 @@ def lane_speed_match(
     (up to ``cap_mps``), when ``ego`` is about to move into that lane in front of a faster HV;
     ``-inf`` (no demand) otherwise. A CAV that enters at the lane's speed needs a much smaller
     gap than one that enters slower (:func:`sumo_swarm.core.hvmodel.min_block_gap`)."""
-    if lane == road.lane_of_y(road.y_of(ego.lane, ego.lat_m)):
+    if lane == road.lane_of(ego):
         return -math.inf
     behind = vehicle_behind(ego, others, road, y_m=road.lane_centre_y(lane), width_m=width_m)
     if behind is None or behind[0].is_cav or behind[0].speed_mps <= ego.speed_mps:
