@@ -109,6 +109,46 @@ def test_planner_failure_falls_back_to_a_safe_platoon(tmp_path, status):
     assert set(df[df["kind"] == "cav"]["lane"]) == {1}  # stayed a platoon in its lane
 
 
+class _BrokenTracker:
+    """Stands in for a bug of ours: tracking a plan raises what nobody expects."""
+
+    def __init__(self) -> None:
+        self.solve_ms: list[float] = []
+
+    def add(self, vid) -> None:
+        pass
+
+    def reset(self) -> None:
+        pass
+
+    def tick(self) -> bool:
+        return True
+
+    def straighten(self, vids) -> None:
+        pass
+
+    def command(self, *args, **kwargs):
+        raise ZeroDivisionError("a bug")
+
+
+def test_a_controller_bug_never_crashes_the_simulation(tmp_path):
+    sc = load_scenario(PAPER)
+    sc = replace(sc, simulation=replace(sc.simulation, duration_s=20.0),
+                 evaluation=replace(sc.evaluation, end_s=20.0))  # fmt: skip
+    summary = run_scenario(
+        sc, "swarm", tmp_path, progress=False, controller=SwarmController(tracker=_BrokenTracker())
+    )
+    events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    errors = [e for e in events if e["event"] == "controller_error"]
+    assert errors and "ZeroDivisionError" in errors[0]["message"]
+    assert summary["overtake"]["abort_reasons"].get("controller_error", 0) >= 1
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["hard_brakes"] == 0
+    assert summary["cav"]["gap_min_m"] >= 5.0
+    df = pd.read_parquet(tmp_path / "trajectories.parquet")
+    assert df["time_s"].max() >= 19.9  # ran to the end
+
+
 def test_real_solver_time_limit_never_crashes(tmp_path):
     sc = load_scenario(PAPER, overrides={"planner": {"time_limit_s": 0.001}})
     sc = replace(sc, simulation=replace(sc.simulation, duration_s=20.0),

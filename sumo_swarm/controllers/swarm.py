@@ -240,9 +240,15 @@ class SwarmController:
             log.exception("swarm controller failed at t = %.2f s", t_s)
             self.ctx.event("controller_error", message=f"{type(exc).__name__}: {exc}")
             if self.mode is Mode.OVERTAKE:
-                self._finish(t_s, completed=False, reason="controller_error")
+                try:
+                    self._finish(t_s, completed=False, reason="controller_error")
+                except Exception:  # the bookkeeping failed too: the CACC step below is safe
+                    log.exception("ending the manoeuvre failed at t = %.2f s", t_s)
+                    self.mode = Mode.CRUISE
+            # The safe behaviour, with the least of our code: every CAV follows what drives
+            # ahead of it in its lane (CACC), no lateral move.
             states = self.ctx.session.states
-            self._cruise(states, ordered_platoon(states, self.ctx.cav_ids))
+            command_cacc(self.ctx, ordered_platoon(states, self.ctx.cav_ids))
 
     def _control(self, t_s: float) -> None:
         ctx = self.ctx
