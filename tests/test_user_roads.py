@@ -110,6 +110,22 @@ def test_swarm_drives_every_road_without_collision_or_cav_hard_brake(road_cfgs, 
     assert min_accel >= -4.0 - 1e-6, episodes.to_string()
 
 
+def test_cacc_platoon_leaves_a_lane_that_ends(tmp_path):
+    """The lane-drop road's right lane ends at 1 km (netconvert drops the rightmost lane): the
+    longitudinal-only CACC platoon in it makes the lane change its route needs there (SUMO's
+    strategic changes) instead of stopping at the lane's end, where its front CAV stopped
+    from 25 m/s and the next one hit it."""
+    cfg = write_road("lane-drop", tmp_path / "road", end_s=75.0)
+    summary = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False,
+                          notify=lambda _: None)  # fmt: skip
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["hard_brakes_cav"] == 0
+    df = pd.read_parquet(tmp_path / "cacc" / "trajectories.parquet")
+    last = df[df["kind"] == "cav"].groupby("vehicle").last()
+    assert len(last) == CAV_COUNT and (last["edge"] == "e1").all(), last.to_string()
+    assert summary["cav"]["mean_speed_mps"] > 10.0  # behind the 15 m/s truck, never stopped
+
+
 def test_swarm_at_sumos_default_step_refuses_or_drives_safely(tmp_path):
     """At SUMO's default 1 s step the swarm either refuses to start (exit 2, one line naming the
     step) or drives without a collision."""

@@ -17,6 +17,12 @@ if TYPE_CHECKING:
 # Lane-change mode 0: no autonomous lane changes and no safety vetoes of our own sublane moves;
 # the planner and its validator own lateral safety (SUMO's safe-speed check stays on, below).
 LC_MODE_CONTROLLED = 0
+# Lane-change mode 513 for the longitudinal-only CACC platoon: SUMO's strategic changes only
+# (bits 0-1 = 1: the ones its route needs, where its lane ends or its route turns off), with
+# SUMO's own gap checks; no cooperative, speed-gain or keep-right changes. Mode 0 left a CACC
+# platoon in the right lane of a lane drop: its front CAV stopped at the lane's end from
+# 25 m/s and the next one hit it (users' lane-drop road).
+LC_MODE_STRATEGIC = 0b10_00_00_00_01
 # Speed mode 31 (SUMO's default): commanded speeds still respect the safe speed towards the
 # vehicle ahead and the vType's accel/decel limits. A last safety net under our controllers.
 SPEED_MODE_SAFE = 31
@@ -56,13 +62,13 @@ class RunContext:
         """Record a notable event (fallbacks, vanished vehicles, ...) for the run's outputs."""
         self.events.append({"time_s": self.session.time_s, "event": kind, **data})
 
-    def configure_cav(self, vid: str) -> None:
+    def configure_cav(self, vid: str, lane_change_mode: int = LC_MODE_CONTROLLED) -> None:
         """Hand CAV ``vid`` to the controllers: see :func:`configure_cav`."""
         cav = self.scenario.cav
         configure_cav(
             self.session, vid, lateral_speed_mps=cav.max_lateral_speed_mps,
             type_speed_factor=cav.speeds == "world" and cav.speed_factor == "type",
-            decel_mps2=-cav.accel_min_mps2,
+            decel_mps2=-cav.accel_min_mps2, lane_change_mode=lane_change_mode,
         )  # fmt: skip
 
     def follow_world_speeds(self, cav_ids: Sequence[str]) -> None:
@@ -188,9 +194,10 @@ def configure_cav(
     lateral_speed_mps: float | None = None,
     type_speed_factor: bool = False,
     decel_mps2: float | None = None,
+    lane_change_mode: int = LC_MODE_CONTROLLED,
 ) -> None:
     """Hand CAV ``vid`` to our controllers, whatever vType the user gave it: the controllers'
-    SUMO modes (:data:`SPEED_MODE_SAFE`, :data:`LC_MODE_CONTROLLED`), lcAccelLat, tau and minGap
+    SUMO modes (:data:`SPEED_MODE_SAFE`, ``lane_change_mode``), lcAccelLat, tau and minGap
     (module constants), the lateral speed the trajectories plan with as maxSpeedLat [m/s] (None:
     the vType's), and with ``type_speed_factor`` its vType's speedFactor instead of SUMO's draw
     for it (one platoon, one desired speed), and a vType decel above ``decel_mps2`` [m/s^2]
@@ -198,7 +205,7 @@ def configure_cav(
     brakes at the vType's decel (SUMO's default 4.5: a CAV cut in 17 m ahead of a CAV 3.3 m/s
     faster at 32 m/s, within the guard's rule, braked its follower at 4.5 m/s^2). A vehicle
     that vanished is left alone."""
-    if session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_CONTROLLED):
+    if session.set_modes(vid, SPEED_MODE_SAFE, lane_change_mode):
         vehicle = session.api.vehicle
         vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", f"{CAV_LC_ACCEL_LAT_MPS2:g}")
         vehicle.setTau(vid, CAV_TAU_S)

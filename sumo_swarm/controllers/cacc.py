@@ -1,4 +1,5 @@
-"""The paper's baseline: a longitudinal-only CACC platoon (never changes lane).
+"""The paper's baseline: a longitudinal-only CACC platoon (no lane change of its own; SUMO makes
+the ones its route needs, where its lane ends).
 
 The same law drives the swarm's cruise mode. It is a constant-spacing CACC with feedforward of
 the predecessor's acceleration, bounded by the free-road law towards the cruising speed.
@@ -10,7 +11,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from sumo_swarm.config import CaccSettings, CavSettings
-from sumo_swarm.controllers.base import RouteWatch, RunContext
+from sumo_swarm.controllers.base import LC_MODE_STRATEGIC, RouteWatch, RunContext
 from sumo_swarm.core.neighbours import vehicle_ahead
 
 
@@ -104,7 +105,7 @@ class CaccController:
         ctx = self.ctx
         for vid in ctx.cav_ids:
             if vid in ctx.session.states and vid not in self._configured:
-                ctx.configure_cav(vid)
+                ctx.configure_cav(vid, lane_change_mode=LC_MODE_STRATEGIC)
                 self._configured.add(vid)
 
     def control(self, t_s: float) -> None:

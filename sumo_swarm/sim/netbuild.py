@@ -1,7 +1,8 @@
 """Build small highway networks with SUMO's netconvert (from the eclipse-sumo package).
 
 Used by the tests, the stress sweep and users who want a quick test bed: straight or curved,
-2 to 5 lanes, one or several edges, optionally a lane drop (the leftmost lanes end); and a
+2 to 5 lanes, one or several edges, optionally a lane drop (the rightmost lanes end: netconvert
+keeps the lanes on the left going); and a
 straight motorway with an on-ramp (acceleration lane) and an off-ramp (deceleration lane).
 """
 
@@ -20,7 +21,7 @@ class HighwaySpec:
     """A highway: ``edges`` pieces of ``length_m / edges`` metres each.
 
     ``lanes`` per edge (an int for all, or one per edge: fewer lanes on a later edge is a lane
-    drop on the left). ``radius_m`` bends the whole road into an arc turning left (None:
+    drop; netconvert ends the rightmost lanes, as where a merging lane ends). ``radius_m`` bends the whole road into an arc turning left (None:
     straight). Lanes are ``lane_width_m`` wide; ``speed_mps`` is the speed limit.
     """
 

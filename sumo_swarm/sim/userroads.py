@@ -164,6 +164,20 @@ ROADS: dict[str, UserRoad] = {
                 cav_flow=True,
             ),
         ),
+        UserRoad(
+            "3-lane-curve",
+            "3 lanes, 2.5 km bending left on a 700 m radius, 1200 veh/h/lane (departLane=best)",
+            _highway_road(
+                HighwaySpec(length_m=2500, lanes=3, radius_m=700), lane=0, flows=((3600, "best"),)
+            ),
+        ),
+        UserRoad(
+            "lane-drop",
+            "3 lanes for 1 km, then 2 (the right lane, the truck's, ends) for 1 km; 2400 veh/h",
+            _highway_road(
+                HighwaySpec(length_m=2000, lanes=(3, 2), edges=2), lane=0, flows=((2400, "best"),)
+            ),
+        ),
     )
 }
 
