@@ -21,8 +21,9 @@ class HighwaySpec:
     """A highway: ``edges`` pieces of ``length_m / edges`` metres each.
 
     ``lanes`` per edge (an int for all, or one per edge: fewer lanes on a later edge is a lane
-    drop; netconvert ends the rightmost lanes, as where a merging lane ends). ``radius_m`` bends the whole road into an arc turning left (None:
-    straight). Lanes are ``lane_width_m`` wide; ``speed_mps`` is the speed limit.
+    drop; netconvert ends the rightmost lanes, as where a merging lane ends). ``radius_m``
+    bends the whole road into an arc turning left (None: straight). Lanes are
+    ``lane_width_m`` wide; ``speed_mps`` is the speed limit.
     """
 
     length_m: float = 2000.0
