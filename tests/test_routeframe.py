@@ -106,6 +106,35 @@ def test_road_sections_and_an_unknown_route():
     assert frame.lane_ends == []  # the route ends at b: nothing to connect to
 
 
+def test_lane_indices_across_a_dropped_right_lane():
+    """a (3 lanes) -> b (2 lanes): a's right lane ends, a's lanes 1 and 2 go on as b's 0 and
+    1 (netconvert's lane drop); then b -> c keeps its two lanes."""
+    lanes = {
+        "a_0": (100.0, 3.2, STRAIGHT, []),
+        "a_1": (100.0, 3.2, STRAIGHT, [("b_0", ":j1_0_0")]),
+        "a_2": (100.0, 3.2, STRAIGHT, [("b_1", ":j1_0_1")]),
+        ":j1_0_0": (5.0, 3.2, STRAIGHT, [("b_0", "")]),
+        ":j1_0_1": (5.0, 3.2, STRAIGHT, [("b_1", "")]),
+        "b_0": (100.0, 3.2, STRAIGHT, [("c_0", ":j2_0_0")]),
+        "b_1": (100.0, 3.2, STRAIGHT, [("c_1", ":j2_0_1")]),
+        ":j2_0_0": (5.0, 3.2, STRAIGHT, [("c_0", "")]),
+        ":j2_0_1": (5.0, 3.2, STRAIGHT, [("c_1", "")]),
+        "c_0": (100.0, 3.2, STRAIGHT, []),
+        "c_1": (100.0, 3.2, STRAIGHT, []),
+    }
+    frame = RouteFrame(TableNetwork(lanes), ["a", "b", "c"])
+    assert frame.lane_offset == {"a": 0, ":j1_0": 1, "b": 1, ":j2_0": 1, "c": 1}
+    assert frame.lane_as_on(1, "a", "b") == 0  # the same lane, one index less on b
+    assert frame.lane_as_on(2, "a", "c") == 1
+    assert frame.lane_as_on(0, "b", "a") == 1
+    assert frame.lane_as_on(0, "a", "b") == -1  # the lane that ended: none of b's
+    assert frame.lane_as_on(1, ":j1_0", "b") == 1  # on the junction, towards b_1
+    assert frame.lane_as_on(0, "x", "b") is None  # off the route
+    assert frame.route_edge(":j1_0") == "a" and frame.route_edge("b") == "b"
+    assert frame.road_section(":j1_0") is frame.road_section("a")
+    assert len(frame.road_section(":j1_0").lane_widths_m) == 3
+
+
 @pytest.mark.parametrize(
     ("shape", "curvature"),
     [

@@ -126,6 +126,22 @@ def test_cacc_platoon_leaves_a_lane_that_ends(tmp_path):
     assert summary["cav"]["mean_speed_mps"] > 10.0  # behind the 15 m/s truck, never stopped
 
 
+def test_swarm_regroups_past_a_lane_drop(tmp_path):
+    """The swarm passes the truck and re-forms its platoon past the lane drop: the CAVs still
+    before it count their lanes as the leader's edge does (lane 1 there is lane 0 after it);
+    counted on their own edges, two CAVs headed for the wrong lane and rode beside the
+    platoon for the rest of the run."""
+    cfg = write_road("lane-drop", tmp_path / "road", end_s=50.0)
+    summary = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False,
+                          notify=lambda _: None)  # fmt: skip
+    assert summary["safety"]["collisions"] == 0
+    assert summary["safety"]["hard_brakes_cav"] == 0
+    assert summary["overtake"]["completed"] and summary["overtake"]["regrouped"]
+    df = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    last = df[(df["kind"] == "cav") & (df["time_s"] >= df["time_s"].max() - 0.05)]
+    assert len(last) == CAV_COUNT and last["lane"].nunique() == 1 and set(last["edge"]) == {"e1"}
+
+
 def test_swarm_at_sumos_default_step_refuses_or_drives_safely(tmp_path):
     """At SUMO's default 1 s step the swarm either refuses to start (exit 2, one line naming the
     step) or drives without a collision."""

@@ -12,6 +12,7 @@ from typing import Any
 
 from sumo_swarm.config import CaccSettings, CavSettings
 from sumo_swarm.controllers.base import LC_MODE_STRATEGIC, RouteWatch, RunContext
+from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.neighbours import vehicle_ahead
 
 
@@ -59,13 +60,16 @@ def command_cacc(
     leader_cruise_mps: float | None = None,
     accel_limits: Mapping[str, float] | None = None,
     accel_floors: Mapping[str, float] | None = None,
+    states: Mapping[str, VehicleState] | None = None,
 ) -> None:
     """Command one CACC step for every CAV of ``platoon`` (front-most first when
     ``leader_cruise_mps`` is given: that CAV cruises at that speed instead). ``accel_limits``:
     upper bounds [m/s^2] of some CAVs' acceleration (a CAV making room to change lanes);
     ``accel_floors``: lower bounds of some (a CAV running up to a faster lane's speed), never
-    above the CAV's upper bound."""
-    states = ctx.session.states
+    above the CAV's upper bound. ``states``: the vehicles as the caller sees them (default
+    the session's)."""
+    if states is None:
+        states = ctx.session.states
     others = list(states.values())
     sc = ctx.scenario
     for vid in platoon:

@@ -190,7 +190,7 @@ class SwarmController:
         self.routes = RouteWatch()
         self.reformer = Reformer(
             sc, self.model_of, ctx.event, hold=self.lane_shift_hold, escape=self.lane_end_escape,
-            ends=lambda ego: self._lanes_ending_ahead(ego, LANE_END_HOLD_S),
+            ends=self._ends_ahead,
         )  # fmt: skip
         self.drawer = None  # a sumo-gui plan drawer, set by the session's side (sim.gui)
 
@@ -263,6 +263,11 @@ class SwarmController:
         road = ctx.session.road_at(platoon[0])
         if road is not None:
             ctx.road = road
+        in_lanes = getattr(ctx.session, "states_in_lanes_of", None)
+        if in_lanes is not None:
+            # One lane numbering, the leader's edge's: behind a lane drop the CAVs not past it
+            # yet count their lane one higher, and the reformer sent them to the wrong lane.
+            states = in_lanes(platoon[0])
         self._watch_blocked(t_s, states)
         if self.drawer is not None and self.mode is Mode.OVERTAKE:
             self.drawer.update(t_s)
@@ -476,7 +481,7 @@ class SwarmController:
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
         command_cacc(ctx, platoon, leader_cruise,
                      accel_limits={vid: m[1] for vid, m in moves.items()},
-                     accel_floors=reformer.floors)  # fmt: skip
+                     accel_floors=reformer.floors, states=states)  # fmt: skip
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)
@@ -500,11 +505,24 @@ class SwarmController:
         which the plan's columns took for a through lane, and stopped at its end."""
         if entering_lane(self.ctx.road, y, dlat, self.ctx.scenario.guards) is None:
             return False
+        ego = self._own(ego)
         entering = ego.lane + (1 if dlat > 0 else -1)
         if entering in self._lanes_ending_ahead(ego, LANE_END_HOLD_S):
             return True
         near = getattr(self.ctx.session, "near_lane_shift", None)
         return near is not None and near(ego.s_m, LANE_SHIFT_HOLD_M + ego.length_m)
+
+    def _own(self, ego: VehicleState) -> VehicleState:
+        """``ego`` with its lane index on its own edge (the controller's states count lanes as
+        on the leader's edge: ``states_in_lanes_of``), for what is read on that edge."""
+        return self.ctx.session.states.get(ego.vehicle_id, ego)
+
+    def _ends_ahead(self, ego: VehicleState) -> set[int]:
+        """Lanes that end within LANE_END_HOLD_S ahead of ``ego``, numbered as ``ego``'s lane
+        is (the leader's edge's numbering), for the reformer."""
+        own = self._own(ego)
+        shift = ego.lane - own.lane
+        return {lane + shift for lane in self._lanes_ending_ahead(own, LANE_END_HOLD_S)}
 
     def _lanes_ending_ahead(self, ego: VehicleState, horizon_s: float) -> set[int]:
         """Lanes of ``ego``'s own edge that end within ``horizon_s`` at its speed (at least
@@ -516,6 +534,7 @@ class SwarmController:
         """The lateral move [m] of ``ego`` this step: ``dlat``, unless its lane ends within
         LANE_END_ESCAPE_S: then towards the neighbouring lane that goes on (left first: lanes
         end on the right at on-ramps), through the lateral guard like any other move."""
+        ego = self._own(ego)
         ending = self._lanes_ending_ahead(ego, LANE_END_ESCAPE_S)
         if ego.lane not in ending:
             return dlat

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from typing import Protocol
 
@@ -81,6 +82,11 @@ class RouteFrame:
         # Route positions [m] where lane indices shift (a lane added or dropped on the right:
         # lane i of one edge continues as lane j != i of the next).
         self.lane_shifts_m: list[float] = []
+        # Lane index offsets [lanes]: lane i of edge e is the same lane as lane
+        # i + off[e] - off[f] of edge f (lane i of one edge goes on as lane j of the next:
+        # lane drops and added lanes on the right shift the indices); junction lanes included.
+        self.lane_offset: dict[str, int] = {edges[0]: 0} if edges else {}
+        self.junction_from: dict[str, str] = {}  # junction edge on the route -> edge it leaves
         offset = 0.0
         for i, edge in enumerate(edges):
             self.edge_offset_m[edge] = offset
@@ -92,6 +98,8 @@ class RouteFrame:
             vias: dict[str, float] = {}
             edge_end = offset
             shifted = False
+            shifts: Counter[int] = Counter()  # lane here - lane reached, per connection
+            base = self.lane_offset.get(edge)
             for lane in range(self._lane_counts[edge]):
                 continues = False
                 for to_lane, via in net.lane_links(f"{edge}_{lane}"):
@@ -100,13 +108,35 @@ class RouteFrame:
                         vias[via] = net.lane_length_m(via)
                         continues = True
                         shifted = shifted or int(to_index) != lane
+                        shifts[lane - int(to_index)] += 1
+                        via_edge, via_index = via.rsplit("_", 1)
+                        self.junction_from[via_edge] = edge
+                        if base is not None:
+                            self.lane_offset.setdefault(via_edge, base + lane - int(via_index))
                 if not continues:  # no connection into the next route edge: the lane ends
                     self.lane_ends.append((i, lane, edge_end))
+            if base is not None and shifts:
+                self.lane_offset[edges[i + 1]] = base + shifts.most_common(1)[0][0]
             if shifted or self._lane_counts[edges[i + 1]] != self._lane_counts[edge]:
                 self.lane_shifts_m.append(edge_end)
             offset += min(vias.values(), default=0.0)
             for via, length in vias.items():
                 self.via_end[via] = (offset, length)
+
+    def lane_as_on(self, lane: int, edge: str, reference: str) -> int | None:
+        """Index on ``reference`` of the lane that is lane ``lane`` of ``edge`` (both on the
+        route, junction edges included); None where either is off the route. May fall outside
+        ``reference``'s lanes: a lane that ended before it, or begins after it."""
+        a = self.lane_offset.get(edge)
+        b = self.lane_offset.get(reference)
+        if a is None or b is None:
+            return None
+        return lane + a - b
+
+    def route_edge(self, edge: str) -> str:
+        """``edge`` itself, or for a junction edge on the route the route edge it leaves: the
+        edge whose lane indices and road section hold there."""
+        return self.junction_from.get(edge, edge)
 
     def near_lane_shift(self, s_m: float, within_m: float) -> bool:
         """Is route position ``s_m`` within ``within_m`` of a place where lane indices shift?"""
@@ -155,7 +185,9 @@ class RouteFrame:
 
     def road_section(self, edge: str) -> RoadSection:
         """Lane widths of ``edge`` [m] (0 = rightmost) and its mean curvature [1/m] (left > 0),
-        from the lane geometry. A junction edge (``:...``) gives the last road section read."""
+        from the lane geometry. A junction edge (``:...``) gives the section of the route edge
+        it leaves (:meth:`route_edge`), or off the route the last road section read."""
+        edge = self.route_edge(edge)
         road = self._roads.get(edge)
         if road is not None:
             return road

@@ -221,6 +221,33 @@ class SumoSession:
         """See :meth:`RouteFrame.near_lane_shift`."""
         return self.frame.near_lane_shift(s_m, within_m)
 
+    def states_in_lanes_of(self, vid: str) -> dict[str, VehicleState]:
+        """:attr:`states` with every vehicle's lane index counted as on ``vid``'s edge (on a
+        junction edge, the route edge it leaves: :meth:`RouteFrame.route_edge`), so that
+        vehicles on either side of a place where lane indices shift (a lane drop, an on-ramp's
+        added lane) compare lanes; a vehicle off the route, or in a lane that does not exist on
+        that edge (one that ended, or begins later), keeps its own index. SUMO's outputs keep
+        SUMO's indices: this is the controllers' view only."""
+        frame = self.frame
+        edge = self.edges.get(vid)
+        if edge is None or not frame.lane_offset:
+            return self.states
+        reference = frame.route_edge(edge)
+        n_lanes = frame.lane_count(reference)
+        edges = self.edges
+        out = {}
+        for other, state in self.states.items():
+            own = edges.get(other)
+            if own is None or own == reference:
+                out[other] = state
+                continue
+            lane = frame.lane_as_on(state.lane, own, reference)
+            if lane is None or lane == state.lane or not 0 <= lane < n_lanes:
+                out[other] = state
+            else:
+                out[other] = dataclasses.replace(state, lane=lane)
+        return out
+
     def lanes_ending(self, edge: str, s_from_m: float, s_to_m: float) -> list[tuple[int, float]]:
         """Lanes that end between ``s_from_m`` and ``s_to_m`` [m]: see
         :meth:`RouteFrame.lanes_ending`."""
