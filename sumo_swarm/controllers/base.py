@@ -201,7 +201,8 @@ def configure_cav(
     (module constants), the lateral speed the trajectories plan with as maxSpeedLat [m/s] (None:
     the vType's), and with ``type_speed_factor`` its vType's speedFactor instead of SUMO's draw
     for it (one platoon, one desired speed), and a vType decel above ``decel_mps2`` [m/s^2]
-    lowered to it: our controllers never brake harder, and SUMO's safe-speed net under them
+    lowered to it, with the decel other vehicles assume of it (apparentDecel): our controllers
+    never brake harder, and SUMO's safe-speed net under them
     brakes at the vType's decel (SUMO's default 4.5: a CAV cut in 17 m ahead of a CAV 3.3 m/s
     faster at 32 m/s, within the guard's rule, braked its follower at 4.5 m/s^2). A vehicle
     that vanished is left alone."""
@@ -214,6 +215,12 @@ def configure_cav(
             vehicle.setMaxSpeedLat(vid, lateral_speed_mps)
         if decel_mps2 is not None and vehicle.getDecel(vid) > decel_mps2:
             vehicle.setDecel(vid, decel_mps2)
+            # The decel the CAVs behind assume of it, too (SUMO's apparentDecel, left at the
+            # vType's 4.5 otherwise): a follower that can brake less than its leader is
+            # assumed to keeps a wider gap, and SUMO's safe speed held every follower 17 m
+            # behind at 28.7 m/s against the platoon's 10 m, so the leader eased off for good
+            # (users' roads: the platoon cruised at 28.7 m/s with lanes at 33.3).
+            vehicle.setApparentDecel(vid, decel_mps2)
         if type_speed_factor:
             type_id = vehicle.getTypeID(vid)  # its own copy (``cav@vid``) has the same factor
             factor = session.api.vehicletype.getSpeedFactor(type_id)
