@@ -132,6 +132,29 @@ def test_budget_returns_the_best_plan_with_a_valid_bound():
     assert evaluate_objective(problem, only.cells) == pytest.approx(only.objective)
 
 
+def test_plan_work_ends_a_search_that_has_a_plan_never_one_without():
+    problem = fig7_problem()  # 6 CAVs
+    model = build_flow_model(problem, rows=False)
+    full = solve_network(model, 30.0)
+    cut = solve_network(model, 30.0, plan_work=1)  # stops at its first plan (>= 2 flows)
+    assert full.status == "optimal" and cut.status == "feasible"
+    assert 2 <= cut.branches < full.branches
+    assert cut.bound <= 3210 <= cut.objective
+    # Above network_ref_cavs CAVs the stopping work shrinks in proportion: 3 of 6 halves it.
+    halved = CpSatPlanner(30.0, network_work=28_000, network_only=True, network_ref_cavs=3)
+    assert halved._plan_work(problem) == 14_000
+    plan = halved.plan(problem)
+    assert plan.status is PlanStatus.FEASIBLE and validate_plan(problem, plan) == []
+    assert plan.best_bound <= 3210 <= plan.objective
+    same = CpSatPlanner(30.0, network_work=28_000, network_only=True, network_ref_cavs=6)
+    assert same._plan_work(problem) is None
+    check(problem, same.plan(problem), 3210.0)  # 6 CAVs: the budget as it was, proved
+    with pytest.raises(ConfigError, match="network_ref_cavs"):
+        PlannerSettings(network_ref_cavs=-1)
+    with pytest.raises(ConfigError, match="network_ref_cavs"):
+        CpSatPlanner(1.0, network_ref_cavs=2.5)
+
+
 def test_hint_is_a_first_plan_and_a_bad_one_is_ignored():
     problem = fig7_problem()
     best = network_planner().plan(problem)

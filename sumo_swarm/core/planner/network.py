@@ -280,6 +280,7 @@ def solve_network(
     max_branches: int = 2000,
     hint: list[int] | None = None,
     max_work: int | None = None,
+    plan_work: int | None = None,
 ) -> NetworkResult:
     """Best-bound branch and bound (see the module docstring) within ``max_branches`` flows,
     and within ``max_work`` if given: flows times the network's arcs (at least 2 flows).
@@ -288,6 +289,8 @@ def solve_network(
     plan of this model. Before branching, plans that keep nobody impeded from some open step on
     (and, before it, the cheapest) are tried as first upper bounds (one flow each).
     ``time_limit_s`` is a wall-clock safety net only; the flow count is what binds.
+    ``plan_work``: a smaller work budget that ends the search once it has a plan (at least 2
+    flows); without a plan it goes on within ``max_work``.
     """
     started = time.perf_counter()
     net = _Network(model)
@@ -295,6 +298,8 @@ def solve_network(
     if max_work is not None:
         max_branches = min(max_branches, max(2, max_work // max(net.n_arcs, 1)))
     search = _Search(net, started, time_limit_s, max_branches)
+    if plan_work is not None:
+        search.plan_budget = max(2, plan_work // max(net.n_arcs, 1))
     if hint is not None:
         search.offer_hint(np.asarray(hint[: model.n_edges], np.int64))
     root = _Branch(0, 0, {})
@@ -361,6 +366,7 @@ class _Search:
         self.started = started
         self.time_limit_s = time_limit_s
         self.budget = budget
+        self.plan_budget = budget  # flows after which a search with a plan stops
         self.branches = 0
         self.best_cost: int | None = None
         self.best_edges: np.ndarray | None = None
@@ -369,9 +375,9 @@ class _Search:
 
     @property
     def out_of_budget(self) -> bool:
-        return (
-            self.branches >= self.budget or time.perf_counter() - self.started > self.time_limit_s
-        )
+        if self.branches >= self.budget or time.perf_counter() - self.started > self.time_limit_s:
+            return True
+        return self.best_cost is not None and self.branches >= self.plan_budget
 
     def solve(self, branch: _Branch) -> tuple[int, np.ndarray, np.ndarray] | None:
         """The branch's flow; a branch solved before (a dive's) is not solved again."""

@@ -136,6 +136,16 @@ class PlannerSettings:
         paper scene proved). A search that finishes proves the optimum (or infeasibility) and
         CP-SAT is not called. A count, not a time: the plan does not depend on the machine's
         load. 0: CP-SAT only, as before.
+    network_ref_cavs
+        The CAV count ``network_work`` is meant for: above it a search that has found a plan
+        stops at ``network_work * network_ref_cavs / n_cavs`` (one without a plan goes on
+        within ``network_work``: a 12-CAV problem found none in 3 flows). A flow carries one
+        augmenting path per CAV, so its cost grows with both arcs and CAVs: 10-CAV stress
+        problems (about 2900 arcs) took 8-9 ms a flow, 7 flows within 20000, up to 61 ms of
+        CPU (7 runs of 200 above 50 ms at p95); the paper scene's 6 CAVs take 2-3 ms a flow.
+        6: the paper scene and anything smaller plan as before, 10 CAVs stop at 12000 (4
+        flows). A count: the plan is still the same on every machine. 0: ``network_work``
+        whatever the CAVs.
     network_only
         When the network search does not finish, return its best plan (``feasible``, with the
         search's lower bound) instead of calling CP-SAT (``false``: CP-SAT continues from that
@@ -156,6 +166,7 @@ class PlannerSettings:
     num_workers: int = 1
     network_work: int = 20_000
     network_only: bool = True
+    network_ref_cavs: int = 6
 
     def __post_init__(self) -> None:
         if isinstance(self.weights, Mapping):
@@ -174,6 +185,7 @@ class PlannerSettings:
         _require_int("max_blockers", self.max_blockers, minimum=0)
         _require_int("num_workers", self.num_workers, minimum=1)
         _require_int("network_work", self.network_work, minimum=0)
+        _require_int("network_ref_cavs", self.network_ref_cavs, minimum=0)
         if not isinstance(self.network_only, bool):
             raise ConfigError(
                 f"PlannerSettings.network_only must be true or false, got {self.network_only!r}"

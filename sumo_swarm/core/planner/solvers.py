@@ -56,9 +56,12 @@ class _FlowPlanner:
         retry_without_blockers: bool = True,
         network_work: int = 0,
         network_only: bool = False,
+        network_ref_cavs: int = 0,
     ) -> None:
         if not time_limit_s > 0:
             raise ConfigError(f"{type(self).__name__}: time_limit_s must be > 0")
+        if not isinstance(network_ref_cavs, int) or network_ref_cavs < 0:
+            raise ConfigError(f"{type(self).__name__}: network_ref_cavs must be an int >= 0")
         if not isinstance(network_work, int) or network_work < 0:
             raise ConfigError(f"{type(self).__name__}: network_work must be an int >= 0")
         self.time_limit_s = float(time_limit_s)
@@ -68,6 +71,7 @@ class _FlowPlanner:
         # does not finish returns its best plan (FEASIBLE) instead of calling the solver.
         self.network_work = network_work
         self.network_only = network_only
+        self.network_ref_cavs = network_ref_cavs  # see PlannerSettings.network_ref_cavs
 
     def plan(self, problem: PlanningProblem, hint: Plan | None = None) -> Plan:
         """Solve ``problem``; ``hint`` (e.g. the shifted last plan) is a warm start only."""
@@ -94,6 +98,14 @@ class _FlowPlanner:
             elapsed = (time.perf_counter() - started) * 1e3
             return failed_plan(PlanStatus.ERROR, problem, self.backend, elapsed, repr(exc))
 
+    def _plan_work(self, problem: PlanningProblem) -> int | None:
+        """The work after which the network search returns the plan it has: ``network_work``
+        shrunk in proportion above ``network_ref_cavs`` CAVs (None: not shrunk)."""
+        ref, n_cavs = self.network_ref_cavs, problem.n_cavs
+        if ref and n_cavs > ref:
+            return self.network_work * ref // n_cavs
+        return None
+
     def _plan_once(self, problem: PlanningProblem, hint: Plan | None, started: float) -> Plan:
         # The network search needs no constraint rows; the MIP solver's model gets them.
         model = build_flow_model(problem, rows=not self.network_work)
@@ -117,7 +129,10 @@ class _FlowPlanner:
                     PlanStatus.TIMEOUT, problem, self.backend, build_ms, "no time left", build_ms
                 )
             build_ms = (time.perf_counter() - started) * 1e3
-            network = solve_network(model, remaining, hint=hints, max_work=self.network_work)
+            network = solve_network(
+                model, remaining, hint=hints, max_work=self.network_work,
+                plan_work=self._plan_work(problem),
+            )  # fmt: skip
         if network is not None and (
             network.status in ("optimal", "infeasible") or self.network_only
         ):
@@ -289,8 +304,11 @@ class CpSatPlanner(_FlowPlanner):
         work_limit: float | None = None,
         network_work: int = 0,
         network_only: bool = False,
+        network_ref_cavs: int = 0,
     ) -> None:
-        super().__init__(time_limit_s, retry_without_blockers, network_work, network_only)
+        super().__init__(
+            time_limit_s, retry_without_blockers, network_work, network_only, network_ref_cavs
+        )
         self.num_workers = int(num_workers)
         if work_limit is not None and not work_limit > 0:
             raise ConfigError(f"CpSatPlanner: work_limit must be > 0, got {work_limit!r}")
@@ -414,6 +432,7 @@ def make_planner(settings: PlannerSettings) -> CellPlanner:
         return CpSatPlanner(
             settings.time_limit_s, num_workers=settings.num_workers, work_limit=settings.work_limit,
             network_work=settings.network_work, network_only=settings.network_only,
+            network_ref_cavs=settings.network_ref_cavs,
         )  # fmt: skip
     if settings.backend == "scip":
         return ScipPlanner(settings.time_limit_s)
