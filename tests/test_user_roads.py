@@ -142,6 +142,22 @@ def test_swarm_regroups_past_a_lane_drop(tmp_path):
     assert len(last) == CAV_COUNT and last["lane"].nunique() == 1 and set(last["edge"]) == {"e1"}
 
 
+def test_regrouped_platoon_cruises_at_the_lanes_speed(tmp_path):
+    """Past the truck the re-formed platoon drives at the lanes' 33.3 m/s, its CAVs at the
+    platoon's gap: SUMO's safe speed under a CAV follower assumed its CAV leader brakes at the
+    vType's 4.5 m/s^2 (apparentDecel) while the follower brakes at 4, held it 17 m back at
+    28.7 m/s, and the leader eased off to let the stretched platoon close up, for good."""
+    cfg = write_road("3-lane-900", tmp_path / "road", end_s=90.0)
+    summary = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False,
+                          notify=lambda _: None)  # fmt: skip
+    assert summary["overtake"]["completed"] and summary["overtake"]["regrouped"]
+    assert summary["safety"]["collisions"] == 0
+    df = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    late = df[(df["kind"] == "cav") & (df["time_s"] >= 80.0)]
+    assert late["speed_mps"].min() >= 32.5, late.groupby("vehicle")["speed_mps"].min()
+    assert late["lane"].nunique() == 1
+
+
 def test_swarm_at_sumos_default_step_refuses_or_drives_safely(tmp_path):
     """At SUMO's default 1 s step the swarm either refuses to start (exit 2, one line naming the
     step) or drives without a collision."""
