@@ -30,11 +30,13 @@ from sumo_swarm.core.swarming.decision import (
 )
 from sumo_swarm.core.swarming.guards import (
     GuardSettings,
+    follower_beside,
     gap_accel_limit,
     lateral_refusal,
     too_close_alongside,
 )
 from sumo_swarm.core.swarming.planlog import PlanLog
+from sumo_swarm.errors import ConfigError
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
 IDM = DriverModel(model="IDM", accel_mps2=1.0, decel_mps2=2.0, tau_s=1.0, min_gap_m=2.0,
@@ -556,6 +558,36 @@ def test_a_lane_pass_completes_stalls_or_goes_on():
     past = [car("c0", 330.0, 1, 25.0, cav=True), car("c1", 312.0, 1, 25.0, cav=True)]
     assert lp.update(91.0, truck, past, ROAD, **kw) == "completed"  # rears 325, 307 > 305
     assert lp.update(92.0, None, past, ROAD, **kw) == "target_left"
+
+
+def test_a_move_within_the_lane_towards_an_hv_leaning_in_from_behind_is_judged_as_entering():
+    # Lanes 3.2 m wide: lane 1's left boundary at y = 4.8. An HV of lane 2 leaning 0.07 m into
+    # lane 1 (centre 0.77 m right of lane 2's: its right side at 6.4 - 0.77 - 0.9 = 4.73) and
+    # a CAV centred in lane 1 (left side at 4.1): 0.63 m apart. Moving 0.2 m left (still in
+    # lane 1) leaves 0.43 m, within SUMO's 0.6 m minGapLat: the HV would take the CAV for its
+    # leader, 4 m ahead and 3.6 m/s slower (stress scene 113: it braked at 9 m/s^2).
+    ego = car("c6", 100.0, 1, 14.9, cav=True)
+    hv = car("h", 91.0, 2, 18.5, lat=-0.77)  # its front 4 m behind ego's rear
+    y = ROAD.y_of(1, 0.0)
+    guard = dict(min_gap_m=5.0, width_m=1.8, model_of=lambda vid: IDM, b_safe_mps2=2.0,
+                 step_s=0.1)  # fmt: skip
+    found = follower_beside(ego, y, 0.2, [ego, hv], ROAD, 1.8, 0.6)
+    assert found is not None and found[0] is hv and found[1] == pytest.approx(4.0)
+    assert lateral_refusal(ego, y, 0.2, [ego, hv], ROAD, **guard) == "follower_gap"
+    assert follower_beside(ego, y, -0.2, [ego, hv], ROAD, 1.8, 0.6) is None  # moving away
+    assert lateral_refusal(ego, y, -0.2, [ego, hv], ROAD, **guard) is None
+    # Alongside and a little behind (its front 0.3 m behind ego's): a negative gap, held.
+    beside = dataclasses.replace(hv, s_m=99.7)
+    assert follower_beside(ego, y, 0.2, [ego, beside], ROAD, 1.8, 0.6)[1] == pytest.approx(-4.7)
+    # Centred in lane 2 (1.4 m apart after the move), or far behind, or off: nothing to judge.
+    centred = dataclasses.replace(hv, lat_m=0.0)
+    assert follower_beside(ego, y, 0.2, [ego, centred], ROAD, 1.8, 0.6) is None
+    far = dataclasses.replace(hv, s_m=40.0)
+    assert follower_beside(ego, y, 0.2, [ego, far], ROAD, 1.8, 0.6) is None
+    off = GuardSettings(follower_lat_gap_m=0.0)
+    assert lateral_refusal(ego, y, 0.2, [ego, hv], ROAD, settings=off, **guard) is None
+    with pytest.raises(ConfigError, match="follower_lat_gap_m"):
+        GuardSettings(follower_lat_gap_m=-1.0)
 
 
 def test_no_lateral_move_brings_a_cav_beside_an_hv_straddling_the_lane_boundary():

@@ -37,10 +37,16 @@ class GuardSettings:
     # A lateral move never brings a CAV's side closer than this to a vehicle alongside it [m]
     # (whatever lane that vehicle is in: HVs stop straddling a lane boundary); 0 = off.
     side_clearance_m: float = 0.3
+    # A vehicle behind that a lateral move brings within this of the CAV's side is judged as
+    # a follower, as if the CAV entered its lane [m]: SUMO's sublane drivers take a vehicle
+    # that close sideways (their minGapLat, 0.6 m by default) for their leader. An HV leaning
+    # 0.07 m into the CAV's lane, 4 m behind it and 3.6 m/s faster, braked at 9 m/s^2 when a
+    # CAV moved 0.2 m towards it within its own lane (stress scene 113). 0 = off.
+    follower_lat_gap_m: float = 0.6
 
     def __post_init__(self) -> None:
         for name in ("gap_gain", "speed_gain", "gap_extra_m", "lane_probe_m", "match_gain",
-                     "follower_range_m", "side_clearance_m"):  # fmt: skip
+                     "follower_range_m", "side_clearance_m", "follower_lat_gap_m"):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -98,6 +104,37 @@ def too_close_alongside(
         if after < clearance_m and after < abs(y_other - y) - half:
             return True
     return False
+
+
+def follower_beside(
+    ego: VehicleState,
+    y: float,
+    dlat: float,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    width_m: float,
+    lat_gap_m: float,
+) -> tuple[VehicleState, float] | None:
+    """The nearest vehicle behind ego (its front behind ego's front, within
+    ``ALONGSIDE_REACH_M``: alongside it too), on the side ego moves to, that the move ``dlat``
+    [m] from ``y`` brings within ``lat_gap_m`` of ego's side, closer than before, with its
+    bumper gap [m] (negative alongside: SUMO's driver would see ego as a leader it overlaps).
+    """
+    if abs(dlat) < 1e-9 or lat_gap_m <= 0.0:
+        return None
+    found = None
+    for other in within(others, ego.s_m, ALONGSIDE_REACH_M):
+        if other.vehicle_id == ego.vehicle_id or other.s_m > ego.s_m:
+            continue
+        y_other = road.y_of(other.lane, other.lat_m)
+        if (y_other - y) * dlat <= 0.0:
+            continue  # on the other side
+        half = 0.5 * (width_m + other.width_m)
+        after = abs(y_other - (y + dlat)) - half
+        closer = after < lat_gap_m and after < abs(y_other - y) - half
+        if closer and (found is None or other.s_m > found.s_m):
+            found = other
+    return None if found is None else (found, ego.rear_s_m - found.s_m)
 
 
 def _next_lane_neighbours(
@@ -189,16 +226,18 @@ def lateral_refusal(
     some point of its reaction, :func:`sumo_swarm.core.hvmodel.accepts_entry`),
         ``"alongside"`` (a vehicle alongside, whatever lane it is in, would be closer to ego's
         side than ``settings.side_clearance_m`` after the move: an HV straddling the lane
-        boundary; checked for moves within ego's own lane too).
+        boundary; checked for moves within ego's own lane too). A vehicle behind that the
+        move brings within ``settings.follower_lat_gap_m`` of ego's side
+        (:func:`follower_beside`) is judged as a follower, in whatever lane it is.
     """
     if not isinstance(others, list):  # a Snapshot is a list: its look-ups stay fast
         others = list(others)
     if too_close_alongside(ego, y, dlat, others, road, width_m, settings.side_clearance_m):
         return "alongside"
     near = _next_lane_neighbours(ego, y, dlat, others, road, width_m, settings)
-    if near is None:
-        return None
-    ahead, behind = near
+    ahead, behind = (None, None) if near is None else near
+    if behind is None:  # within its lane, or nobody behind there: one leaning in from beside
+        behind = follower_beside(ego, y, dlat, others, road, width_m, settings.follower_lat_gap_m)
     if ahead is not None:
         # Closing in on it, the CAV must be able to stop closing within the minimum gap braking
         # no harder than b_safe (the gap it enters with is what it keeps), and to stop behind it
@@ -258,9 +297,9 @@ def yields_to_cav(
     ``min_gap_m``; that is the tracker's timing, below the planner's resolution, not a move the
     guard refuses (the guard still checks the move once the CAV is clear)."""
     near = _next_lane_neighbours(ego, y, dlat, others, road, width_m, settings)
-    if near is None:
-        return None
-    ahead, behind = near
+    ahead, behind = (None, None) if near is None else near
+    if behind is None:  # within its lane, or nobody behind there: one leaning in from beside
+        behind = follower_beside(ego, y, dlat, others, road, width_m, settings.follower_lat_gap_m)
     if ahead is not None:
         lead, gap = ahead
         if lead.is_cav and gap < min_gap_m and lead.speed_mps >= ego.speed_mps + CLEARING_MPS:
