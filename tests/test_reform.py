@@ -82,6 +82,31 @@ def test_a_cav_cut_off_by_a_slow_vehicle_passes_it_and_comes_back():
     assert goals["c2"] == 1 and events[-1][1] == {"vehicle": "c2", "slow": "slow", "past": False}
 
 
+def test_passing_ends_when_the_slow_vehicle_moves_into_the_passing_lane_ahead():
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 300.0, 1, 20.0, cav=True),
+        car("slow", 240.0, 1, 12.0),
+        car("c1", 220.0, 1, 12.0, cav=True),
+    )  # fmt: skip
+    platoon = ["c0", "c1"]
+    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 0  # passes on the right
+    # c1 is in lane 0 now; the slow car keeps right, into lane 0 ahead of it: passing there
+    # would only follow it. c1 heads back for the platoon's lane, free now.
+    st["c1"] = car("c1", 222.0, 0, 13.0, cav=True)
+    st["slow"] = car("slow", 243.0, 0, 12.0)
+    goals = r.goals(2.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    assert goals["c1"] == 1 and "c1" not in r.passing
+    assert events[-1] == ("passing_end", {"vehicle": "c1", "slow": "slow", "past": False})
+    # The slow car stays in lane 1: c1 goes on passing it in lane 0.
+    r2 = reformer()
+    start = {**st, "c1": car("c1", 220.0, 1, 12.0, cav=True), "slow": car("slow", 240.0, 1, 12.0)}
+    r2.goals(0.0, start, platoon, ROAD, 1, cap_mps=25.0)
+    stays = {**st, "slow": car("slow", 243.0, 1, 12.0)}
+    assert r2.goals(2.0, stays, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 0
+
+
 def test_after_a_give_up_the_leader_too_passes_the_target_on_its_own():
     events = []
     r = reformer(events)

@@ -170,7 +170,11 @@ class Reformer:
                 slow_id, side, since = passing
                 slow = states.get(slow_id)
                 done = slow is None or ego.rear_s_m >= slow.s_m + sc.cav.min_gap_m
-                if done or t_s - since > sw.max_pass_s:
+                # The slow vehicle moved over into the lane ego passes it in, ahead of it: ego
+                # would follow it there (a target keeping right had two CAVs behind it at its
+                # speed for 25 s beside the platoon's free lane, stress scene 51).
+                moved = not done and road.lane_of(slow) == side and slow.rear_s_m > ego.s_m
+                if done or moved or t_s - since > sw.max_pass_s:
                     del self.passing[vid]
                     self.event("passing_end", vehicle=vid, slow=slow_id, past=done)
                 else:
