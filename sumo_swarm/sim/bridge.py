@@ -230,7 +230,7 @@ class SumoSession:
         SUMO's indices: this is the controllers' view only."""
         frame = self.frame
         edge = self.edges.get(vid)
-        if edge is None or not frame.lane_offset:
+        if edge is None or not frame.lane_shifts_m:  # every edge numbers its lanes alike
             return self.states
         reference = frame.route_edge(edge)
         n_lanes = frame.lane_count(reference)

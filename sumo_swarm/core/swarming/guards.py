@@ -96,14 +96,22 @@ def too_close_alongside(
             continue
         if other.rear_s_m > ego_front + clearance_m or other.s_m < ego_rear - clearance_m:
             continue
-        y_other = road.y_of(other.lane, other.lat_m)
-        if (y_other - y) * dlat <= 0.0:
-            continue  # on the other side
-        half = 0.5 * (width_m + other.width_m)
-        after = abs(y_other - (y + dlat)) - half
-        if after < clearance_m and after < abs(y_other - y) - half:
+        if _side_gap_falls_below(other, y, dlat, road, width_m, clearance_m):
             return True
     return False
+
+
+def _side_gap_falls_below(
+    other: VehicleState, y: float, dlat: float, road: RoadSection, width_m: float, limit_m: float
+) -> bool:
+    """Does the move ``dlat`` [m] from ``y`` bring ego's side (``width_m`` wide) below
+    ``limit_m`` from ``other``'s, on the side it moves to, and closer than before?"""
+    y_other = road.y_of(other.lane, other.lat_m)
+    if (y_other - y) * dlat <= 0.0:
+        return False  # on the other side
+    half = 0.5 * (width_m + other.width_m)
+    after = abs(y_other - (y + dlat)) - half
+    return after < limit_m and after < abs(y_other - y) - half
 
 
 def follower_beside(
@@ -126,13 +134,9 @@ def follower_beside(
     for other in within(others, ego.s_m, ALONGSIDE_REACH_M):
         if other.vehicle_id == ego.vehicle_id or other.s_m > ego.s_m:
             continue
-        y_other = road.y_of(other.lane, other.lat_m)
-        if (y_other - y) * dlat <= 0.0:
-            continue  # on the other side
-        half = 0.5 * (width_m + other.width_m)
-        after = abs(y_other - (y + dlat)) - half
-        closer = after < lat_gap_m and after < abs(y_other - y) - half
-        if closer and (found is None or other.s_m > found.s_m):
+        if found is not None and other.s_m <= found.s_m:
+            continue
+        if _side_gap_falls_below(other, y, dlat, road, width_m, lat_gap_m):
             found = other
     return None if found is None else (found, ego.rear_s_m - found.s_m)
 
