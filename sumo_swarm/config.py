@@ -370,8 +370,9 @@ class SwarmSettings:
     # its own lane during the lane change. 0: the guard assumes it keeps its speed.
     entry_accel_mps2: float = 1.5
     run_up_after_s: float = 2.0  # ...once the guard has held its lane change this long [s]
-    # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
-    # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
+    # Overtake only when it pays: the speed the platoon keeps once past (the cruising speed, at
+    # most the swarm's speed cap: cav.max_speed_mps, the CAVs' vType maxSpeed and the lane's
+    # limit for them), and the speed of a lane beside it, must both exceed the target's speed
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
     min_speed_gain_mps: float = 2.0
     # "drivable": each behaving interval lasts at least one cell length at (cap - speed_margin -

@@ -389,3 +389,22 @@ def test_no_cav_side_swipes_an_hv_straddling_a_lane_boundary(tmp_path):
                           progress=False, notify=lambda _: None)  # fmt: skip
     assert summary["safety"]["collisions"] == 0
     assert summary["safety"]["hard_brakes_cav"] == 0
+
+
+def test_no_overtake_of_a_vehicle_barely_slower_than_the_cruise(tmp_path):
+    # The paper's swarm cruises at 20 m/s, its cap is 25 m/s. A truck at 18.5 m/s holds it
+    # below the trigger (0.95 x 20 = 19 m/s), but past it the platoon would gain 1.5 m/s, less
+    # than min_speed_gain_mps (2): the gain counts from the cruise, not from the cap (6.5).
+    from sumo_swarm.config import load_scenario
+
+    truck = {"speed_mps": 18.5, "desired_speed_mps": 18.5}
+    sc = load_scenario(
+        ROOT / "scenarios" / "paper.toml",
+        overrides={"simulation": {"duration_s": 20.0}, "evaluation": {"end_s": 20.0}},
+    )
+    hvs = [dataclasses.replace(h, **truck) if h.id == "hv_target" else h for h in sc.scene.hv]
+    sc = dataclasses.replace(sc, scene=dataclasses.replace(sc.scene, hv=tuple(hvs)))
+    assert sc.cav.max_speed_mps - 18.5 >= sc.swarm.min_speed_gain_mps  # the cap would say yes
+    swarm = run_scenario(sc, "swarm", tmp_path / "swarm", progress=False)
+    assert not swarm["overtake"]["triggered"]
+    assert swarm["safety"]["collisions"] == 0

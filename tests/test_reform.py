@@ -170,7 +170,8 @@ def test_a_cav_held_out_of_its_passing_lane_tries_the_other_side():
         car("c0", 300.0, 1, 20.0, cav=True),
         car("slow", 240.0, 1, 12.0),
         car("c1", 220.0, 1, 12.0, cav=True, lat=-0.6),  # at its lane's edge, where it is held
-        car("beside", 219.0, 0, 12.0),  # alongside c1 in lane 0, where nothing is ahead
+        # just behind c1 in lane 0, where nothing is ahead (1 m from c1's rear: the guard holds)
+        car("beside", 214.0, 0, 12.0),
         car("l2", 300.0, 2, 16.0),  # lane 2 is faster than the slow car, by less than lane 0
     )  # fmt: skip
     platoon = ["c0", "c1"]
@@ -178,7 +179,7 @@ def test_a_cav_held_out_of_its_passing_lane_tries_the_other_side():
     assert goals["c1"] == 0 and events[-1][0] == "passing_start"
     switch_s = SCENARIO.swarm.pass_switch_s
     t, dt = 0.0, 0.1
-    while t < switch_s - dt / 2:  # the guard holds c1: a car alongside in lane 0
+    while t < switch_s - dt / 2:  # the guard holds c1: a car right behind it in lane 0
         assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] == 0.0
         t += dt
         goals = r.goals(t, st, platoon, ROAD, 1, cap_mps=25.0)

@@ -347,6 +347,13 @@ class SwarmController:
         self.cap_mps = speed_cap_mps(list(sources.values()))
         return self.cap_mps
 
+    def _gain_speed(self, cap_mps: float) -> float:
+        """The speed [m/s] the platoon keeps once past a slow vehicle: the cruise, at most the
+        cap. The gain of an overtake is counted from it, not from the cap: a car at 18.9 m/s
+        ahead of a swarm cruising at 20 was overtaken for a 1.1 m/s gain (stress scene 0, with
+        the cap of 25 m/s it looked like 6.1)."""
+        return min(cap_mps, self.ctx.scenario.cav.cruising_speed_mps)
+
     def _decide(self, t_s: float, states, platoon: list[str]) -> VehicleState | None:
         ctx = self.ctx
         sw = ctx.scenario.swarm
@@ -356,7 +363,7 @@ class SwarmController:
         candidate = slow_vehicle_ahead(
             leader, list(states.values()), ctx.road,
             slow_below_mps=self._slow_below(), detect_range_m=sw.detect_range_m,
-            cap_mps=self._speed_cap(platoon[:1]),
+            cap_mps=self._gain_speed(self._speed_cap(platoon[:1])),
             min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
         )  # fmt: skip
         # Not in a lane that ends within reach plus two 3 s intervals at the cruise (an
@@ -426,7 +433,8 @@ class SwarmController:
         side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
         others = [st for st in states.values() if not st.is_cav]
         reach = sw.detect_range_m + 2.0 * ctx.scenario.cell_length_m
-        speeds = lane_speeds(leader, others, road, side, range_m=reach, cap_mps=self.cap_mps,
+        speeds = lane_speeds(leader, others, road, side, range_m=reach,
+                             cap_mps=self._gain_speed(self.cap_mps),
                              desired_of=self.reformer.desired_speed)  # fmt: skip
         best = max(speeds.values(), default=-math.inf)
         pays = best - target.speed_mps >= sw.min_speed_gain_mps

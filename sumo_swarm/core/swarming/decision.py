@@ -74,12 +74,15 @@ def lane_speeds(
 ) -> dict[int, float]:
     """How fast [m/s] a platoon led by ``front`` could drive in each of ``lanes``: ``cap_mps``
     where the lane is free for ``range_m`` ahead of ``front``'s bumper, else the speed of the
-    nearest vehicle ahead there (by its centre's lane, so a vehicle half-way out of a lane no
-    longer counts for it), at most its desired speed (``desired_of``) and the cap."""
+    nearest vehicle ahead there or alongside ``front`` (by its centre's lane, so a vehicle
+    half-way out of a lane no longer counts for it), at most its desired speed
+    (``desired_of``) and the cap. A vehicle alongside counts: to use that lane ``front`` gets
+    in behind it or passes it first (a CAV beside a 12.8 m/s truck, behind a 14.8 m/s car,
+    took the truck's lane for free and slowed to 10 m/s to get in behind it)."""
     nearest: dict[int, VehicleState] = {}
     wanted = set(lanes)
     for other in others:
-        if other.rear_s_m <= front.s_m or other.s_m - front.s_m > range_m:
+        if other.s_m <= front.rear_s_m or other.s_m - front.s_m > range_m:
             continue
         lane = road.lane_of(other)
         if lane in wanted and (lane not in nearest or other.s_m < nearest[lane].s_m):
