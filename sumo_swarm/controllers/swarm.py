@@ -106,6 +106,11 @@ LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane 
 # Replans that a safety check demands: they are not rate-limited.
 URGENT_TRIGGERS = frozenset({"initial", "cav_set_changed", "plan_done", "conflict"})
 
+# A slow vehicle is only catching up when the vehicles ahead of it in its lane, this far [m] and
+# at most this many, all want the trigger speed too (see SwarmController._catching_up).
+CHAIN_AHEAD_M = 300.0
+CHAIN_AHEAD_VEHICLES = 12
+
 
 class SwarmController:
     """The method of the paper: cruise, swarm past a slow vehicle, regroup, cruise."""
@@ -347,13 +352,6 @@ class SwarmController:
         self.cap_mps = speed_cap_mps(list(sources.values()))
         return self.cap_mps
 
-    def _gain_speed(self, cap_mps: float) -> float:
-        """The speed [m/s] the platoon keeps once past a slow vehicle: the cruise, at most the
-        cap. The gain of an overtake is counted from it, not from the cap: a car at 18.9 m/s
-        ahead of a swarm cruising at 20 was overtaken for a 1.1 m/s gain (stress scene 0, with
-        the cap of 25 m/s it looked like 6.1)."""
-        return min(cap_mps, self.ctx.scenario.cav.cruising_speed_mps)
-
     def _decide(self, t_s: float, states, platoon: list[str]) -> VehicleState | None:
         ctx = self.ctx
         sw = ctx.scenario.swarm
@@ -363,7 +361,7 @@ class SwarmController:
         candidate = slow_vehicle_ahead(
             leader, list(states.values()), ctx.road,
             slow_below_mps=self._slow_below(), detect_range_m=sw.detect_range_m,
-            cap_mps=self._gain_speed(self._speed_cap(platoon[:1])),
+            cap_mps=self._speed_cap(platoon[:1]),
             min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
         )  # fmt: skip
         # Not in a lane that ends within reach plus two 3 s intervals at the cruise (an
@@ -371,12 +369,42 @@ class SwarmController:
         reach = sw.detect_range_m + 2.0 * 3.0 * ctx.scenario.cav.cruising_speed_mps
         if candidate is not None and leader.lane in self._ending_lanes(leader, platoon[0], reach):
             candidate = None
+        if candidate is not None and self._catching_up(candidate, states):
+            candidate = None
         if candidate is not None and not self._side_lane_pays(leader, candidate, states):
             candidate = None
         wait_s = 0.0
         if candidate is not None and self._may_keep_right(candidate, states):
             wait_s = sw.keep_right_wait_s
         return self.watch.update(t_s, candidate, wait_s)
+
+    def _catching_up(self, candidate: VehicleState, states) -> bool:
+        """Is ``candidate`` slow only for now: it wants at least the trigger speed (its model's
+        desired speed), and so does every vehicle ahead of it in its lane within
+        ``CHAIN_AHEAD_M`` (none holds the lane back for good)? Such a car speeds up on its own;
+        it is not "persistently slower than the cruise" (a car at 18.9 m/s, in a line of cars
+        closing in on 19.7 m/s at IDM's slow pace, was overtaken by a swarm cruising at 20:
+        stress scene 0). An event ``overtake_not_worth`` (reason ``catching_up``) says so once.
+        """
+        ctx = self.ctx
+        slow_below = self._slow_below()
+        desired = self.reformer.desired_speed
+        vehicles = list(states.values())
+        width = ctx.scenario.cav.width_m
+        ahead: VehicleState | None = candidate
+        for _ in range(CHAIN_AHEAD_VEHICLES):
+            if desired(ahead) < slow_below:
+                return False  # this one holds the lane back: a slow vehicle for good
+            found = vehicle_ahead(ahead, vehicles, ctx.road, width_m=width)
+            if found is None or found[0].s_m - candidate.s_m > CHAIN_AHEAD_M:
+                break
+            ahead = found[0]
+        if self._no_gain_target != candidate.vehicle_id:
+            self._no_gain_target = candidate.vehicle_id
+            ctx.event("overtake_not_worth", target=candidate.vehicle_id,
+                      target_speed_mps=candidate.speed_mps, reason="catching_up",
+                      desired_speed_mps=desired(candidate))  # fmt: skip
+        return True
 
     def _secure_gap(self, follower: VehicleState, v_lead_mps: float) -> float:
         """SUMO's secure gap [m] of ``follower`` (an HV by its own model; a CAV by the swarm's
@@ -433,8 +461,7 @@ class SwarmController:
         side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
         others = [st for st in states.values() if not st.is_cav]
         reach = sw.detect_range_m + 2.0 * ctx.scenario.cell_length_m
-        speeds = lane_speeds(leader, others, road, side, range_m=reach,
-                             cap_mps=self._gain_speed(self.cap_mps),
+        speeds = lane_speeds(leader, others, road, side, range_m=reach, cap_mps=self.cap_mps,
                              desired_of=self.reformer.desired_speed)  # fmt: skip
         best = max(speeds.values(), default=-math.inf)
         pays = best - target.speed_mps >= sw.min_speed_gain_mps
