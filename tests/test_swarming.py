@@ -409,6 +409,21 @@ def test_lateral_guard_keeps_a_cav_follower_from_braking_hard():
     assert refusal(ego, [car("c5", 85.0, 0, 10.0, cav=True)], dlat=-0.3) is None
 
 
+def test_lateral_guard_sees_the_hv_behind_a_cav_that_only_leans_into_the_lane():
+    ego = car("c5", 100.0, 1, 17.0, cav=True, lat=1.0)  # moving left, into lane 2
+    # c6 leans 1.3 m into lane 2 from lane 1, 8 m behind ego at its speed: for the guard it is
+    # the follower (a CAV, far enough), but its centre is in lane 1. The HV 24 m behind ego in
+    # lane 2 does not follow c6, it sees ego moving in: 20 m/s against 17, IDM brakes hard.
+    leaning = car("c6", 87.0, 1, 17.0, cav=True, lat=1.3)
+    hv = car("h", 71.0, 2, 20.0)
+    assert ROAD.lane_of(leaning) == 1
+    assert refusal(ego, [leaning]) is None
+    assert braking_needed(IDM, 20.0, 17.0, 24.0) > 2.0
+    assert refusal(ego, [leaning, hv]) == "follower_brake"
+    # With c6 in lane 2 (its centre there) the HV follows c6, not ego: the move goes ahead.
+    assert refusal(ego, [car("c6", 87.0, 2, 17.0, cav=True), hv]) is None
+
+
 def test_a_cav_waits_for_a_swarm_cav_clearing_the_lane_it_enters():
     from sumo_swarm.core.swarming.guards import yields_to_cav
 

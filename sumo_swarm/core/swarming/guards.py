@@ -141,6 +141,29 @@ def follower_beside(
     return None if found is None else (found, ego.rear_s_m - found.s_m)
 
 
+def _hv_behind_straddling_cav(
+    ego: VehicleState,
+    y: float,
+    dlat: float,
+    cav: VehicleState,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    width_m: float,
+    settings: GuardSettings,
+) -> tuple[VehicleState, float] | None:
+    """The HV behind ego in the lane the move ``dlat`` enters, with its bumper gap to ego [m],
+    when the follower found there is ``cav``, a CAV whose centre is not in that lane: the HV
+    behind it does not see it as its leader (it only leans in), it sees ego, whose side goes
+    deeper. (A CAV at its lane's edge, 9 m ahead of an HV at 20 m/s, was taken as the follower;
+    the CAV ahead of it moved in at 17 m/s and the HV braked at 4.8 m/s^2: stress scene 17.)
+    None when ``cav`` is in that lane (the HV behind it follows it) or no HV is behind."""
+    lane_next = entering_lane(road, y, dlat, settings)
+    if lane_next is None or road.lane_of(cav) == lane_next:
+        return None
+    hvs = [o for o in within(others, ego.s_m, settings.follower_range_m) if not o.is_cav]
+    return vehicle_behind(ego, hvs, road, y_m=road.lane_centre_y(lane_next), width_m=width_m)
+
+
 def _next_lane_neighbours(
     ego: VehicleState,
     y: float,
@@ -267,7 +290,10 @@ def lateral_refusal(
         closing = max(0.0, follower.speed_mps - ego.speed_mps)
         if gap < min_gap_m + closing * closing / (2.0 * max(b_safe_mps2, 0.1)):
             return "follower_gap"
-        return None
+        behind = _hv_behind_straddling_cav(ego, y, dlat, follower, others, road, width_m, settings)
+        if behind is None:
+            return None
+        follower, gap = behind
     if gap < min_gap_m:
         return "follower_gap"
     model = model_of(follower.vehicle_id)
