@@ -18,7 +18,7 @@ from sumo_swarm.study import plots
 from tests.conftest import PAPER
 
 # The paper scene to 40 s: decision, all CAVs past and regrouped all happen (at about 3, 27, 36 s).
-UNTIL_REGROUPED = {"simulation": {"duration_s": 40.0}, "evaluation": {"end_s": 40.0}}
+UNTIL_REGROUPED = {"simulation": {"duration_s": 45.0}, "evaluation": {"end_s": 45.0}}
 
 
 @pytest.fixture(scope="module")

@@ -107,6 +107,24 @@ def test_passing_ends_when_the_slow_vehicle_moves_into_the_passing_lane_ahead():
     assert r2.goals(2.0, stays, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 0
 
 
+def test_passing_ends_when_the_slow_vehicle_leaves_to_the_other_side():
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 300.0, 1, 20.0, cav=True),
+        car("slow", 240.0, 1, 12.0),
+        car("c1", 220.0, 1, 12.0, cav=True),
+    )  # fmt: skip
+    platoon = ["c0", "c1"]
+    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 0  # passes on the right
+    # Held in lane 1, c1 sees the slow car move over to lane 2, away from the passing lane:
+    # nothing is left to pass; c1 stays with the platoon's lane.
+    st["slow"] = car("slow", 243.0, 2, 12.0)
+    goals = r.goals(2.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    assert goals["c1"] == 1 and "c1" not in r.passing
+    assert events[-1] == ("passing_end", {"vehicle": "c1", "slow": "slow", "past": False})
+
+
 def test_after_a_give_up_the_leader_too_passes_the_target_on_its_own():
     events = []
     r = reformer(events)

@@ -174,7 +174,11 @@ class Reformer:
                 # would follow it there (a target keeping right had two CAVs behind it at its
                 # speed for 25 s beside the platoon's free lane, stress scene 51).
                 moved = not done and road.lane_of(slow) == side and slow.rear_s_m > ego.s_m
-                if done or moved or t_s - since > sw.max_pass_s:
+                # Or it left the lane ego passes it from, away from the passing lane (two lanes
+                # from it): nothing is left to pass, and a CAV held out of a lane of 25-28 m/s
+                # traffic kept trying for 30 s, 50 m behind its platoon (stress scene 39).
+                gone = not done and abs(road.lane_of(slow) - side) >= 2
+                if done or moved or gone or t_s - since > sw.max_pass_s:
                     del self.passing[vid]
                     self.event("passing_end", vehicle=vid, slow=slow_id, past=done)
                 else:
