@@ -125,6 +125,21 @@ def test_passing_ends_when_the_slow_vehicle_leaves_to_the_other_side():
     assert events[-1] == ("passing_end", {"vehicle": "c1", "slow": "slow", "past": False})
 
 
+def test_no_pass_of_a_slow_vehicle_already_leaving_the_lane():
+    events = []
+    r = reformer(events)
+    # The slow car's centre is across the line into lane 0 (lat -1.7 in lane 1), its body still
+    # ahead of c1: c1 does not start passing it (it would end the pass the next step, as the
+    # car left its lane, and start again: a passing_start/passing_end pair every step).
+    st = states(
+        car("c0", 300.0, 1, 20.0, cav=True),
+        car("slow", 240.0, 1, 12.0, lat=-1.7),
+        car("c1", 220.0, 1, 12.0, cav=True),
+    )  # fmt: skip
+    assert r.goals(0.0, st, ["c0", "c1"], ROAD, 1, cap_mps=25.0)["c1"] == 1
+    assert "c1" not in r.passing and not events
+
+
 def test_after_a_give_up_the_leader_too_passes_the_target_on_its_own():
     events = []
     r = reformer(events)

@@ -193,6 +193,8 @@ class Reformer:
             slow = ahead[0]
             if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
                 continue
+            if road.lane_of(slow) != road.lane_of(ego):
+                continue  # leaving ego's lane (its centre is out already): nothing to pass
             if i == 0:
                 singly = self.singly
                 if singly is None or singly[0] != slow.vehicle_id or t_s > singly[1]:
