@@ -66,8 +66,9 @@ def test_fig8_snapshots_are_to_scale_with_named_lanes(paper_run):
     fig = plots.draw_trajectories(run.df, run.summary, road_of(scenario), widths)
     fig.canvas.draw()
     snapshots = fig.axes[1:]
-    # decision, +3 s, +9 s, all CAVs past (and regrouped, when that is within the 40 s)
-    assert len(snapshots) == len(plots.snapshot_times(run.summary, 40.0)) >= 4
+    # decision, +3 s, +9 s, all CAVs past (and regrouped, when that is within the run)
+    end_s = UNTIL_REGROUPED["simulation"]["duration_s"]
+    assert len(snapshots) == len(plots.snapshot_times(run.summary, end_s)) >= 4
     for ax in snapshots:
         assert ax.get_ylabel() == "lane"
         assert [t.get_text() for t in ax.get_yticklabels()] == ["right", "middle", "left"]

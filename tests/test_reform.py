@@ -82,6 +82,32 @@ def test_a_cav_cut_off_by_a_slow_vehicle_passes_it_and_comes_back():
     assert goals["c2"] == 1 and events[-1][1] == {"vehicle": "c2", "slow": "slow", "past": False}
 
 
+def test_past_the_target_the_platoon_reforms_in_its_regroup_lane():
+    # Every CAV is past the truck, in lanes 0 and 2; the regroup lane (1, the original) is
+    # free: the platoon re-forms there (the paper's Fig. 6 step 4), and stays with it while the
+    # CAVs move over, although none is in it yet.
+    r = reformer()
+    r.prefer = (1, None)
+    st = states(
+        car("c0", 300.0, 0, 20.0, cav=True),
+        car("c1", 285.0, 2, 20.0, cav=True),
+        car("truck", 200.0, 1, 15.0),
+    )  # fmt: skip
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 1
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 1
+    # A slow car ahead in lane 1 (lane 0 faster by more than the gain): lane 0 instead, and
+    # the preference is gone.
+    r2 = reformer()
+    r2.prefer = (1, None)
+    slow = {**st, "car": car("car", 330.0, 1, 14.0)}
+    assert r2.lane(slow, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 0
+    assert r2.prefer is None
+    # Not into a lane that ends.
+    r3 = reformer()
+    r3.prefer = (1, None)
+    assert r3.lane(st, ["c0", "c1"], ROAD, ending={1}, cap_mps=25.0) != 1
+
+
 def test_passing_ends_when_the_slow_vehicle_moves_into_the_passing_lane_ahead():
     events = []
     r = reformer(events)

@@ -76,6 +76,9 @@ class Reformer:
     # The vehicle the swarm gave up overtaking together: its leader too passes it on its own
     # (the others follow one by one, each once the CAV ahead is past), until this time [s].
     singly: tuple[str, float] | None = None
+    # (lane, edge) the platoon re-forms in next unless a lane its CAVs occupy is faster by the
+    # gain: the regroup lane, once every CAV is past the target (regroup_by = "cruise").
+    prefer: tuple[int, str | None] | None = None
     # CAV -> (its goal lane, how long [s] the guard has held its lane change there, in a row)
     held_s: dict[str, tuple[int, float]] = field(default_factory=dict)
     # CAV -> acceleration floor [m/s^2] of this step's moves (a CAV running up, see run_up)
@@ -136,8 +139,24 @@ class Reformer:
         best = max(speeds, key=lambda lane: (round(speeds[lane] * 2.0) / 2.0, count[lane]))
         if current not in candidates:
             current = None  # it ends ahead, or belongs to another edge
+        prefer = self.prefer
+        if prefer is not None and (prefer[1] != edge or prefer[0] in ending):
+            self.prefer = prefer = None
+        if prefer is not None and current in (None, prefer[0]):
+            # Just past the target: back in the lane it regroups in (the paper's Fig. 6, step
+            # 4: the platoon's original lane) unless a lane it occupies is faster by the gain;
+            # kept as a choice until a CAV is in it (then it is occupied like any other).
+            current = prefer[0]
+            speeds.update(lane_speeds(
+                leader, [st for v, st in states.items() if v not in members], road, [current],
+                range_m=sc.swarm.detect_range_m, cap_mps=cap_mps, desired_of=self.desired_speed,
+            ))  # fmt: skip
+            if count[current] > 0:
+                self.prefer = None
         if current in speeds and speeds[best] - speeds[current] < sc.swarm.min_speed_gain_mps:
             best = current
+        if prefer is not None and best != prefer[0]:
+            self.prefer = None  # a lane the CAVs occupy is faster: that one
         if best != current:
             shown = {str(k): round(v, 2) for k, v in speeds.items()}
             self.event("reform_lane", lane=best, lane_speeds_mps=shown)

@@ -145,6 +145,7 @@ class SwarmController:
         self.holds_per_manoeuvre: list[int] = []
         self._holding: dict[str, float] = {}
         self.regroup_lane_used: int | None = None
+        self.regroup_edge: str | None = None
         self.replan_not_before_s = -math.inf
         self.last_plan_s = -math.inf
         self.last_check_s = -math.inf
@@ -624,6 +625,8 @@ class SwarmController:
         self.blocked_since_s = {}
         lane = self.planner_settings.regroup_lane
         self.regroup_lane_used = target.lane if lane is None else lane
+        self.regroup_edge = self.reformer.edge  # whose lane numbering that lane is in
+        self.reformer.prefer = None
         self._target_lane = None
         self.ctx.event("overtake_start", target=target.vehicle_id, speed_cap_mps=self.cap_mps)
 
@@ -739,6 +742,8 @@ class SwarmController:
         self.watch.candidate_id = self.watch.since_s = None
         if completed and self.t_done_s is None:
             self.t_done_s = t_s
+        if completed and reason == "completed" and self.regroup_lane_used is not None:
+            self.reformer.prefer = (self.regroup_lane_used, self.regroup_edge)
         if not completed and abort:
             self.aborts[reason] += 1
         self.ctx.event("overtake_end", target=self.target_id, completed=completed, reason=reason)
