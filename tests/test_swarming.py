@@ -19,6 +19,7 @@ from sumo_swarm.core.swarming.decision import (
     lane_speeds,
     leader_ease_cap,
     one_platoon,
+    only_catching_up,
     passing_lane,
     right_lane_free,
     secure_gap_m,
@@ -321,6 +322,25 @@ def test_plan_log_writes_lines_and_drops_a_failing_listener(tmp_path):
     lines = [json.loads(x) for x in (tmp_path / "plans.jsonl").read_text().splitlines()]
     assert [r["time_s"] for r in lines] == [1.0, 2.0] and lines[0]["cells"] == [1, 2]
     assert len(seen) == 2 and broken not in log.listeners
+
+
+def test_a_slow_car_is_only_catching_up_when_nothing_ahead_wants_less():
+    desired = {"car": 33.0, "mid": 33.0, "lead": 19.7, "truck": 14.0}
+    kw = dict(desired_of=lambda v: desired[v.vehicle_id], slow_below_mps=19.0, width_m=1.8)
+    car18 = car("car", 200.0, 1, 18.9)
+    # A line of cars closing in on a leader that wants 19.7 m/s: all want the trigger speed.
+    line = [car18, car("mid", 240.0, 1, 18.9), car("lead", 280.0, 1, 18.95)]
+    assert only_catching_up(car18, line, ROAD, **kw)
+    # Alone on a free lane, wanting 33 m/s: catching up.
+    assert only_catching_up(car18, [car18], ROAD, **kw)
+    # A truck wanting 14 m/s heads the line: slow for good, a target.
+    assert not only_catching_up(car18, [*line, car("truck", 320.0, 1, 14.0)], ROAD, **kw)
+    # The candidate itself wants less than the trigger: slow for good.
+    assert not only_catching_up(car("truck", 200.0, 1, 14.0), [], ROAD, **kw)
+    # The truck beyond the 300 m reach, or in another lane, does not count.
+    far = car("truck", 200.0 + 301.0, 1, 14.0)
+    assert only_catching_up(car18, [car18, far], ROAD, **kw)
+    assert only_catching_up(car18, [car18, car("truck", 230.0, 2, 14.0)], ROAD, **kw)
 
 
 # --------------------------------------------------------------------------- lane speeds

@@ -57,6 +57,7 @@ from sumo_swarm.core.swarming.decision import (
     lane_speeds,
     leader_ease_cap,
     one_platoon,
+    only_catching_up,
     passing_lane,
     right_lane_free,
     secure_gap_m,
@@ -105,11 +106,6 @@ CAP_DECEL_MPS2 = 2.0
 LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane that ends [m]
 # Replans that a safety check demands: they are not rate-limited.
 URGENT_TRIGGERS = frozenset({"initial", "cav_set_changed", "plan_done", "conflict"})
-
-# A slow vehicle is only catching up when the vehicles ahead of it in its lane, this far [m] and
-# at most this many, all want the trigger speed too (see SwarmController._catching_up).
-CHAIN_AHEAD_M = 300.0
-CHAIN_AHEAD_VEHICLES = 12
 
 
 class SwarmController:
@@ -380,26 +376,15 @@ class SwarmController:
         return self.watch.update(t_s, candidate, wait_s)
 
     def _catching_up(self, candidate: VehicleState, states) -> bool:
-        """Is ``candidate`` slow only for now: it wants at least the trigger speed (its model's
-        desired speed), and so does every vehicle ahead of it in its lane within
-        ``CHAIN_AHEAD_M`` (none holds the lane back for good)? Such a car speeds up on its own;
-        it is not "persistently slower than the cruise" (a car at 18.9 m/s, in a line of cars
-        closing in on 19.7 m/s at IDM's slow pace, was overtaken by a swarm cruising at 20:
-        stress scene 0). An event ``overtake_not_worth`` (reason ``catching_up``) says so once.
-        """
+        """Is ``candidate`` only catching up (:func:`only_catching_up`)? An event
+        ``overtake_not_worth`` (reason ``catching_up``) says so once per vehicle."""
         ctx = self.ctx
-        slow_below = self._slow_below()
         desired = self.reformer.desired_speed
-        vehicles = list(states.values())
-        width = ctx.scenario.cav.width_m
-        ahead: VehicleState | None = candidate
-        for _ in range(CHAIN_AHEAD_VEHICLES):
-            if desired(ahead) < slow_below:
-                return False  # this one holds the lane back: a slow vehicle for good
-            found = vehicle_ahead(ahead, vehicles, ctx.road, width_m=width)
-            if found is None or found[0].s_m - candidate.s_m > CHAIN_AHEAD_M:
-                break
-            ahead = found[0]
+        if not only_catching_up(
+            candidate, list(states.values()), ctx.road, desired_of=desired,
+            slow_below_mps=self._slow_below(), width_m=ctx.scenario.cav.width_m,
+        ):  # fmt: skip
+            return False
         if self._no_gain_target != candidate.vehicle_id:
             self._no_gain_target = candidate.vehicle_id
             ctx.event("overtake_not_worth", target=candidate.vehicle_id,

@@ -133,6 +133,38 @@ def slow_vehicle_ahead(
     return vehicle
 
 
+# A slow vehicle is only catching up when the vehicles ahead of it in its lane, this far [m] and
+# at most this many, all want the trigger speed too (see only_catching_up).
+CHAIN_AHEAD_M = 300.0
+CHAIN_AHEAD_VEHICLES = 12
+
+
+def only_catching_up(
+    candidate: VehicleState,
+    vehicles: Sequence[VehicleState],
+    road: RoadSection,
+    *,
+    desired_of: Callable[[VehicleState], float],
+    slow_below_mps: float,
+    width_m: float,
+) -> bool:
+    """Is ``candidate`` slow only for now: it wants at least ``slow_below_mps`` (its model's
+    desired speed, ``desired_of``), and so does every vehicle ahead of it in its lane within
+    ``CHAIN_AHEAD_M`` (none holds the lane back for good)? Such a car speeds up on its own; it is
+    not "persistently slower than the cruise" (a car at 18.9 m/s, in a line of cars closing in
+    on 19.7 m/s at IDM's slow pace, was overtaken by a swarm cruising at 20: stress scene 0).
+    """
+    ahead = candidate
+    for _ in range(CHAIN_AHEAD_VEHICLES):
+        if desired_of(ahead) < slow_below_mps:
+            return False  # this one holds the lane back: a slow vehicle for good
+        found = vehicle_ahead(ahead, vehicles, road, width_m=width_m)
+        if found is None or found[0].s_m - candidate.s_m > CHAIN_AHEAD_M:
+            return True
+        ahead = found[0]
+    return True
+
+
 def right_lane_free(
     target: VehicleState,
     others: Iterable[VehicleState],
