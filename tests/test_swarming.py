@@ -356,17 +356,13 @@ def test_lane_speeds_from_the_nearest_vehicle_ahead_in_each_lane():
     speeds = lane_speeds(leader, others, ROAD, [0, 1, 2], range_m=100.0, cap_mps=25.0)
     # lane 1: "leaving" counts there (its centre is across the line), nearer than "fast"
     assert speeds == {0: 12.0, 1: 11.0, 2: 25.0}
-    # A car alongside the leader (its front 2 m ahead, its rear behind the leader's front) at
-    # 16 m/s holds its lane to that speed (the leader gets in behind it); a truck alongside
-    # slower than the leader does not (the leader gets ahead of it first), nor does one whose
-    # front is behind the leader's rear.
-    beside = [car("car", 102.0, 2, 16.0), car("gone", 94.0, 0, 5.0)]
+    # A truck alongside the leader (its front 2 m ahead, its rear behind the leader's front)
+    # holds its lane to its speed; one whose front is behind the leader's rear does not.
+    beside = [car("truck", 102.0, 2, 12.8, length=10.0), car("gone", 94.0, 0, 5.0)]
     assert lane_speeds(leader, beside, ROAD, [0, 2], range_m=100.0, cap_mps=25.0) == {
         0: 25.0,
-        2: 16.0,
+        2: 12.8,
     }
-    slower = [car("truck", 102.0, 2, 12.8, length=10.0)]
-    assert lane_speeds(leader, slower, ROAD, [2], range_m=100.0, cap_mps=25.0) == {2: 25.0}
     desired = lane_speeds(
         leader,
         others,

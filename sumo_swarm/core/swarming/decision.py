@@ -76,17 +76,14 @@ def lane_speeds(
     where the lane is free for ``range_m`` ahead of ``front``'s bumper, else the speed of the
     nearest vehicle ahead there or alongside ``front`` (by its centre's lane, so a vehicle
     half-way out of a lane no longer counts for it), at most its desired speed
-    (``desired_of``) and the cap. A vehicle alongside counts unless it is slower than
-    ``front``: ``front`` would get in behind it (a CAV beside a car as fast as it has no way
-    ahead of it); one slower it passes first (counting a 13 m/s truck alongside a platoon's
-    leader made a 2-lane road's swarm stay behind a 15.9 m/s car, stress scene 60)."""
+    (``desired_of``) and the cap. A vehicle alongside counts: to use that lane ``front`` gets
+    in behind it or passes it first (a CAV beside a 12.8 m/s truck, behind a 14.8 m/s car,
+    took the truck's lane for free and slowed to 10 m/s to get in behind it)."""
     nearest: dict[int, VehicleState] = {}
     wanted = set(lanes)
     for other in others:
         if other.s_m <= front.rear_s_m or other.s_m - front.s_m > range_m:
             continue
-        if other.rear_s_m <= front.s_m and other.speed_mps < front.speed_mps:
-            continue  # alongside and slower: front gets ahead of it before it moves over
         lane = road.lane_of(other)
         if lane in wanted and (lane not in nearest or other.s_m < nearest[lane].s_m):
             nearest[lane] = other
