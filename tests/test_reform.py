@@ -108,8 +108,8 @@ def test_past_the_target_the_platoon_reforms_in_its_regroup_lane():
     assert r3.lane(st, ["c0", "c1"], ROAD, ending={1}, cap_mps=25.0) != 1
 
 
-def test_passing_ends_when_the_slow_vehicle_moves_into_the_passing_lane_ahead():
-    events = []
+def passing_on_the_right(events):
+    """c1, cut off from c0 by a slow car in lane 1, starts passing it in lane 0."""
     r = reformer(events)
     st = states(
         car("c0", 300.0, 1, 20.0, cav=True),
@@ -118,6 +118,12 @@ def test_passing_ends_when_the_slow_vehicle_moves_into_the_passing_lane_ahead():
     )  # fmt: skip
     platoon = ["c0", "c1"]
     assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 0  # passes on the right
+    return r, st, platoon
+
+
+def test_passing_ends_when_the_slow_vehicle_moves_into_the_passing_lane_ahead():
+    events = []
+    r, st, platoon = passing_on_the_right(events)
     # c1 is in lane 0 now; the slow car keeps right, into lane 0 ahead of it: passing there
     # would only follow it. c1 heads back for the platoon's lane, free now.
     st["c1"] = car("c1", 222.0, 0, 13.0, cav=True)
@@ -135,14 +141,7 @@ def test_passing_ends_when_the_slow_vehicle_moves_into_the_passing_lane_ahead():
 
 def test_passing_ends_when_the_slow_vehicle_leaves_to_the_other_side():
     events = []
-    r = reformer(events)
-    st = states(
-        car("c0", 300.0, 1, 20.0, cav=True),
-        car("slow", 240.0, 1, 12.0),
-        car("c1", 220.0, 1, 12.0, cav=True),
-    )  # fmt: skip
-    platoon = ["c0", "c1"]
-    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 0  # passes on the right
+    r, st, platoon = passing_on_the_right(events)
     # Held in lane 1, c1 sees the slow car move over to lane 2, away from the passing lane:
     # nothing is left to pass; c1 stays with the platoon's lane.
     st["slow"] = car("slow", 243.0, 2, 12.0)
