@@ -106,6 +106,16 @@ def test_past_the_target_the_platoon_reforms_in_its_regroup_lane():
     r3 = reformer()
     r3.prefer = (1, None)
     assert r3.lane(st, ["c0", "c1"], ROAD, ending={1}, cap_mps=25.0) != 1
+    # Not when it takes more lane changes than where they are: both CAVs in lane 0, the
+    # regroup lane 2 (stress scene 131: a CAV stranded at its lane's edge for 18 s crossing).
+    r4 = reformer()
+    r4.prefer = (2, None)
+    both = {**st, "c1": car("c1", 285.0, 0, 20.0, cav=True)}
+    assert r4.lane(both, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 0 and r4.prefer is None
+    split = {**both, "c0": car("c0", 300.0, 1, 20.0, cav=True)}  # lanes 1 and 0: 1 beats 2
+    r5 = reformer()
+    r5.prefer = (2, None)
+    assert r5.lane(split, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) != 2
 
 
 def passing_on_the_right(events):

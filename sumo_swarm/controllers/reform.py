@@ -123,6 +123,7 @@ class Reformer:
         count = Counter(road.lane_of(states[v]) for v in platoon)
         if len(count) == 1 and self.lane_id in (None, *count) and not set(count) & set(ending):
             self.lane_id = next(iter(count))
+            self.prefer = None  # one lane already: no lane change beats staying
             return self.lane_id
         candidates = set(count) - set(ending)
         if not candidates:  # every CAV is in a lane that ends: the nearest one that does not
@@ -142,10 +143,18 @@ class Reformer:
         prefer = self.prefer
         if prefer is not None and (prefer[1] != edge or prefer[0] in ending):
             self.prefer = prefer = None
+        lanes_now = [road.lane_of(states[v]) for v in platoon]
+
+        def changes(q: int) -> int:
+            return sum(abs(lane - q) for lane in lanes_now)
+
+        if prefer is not None and changes(prefer[0]) > changes(best):
+            self.prefer = prefer = None  # more lane changes than re-forming where they are
         if prefer is not None and current in (None, prefer[0]):
             # Just past the target: back in the lane it regroups in (the paper's Fig. 6, step
-            # 4: the platoon's original lane) unless a lane it occupies is faster by the gain;
-            # kept as a choice until a CAV is in it (then it is occupied like any other).
+            # 4: the platoon's original lane, when that takes no more lane changes than the
+            # lane chosen among those it occupies) unless a lane it occupies is faster by the
+            # gain; kept as a choice until a CAV is in it (then it is occupied like any other).
             current = prefer[0]
             speeds.update(lane_speeds(
                 leader, [st for v, st in states.items() if v not in members], road, [current],
