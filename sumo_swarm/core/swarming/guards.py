@@ -54,7 +54,7 @@ class GuardSettings:
 
 DEFAULT = GuardSettings()
 # The gap guard feeds forward a leader's braking beyond this [m/s^2]
-FEEDFORWARD_FROM_MPS2 = 1.0
+FEEDFORWARD_FROM_MPS2 = 0.6
 
 
 def entering_lane(
