@@ -283,6 +283,27 @@ def test_gap_guard_hand_computed():
     assert gap_accel_limit(ego, y1, y1, [ego], ROAD, 5.0, 1.8) == math.inf
 
 
+def test_gap_guard_keeps_the_minimum_gap_behind_a_leader_braking_steadily():
+    # A CAV 6 m behind a CAV braking at a steady 1 m/s^2 from 20 m/s, commanded by the gap
+    # guard alone: its gains settle inside the 1 m it aims beyond the minimum gap, but with the
+    # leader's braking beyond 0.6 m/s^2 fed forward not below the 5 m minimum (4.75 m when
+    # only the braking beyond 1 m/s^2 was: 4.998 m seen between two CAVs).
+    y = ROAD.lane_centre_y(1)
+    s_lead, v_lead, s_ego, v_ego, dt = 111.0, 20.0, 100.0, 20.0, 0.05
+    gaps = []
+    for _ in range(round(12.0 / dt)):
+        lead = VehicleState("lead", s_lead, 1, 0.0, v_lead, 5.0, -1.0, True)
+        ego = VehicleState("ego", s_ego, 1, 0.0, v_ego, 5.0, 0.0, True)
+        accel = gap_accel_limit(ego, y, y, [ego, lead], ROAD, min_gap_m=5.0, width_m=1.8)
+        v_ego = max(v_ego + min(accel, 0.0) * dt, 0.0)
+        v_lead = max(v_lead - 1.0 * dt, 0.0)
+        s_ego += v_ego * dt
+        s_lead += v_lead * dt
+        gaps.append(s_lead - 5.0 - s_ego)
+    assert min(gaps) >= 5.0
+    assert min(gaps) < 6.0  # it did close in: the guard, not a wide start, kept the gap
+
+
 def refusal(ego, others, dlat=0.3):
     y = ROAD.y_of(ego.lane, ego.lat_m)
     return lateral_refusal(
