@@ -311,8 +311,9 @@ class SwarmSettings:
     # (9.6 m/s ahead of a 12 m/s truck, stress scene 95) to close up in the regroup lane. At
     # 15ef351, stress v2: completed and regrouped 86.4 -> 87.9 % where sumo-lc passes, gain
     # +19.6 -> +20.4 %, no scene worse by more than 0.3 points; paper-scene variants: 22 -> 29
-    # of 40 pass every check (run cost <= 3x cacc in 28 -> 37: no planning after the pass);
-    # the paper scene 20.54 -> 20.49 m/s, regrouped 38.8 -> 40.1 s.
+    # of 40 pass every check (run cost <= 3x cacc in 28 -> 37: no planning after the pass).
+    # Re-forming in the regroup lane after a pass (Reformer.prefer): the paper scene 20.49 m/s
+    # (20.54), regrouped 32.2 s after the decision (35.8 s).
     regroup_by: Literal["planner", "cruise"] = "cruise"
     # With "planner": the manoeuvre is also complete once every CAV is past the target and they
     # form one platoon in any lane (the check of summary.json's "regrouped"), not only in the
@@ -382,8 +383,8 @@ class SwarmSettings:
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
     # (Counted from the cap, not the cruise: passing at up to the cap, a swarm cruising at 20
     # m/s that overtook a car at 18.3 m/s drove 17% faster than one that stayed behind it.)
-    # A car slower than the trigger speed that wants more and has a free lane ahead is
-    # catching up, not a target.
+    # A car slower than the trigger speed that wants at least it, as does every vehicle ahead
+    # of it in its lane within 300 m, is catching up, not a target (decision.only_catching_up).
     min_speed_gain_mps: float = 2.0
     # "drivable": each behaving interval lasts at least one cell length at (cap - speed_margin -
     # grid speed), so a one-row move per interval never needs a speed above the cap (issue 11);

@@ -143,10 +143,9 @@ class Reformer:
         prefer = self.prefer
         if prefer is not None and (prefer[1] != edge or prefer[0] in ending):
             self.prefer = prefer = None
-        lanes_now = [road.lane_of(states[v]) for v in platoon]
 
-        def changes(q: int) -> int:
-            return sum(abs(lane - q) for lane in lanes_now)
+        def changes(q: int) -> int:  # lane changes for every CAV to re-form in lane q
+            return sum(n * abs(lane - q) for lane, n in count.items())
 
         if prefer is not None and changes(prefer[0]) > changes(best):
             self.prefer = prefer = None  # more lane changes than re-forming where they are

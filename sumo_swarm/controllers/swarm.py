@@ -355,8 +355,11 @@ class SwarmController:
         if ctx.road.n_lanes < 2 or t_s < sw.start_after_s:
             return None
         leader = states[self._decision_leader(states, platoon)]
+        # Sorted once for both look-ups (the vehicle ahead of the leader, then the line ahead of
+        # a candidate): every cruise step asks, a plain list scanned every vehicle each time.
+        vehicles = Snapshot(states.values(), ctx.road)
         candidate = slow_vehicle_ahead(
-            leader, list(states.values()), ctx.road,
+            leader, vehicles, ctx.road,
             slow_below_mps=self._slow_below(), detect_range_m=sw.detect_range_m,
             cap_mps=self._speed_cap(platoon[:1]),
             min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
@@ -366,7 +369,7 @@ class SwarmController:
         reach = sw.detect_range_m + 2.0 * 3.0 * ctx.scenario.cav.cruising_speed_mps
         if candidate is not None and leader.lane in self._ending_lanes(leader, platoon[0], reach):
             candidate = None
-        if candidate is not None and self._catching_up(candidate, states):
+        if candidate is not None and self._catching_up(candidate, vehicles):
             candidate = None
         if candidate is not None and not self._side_lane_pays(leader, candidate, states):
             candidate = None
@@ -375,13 +378,13 @@ class SwarmController:
             wait_s = sw.keep_right_wait_s
         return self.watch.update(t_s, candidate, wait_s)
 
-    def _catching_up(self, candidate: VehicleState, states) -> bool:
+    def _catching_up(self, candidate: VehicleState, vehicles: Snapshot) -> bool:
         """Is ``candidate`` only catching up (:func:`only_catching_up`)? An event
         ``overtake_not_worth`` (reason ``catching_up``) says so once per vehicle."""
         ctx = self.ctx
         desired = self.reformer.desired_speed
         if not only_catching_up(
-            candidate, list(states.values()), ctx.road, desired_of=desired,
+            candidate, vehicles, ctx.road, desired_of=desired,
             slow_below_mps=self._slow_below(), width_m=ctx.scenario.cav.width_m,
         ):  # fmt: skip
             return False
