@@ -436,6 +436,11 @@ class SwarmSettings:
     # veh/h/lane), the CAVs get past as SUMO's own drivers do, one gap at a time, and re-form
     # ahead.
     pass_singly_s: float = 60.0
+    # A CAV passing on its own is followed at once by the CAV behind it, in the same lane, once
+    # its centre is in that lane (a train, as SUMO's drivers overtake); false = each CAV starts
+    # its pass only once the CAV ahead is past the slow vehicle (5-6 s a CAV: platoons of 9-12
+    # that gave up were still in two lanes 50 s later).
+    pass_in_train: bool = True
     # A target that keeps right (its lane-change model's lcKeepRight > 0 and its lane-change
     # mode allows right-drive changes, read through libsumo) with the lane to its right free
     # is waited for up to this long [s] before the swarm starts: SUMO's drivers move over

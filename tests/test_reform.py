@@ -82,6 +82,38 @@ def test_a_cav_cut_off_by_a_slow_vehicle_passes_it_and_comes_back():
     assert goals["c2"] == 1 and events[-1][1] == {"vehicle": "c2", "slow": "slow", "past": False}
 
 
+def test_cavs_cut_off_by_a_slow_vehicle_pass_it_in_a_train():
+    # c1 passes the slow car in lane 0; once its centre is in lane 0, c2 follows it there at
+    # once (as SUMO's drivers overtake) instead of waiting until c1 is past (5-6 s a CAV).
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 300.0, 1, 20.0, cav=True),
+        car("slow", 240.0, 1, 12.0),
+        car("c1", 220.0, 1, 12.0, cav=True),
+        car("c2", 205.0, 1, 12.0, cav=True),
+        car("left", 400.0, 2, 13.0),
+    )  # fmt: skip
+    platoon = ["c0", "c1", "c2"]
+    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 0, "c2": 1}
+    # c1 leans into lane 0, its centre still in lane 1: c2 waits.
+    st["c1"] = car("c1", 222.0, 1, 13.0, cav=True, lat=-1.0)
+    assert r.goals(0.5, st, platoon, ROAD, 1, cap_mps=25.0)["c2"] == 1
+    # c1's centre is in lane 0, beside the slow car's rear: c2 passes behind it, in lane 0.
+    st["c1"] = car("c1", 228.0, 0, 14.0, cav=True, lat=0.5)
+    goals = r.goals(1.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    assert goals == {"c0": 1, "c1": 0, "c2": 0}
+    assert events[-1] == ("passing_start", {"vehicle": "c2", "slow": "slow", "lane": 0})
+    # With pass_in_train off, c2 waits until c1 is past.
+    events.clear()
+    r2 = reformer(events)
+    r2.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, pass_in_train=False))
+    st["c1"] = car("c1", 220.0, 1, 12.0, cav=True)
+    r2.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    st["c1"] = car("c1", 228.0, 0, 14.0, cav=True, lat=0.5)
+    assert r2.goals(1.0, st, platoon, ROAD, 1, cap_mps=25.0)["c2"] == 1
+
+
 def test_past_the_target_the_platoon_reforms_in_its_regroup_lane():
     # Every CAV is past the truck, in lanes 0 and 2; the regroup lane (1, the original) is
     # free: the platoon re-forms there (the paper's Fig. 6 step 4), and stays with it while the
