@@ -324,3 +324,30 @@ def test_wrong_shapes_raise_value_error():
     k1 = lat.settings.horizon + 1
     with pytest.raises(ValueError, match="kappa"):
         lat.solve(0.0, 0.0, np.zeros(k1), np.zeros(k1), np.zeros(k1), 2.0)
+
+
+def test_the_direct_osqp_path_gives_the_wrappers_answer():
+    # The QPs call OSQP's wrapped solver object directly (its Python wrapper cost more than
+    # these small solves); an osqp without that object goes through the wrapper: the same
+    # inputs either way, over a run of warm-started solves with bounds at +-inf.
+    fast, slow = LongitudinalMpc(LongitudinalSettings()), LongitudinalMpc(LongitudinalSettings())
+    assert fast._qp._core is not None  # the osqp this project installs has it
+    slow._qp._core = None
+    k1 = fast.settings.horizon + 1
+    t = fast.settings.dt_s * np.arange(k1)
+    for v0, v_ref in [(17.5, 20.0), (19.0, 20.0), (24.0, 30.0), (27.0, 20.0), (20.0, 12.0)]:
+        a = fast.solve(0.0, v0, v_ref * t, np.full(k1, v_ref))
+        b = slow.solve(0.0, v0, v_ref * t, np.full(k1, v_ref))
+        assert a.status == b.status
+        np.testing.assert_array_equal(a.inputs, b.inputs)
+        assert a.objective == b.objective
+    lat_fast, lat_slow = LateralMpc(LateralSettings()), LateralMpc(LateralSettings())
+    lat_slow._qp._core = None
+    ref = lane_change_reference(3.2, 20.0)
+    ds = 20.0 * lat_fast.settings.dt_s
+    _, y, dy, _ = ref.sample_space(ref.s_at(0.0) + 40.0, ds, lat_fast.settings.horizon)
+    kappa = np.zeros(lat_fast.settings.horizon)
+    a = lat_fast.solve(0.1, 0.0, y, np.arctan(dy), kappa, ds)
+    b = lat_slow.solve(0.1, 0.0, y, np.arctan(dy), kappa, ds)
+    assert a.status == b.status == "solved"
+    np.testing.assert_array_equal(a.inputs, b.inputs)

@@ -49,9 +49,10 @@ cost ``r * delta^2`` the MPC trades a small lateral offset for a smaller wheel a
 
 from __future__ import annotations
 
+import functools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -222,22 +223,42 @@ class TrackingResult:
         under ``inputs`` from the initial state (row 0). Speed bounds hold to OSQP's
         tolerance.
     solve_ms
-        Wall time of the call [ms], updates included.
+        Wall time of the call [ms], updates included (the prediction excluded).
     objective
         Cost (36) / (41) of the returned plan, without the constant term of ``x_0``.
+
+    ``states`` and ``objective`` are computed on first use, by ``_predict``: the tracker
+    applies the inputs only, and rolling out and costing them took as long as the rest of a
+    call besides OSQP's own solve (the numbers are the same whenever they are asked for).
     """
 
     status: str
     u0: float
     inputs: np.ndarray
-    states: np.ndarray
     solve_ms: float
-    objective: float
+    _predict: Callable[[], tuple[np.ndarray, float]] = field(repr=False)
+
+    @functools.cached_property
+    def _prediction(self) -> tuple[np.ndarray, float]:
+        return self._predict()
+
+    @property
+    def states(self) -> np.ndarray:
+        return self._prediction[0]
+
+    @property
+    def objective(self) -> float:
+        return self._prediction[1]
 
     @property
     def solved(self) -> bool:
         """True when the plan comes from OSQP (``solved`` or ``solved inaccurate``)."""
         return self.status in _USABLE_STATUSES
+
+
+def _known(states: np.ndarray, objective: float) -> Callable[[], tuple[np.ndarray, float]]:
+    """A prediction already computed (the rare fallbacks compute theirs at once)."""
+    return lambda: (states, objective)
 
 
 class _ChainQp:
@@ -322,6 +343,15 @@ class _ChainQp:
             check_termination=solver.check_termination,
             warm_starting=True,
         )
+        # OSQP's Python wrapper costs more than solving these small warm-started QPs (its
+        # update() looks its infinity constant up through importlib twice a call, its solve()
+        # copies every info field into a namespace): the calls of every solve go to the
+        # solver object it wraps, the bounds clipped to the same infinity as the wrapper
+        # does. Another osqp version without that object goes through the wrapper.
+        core = getattr(self._solver, "_solver", None)
+        usable = all(hasattr(core, name) for name in ("update_data_vec", "solve", "info"))
+        self._core = core if usable else None
+        self._infinity = float(self._solver.constant("OSQP_INFTY"))
 
     def set_step(self, step: float) -> None:
         """Change h; rewrites only the 2K matrix values that depend on it."""
@@ -358,25 +388,61 @@ class _ChainQp:
             self._lower[row : row + k_steps], self._upper[row : row + k_steps] = state_bounds
             row += k_steps
         self._lower[row:], self._upper[row:] = u_bounds
-        self._solver.update(q=self._q, l=self._lower, u=self._upper)
-        result = self._solver.solve(raise_error=False)
-        status = str(result.info.status)
+        status, x = self._update_and_solve()
         if status not in _USABLE_STATUSES:
             return status, None
-        inputs = np.array(result.x[self.n_x :], dtype=float)  # a copy: OSQP reuses its buffer
-        if inputs.shape != (k_steps,) or not np.all(np.isfinite(inputs)):
+        inputs = np.array(x[self.n_x :], dtype=float)  # a copy: OSQP reuses its buffer
+        if inputs.shape != (k_steps,) or not np.isfinite(inputs).all():
             return "non-finite solution", None
         return status, inputs
 
-    def rollout(self, x0: np.ndarray, inputs: np.ndarray, affine: np.ndarray) -> np.ndarray:
-        """States (K+1, 2) of the model under ``inputs`` (K,), vectorised."""
+    def _update_and_solve(self) -> tuple[str, np.ndarray]:
+        """OSQP's status and solution after setting ``q``, ``l`` and ``u`` (see __init__)."""
+        if self._core is None:
+            self._solver.update(q=self._q, l=self._lower, u=self._upper)
+            result = self._solver.solve(raise_error=False)
+            return str(result.info.status), result.x
+        self._core.update_data_vec(
+            q=self._q,
+            l=np.maximum(self._lower, -self._infinity),
+            u=np.minimum(self._upper, self._infinity),
+        )
+        self._core.solve()
+        return str(self._core.info.status), self._core.solution.x
+
+    def rollout(
+        self, x0: np.ndarray, inputs: np.ndarray, affine: np.ndarray, step: float | None = None
+    ) -> np.ndarray:
+        """States (K+1, 2) of the model under ``inputs`` (K,), vectorised (``step``: h, by
+        default the current one)."""
+        step = self.step if step is None else step
         second = np.empty(self.horizon + 1)
         second[0] = x0[1]
-        second[1:] = x0[1] + np.cumsum(self.step * self.input_gain * inputs + affine[:, 1])
+        second[1:] = x0[1] + np.cumsum(step * self.input_gain * inputs + affine[:, 1])
         first = np.empty(self.horizon + 1)
         first[0] = x0[0]
-        first[1:] = x0[0] + np.cumsum(self.step * second[:-1] + affine[:, 0])
+        first[1:] = x0[0] + np.cumsum(step * second[:-1] + affine[:, 0])
         return np.column_stack([first, second])
+
+    def predictor(
+        self,
+        x0: np.ndarray,
+        inputs: np.ndarray,
+        affine: np.ndarray,
+        x_des: np.ndarray,
+        offset: np.ndarray | None = None,
+    ) -> Callable[[], tuple[np.ndarray, float]]:
+        """:meth:`rollout` and :meth:`objective` of ``inputs``, for later (a TrackingResult
+        computes them on first use): the step and ``affine`` are taken now, as the next call
+        changes them. ``offset`` is added to the states after the cost."""
+        step, affine = self.step, affine.copy()
+
+        def predict() -> tuple[np.ndarray, float]:
+            states = self.rollout(x0, inputs, affine, step)
+            objective = self.objective(states, inputs, x_des)
+            return (states if offset is None else states + offset), objective
+
+        return predict
 
     def objective(self, states: np.ndarray, inputs: np.ndarray, x_des: np.ndarray) -> float:
         error = states[1:] - x_des[1:]
@@ -419,7 +485,9 @@ class LongitudinalMpc:
         x_des = _stack_reference(cfg.horizon, s_ref=s_ref, v_ref=v_ref)
         x0 = np.array([0.0, v0], dtype=float)
         x_des[:, 0] -= s0
-        if not (np.all(np.isfinite(x_des)) and math.isfinite(s0) and math.isfinite(v0)):
+        # ndarray methods rather than np.all / np.clip here: those add a Python dispatch layer
+        # that cost more than the operation on these short arrays (every CAV every solve).
+        if not (np.isfinite(x_des).all() and math.isfinite(s0) and math.isfinite(v0)):
             return self._fallback("invalid input", s0, x0, x_des, started)
         v_lo = np.minimum(cfg.v_min, v0 + self._reach_up)
         v_hi = np.maximum(cfg.v_max, v0 + self._reach_down)
@@ -428,13 +496,10 @@ class LongitudinalMpc:
         )
         if inputs is None:
             return self._fallback(status, s0, x0, x_des, started)
-        inputs = np.clip(inputs, cfg.a_min, cfg.a_max)
-        states = self._qp.rollout(x0, inputs, self._no_affine)  # consistent with the inputs
-        objective = self._qp.objective(states, inputs, x_des)
-        states = states + np.array([s0, 0.0])
-        return TrackingResult(
-            status, float(inputs[0]), inputs, states, _elapsed_ms(started), objective
-        )
+        inputs = inputs.clip(cfg.a_min, cfg.a_max)
+        # The states rolled out under the clipped inputs: consistent with them.
+        predict = self._qp.predictor(x0, inputs, self._no_affine, x_des, np.array([s0, 0.0]))
+        return TrackingResult(status, float(inputs[0]), inputs, _elapsed_ms(started), predict)
 
     def _fallback(
         self, status: str, s0: float, x0: np.ndarray, x_des: np.ndarray, started: float
@@ -444,7 +509,7 @@ class LongitudinalMpc:
         objective = self._qp.objective(states, inputs, x_des)
         states[:, 0] += s0
         return TrackingResult(
-            status, float(inputs[0]), inputs, states, _elapsed_ms(started), objective
+            status, float(inputs[0]), inputs, _elapsed_ms(started), _known(states, objective)
         )
 
 
@@ -501,17 +566,21 @@ class LateralMpc:
             raise ValueError(f"kappa must have shape ({k_steps},), got {kappa.shape}")
         x0 = np.array([l0, phi0], dtype=float)
         feedforward = cfg.wheelbase_m * kappa if cfg.curvature_feedforward else np.zeros(k_steps)
-        finite = np.all(np.isfinite(x_des)) and np.all(np.isfinite(x0))
-        if not (finite and np.all(np.isfinite(kappa)) and math.isfinite(ds) and ds > 0.0):
+        finite = np.isfinite(x_des).all() and np.isfinite(x0).all()  # methods: see above
+        if not (finite and np.isfinite(kappa).all() and math.isfinite(ds) and ds > 0.0):
             return self._fallback("invalid input", x0, x_des, np.zeros(k_steps), 0.0, started)
         straight = abs(phi0) <= STEADY_PHI_RAD and not kappa.any() and not x_des[1:, 1].any()
-        if straight and np.all(np.abs(x_des[1:, 0] - l0) <= STEADY_TOL_M):
+        if straight and (np.abs(x_des[1:, 0] - l0) <= STEADY_TOL_M).all():
             # Centred on a straight reference on a straight road: straight on, the heading
             # zeroed by the tracker (the optimum up to OSQP's tolerance; most CAVs, most steps).
             inputs = np.zeros(k_steps)
-            states = np.tile(np.array([l0, 0.0]), (k_steps + 1, 1))
-            objective = self._qp.objective(states, inputs, x_des)
-            return TrackingResult(STEADY, 0.0, inputs, states, _elapsed_ms(started), objective)
+            qp = self._qp
+
+            def predict() -> tuple[np.ndarray, float]:
+                states = np.tile(np.array([l0, 0.0]), (k_steps + 1, 1))
+                return states, qp.objective(states, inputs, x_des)
+
+            return TrackingResult(STEADY, 0.0, inputs, _elapsed_ms(started), predict)
         self._qp.set_step(float(ds))
         # c_k of eq. (35) plus B * delta_ff (zero when the feed-forward is on)
         self._affine[:, 1] = ds * (feedforward / cfg.wheelbase_m - kappa)
@@ -519,13 +588,10 @@ class LateralMpc:
         status, extra = self._qp.solve(x0, x_des, self._affine, bounds, None)
         if extra is None:
             return self._fallback(status, x0, x_des, feedforward, ds, started)
-        extra = np.clip(extra, *bounds)
-        states = self._qp.rollout(x0, extra, self._affine)  # consistent with the inputs
-        objective = self._qp.objective(states, extra, x_des)
+        extra = extra.clip(*bounds)
+        predict = self._qp.predictor(x0, extra, self._affine, x_des)  # consistent with them
         inputs = feedforward + extra
-        return TrackingResult(
-            status, float(inputs[0]), inputs, states, _elapsed_ms(started), objective
-        )
+        return TrackingResult(status, float(inputs[0]), inputs, _elapsed_ms(started), predict)
 
     def _fallback(
         self,
@@ -544,7 +610,7 @@ class LateralMpc:
             states = np.tile(x0, (cfg.horizon + 1, 1))
         objective = self._qp.objective(states, inputs - feedforward, x_des)
         return TrackingResult(
-            status, float(inputs[0]), inputs, states, _elapsed_ms(started), objective
+            status, float(inputs[0]), inputs, _elapsed_ms(started), _known(states, objective)
         )
 
 
@@ -658,13 +724,13 @@ def longitudinal_model(dt: float) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- helpers
 def _stack_reference(horizon: int, **references: np.ndarray) -> np.ndarray:
     """The two reference arrays as one (K+1, 2) array (a copy); checks their shapes."""
-    arrays = []
-    for name, values in references.items():
+    stacked = np.empty((horizon + 1, len(references)))  # filled column by column: no
+    for j, (name, values) in enumerate(references.items()):  # column_stack, twice per call
         array = np.asarray(values, dtype=float)
         if array.shape != (horizon + 1,):
             raise ValueError(f"{name} must have shape ({horizon + 1},), got {array.shape}")
-        arrays.append(array)
-    return np.column_stack(arrays)
+        stacked[:, j] = array
+    return stacked
 
 
 def _csc_positions(matrix: sp.csc_matrix, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

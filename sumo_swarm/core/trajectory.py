@@ -209,16 +209,23 @@ class _Piecewise:
             value = value * h + c[m] * falling[m]
         return value
 
+    @functools.cached_property
+    def _scaled(self) -> list[np.ndarray]:
+        """Per order n, the coefficients times their falling factorials m!/(m-n)! (the
+        Horner terms of the n-th derivative), one contiguous row per power: made once per
+        reference, not at every evaluation (the trackers evaluate every few steps)."""
+        return [np.ascontiguousarray((self.coeffs * _FALLING_ARRAY[n]).T) for n in range(6)]
+
     def evaluate(self, x: np.ndarray, orders: tuple[int, ...]) -> list[np.ndarray]:
         """Derivatives ``orders`` (each <= 5) at ``x`` (shape (M,))."""
         piece = np.searchsorted(self.breaks, x, side="right")
         h = x - self.centres[piece]
-        c = self.coeffs[piece]
         values = []
         for order in orders:
-            value = c[:, 5] * _FALLING[order][5]
+            c = self._scaled[order][:, piece]  # (6, M)
+            value = c[5]
             for m in range(4, order - 1, -1):
-                value = value * h + c[:, m] * _FALLING[order][m]
+                value = value * h + c[m]
             values.append(value)
         return values
 
@@ -339,9 +346,17 @@ class Reference:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(t, s, v, a)`` at ``t0_s + k * dt_s`` for ``k = 0..n_steps``: arrays of shape
         (n_steps + 1,), ready as the longitudinal MPC's ``s_ref`` and ``v_ref``."""
-        t = t0_s + dt_s * np.arange(n_steps + 1)
+        t = t0_s + dt_s * _steps(n_steps)
         s, v, a = self.evaluate_time(t)
         return t, s, v, a
+
+    def targets_time(self, t0_s: float, dt_s: float, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(s, v)`` of :meth:`sample_time`, the same numbers, without the acceleration: the
+        longitudinal MPC's ``s_ref`` and ``v_ref`` (asked per CAV every few SUMO steps)."""
+        t = t0_s + dt_s * _steps(n_steps)
+        p, dp = self._longitudinal.evaluate(t, (0, 1))
+        frame = self.frame
+        return frame.origin_s_m + frame.speed_mps * (t - frame.t0_s) + p, frame.speed_mps + dp
 
     # ----------------------------------------------------------------------- lateral
     def y_at_s(self, s_m: float) -> float:
@@ -367,9 +382,18 @@ class Reference:
         """``(s, y, dy/ds, d2y/ds2)`` at ``s0_m + k * ds_m`` for ``k = 0..n_steps``: arrays of
         shape (n_steps + 1,). The lateral MPC's targets are ``l_ref = y`` and
         ``phi_ref = arctan(dy/ds)``."""
-        s = s0_m + ds_m * np.arange(n_steps + 1)
+        s = s0_m + ds_m * _steps(n_steps)
         y, dy, ddy = self.evaluate_space(s)
         return s, y, dy, ddy
+
+    def targets_space(
+        self, s0_m: float, ds_m: float, n_steps: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(y, dy/ds)`` of :meth:`sample_space`, the same numbers, without the curvature:
+        the lateral MPC's targets (asked per CAV every few SUMO steps)."""
+        s = s0_m + ds_m * _steps(n_steps)
+        y, dy = self._lateral.evaluate(s, (0, 1))
+        return y, dy
 
 
 def reference_from_cells(
@@ -478,6 +502,14 @@ def reference_from_cells(
 
 
 # --------------------------------------------------------------------------- building blocks
+@functools.lru_cache(maxsize=8)
+def _steps(n_steps: int) -> np.ndarray:
+    """``0, 1, ..., n_steps`` as floats, read-only: made once per horizon, not per sample."""
+    steps = np.arange(n_steps + 1, dtype=float)
+    steps.flags.writeable = False
+    return steps
+
+
 def _check_limits(**limits: float) -> None:
     for name, value in limits.items():
         if not math.isfinite(value):
@@ -598,6 +630,19 @@ def _quintic_to_rest(e0: float, de0: float, dde0: float, duration: float) -> np.
     )
 
 
+@functools.cache
+def _blend_check_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid blend candidates are checked on: times ``tau`` (G,), their powers 0..5
+    (6, G) and which candidate is still under way at each (C, G). The same for every CAV and
+    plan: made once (read-only)."""
+    tau_grid = np.arange(0.0, _BLEND_DURATIONS_S[-1] + _CHECK_DT_S, _CHECK_DT_S)
+    powers = tau_grid[None, :] ** np.arange(6)[:, None]  # (6, G)
+    active = tau_grid[None, :] <= _BLEND_DURATIONS_S[:, None]  # (C, G)
+    for array in (tau_grid, powers, active):
+        array.flags.writeable = False
+    return tau_grid, powers, active
+
+
 def _with_longitudinal_blend(
     frame: GridFrame,
     speed: _SpeedProfile,
@@ -616,7 +661,7 @@ def _with_longitudinal_blend(
     dde0 = 0.0 if a_now is None else float(a_now) - ddp_base
     if e0 == 0.0 and de0 == 0.0 and dde0 == 0.0:
         return speed
-    tau_grid = np.arange(0.0, _BLEND_DURATIONS_S[-1] + _CHECK_DT_S, _CHECK_DT_S)
+    tau_grid, powers, active = _blend_check_grid()
     dp_grid, a_grid, j_grid = speed.derivatives(t_now + tau_grid, (1, 2, 3))
     v_grid = frame.speed_mps + dp_grid
     lower = np.array([0.0, limits["a_min"], -2.0 * limits["max_jerk_mps3"]]) + _CHECK_MARGIN
@@ -628,14 +673,16 @@ def _with_longitudinal_blend(
     # the shortest feasible candidate, or the least violating one if none is feasible.
     durations = _BLEND_DURATIONS_S
     coeffs = np.stack([_quintic_to_rest(e0, de0, dde0, d) for d in durations])  # (C, 6)
-    powers = tau_grid[None, :] ** np.arange(6)[:, None]  # (6, G)
-    active = tau_grid[None, :] <= durations[:, None]  # (C, G)
     violation = np.zeros(len(durations))
     for row, (order, base) in enumerate(((1, v_grid), (2, a_grid), (3, j_grid))):
         blend = (coeffs[:, order:] * _FALLING_ARRAY[order, order:]) @ powers[: 6 - order]
-        total = np.where(active, base[None, :] + blend, base[None, :])
-        excess = np.maximum(total - upper[row], lower[row] - total)
-        violation = np.maximum(violation, np.max(np.where(active, excess, -np.inf), axis=1))
+        total = base[None, :] + blend
+        # The largest excess over the bounds while a candidate is active, from its extremes
+        # there: x - upper and lower - x are monotone in x (also as rounded), so this is the
+        # largest of the pointwise excesses, exactly, at two passes over the grid less.
+        high = np.where(active, total, -np.inf).max(axis=1)
+        low = np.where(active, total, np.inf).min(axis=1)
+        violation = np.maximum(violation, np.maximum(high - upper[row], lower[row] - low))
     feasible = np.flatnonzero(violation <= 0.0)
     best = int(feasible[0]) if len(feasible) else int(np.argmin(violation))
     best_duration = float(durations[best])

@@ -52,6 +52,17 @@ class Tracker:
         self._inputs: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
         self._calls = 0
         self.solve_ms: list[float] = []
+        self._kappa: tuple[tuple[float, float], np.ndarray] | None = None
+
+    def _curvature(self, curvature_1pm: float) -> np.ndarray:
+        """The road curvature over the lateral horizon, read-only, made again only when the
+        curvature changes (every CAV asks at every solve)."""
+        key = (curvature_1pm, math.copysign(1.0, curvature_1pm))  # -0.0 is not 0.0 here
+        if self._kappa is None or self._kappa[0] != key:
+            kappa = np.full(self.lat.horizon, curvature_1pm)
+            kappa.flags.writeable = False
+            self._kappa = (key, kappa)
+        return self._kappa[1]
 
     def add(self, vid: str) -> None:
         if vid not in self._lon:
@@ -83,11 +94,11 @@ class Tracker:
         centre = ego.centre_s_m
         y = road.y_of(ego.lane, ego.lat_m)
         if solve or vid not in self._inputs:
-            _, s_ref, v_ref, _ = ref.sample_time(t_s, self.lon.dt_s, self.lon.horizon)
+            s_ref, v_ref = ref.targets_time(t_s, self.lon.dt_s, self.lon.horizon)
             res = self._lon[vid].solve(centre, ego.speed_mps, s_ref, v_ref)
             ds = max(ego.speed_mps, 1.0) * self.lat.dt_s
-            _, y_ref, dy_ref, _ = ref.sample_space(centre, ds, self.lat.horizon)
-            kappa = np.full(self.lat.horizon, road.curvature_1pm)
+            y_ref, dy_ref = ref.targets_space(centre, ds, self.lat.horizon)
+            kappa = self._curvature(road.curvature_1pm)
             lres = self._lat[vid].solve(y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds)
             if lres.status == STEADY:
                 self.phi[vid] = 0.0  # centred and straight on: straight ahead
