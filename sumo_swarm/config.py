@@ -378,6 +378,19 @@ class SwarmSettings:
     # its own lane during the lane change. 0: the guard assumes it keeps its speed.
     entry_accel_mps2: float = 1.5
     run_up_after_s: float = 2.0  # ...once the guard has held its lane change this long [s]
+    # A CAV held this long [s] next to the platoon's lane by an HV that follows the platoon
+    # there (at its speed, alongside or just behind the CAV) makes the whole platoon pull away
+    # from that HV: every CAV cruises up to pull_away_mps [m/s] faster (at most the speed cap)
+    # while the HV wants less than that, so the gap behind the CAV grows until the guard lets
+    # it in. No HV is made to brake. Without it the CAV and the HV drove side by side at the
+    # cruise for 30 s (stress scenes 17, 112: the platoon past the truck, never regrouped).
+    # 0 = off.
+    pull_away_after_s: float = 3.0
+    pull_away_mps: float = 3.0
+    # ...and where that HV wants more (it follows), after this long [s] the platoon re-forms in
+    # the held CAVs' lane if it cruises as fast there (lane speeds at most the cruise, within
+    # min_speed_gain_mps): the HV gets its lane back. Once per lane and edge; 0 = off.
+    reform_switch_s: float = 6.0
     # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
     # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
@@ -481,6 +494,9 @@ class SwarmSettings:
             "give_up_stranded_plans",
             "run_up_gap_m",
             "run_up_after_s",
+            "pull_away_after_s",
+            "pull_away_mps",
+            "reform_switch_s",
             "entry_accel_mps2",
             "lane_pass_stall_s",
         )

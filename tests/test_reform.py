@@ -458,3 +458,64 @@ def test_a_cav_enters_a_faster_lane_speeding_up_where_the_guard_then_takes_it():
     assert SCENARIO.cav.max_lateral_speed_mps == 2.0
     dlat, _ = r.moves(scene(slow_s=231.0), platoon, ROAD, 1, goals, 0.1)["c1"]
     assert dlat == 0.0 and r.floors == {}
+
+
+def held_beside_a_follower(hv_wants_mps, held_s):
+    """c1 next to the platoon's lane 2, its move there held for ``held_s``, an HV following
+    the platoon in lane 2 alongside it, wanting ``hv_wants_mps``; lane 1 ahead holds a car at
+    21 m/s (faster than the 20 m/s cruise, slower than the 25 m/s cap)."""
+    events = []
+    wants = {"hv": hv_wants_mps}
+
+    def event(kind, **data):
+        events.append((kind, data))
+
+    r = Reformer(SCENARIO, lambda vid: DriverModel(desired_speed_mps=wants.get(vid, 30.0)), event)
+    r.held_s["c1"] = (2, held_s)
+    st = states(
+        car("c0", 300.0, 2, 20.0, cav=True),
+        car("c1", 270.0, 1, 20.0, cav=True, lat=0.6),
+        car("hv", 267.0, 2, 20.0),  # its front 3 m behind c1's: alongside
+        car("ahead1", 350.0, 1, 21.0),
+    )  # fmt: skip
+    return r, st, events
+
+
+def test_an_hv_following_the_platoon_beside_a_held_cav_is_pulled_away_from():
+    # The HV wants 21 m/s: the platoon cruises 3 m/s faster (at most the cap) and leaves it
+    # behind, so a gap opens behind c1.
+    r, st, events = held_beside_a_follower(21.0, 3.5)
+    assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == pytest.approx(3.0)
+    assert events == [("pull_away", {"vehicle": "c1", "follower": "hv", "boost_mps": 3.0})]
+    assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=22.0) == pytest.approx(2.0)  # the cap
+    # Not for an HV that wants as much as the faster cruise (it would follow), not before
+    # pull_away_after_s, not for a CAV still behind a slow car of its own lane.
+    r, st, _ = held_beside_a_follower(33.0, 3.5)
+    assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == 0.0
+    r, st, _ = held_beside_a_follower(21.0, 2.0)
+    assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == 0.0
+    r, st, _ = held_beside_a_follower(21.0, 3.5)
+    st["slow"] = car("slow", 290.0, 1, 14.0)
+    assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == 0.0
+
+
+def test_the_platoon_moves_over_to_a_cav_an_hv_keeps_out_of_its_lane():
+    # The HV wants 33 m/s, more than the platoon may drive: after reform_switch_s the platoon
+    # re-forms in c1's lane 1 (as fast at the cruise: its car ahead drives 21 m/s), and the HV
+    # gets lane 2 back. The choice stays although lane 2 is free at the cap, and never goes
+    # back to lane 2 on that edge.
+    r, st, events = held_beside_a_follower(33.0, 5.0)
+    r.lane_id = 2
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 2  # not yet
+    r.held_s["c1"] = (2, 6.5)
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 1
+    assert events[0] == (
+        "reform_held", {"lane": 1, "left": 2, "vehicle": "c1", "follower": "hv"}
+    )  # fmt: skip
+    r.held_s.clear()
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 1
+    # Not into a lane where the platoon would drive slower than the cruise by the gain.
+    r, st, _ = held_beside_a_follower(33.0, 6.5)
+    st["ahead1"] = car("ahead1", 340.0, 1, 15.0)
+    r.lane_id = 2
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 2

@@ -87,10 +87,46 @@ class Reformer:
     # (lane, edge): the platoon moves over to this lane as a unit (a lane pass), whatever
     # lanes its CAVs are in now, while the leader is on that edge
     move_to: tuple[int, str | None] | None = None
+    pulling: tuple[str, str] | None = None  # (CAV, HV) the platoon pulls away from (pull_away)
+    left_for_held: tuple[int, str | None] | None = None  # (lane, edge) left by _held_switch
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
         self.lane_id = None
+        self.left_for_held = None
+
+    def _held_switch(
+        self,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        current: int,
+        speeds: Mapping[int, float],
+        candidates: Collection[int],
+    ) -> int:
+        """The lane of CAVs an HV has kept out of ``current`` for ``[swarm] reform_switch_s``
+        (:meth:`_held_by_hv`) when the platoon cruises as fast there (``speeds`` capped at the
+        cruise, within ``min_speed_gain_mps``), else ``current``. The HV following the platoon
+        then has its lane back (it wanted 33 m/s behind a platoon at 20 for 30 s, two CAVs
+        beside it at the lane's edge: stress scenes 17 and 112). Never back to a lane left so:
+        once per lane and edge."""
+        sw = self.scenario.swarm
+        if sw.reform_switch_s <= 0.0 or self.left_for_held == (current, self.edge):
+            return current
+        cruise = self.scenario.cav.cruising_speed_mps
+        for ego, hv in self._held_by_hv(states, platoon, road, current, sw.reform_switch_s):
+            q = road.lane_of(ego)
+            if q not in candidates or self.left_for_held == (q, self.edge):
+                continue
+            if min(speeds.get(q, -math.inf), cruise) + sw.min_speed_gain_mps < min(
+                speeds.get(current, cruise), cruise
+            ):
+                continue
+            self.left_for_held = (current, self.edge)
+            self.event("reform_held", lane=q, left=current, vehicle=ego.vehicle_id,
+                       follower=hv.vehicle_id)  # fmt: skip
+            return q
+        return current
 
     def desired_speed(self, vehicle: VehicleState) -> float:
         """Speed [m/s] a vehicle wants to drive: an HV's by its model, a CAV's unbounded."""
@@ -124,6 +160,7 @@ class Reformer:
         if len(count) == 1 and self.lane_id in (None, *count) and not set(count) & set(ending):
             self.lane_id = next(iter(count))
             self.prefer = None  # one lane already: no lane change beats staying
+            self.left_for_held = None
             return self.lane_id
         candidates = set(count) - set(ending)
         if not candidates:  # every CAV is in a lane that ends: the nearest one that does not
@@ -161,10 +198,17 @@ class Reformer:
             ))  # fmt: skip
             if count[current] > 0:
                 self.prefer = None
-        if current in speeds and speeds[best] - speeds[current] < sc.swarm.min_speed_gain_mps:
+        # Once the platoon has moved over for a held CAV (_held_switch), a lane is faster only
+        # by what the platoon would drive there: the lane it left is no better at the cruise.
+        top = sc.cav.cruising_speed_mps if self.left_for_held is not None else math.inf
+        if current in speeds and min(speeds[best], top) - min(speeds[current], top) < (
+            sc.swarm.min_speed_gain_mps
+        ):
             best = current
         if prefer is not None and best != prefer[0]:
             self.prefer = None  # a lane the CAVs occupy is faster: that one
+        if best == current and current is not None:
+            best = self._held_switch(states, platoon, road, current, speeds, candidates)
         if best != current:
             shown = {str(k): round(v, 2) for k, v in speeds.items()}
             self.event("reform_lane", lane=best, lane_speeds_mps=shown)
@@ -555,6 +599,89 @@ class Reformer:
                 continue  # its own leader is nearer: the merging CAV slots in further ahead
             dlat, bound = moves[vid]
             moves[vid] = (dlat, min(bound, self._follow_gently(ego, m, gap)))
+
+    def _held_by_hv(
+        self,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        lane: int,
+        after_s: float,
+    ) -> list[tuple[VehicleState, VehicleState]]:
+        """(CAV, HV) for each CAV of ``platoon`` next to ``lane``, passing nothing, whose move
+        into ``lane`` the guard has held for ``after_s`` [s] or more, with an HV the nearest
+        vehicle behind it there (alongside included, within ``detect_range_m``): an HV that
+        follows the platoon in that lane keeps the CAV out."""
+        sc = self.scenario
+        y_lane = road.lane_centre_y(lane)
+        front = states[platoon[0]]
+        found = []
+        for vid in platoon:
+            held_lane, held = self.held_s.get(vid, (None, 0.0))
+            if held_lane != lane or held + 1e-9 < after_s or vid in self.passing:
+                continue
+            ego = states[vid]
+            if abs(road.lane_of(ego) - lane) != 1:
+                continue
+            # Not a CAV with a slow vehicle ahead of it in its own lane, up to the platoon's
+            # front (still to be passed): the platoon would pull away from it, or move into
+            # the slow vehicle's lane (behind a truck, stress scene 144).
+            if self._slow_ahead_in_lane(ego, front, states, road):
+                continue
+            behind = vehicle_behind(ego, states.values(), road, y_m=y_lane, width_m=sc.cav.width_m)
+            if behind is not None and not behind[0].is_cav and behind[1] <= sc.swarm.detect_range_m:
+                found.append((ego, behind[0]))
+        return found
+
+    def _slow_ahead_in_lane(
+        self,
+        ego: VehicleState,
+        front: VehicleState,
+        states: Mapping[str, VehicleState],
+        road: RoadSection,
+    ) -> bool:
+        """Is an HV slower than the cruise by ``min_speed_gain_mps`` in ego's lane, ahead of
+        ego and at most ``detect_range_m`` ahead of ``front``?"""
+        sc = self.scenario
+        lane = road.lane_of(ego)
+        slow = sc.cav.cruising_speed_mps - sc.swarm.min_speed_gain_mps
+        end = max(front.s_m, ego.s_m) + sc.swarm.detect_range_m
+        return any(
+            not o.is_cav and ego.s_m < o.s_m <= end and o.speed_mps < slow
+            and road.lane_of(o) == lane
+            for o in states.values()
+        )  # fmt: skip
+
+    def pull_away(
+        self,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        lane: int,
+        *,
+        cap_mps: float,
+    ) -> float:
+        """How much faster [m/s] than the cruise the platoon drives to pull away from an HV that
+        keeps one of its CAVs out of ``lane`` (:meth:`_held_by_hv` for ``[swarm]
+        pull_away_after_s``) and wants less than that faster cruise. 0: no such HV. A
+        ``pull_away`` event once per CAV and HV."""
+        sc = self.scenario
+        sw = sc.swarm
+        cruise = sc.cav.cruising_speed_mps
+        boost = min(sw.pull_away_mps, min(cap_mps, sc.cav.max_speed_mps) - cruise)
+        if boost <= 0.0:
+            return 0.0
+        for ego, hv in self._held_by_hv(states, platoon, road, lane, sw.pull_away_after_s):
+            # Only from an HV the faster platoon leaves behind (one wanting as much follows).
+            if self.desired_speed(hv) > cruise + boost - 1.0:
+                continue
+            if self.pulling != (ego.vehicle_id, hv.vehicle_id):
+                self.pulling = (ego.vehicle_id, hv.vehicle_id)
+                self.event("pull_away", vehicle=ego.vehicle_id, follower=hv.vehicle_id,
+                           boost_mps=round(boost, 2))  # fmt: skip
+            return boost
+        self.pulling = None
+        return 0.0
 
     def _follow_gently(self, ego: VehicleState, lead: VehicleState, gap_m: float) -> float:
         """CACC acceleration [m/s^2] of ``ego`` behind ``lead`` at ``gap_m`` (a vehicle in the

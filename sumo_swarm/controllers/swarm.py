@@ -503,9 +503,14 @@ class SwarmController:
         lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap, edge=edge)
         goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap)
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
+        cruise = None
+        boost = reformer.pull_away(states, platoon, road, lane, cap_mps=cap)
+        if boost > 0.0:  # an HV following the platoon keeps a CAV out of its lane
+            cruise = sc.cav.cruising_speed_mps + boost
+            leader_cruise = max(leader_cruise, cruise)
         command_cacc(ctx, platoon, leader_cruise,
                      accel_limits={vid: m[1] for vid, m in moves.items()},
-                     accel_floors=reformer.floors, states=states)  # fmt: skip
+                     accel_floors=reformer.floors, states=states, cruise_mps=cruise)  # fmt: skip
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)
