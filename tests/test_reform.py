@@ -519,3 +519,27 @@ def test_the_platoon_moves_over_to_a_cav_an_hv_keeps_out_of_its_lane():
     st["ahead1"] = car("ahead1", 340.0, 1, 15.0)
     r.lane_id = 2
     assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 2
+
+
+def test_a_cav_held_beside_a_platoon_cav_does_not_turn_to_the_other_side():
+    # As in the test above (c1 in lane 1 behind a slow car, held out of the platoon's lane 0
+    # for pass_switch_s), but what holds it is a CAV of the platoon alongside in lane 0: the
+    # platoon makes room (or c1 drops back behind it), so c1 keeps heading for lane 0.
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 300.0, 0, 20.0, cav=True),
+        car("c2", 221.0, 0, 12.0, cav=True),  # alongside c1, its front 1 m ahead
+        car("c1", 220.0, 1, 12.0, cav=True, lat=-0.6),
+        car("slow", 240.0, 1, 12.0),
+    )  # fmt: skip
+    platoon = ["c0", "c2", "c1"]
+    goals = r.goals(0.0, st, platoon, ROAD, 0, cap_mps=25.0)
+    assert goals["c1"] == 0
+    r.held_s["c1"] = (0, SCENARIO.swarm.pass_switch_s + 0.1)
+    assert r.goals(6.5, st, platoon, ROAD, 0, cap_mps=25.0)["c1"] == 0
+    assert not any(kind == "passing_switch" for kind, _ in events)
+    # The same with an HV there instead: it passes on the other side.
+    st["c2"] = car("c2", 221.0, 0, 12.0)
+    r.held_s["c1"] = (0, SCENARIO.swarm.pass_switch_s + 0.1)
+    assert r.goals(7.0, st, platoon[:1] + ["c1"], ROAD, 0, cap_mps=25.0)["c1"] == 2

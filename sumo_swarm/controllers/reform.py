@@ -305,6 +305,24 @@ class Reformer:
             and road.lane_of(states[ahead]) == passing[1]
         )
 
+    def _next_to_a_cav(
+        self, ego: VehicleState, goal: int, states: Mapping[str, VehicleState], road: RoadSection
+    ) -> bool:
+        """Is the nearest vehicle ahead of ego or behind it in ``goal`` (alongside included) a
+        CAV within ``cav.desired_gap_m``? A CAV held there by the platoon's own CAVs gets in
+        once they make room or it drops back behind them: it does not turn to the other side
+        (a CAV beside a platoon CAV switched to pass a slow line on its other side just as the
+        gap opened, and was not back by the end: stress scene 95)."""
+        sc = self.scenario
+        y = road.lane_centre_y(goal)
+        for near in (
+            vehicle_ahead(ego, states.values(), road, y_m=y, width_m=sc.cav.width_m),
+            vehicle_behind(ego, states.values(), road, y_m=y, width_m=sc.cav.width_m),
+        ):
+            if near is not None and near[0].is_cav and near[1] < sc.cav.desired_gap_m:
+                return True
+        return False
+
     def _switch(
         self,
         t_s: float,
@@ -337,6 +355,8 @@ class Reformer:
             return goal
         slow = ahead[0]
         if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
+            return goal
+        if self._next_to_a_cav(ego, goal, states, road):
             return goal
         speed = lane_speeds(ego, others, road, [other], range_m=sw.detect_range_m,
                             cap_mps=cap_mps, desired_of=self.desired_speed)[other]  # fmt: skip
