@@ -391,6 +391,12 @@ class SwarmSettings:
     # the held CAVs' lane if it cruises as fast there (lane speeds at most the cruise, within
     # min_speed_gain_mps): the HV gets its lane back. Once per lane and edge; 0 = off.
     reform_switch_s: float = 6.0
+    # A CAV stranded behind a slow vehicle, held this long [s] out of the lane beside by an HV
+    # alongside it there, is helped by the platoon CAV that HV follows: it slows to
+    # block_assist_mps [m/s] below the stranded CAV (the paper's blocking, while cruising;
+    # Reformer._block_for_stranded). 0 = off.
+    block_assist_after_s: float = 3.0
+    block_assist_mps: float = 2.0
     # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
     # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
     # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
@@ -497,6 +503,8 @@ class SwarmSettings:
             "pull_away_after_s",
             "pull_away_mps",
             "reform_switch_s",
+            "block_assist_after_s",
+            "block_assist_mps",
             "entry_accel_mps2",
             "lane_pass_stall_s",
         )

@@ -542,4 +542,39 @@ def test_a_cav_held_beside_a_platoon_cav_does_not_turn_to_the_other_side():
     # The same with an HV there instead: it passes on the other side.
     st["c2"] = car("c2", 221.0, 0, 12.0)
     r.held_s["c1"] = (0, SCENARIO.swarm.pass_switch_s + 0.1)
-    assert r.goals(7.0, st, platoon[:1] + ["c1"], ROAD, 0, cap_mps=25.0)["c1"] == 2
+    assert r.goals(7.0, st, ["c0", "c1"], ROAD, 0, cap_mps=25.0)["c1"] == 2
+
+
+def test_a_platoon_cav_slows_the_hv_beside_a_stranded_cav_so_it_can_get_in():
+    # c2 is stuck behind a 14 m/s truck in lane 0, held out of the platoon's lane 1 for 3 s by
+    # an HV alongside it there, which follows c1 (past the truck) closely and wants 20 m/s. c1
+    # slows to 2 m/s below c2 (braking at most the planner's share of b_safe): the HV falls
+    # back beside c2 until the guard lets c2 in ahead of it.
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 300.0, 1, 14.0, cav=True),
+        car("c1", 275.0, 1, 14.0, cav=True),  # past the truck
+        car("truck", 260.0, 0, 14.0),
+        car("hv", 242.0, 1, 14.0),  # 28 m behind c1's rear: within twice its IDM gap
+        car("c2", 243.0, 0, 14.0, cav=True, lat=0.6),  # at its lane's edge, held there
+    )  # fmt: skip
+    platoon = ["c0", "c1", "c2"]
+    goals = {"c0": 1, "c1": 1, "c2": 1}
+    r.held_s["c2"] = (1, SCENARIO.swarm.block_assist_after_s - 0.05)
+    moves = r.moves(st, platoon, ROAD, 1, goals, 0.1)  # held now for block_assist_after_s
+    brake = SCENARIO.hvmodel.planner_share * SCENARIO.hvmodel.b_safe_mps2
+    # 2 m/s to lose, at the cruise law's gain (within the gentle brake)
+    slower = -SCENARIO.cacc.k_cruise * SCENARIO.swarm.block_assist_mps
+    assert moves["c1"][1] == pytest.approx(slower)
+    assert moves["c1"][1] >= -brake
+    assert moves["c0"][1] > 0.0  # the leader drives on
+    assert events == [("block_assist", {"vehicle": "c2", "blocker": "c1", "hv": "hv"})]
+    # No room left ahead of c2 (c1's rear within desired_gap_m of its front): no block.
+    st["c1"] = car("c1", 255.0, 1, 14.0, cav=True)
+    assert r.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"][1] > -brake
+    # Nor for an HV that drives its own pace (it wants what it drives).
+    r2 = Reformer(SCENARIO, lambda vid: DriverModel(desired_speed_mps=14.0))
+    st["c1"] = car("c1", 275.0, 1, 14.0, cav=True)
+    r2.held_s["c2"] = (1, SCENARIO.swarm.block_assist_after_s + 0.1)
+    assert r2.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"][1] > -brake

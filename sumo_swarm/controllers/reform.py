@@ -88,12 +88,14 @@ class Reformer:
     # lanes its CAVs are in now, while the leader is on that edge
     move_to: tuple[int, str | None] | None = None
     pulling: tuple[str, str] | None = None  # (CAV, HV) the platoon pulls away from (pull_away)
+    block_s: dict[str, float] = field(default_factory=dict)  # HV -> time held by block_assist
     left_for_held: tuple[int, str | None] | None = None  # (lane, edge) left by _held_switch
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
         self.lane_id = None
         self.left_for_held = None
+        self.block_s.clear()
 
     def _held_switch(
         self,
@@ -277,7 +279,11 @@ class Reformer:
             ending = self.ends(ego)
             side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes and q not in ending]
             ahead_pass = self.passing.get(platoon[i - 1]) if i > 0 else None
-            if ahead_pass is not None and ahead_pass[0] == slow.vehicle_id and ahead_pass[1] in side:
+            if (
+                ahead_pass is not None
+                and ahead_pass[0] == slow.vehicle_id
+                and ahead_pass[1] in side
+            ):
                 side = [ahead_pass[1]]  # behind the CAV ahead, in the lane it passes in
             speeds = lane_speeds(ego, others, road, side, range_m=sw.detect_range_m,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip
@@ -393,7 +399,77 @@ class Reformer:
         self._make_room(
             states, others, [v for v in platoon if v not in self.passing], road, lane, moves
         )
+        self._block_for_stranded(states, others, platoon, road, moves, step_s)
         return moves
+
+    def _block_for_stranded(
+        self,
+        states: Mapping[str, VehicleState],
+        others: Snapshot,
+        platoon: Sequence[str],
+        road: RoadSection,
+        moves: dict[str, Move],
+        step_s: float,
+    ) -> None:
+        """The paper's blocking, while the swarm cruises: a CAV stranded behind a slow vehicle
+        in its lane, its move into the lane beside held for ``[swarm] block_assist_after_s``
+        by an HV alongside or just behind it there (within ``cav.desired_gap_m``), is helped by
+        the platoon CAV that HV follows: that CAV slows to ``block_assist_mps`` below the
+        stranded CAV's speed (braking at most the planner's share of b_safe), so the HV, behind
+        it, falls back beside the stranded CAV until the guard lets it in ahead of the HV.
+        While the blocker keeps more than ``cav.desired_gap_m`` of room ahead of the stranded
+        CAV, and at most ``max_block_s`` per HV (``block_assist`` event). Without it the HV
+        drove beside the stranded CAV at the speed of the CAVs ahead of it (stress scene 192:
+        the last of nine CAVs behind the truck for 20 s)."""
+        sc = self.scenario
+        sw = sc.swarm
+        if sw.block_assist_mps <= 0.0:
+            return
+        members = set(platoon)
+        slow_below = sc.cav.cruising_speed_mps - sw.min_speed_gain_mps
+        width = sc.cav.width_m
+        for vid in platoon:
+            goal, held = self.held_s.get(vid, (None, 0.0))
+            if goal is None or held + 1e-9 < sw.block_assist_after_s:
+                continue
+            ego = states[vid]
+            if abs(road.lane_of(ego) - goal) != 1:
+                continue
+            own = vehicle_ahead(ego, others, road, width_m=width)
+            if own is None or own[0].is_cav or own[1] > sw.detect_range_m:
+                continue
+            if own[0].speed_mps >= slow_below:
+                continue  # not stranded: nothing slow ahead of it
+            behind = vehicle_behind(ego, others, road, y_m=road.lane_centre_y(goal), width_m=width)
+            if behind is None or behind[0].is_cav or behind[1] > sc.cav.desired_gap_m:
+                continue
+            hv = behind[0]
+            lead = vehicle_ahead(hv, others, road, width_m=width)
+            if lead is None or lead[0].vehicle_id not in members:
+                continue
+            blocker = lead[0]
+            if blocker.vehicle_id in self.passing or blocker.rear_s_m <= own[0].s_m:
+                continue  # a blocker beside the slow vehicle would hold up its own pass
+            # Only an HV that follows the blocker (it wants more than it drives, within twice
+            # its own desired gap): one driving its own pace further back would not slow down.
+            model = self.model_of(hv.vehicle_id)
+            follows = 2.0 * (model.min_gap_m + model.tau_s * hv.speed_mps)
+            if model.desired_speed_mps < hv.speed_mps + 0.5 or lead[1] > follows:
+                continue
+            if blocker.rear_s_m - ego.s_m <= sc.cav.desired_gap_m:
+                continue  # no room left ahead of the stranded CAV: the blocker drives on
+            spent = self.block_s.get(hv.vehicle_id, 0.0)
+            if spent > sw.max_block_s:
+                continue
+            self.block_s[hv.vehicle_id] = spent + step_s
+            if spent == 0.0:
+                self.event("block_assist", vehicle=vid, blocker=blocker.vehicle_id,
+                           hv=hv.vehicle_id)  # fmt: skip
+            target = max(ego.speed_mps - sw.block_assist_mps, 0.0)
+            brake = -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
+            accel = max(sc.cacc.k_cruise * (target - blocker.speed_mps), brake)
+            dlat, bound = moves[blocker.vehicle_id]
+            moves[blocker.vehicle_id] = (dlat, min(bound, accel))
 
     def _steer(
         self,
