@@ -514,6 +514,10 @@ def test_the_platoon_moves_over_to_a_cav_an_hv_keeps_out_of_its_lane():
     )  # fmt: skip
     r.held_s.clear()
     assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 1
+    # Not for an HV the platoon can pull away from (it wants 21 m/s): pull_away does it.
+    r, st, events = held_beside_a_follower(21.0, 6.5)
+    r.lane_id = 2
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 2 and not events
     # Not into a lane where the platoon would drive slower than the cruise by the gain.
     r, st, _ = held_beside_a_follower(33.0, 6.5)
     st["ahead1"] = car("ahead1", 340.0, 1, 15.0)

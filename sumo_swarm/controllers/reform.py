@@ -105,18 +105,22 @@ class Reformer:
         current: int,
         speeds: Mapping[int, float],
         candidates: Collection[int],
+        cap_mps: float,
     ) -> int:
         """The lane of CAVs an HV has kept out of ``current`` for ``[swarm] reform_switch_s``
-        (:meth:`_held_by_hv`) when the platoon cruises as fast there (``speeds`` capped at the
-        cruise, within ``min_speed_gain_mps``), else ``current``. The HV following the platoon
-        then has its lane back (it wanted 33 m/s behind a platoon at 20 for 30 s, two CAVs
-        beside it at the lane's edge: stress scenes 17 and 112). Never back to a lane left so:
-        once per lane and edge."""
+        (:meth:`_held_by_hv`; not an HV the platoon can pull away from) when the platoon cruises
+        as fast there (``speeds`` capped at the cruise, within ``min_speed_gain_mps``), else
+        ``current``. The HV following the platoon then has its lane back (it wanted 33 m/s
+        behind a platoon at 20 for 30 s, two CAVs beside it at the lane's edge: stress scenes
+        17 and 112). Never back to a lane left so: once per lane and edge."""
         sw = self.scenario.swarm
         if sw.reform_switch_s <= 0.0 or self.left_for_held == (current, self.edge):
             return current
         cruise = self.scenario.cav.cruising_speed_mps
+        boost = self._boost(cap_mps)
         for ego, hv in self._held_by_hv(states, platoon, road, current, sw.reform_switch_s):
+            if self._left_behind(hv, boost):
+                continue  # the platoon pulls away from it instead (pull_away)
             q = road.lane_of(ego)
             if q not in candidates or self.left_for_held == (q, self.edge):
                 continue
@@ -210,7 +214,7 @@ class Reformer:
         if prefer is not None and best != prefer[0]:
             self.prefer = None  # a lane the CAVs occupy is faster: that one
         if best == current and current is not None:
-            best = self._held_switch(states, platoon, road, current, speeds, candidates)
+            best = self._held_switch(states, platoon, road, current, speeds, candidates, cap_mps)
         if best != current:
             shown = {str(k): round(v, 2) for k, v in speeds.items()}
             self.event("reform_lane", lane=best, lane_speeds_mps=shown)
@@ -748,6 +752,18 @@ class Reformer:
             for o in states.values()
         )  # fmt: skip
 
+    def _boost(self, cap_mps: float) -> float:
+        """How much faster than the cruise [m/s] the platoon may pull away (0: it may not)."""
+        sc = self.scenario
+        cruise = sc.cav.cruising_speed_mps
+        return max(min(sc.swarm.pull_away_mps, min(cap_mps, sc.cav.max_speed_mps) - cruise), 0.0)
+
+    def _left_behind(self, hv: VehicleState, boost: float) -> bool:
+        """Does ``hv`` want less than the cruise plus ``boost`` by a metre per second (a
+        platoon pulling away leaves it behind; one wanting as much follows)?"""
+        cruise = self.scenario.cav.cruising_speed_mps
+        return boost > 0.0 and self.desired_speed(hv) <= cruise + boost - 1.0
+
     def pull_away(
         self,
         states: Mapping[str, VehicleState],
@@ -761,15 +777,12 @@ class Reformer:
         keeps one of its CAVs out of ``lane`` (:meth:`_held_by_hv` for ``[swarm]
         pull_away_after_s``) and wants less than that faster cruise. 0: no such HV. A
         ``pull_away`` event once per CAV and HV."""
-        sc = self.scenario
-        sw = sc.swarm
-        cruise = sc.cav.cruising_speed_mps
-        boost = min(sw.pull_away_mps, min(cap_mps, sc.cav.max_speed_mps) - cruise)
+        sw = self.scenario.swarm
+        boost = self._boost(cap_mps)
         if boost <= 0.0:
             return 0.0
         for ego, hv in self._held_by_hv(states, platoon, road, lane, sw.pull_away_after_s):
-            # Only from an HV the faster platoon leaves behind (one wanting as much follows).
-            if self.desired_speed(hv) > cruise + boost - 1.0:
+            if not self._left_behind(hv, boost):
                 continue
             if self.pulling != (ego.vehicle_id, hv.vehicle_id):
                 self.pulling = (ego.vehicle_id, hv.vehicle_id)
