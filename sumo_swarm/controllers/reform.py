@@ -282,7 +282,8 @@ class Reformer:
                 continue  # the CAV ahead is behind it too: the swarm decides for them
             ending = self.ends(ego)
             side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes and q not in ending]
-            ahead_pass = self.passing.get(platoon[i - 1]) if i > 0 else None
+            train = i > 0 and sw.pass_in_train
+            ahead_pass = self.passing.get(platoon[i - 1]) if train else None
             if (
                 ahead_pass is not None
                 and ahead_pass[0] == slow.vehicle_id
