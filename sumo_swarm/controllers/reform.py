@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -272,24 +272,19 @@ class Reformer:
                 continue
             if road.lane_of(slow) != road.lane_of(ego):
                 continue  # leaving ego's lane (its centre is out already): nothing to pass
+            train = None if i == 0 else self._train_lane(platoon[i - 1], slow.vehicle_id)
             if i == 0:
                 singly = self.singly
                 if singly is None or singly[0] != slow.vehicle_id or t_s > singly[1]:
                     continue  # the swarm decides for the leader
-            elif states[platoon[i - 1]].rear_s_m <= slow.s_m and not self._train(
-                platoon[i - 1], slow.vehicle_id, states, road
+            elif states[platoon[i - 1]].rear_s_m <= slow.s_m and (
+                train is None or road.lane_of(states[platoon[i - 1]]) != train
             ):
-                continue  # the CAV ahead is behind it too: the swarm decides for them
+                continue  # the CAV ahead is behind it too, not in its passing lane yet
             ending = self.ends(ego)
             side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes and q not in ending]
-            train = i > 0 and sw.pass_in_train
-            ahead_pass = self.passing.get(platoon[i - 1]) if train else None
-            if (
-                ahead_pass is not None
-                and ahead_pass[0] == slow.vehicle_id
-                and ahead_pass[1] in side
-            ):
-                side = [ahead_pass[1]]  # behind the CAV ahead, in the lane it passes in
+            if train in side:
+                side = [train]  # behind the CAV ahead, in the lane it passes in
             speeds = lane_speeds(ego, others, road, side, range_m=sw.detect_range_m,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip
             best = max(speeds, key=speeds.get, default=None)
@@ -299,22 +294,16 @@ class Reformer:
                 self.event("passing_start", vehicle=vid, slow=slow.vehicle_id, lane=best)
         return goals
 
-    def _train(
-        self, ahead: str, slow_id: str, states: Mapping[str, VehicleState], road: RoadSection
-    ) -> bool:
-        """Is the CAV ``ahead`` passing ``slow_id`` with its centre in the lane it passes in
-        already? The CAV behind it then passes too, behind it in that lane, as SUMO's own
-        drivers do: waiting for each CAV to be past before the next one started took 5-6 s a
-        CAV, and 9-12-CAV platoons that gave up were still in two lanes 50 s later
-        ([swarm] pass_in_train)."""
-        if not self.scenario.swarm.pass_in_train:
-            return False
+    def _train_lane(self, ahead: str, slow_id: str) -> int | None:
+        """The lane in which the CAV ``ahead`` passes ``slow_id``, or None. Once that CAV's
+        centre is in it, the CAV behind it passes too, behind it there, as SUMO's own drivers
+        do: waiting for each CAV to be past before the next one started took 5-6 s a CAV, and
+        9-12-CAV platoons that gave up were still in two lanes 50 s later ([swarm]
+        pass_in_train; None when it is off)."""
         passing = self.passing.get(ahead)
-        return (
-            passing is not None
-            and passing[0] == slow_id
-            and road.lane_of(states[ahead]) == passing[1]
-        )
+        if not self.scenario.swarm.pass_in_train or passing is None or passing[0] != slow_id:
+            return None
+        return passing[1]
 
     def _next_to_a_cav(
         self, ego: VehicleState, goal: int, states: Mapping[str, VehicleState], road: RoadSection
@@ -433,13 +422,8 @@ class Reformer:
         members = set(platoon)
         slow_below = sc.cav.cruising_speed_mps - sw.min_speed_gain_mps
         width = sc.cav.width_m
-        for vid in platoon:
-            goal, held = self.held_s.get(vid, (None, 0.0))
-            if goal is None or held + 1e-9 < sw.block_assist_after_s:
-                continue
-            ego = states[vid]
-            if abs(road.lane_of(ego) - goal) != 1:
-                continue
+        for ego, goal in self._held_next_to(states, platoon, road, sw.block_assist_after_s):
+            vid = ego.vehicle_id
             own = vehicle_ahead(ego, others, road, width_m=width)
             if own is None or own[0].is_cav or own[1] > sw.detect_range_m:
                 continue
@@ -701,6 +685,23 @@ class Reformer:
             dlat, bound = moves[vid]
             moves[vid] = (dlat, min(bound, self._follow_gently(ego, m, gap)))
 
+    def _held_next_to(
+        self,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        after_s: float,
+    ) -> Iterator[tuple[VehicleState, int]]:
+        """(CAV, goal lane) for each CAV of ``platoon`` whose move into the lane next to it
+        the guard has held for ``after_s`` [s] or more (``held_s``)."""
+        for vid in platoon:
+            goal, held = self.held_s.get(vid, (None, 0.0))
+            if goal is None or held + 1e-9 < after_s:
+                continue
+            ego = states[vid]
+            if abs(road.lane_of(ego) - goal) == 1:
+                yield ego, goal
+
     def _held_by_hv(
         self,
         states: Mapping[str, VehicleState],
@@ -717,12 +718,8 @@ class Reformer:
         y_lane = road.lane_centre_y(lane)
         front = states[platoon[0]]
         found = []
-        for vid in platoon:
-            held_lane, held = self.held_s.get(vid, (None, 0.0))
-            if held_lane != lane or held + 1e-9 < after_s or vid in self.passing:
-                continue
-            ego = states[vid]
-            if abs(road.lane_of(ego) - lane) != 1:
+        for ego, goal in self._held_next_to(states, platoon, road, after_s):
+            if goal != lane or ego.vehicle_id in self.passing:
                 continue
             # Not a CAV with a slow vehicle ahead of it in its own lane, up to the platoon's
             # front (still to be passed): the platoon would pull away from it, or move into

@@ -333,9 +333,16 @@ class Reference:
         """Vectorised ``(s [m], v [m/s], a [m/s^2])`` at the times ``t_s`` (shape (M,))."""
         t = np.asarray(t_s, dtype=float)
         p, dp, ddp = self._longitudinal.evaluate(t, (0, 1, 2))
+        s, v = self._in_route_frame(t, p, dp)
+        return s, v, ddp
+
+    def _in_route_frame(
+        self, t: np.ndarray, p: np.ndarray, dp: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Route position and speed from the offset ``p`` (and its rate ``dp``) to the grid
+        frame moving at its speed from its origin."""
         frame = self.frame
-        s = frame.origin_s_m + frame.speed_mps * (t - frame.t0_s) + p
-        return s, frame.speed_mps + dp, ddp
+        return frame.origin_s_m + frame.speed_mps * (t - frame.t0_s) + p, frame.speed_mps + dp
 
     def jerk_at(self, t_s: np.ndarray) -> np.ndarray:
         """Vectorised jerk at the times ``t_s`` [m/s^3] (piecewise smooth)."""
@@ -355,8 +362,7 @@ class Reference:
         longitudinal MPC's ``s_ref`` and ``v_ref`` (asked per CAV every few SUMO steps)."""
         t = t0_s + dt_s * _steps(n_steps)
         p, dp = self._longitudinal.evaluate(t, (0, 1))
-        frame = self.frame
-        return frame.origin_s_m + frame.speed_mps * (t - frame.t0_s) + p, frame.speed_mps + dp
+        return self._in_route_frame(t, p, dp)
 
     # ----------------------------------------------------------------------- lateral
     def y_at_s(self, s_m: float) -> float:
