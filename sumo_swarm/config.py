@@ -363,6 +363,13 @@ class SwarmSettings:
     # with regroup_by = "cruise"). Not at once: a CAV passing alongside for a moment braked for
     # nothing and slowed the CAVs behind it (stress scene 81: -1.2 m/s).
     drop_behind_s: float = 3.0
+    # An HV that splits the platoon (a platoon CAV ahead of it in its lane) is passed by the
+    # CAVs behind it when it drives below the cruise by min_speed_gain_mps less this [m/s]
+    # (and a lane beside is faster by the gain), not only when it is as slow as a target
+    # must be: it follows the platoon's front part, which eases off to close up (stress scene
+    # 187: an HV at 18 m/s between four CAVs and five, 85 m apart, never passed). 0 = only
+    # slow vehicles are passed (Reformer._splits).
+    pass_intruder_mps: float = 1.0
     # A CAV refused a lane change out of a slow vehicle's lane into a faster one (stranded
     # behind the target after a give-up, or passing on its own) keeps this bumper gap [m]
     # behind the slow vehicle, and runs up towards the next lane's speed when a gap there would
@@ -507,6 +514,7 @@ class SwarmSettings:
             "block_assist_mps",
             "entry_accel_mps2",
             "lane_pass_stall_s",
+            "pass_intruder_mps",
         )
         check_fields(self, "give_up_no_progress_intervals", "give_up_partial_intervals", ge=1)
 

@@ -114,6 +114,32 @@ def test_cavs_cut_off_by_a_slow_vehicle_pass_it_in_a_train():
     assert r2.goals(1.0, st, platoon, ROAD, 1, cap_mps=25.0)["c2"] == 1
 
 
+def test_cavs_behind_an_hv_that_splits_the_platoon_pass_it():
+    # An HV at 18.5 m/s between c0 (ahead, lane 1) and c1: not slow enough to be passed as a
+    # slow vehicle (cruise 20 - gain 2 = 18), but it splits the platoon: c1 passes it in the
+    # free lane 0 (pass_intruder_mps = 1: below 19 m/s).
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 330.0, 1, 18.5, cav=True),
+        car("hv", 250.0, 1, 18.5),
+        car("c1", 235.0, 1, 18.5, cav=True),
+        car("left", 400.0, 2, 18.5),
+    )  # fmt: skip
+    platoon = ["c0", "c1"]
+    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 0}
+    assert events == [("passing_start", {"vehicle": "c1", "slow": "hv", "lane": 0})]
+    # The same HV with no platoon CAV ahead of it in its lane is not passed.
+    events.clear()
+    r = reformer(events)
+    st["c0"] = car("c0", 330.0, 2, 18.5, cav=True)
+    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1 and events == []
+    # With pass_intruder_mps = 0 the split HV is not passed either.
+    st["c0"] = car("c0", 330.0, 1, 18.5, cav=True)
+    r.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, pass_intruder_mps=0.0))
+    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1 and events == []
+
+
 def test_past_the_target_the_platoon_reforms_in_its_regroup_lane():
     # Every CAV is past the truck, in lanes 0 and 2; the regroup lane (1, the original) is
     # free: the platoon re-forms there (the paper's Fig. 6 step 4), and stays with it while the

@@ -268,7 +268,10 @@ class Reformer:
             if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
                 continue
             slow = ahead[0]
-            if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
+            slow_below = sc.cav.cruising_speed_mps - sw.min_speed_gain_mps
+            if i > 0 and self._splits(slow, states, platoon[:i], road):
+                slow_below += sw.pass_intruder_mps
+            if slow.speed_mps > slow_below:
                 continue
             if road.lane_of(slow) != road.lane_of(ego):
                 continue  # leaving ego's lane (its centre is out already): nothing to pass
@@ -293,6 +296,23 @@ class Reformer:
                 goals[vid] = best
                 self.event("passing_start", vehicle=vid, slow=slow.vehicle_id, lane=best)
         return goals
+
+    def _splits(
+        self,
+        hv: VehicleState,
+        states: Mapping[str, VehicleState],
+        ahead: Sequence[str],
+        road: RoadSection,
+    ) -> bool:
+        """Does ``hv`` split the platoon: is one of the CAVs ``ahead`` (the platoon's CAVs in
+        front of the one behind ``hv``) in ``hv``'s lane ahead of it, at any distance? The
+        CAVs behind such an HV pass it when it is slower than the cruise by ``[swarm]
+        pass_intruder_mps`` less than a slow vehicle must be: it follows the platoon's front
+        part, which eases off for the stretched platoon, so it was never slow enough to pass,
+        and five CAVs drove 85 m behind the other four for 15 s, the HV between them, the lane
+        beside free (stress scene 187)."""
+        lane = road.lane_of(hv)
+        return any(road.lane_of(states[v]) == lane and states[v].rear_s_m > hv.s_m for v in ahead)
 
     def _train_lane(self, ahead: str, slow_id: str) -> int | None:
         """The lane in which the CAV ``ahead`` passes ``slow_id``, or None. Once that CAV's
