@@ -370,6 +370,11 @@ class SwarmSettings:
     # 187: an HV at 18 m/s between four CAVs and five, 85 m apart, never passed). 0 = only
     # slow vehicles are passed (Reformer._splits).
     pass_intruder_mps: float = 1.0
+    # A cruising CAV that has fallen back from the platoon CAV ahead of it, that CAV in another
+    # lane, closes up as a CAV behind a CAV in its own lane does (cacc k_close per metre of
+    # excess gap, at most the speed cap; decision.straggler_cruise). False: it cruises at the
+    # platoon's speed, and a CAV that got past last, in the lane beside, stayed 150 m behind.
+    catch_up_across_lanes: bool = True
     # A CAV refused a lane change out of a slow vehicle's lane into a faster one (stranded
     # behind the target after a give-up, or passing on its own) keeps this bumper gap [m]
     # behind the slow vehicle, and runs up towards the next lane's speed when a gap there would

@@ -26,6 +26,7 @@ from sumo_swarm.core.swarming.decision import (
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
+    straggler_cruise,
     stranded_cavs,
     waiting_plan,
 )
@@ -567,6 +568,33 @@ def test_the_leader_eases_off_more_only_for_a_platoon_strung_out_in_its_lane():
     beside = {**strung, **states_of(car("h", 450.0, 2, 20.0))}
     assert leader_ease_cap(beside, platoon, ROAD, **kw) == 5.0
     assert leader_ease_cap(strung, platoon, ROAD, **{**kw, "regroup_ease_mps": 2.0}) == 2.0
+
+
+def test_a_cav_fallen_back_behind_a_platoon_cav_in_another_lane_closes_up():
+    kw = dict(cruise_mps=20.0, cap_mps=25.0, desired_gap_m=10.0, k_close=0.15,
+              slow_below_mps=18.0, reach_m=60.0, width_m=1.8)  # fmt: skip
+    # c2 in lane 0, 60 m behind c1's rear (lane 1): 20 + 0.15 * 50 = 27.5, capped at 25.
+    # c1 follows c0 in its own lane: the CACC's own k_close handles it, nothing here.
+    st = states_of(
+        car("c0", 500.0, 1, 20.0, cav=True), car("c1", 470.0, 1, 20.0, cav=True),
+        car("c2", 405.0, 0, 20.0, cav=True),
+    )  # fmt: skip
+    assert straggler_cruise(st, ["c0", "c1", "c2"], ROAD, **kw) == {"c2": 25.0}
+    # Its front 20 m behind c1's rear: 20 + 0.15 * (20 - 10) = 21.5.
+    st["c2"] = car("c2", 445.0, 0, 20.0, cav=True)
+    assert straggler_cruise(st, ["c0", "c1", "c2"], ROAD, **kw) == {"c2": pytest.approx(21.5)}
+    # Within the desired gap, or in the same lane: the platoon's cruise.
+    st["c2"] = car("c2", 460.0, 0, 20.0, cav=True)
+    assert straggler_cruise(st, ["c0", "c1", "c2"], ROAD, **kw) == {}
+    st["c2"] = car("c2", 405.0, 1, 20.0, cav=True)
+    assert straggler_cruise(st, ["c0", "c1", "c2"], ROAD, **kw) == {}
+    # A truck at 14 m/s 40 m ahead of it in its lane: it would only close in on the truck.
+    st["c2"] = car("c2", 405.0, 0, 20.0, cav=True)
+    st["truck"] = car("truck", 450.0, 0, 14.0)
+    assert straggler_cruise(st, ["c0", "c1", "c2"], ROAD, **kw) == {}
+    # ...but a car at the cruise ahead of it does not hold it back (it follows that car).
+    st["truck"] = car("truck", 450.0, 0, 20.0)
+    assert straggler_cruise(st, ["c0", "c1", "c2"], ROAD, **kw) == {"c2": 25.0}
 
 
 def states_of(*vehicles):

@@ -62,13 +62,15 @@ def command_cacc(
     accel_floors: Mapping[str, float] | None = None,
     states: Mapping[str, VehicleState] | None = None,
     cruise_mps: float | None = None,
+    cruise_of: Mapping[str, float] | None = None,
 ) -> None:
     """Command one CACC step for every CAV of ``platoon`` (front-most first when
     ``leader_cruise_mps`` is given: that CAV cruises at that speed instead). ``accel_limits``:
     upper bounds [m/s^2] of some CAVs' acceleration (a CAV making room to change lanes);
     ``accel_floors``: lower bounds of some (a CAV running up to a faster lane's speed), never
     above the CAV's upper bound. ``states``: the vehicles as the caller sees them (default
-    the session's); ``cruise_mps``: the other CAVs' cruising speed (default the scenario's)."""
+    the session's); ``cruise_mps``: the other CAVs' cruising speed (default the scenario's);
+    ``cruise_of``: some CAVs' own cruising speed instead (never the leader's)."""
     if states is None:
         states = ctx.session.states
     others = list(states.values())
@@ -76,6 +78,8 @@ def command_cacc(
     for vid in platoon:
         ego = states[vid]
         cruise = leader_cruise_mps if vid == platoon[0] else cruise_mps
+        if cruise_of is not None and vid in cruise_of and vid != platoon[0]:
+            cruise = cruise_of[vid]
         ahead = vehicle_ahead(ego, others, ctx.road)
         if ahead is None:
             a = cacc_accel(ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc,

@@ -64,6 +64,7 @@ from sumo_swarm.core.swarming.decision import (
     slow_vehicle_ahead,
     speed_cap_mps,
     stopped_blocking,
+    straggler_cruise,
     stranded_cavs,
     waiting_plan,
 )
@@ -508,9 +509,17 @@ class SwarmController:
         if boost > 0.0:  # an HV following the platoon keeps a CAV out of its lane
             cruise = sc.cav.cruising_speed_mps + boost
             leader_cruise = max(leader_cruise, cruise)
+        base = sc.cav.cruising_speed_mps if cruise is None else cruise
+        catch_up = straggler_cruise(
+            states, platoon, road, cruise_mps=base, cap_mps=min(cap, sc.cav.max_speed_mps),
+            desired_gap_m=sc.cav.desired_gap_m, k_close=sc.cacc.k_close,
+            slow_below_mps=sc.cav.cruising_speed_mps - sc.swarm.min_speed_gain_mps,
+            reach_m=sc.swarm.detect_range_m, width_m=sc.cav.width_m,
+        ) if sc.swarm.catch_up_across_lanes else {}  # fmt: skip
         command_cacc(ctx, platoon, leader_cruise,
                      accel_limits={vid: m[1] for vid, m in moves.items()},
-                     accel_floors=reformer.floors, states=states, cruise_mps=cruise)  # fmt: skip
+                     accel_floors=reformer.floors, states=states, cruise_mps=cruise,
+                     cruise_of=catch_up)  # fmt: skip
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)

@@ -569,6 +569,46 @@ def leader_ease_cap(
     return ease_mps
 
 
+def straggler_cruise(
+    states: Mapping[str, VehicleState],
+    platoon: Sequence[str],
+    road: RoadSection,
+    *,
+    cruise_mps: float,
+    cap_mps: float,
+    desired_gap_m: float,
+    k_close: float,
+    slow_below_mps: float,
+    reach_m: float,
+    width_m: float,
+) -> dict[str, float]:
+    """Cruising speed [m/s] of each CAV of ``platoon`` that has fallen back from the platoon
+    CAV just ahead of it (by position) while that CAV drives in another lane: the cruise plus
+    ``k_close`` per metre of bumper gap beyond ``desired_gap_m``, at most ``cap_mps``. The
+    CACC closes such a gap only behind a CAV in its own lane: a CAV that got past a truck
+    last, in the lane beside the platoon's, drove on 150 m behind it at the very speed of the
+    platoon and never caught up (stress scene 40, paper-scene variant 24). Not a CAV with an
+    HV slower than ``slow_below_mps`` ahead of it in its lane within ``reach_m``: it would
+    only close in on that vehicle, taking the room a CAV merging in front of it needs (stress
+    scene 69: a CAV rushed up behind the truck where the CAV beside it was to get in). It
+    still follows whatever drives ahead of it in its lane."""
+    out: dict[str, float] = {}
+    order = sorted(platoon, key=lambda v: states[v].s_m, reverse=True)
+    for front, back in itertools.pairwise(order):
+        f, b = states[front], states[back]
+        if road.lane_of(f) == road.lane_of(b):
+            continue
+        excess = f.rear_s_m - b.s_m - desired_gap_m
+        if excess <= 0.0:
+            continue
+        ahead = vehicle_ahead(b, states.values(), road, width_m=width_m)
+        slow = ahead is not None and not ahead[0].is_cav and ahead[0].speed_mps < slow_below_mps
+        if slow and ahead[1] <= reach_m:
+            continue  # a slow HV ahead: it would only close in on that
+        out[back] = max(cruise_mps, min(cap_mps, cruise_mps + k_close * excess))
+    return out
+
+
 def all_past(target: VehicleState, platoon: Mapping[str, VehicleState], min_gap_m: float) -> bool:
     """Every CAV's rear is ahead of the target's front by ``min_gap_m``."""
     return not cavs_behind(target, platoon.values(), min_gap_m)
