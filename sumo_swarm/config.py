@@ -348,6 +348,18 @@ class SwarmSettings:
     # is the cruise and the cells are kept.
     lane_pass: bool = True
     lane_pass_stall_s: float = 15.0
+    # What a *free* lane (no HV beside the platoon or within detect_range_m behind its tail)
+    # must beat by min_speed_gain_mps (decision.lane_pass_pace): "cells", the plan's pace as
+    # above; "free" (default), the lower of that and the cruise less the gain: a lane free at
+    # the cruise takes the platoon past together. With the paper's 20 m/s cruise the plan's
+    # pace (19.4 m/s past a 14.4 m/s truck) left no lane pass at all: the cells took the CAVs
+    # out one by one and the last met the stream that had come up the free lane meanwhile
+    # (stress scenes 92, 192); SUMO's drivers all changed lanes at once, 60 m behind the truck.
+    # A lane with HVs beside or behind the platoon keeps the plan's pace (with the free pace
+    # there too, a car at 17.5 m/s coming up beside the platoon made the CAVs brake to 12 m/s
+    # to let it by: stress scene 184). The paper's scene keeps its cells: HVs drive beside the
+    # platoon in both side lanes.
+    lane_pass_beats: Literal["cells", "free"] = "free"
     # A cruising CAV cut off from the platoon by a slow vehicle passes it on its own, in the
     # faster lane beside; it gives that up after this long [s] and heads for the platoon's lane.
     max_pass_s: float = 30.0

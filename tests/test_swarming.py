@@ -16,6 +16,7 @@ from sumo_swarm.core.swarming.decision import (
     TargetWatch,
     behaving_interval_s,
     lane_for_pass,
+    lane_pass_pace,
     lane_speeds,
     leader_ease_cap,
     one_platoon,
@@ -627,6 +628,28 @@ def test_lane_for_pass_is_a_faster_lane_with_room_not_the_one_the_target_moves_i
     # ...but never the lane the target is moving into (0.8 m to the left of its centre).
     moving_left = dataclasses.replace(in_1, lat_m=0.8)
     assert lane_for_pass(middle, tail, moving_left, [moving_left], ROAD, [0, 2], **kw) == 0
+    # A cruise of 21 m/s: 1 m/s above the cells' pace, but 3 above a free pace of 18, which
+    # counts in a lane with no HV beside the platoon or within 60 m behind its tail.
+    free = {**kw, "cruise_mps": 21.0, "free_pace_mps": 18.0}
+    assert lane_for_pass(leader, tail, truck, [truck], ROAD, [1], **free) == 1
+    beside = car("b", 265.0, 1, 33.0)
+    assert lane_for_pass(leader, tail, truck, [truck, beside], ROAD, [1], **free) is None
+    coming = car("b", 200.0, 1, 33.0)  # 45 m behind the tail's rear
+    assert lane_for_pass(leader, tail, truck, [truck, coming], ROAD, [1], **free) is None
+    far = car("b", 180.0, 1, 33.0)  # 65 m behind it
+    assert lane_for_pass(leader, tail, truck, [truck, far], ROAD, [1], **free) == 1
+
+
+def test_a_lane_pass_must_beat_the_cells_or_only_the_cruise_less_the_gain():
+    kw = dict(cruise_mps=20.0, min_gain_mps=2.0)
+    # A 14.4 m/s truck, cells 5 m/s above it: 19.4 with "cells", 18 with "free" (so a lane
+    # free at the 20 m/s cruise beats it by the gain).
+    assert lane_pass_pace(14.4, 5.0, rule="cells", **kw) == pytest.approx(19.4)
+    assert lane_pass_pace(14.4, 5.0, rule="free", **kw) == pytest.approx(18.0)
+    # A 12 m/s truck with 4 m/s cells: 16 either way (the cells' pace is lower).
+    assert lane_pass_pace(12.0, 4.0, rule="free", **kw) == pytest.approx(16.0)
+    # A target at 19 m/s: never below the target itself.
+    assert lane_pass_pace(19.0, 5.0, rule="free", **kw) == pytest.approx(19.0)
 
 
 def test_a_lane_pass_completes_stalls_or_goes_on():

@@ -54,6 +54,7 @@ from sumo_swarm.core.swarming.decision import (
     cavs_behind,
     keeps_cell,
     lane_for_pass,
+    lane_pass_pace,
     lane_speeds,
     leader_ease_cap,
     one_platoon,
@@ -680,6 +681,10 @@ class SwarmController:
             range_m=sw.detect_range_m, cap_mps=self.cap_mps,
             cruise_mps=sc.cav.cruising_speed_mps,
             pace_mps=target.speed_mps + sc.cell_length_m / interval,
+            free_pace_mps=lane_pass_pace(
+                target.speed_mps, sc.cell_length_m / interval, cruise_mps=sc.cav.cruising_speed_mps,
+                min_gain_mps=sw.min_speed_gain_mps, rule=sw.lane_pass_beats,
+            ),
             min_gain_mps=sw.min_speed_gain_mps, tolerance_m=sw.in_lane_tolerance_m,
             desired_of=self.reformer.desired_speed,
         )  # fmt: skip

@@ -445,6 +445,25 @@ def passing_lane(
     return None if lane == road.lane_of(target) else lane
 
 
+def lane_pass_pace(
+    target_mps: float,
+    cells_mps: float,
+    *,
+    cruise_mps: float,
+    min_gain_mps: float,
+    rule: str,
+) -> float:
+    """The speed [m/s] a lane beside must beat by ``min_gain_mps`` for a lane pass
+    (:func:`lane_for_pass`). ``"cells"``: the cell plan's pace past the target (its speed plus
+    ``cells_mps``, one cell per behaving interval). ``"free"``: the lower of that and the cruise
+    less the gain (no lower than the target): a lane free at the cruise takes the platoon past
+    together."""
+    cells = target_mps + cells_mps
+    if rule == "cells":
+        return cells
+    return min(cells, max(target_mps, cruise_mps - min_gain_mps))
+
+
 def lane_for_pass(
     leader: VehicleState,
     tail: VehicleState,
@@ -462,14 +481,18 @@ def lane_for_pass(
     min_gain_mps: float,
     tolerance_m: float,
     desired_of: Callable[[VehicleState], float] | None = None,
+    free_pace_mps: float | None = None,
 ) -> int | None:
     """The lane of ``lanes`` (beside the leader) the platoon moves over to and passes
     ``target`` in, or None (the cells): its speed ahead of the leader (:func:`lane_speeds`, at
-    most ``cruise_mps``) beats the cells' pace past the target (``pace_mps``) by
-    ``min_gain_mps``; it has room for the platoon (within ``range_m`` of its ends, ``n_cavs``
-    cells per vehicle there; denser lanes: the cells make room, blocking); it is not the lane
-    the target is moving into (its centre more than ``tolerance_m`` off its lane's). Ties go to
-    the left, passing side (SUMO numbers lanes from the right). ``others``: the HVs."""
+    most ``cruise_mps``) beats the cells' pace past the target (``pace_mps``; in a lane with no
+    HV beside the platoon or within ``range_m`` behind its tail, ``free_pace_mps`` where
+    given) by ``min_gain_mps``; it has room for the platoon (within ``range_m`` of its ends,
+    ``n_cavs`` cells per vehicle there; denser lanes: the cells make room, blocking); it is not
+    the lane the target is moving into (its centre more than ``tolerance_m`` off its lane's).
+    Ties go to the left, passing side (SUMO numbers lanes from the right). ``others``: the
+    HVs. (With the free pace for every lane, a car at 17.5 m/s coming up beside the platoon
+    made the CAVs brake to 12 m/s to let it by and follow it: stress scene 184.)"""
     here = road.lane_of(leader)
     candidates = list(lanes)
     if abs(target.lat_m) > tolerance_m:
@@ -489,8 +512,16 @@ def lane_for_pass(
             del speeds[q]
     if not speeds:
         return None
-    best = max(speeds, key=lambda q: (speeds[q], q > here))
-    return best if min(speeds[best], cruise_mps) - pace_mps >= min_gain_mps else None
+    if free_pace_mps is None:
+        free_pace_mps = pace_mps
+    # Free: no HV beside the platoon or coming up behind it within range_m.
+    busy = {road.lane_of(o) for o in others if lo < o.s_m < leader.s_m}
+
+    def gain(q: int) -> float:
+        return min(speeds[q], cruise_mps) - (pace_mps if q in busy else free_pace_mps)
+
+    best = max(speeds, key=lambda q: (gain(q) >= min_gain_mps, speeds[q], q > here))
+    return best if gain(best) >= min_gain_mps else None
 
 
 @dataclass
