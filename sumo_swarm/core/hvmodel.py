@@ -75,20 +75,52 @@ def idm_follow_speed(
     m: DriverModel, v_mps: float, v_lead_mps: float, gap_m: float, step_s: float, v0_mps: float
 ) -> float:
     """SUMO's IDM ``_v``: speed [m/s] after one step behind a leader at bumper gap ``gap_m``."""
-    iterations = max(1, int(step_s / m.idm_stepping_s + 0.5))
-    two_sqrt_ab = 2.0 * math.sqrt(m.accel_mps2 * m.decel_mps2)
-    v0 = max(_EPS, v0_mps)
-    h = step_s / iterations
-    speed = v_mps
-    gap = gap_m
-    for _ in range(iterations):
-        s_star = max(0.0, speed * m.tau_s + speed * (speed - v_lead_mps) / two_sqrt_ab)
-        s_star += m.min_gap_m
-        gap = max(_EPS, gap)
-        acc = m.accel_mps2 * (1.0 - (speed / v0) ** m.delta - (s_star * s_star) / (gap * gap))
-        speed = max(0.0, speed + acc * h)
-        gap -= max(0.0, (speed - v_lead_mps) * h)
-    return speed
+    return _Idm(m, step_s).follow_speed(v_mps, v_lead_mps, gap_m, v0_mps)
+
+
+class _Idm:
+    """SUMO's IDM of one driver over steps of ``step_s``, with what depends on those alone
+    worked out once: a simulated reaction (:func:`_reaction_peak`) evaluates it at each of
+    its steps."""
+
+    __slots__ = ("h", "iterations", "m", "min_decel", "step_s", "two_sqrt_ab")
+
+    def __init__(self, m: DriverModel, step_s: float) -> None:
+        self.m = m
+        self.step_s = step_s
+        self.iterations = max(1, int(step_s / m.idm_stepping_s + 0.5))
+        self.h = step_s / self.iterations
+        self.two_sqrt_ab = 2.0 * math.sqrt(m.accel_mps2 * m.decel_mps2)
+        # IDM's minNextSpeed lets it brake at least 1.5 m/s^2 (SUMO: approaching stops)
+        self.min_decel = max(m.decel_mps2, min(m.emergency_decel_mps2, 1.5))
+
+    def follow_speed(self, v_mps: float, v_lead_mps: float, gap_m: float, v0_mps: float) -> float:
+        """:func:`idm_follow_speed` of this driver and step."""
+        m, h, two_sqrt_ab = self.m, self.h, self.two_sqrt_ab
+        a, tau, s0, delta = m.accel_mps2, m.tau_s, m.min_gap_m, m.delta
+        v0 = max(_EPS, v0_mps)
+        speed = v_mps
+        gap = gap_m
+        # Conditionals rather than max(), the same values (max(lo, x) is x if x > lo, else
+        # lo): this runs twice per simulated step of every reaction, the calls were its cost.
+        for _ in range(self.iterations):
+            s_star = speed * tau + speed * (speed - v_lead_mps) / two_sqrt_ab
+            s_star = (s_star if s_star > 0.0 else 0.0) + s0
+            gap = gap if gap > _EPS else _EPS
+            acc = a * (1.0 - (speed / v0) ** delta - (s_star * s_star) / (gap * gap))
+            speed += acc * h
+            speed = speed if speed > 0.0 else 0.0
+            closing = (speed - v_lead_mps) * h
+            gap -= closing if closing > 0.0 else 0.0
+        return speed
+
+    def next_speed(self, v: float, v_lead: float | None, gap: float | None) -> float:
+        """The driver's speed [m/s] after the step (``v >= 0``; no leader: free road)."""
+        v0 = self.m.desired_speed_mps
+        v_safe = self.follow_speed(v, v0, _FREE_GAP_M, v0)  # SUMO's freeSpeed
+        if v_lead is not None and gap is not None:
+            v_safe = min(v_safe, self.follow_speed(v, v_lead, gap, v0))
+        return _finalize(self.m, v, v_safe, self.step_s, self.min_decel)[1]
 
 
 def brake_gap_euler(v_mps: float, decel_mps2: float, step_s: float) -> float:
@@ -157,23 +189,27 @@ def _emergency_decel(
 def _finalize(
     m: DriverModel, v_mps: float, v_safe: float, step_s: float, min_decel: float
 ) -> tuple[float, float]:
-    """SUMO's ``finalizeSpeed`` bounds: (lowest, highest) next speed [m/s]."""
-    v_min_emergency = max(0.0, v_mps - m.emergency_decel_mps2 * step_s)
-    v_min = min(max(0.0, v_mps - min_decel * step_s), max(v_safe, v_min_emergency))
-    v_max = min(v_mps + m.accel_mps2 * step_s, max(m.desired_speed_mps, 0.0), v_safe)
-    return v_min, max(v_min, v_max)
+    """SUMO's ``finalizeSpeed`` bounds: (lowest, highest) next speed [m/s].
+
+    Written out with conditionals, the values of the max() and min() they stand for (``max(a,
+    b)`` is b if b > a, else a): this runs at every simulated step of every reaction."""
+    v_min_emergency = v_mps - m.emergency_decel_mps2 * step_s
+    v_min_emergency = v_min_emergency if v_min_emergency > 0.0 else 0.0  # max(0, .)
+    braked = v_mps - min_decel * step_s
+    braked = braked if braked > 0.0 else 0.0  # max(0, .)
+    lowest = v_min_emergency if v_min_emergency > v_safe else v_safe  # max(v_safe, .)
+    v_min = lowest if lowest < braked else braked  # min(braked, lowest)
+    v_max = v_mps + m.accel_mps2 * step_s
+    desired = 0.0 if m.desired_speed_mps < 0.0 else m.desired_speed_mps  # max(v0, 0)
+    v_max = desired if desired < v_max else v_max  # min(v + a step, v0, v_safe) ...
+    v_max = v_safe if v_safe < v_max else v_max  # ... in the same order
+    return v_min, v_max if v_max > v_min else v_min  # max(v_min, v_max)
 
 
 def _idm_next_speed(
     m: DriverModel, v: float, v_lead: float | None, gap: float | None, step_s: float
 ) -> float:
-    v0 = m.desired_speed_mps
-    v_safe = idm_follow_speed(m, v, v0, _FREE_GAP_M, step_s, v0)  # SUMO's freeSpeed
-    if v_lead is not None and gap is not None:
-        v_safe = min(v_safe, idm_follow_speed(m, v, v_lead, gap, step_s, v0))
-    # IDM's minNextSpeed lets it brake at least 1.5 m/s^2 (SUMO: approaching stops)
-    min_decel = max(m.decel_mps2, min(m.emergency_decel_mps2, 1.5))
-    return _finalize(m, v, v_safe, step_s, min_decel)[1]
+    return _Idm(m, step_s).next_speed(v, v_lead, gap)
 
 
 def _krauss_next_speed(
@@ -222,6 +258,20 @@ def model_accel(
             _krauss_next_speed(m, v, v_lead_mps, gap_m, step_s, dawdle, lead_decel_mps2),
         )
     return (v_next - v) / step_s
+
+
+def _accel_of(m: DriverModel, step_s: float) -> Callable[[float, float, float], float]:
+    """``model_accel(m, v, v_lead, gap, step_s)`` as a function of ``(v, v_lead, gap)``; an
+    IDM driver's with its constants worked out once (the same numbers, bit for bit)."""
+    if m.model not in IDM_MODELS:
+        return lambda v, v_lead, gap: model_accel(m, v, v_lead, gap, step_s)
+    idm = _Idm(m, step_s)
+
+    def accel(v_mps: float, v_lead_mps: float, gap_m: float) -> float:
+        v = max(0.0, v_mps)
+        return (idm.next_speed(v, v_lead_mps, gap_m) - v) / step_s
+
+    return accel
 
 
 def braking_needed(
@@ -276,12 +326,13 @@ def _reaction_peak(
     exceeds ``limit`` the reaction is not followed further (the answer is then some braking
     above ``limit``: enough for a yes/no against it, at a fraction of the cost)."""
     sim_dt = max(step_s, 0.1)
+    entry_accel, sim_accel = _accel_of(m, step_s), _accel_of(m, sim_dt)
     peak = previous = 0.0
     closed_steps = 0
     for k in range(max(2, round(horizon_s / sim_dt))):
-        acc = model_accel(m, v, v_lead, gap, step_s if k == 0 else sim_dt)
-        braking = max(0.0, -acc)
-        peak = max(peak, braking)
+        acc = entry_accel(v, v_lead, gap) if k == 0 else sim_accel(v, v_lead, gap)
+        braking = -acc if -acc > 0.0 else 0.0  # max(0.0, -acc), as in _Idm.follow_speed
+        peak = braking if braking > peak else peak
         if peak > limit:
             break
         settled = v_lead <= v_final + 1e-9
@@ -295,7 +346,8 @@ def _reaction_peak(
             break
         previous = braking
         dt = step_s if k == 0 else sim_dt
-        v = max(0.0, v + acc * dt)
+        v += acc * dt
+        v = v if v > 0.0 else 0.0
         if lead_decel >= 0.0:
             v_lead = max(v_final, v_lead - lead_decel * dt)
         else:  # a leader speeding up towards v_final
