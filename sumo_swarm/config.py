@@ -348,7 +348,7 @@ class SwarmSettings:
     # is the cruise and the cells are kept.
     lane_pass: bool = True
     lane_pass_stall_s: float = 15.0
-    # What a *free* lane (no HV beside the platoon or within detect_range_m behind its tail)
+    # What a *free* lane (no HV beside the platoon or faster within detect_range_m behind it)
     # must beat by min_speed_gain_mps (decision.lane_pass_pace): "cells", the plan's pace as
     # above; "free" (default), the lower of that and the cruise less the gain: a lane free at
     # the cruise takes the platoon past together. With the paper's 20 m/s cruise the plan's
@@ -489,8 +489,12 @@ class SwarmSettings:
     # is waited for up to this long [s] before the swarm starts: SUMO's drivers move over
     # within seconds, and a swarm that had started lost more re-forming than the plain platoon
     # lost waiting (13 stress scenes where the truck moved right at 8 s into the lane of the
-    # CAV passing on its right: 1-7 % slower than cacc). 0 = start after trigger_after_s
-    # whatever the target may do (the paper's HVs keep their lanes).
+    # CAV passing on its right: 1-7 % slower than cacc). Once seen so, the wait holds even
+    # while that lane is taken for a moment (a car passing there): the swarm that started
+    # then, 2 s in, filled the lane the truck was to move to, and the truck moved only at
+    # 22 s, into a CAV's lane (stress scene 51, 3.8 % slower than cacc, whose truck moved at
+    # 8 s). 0 = start after trigger_after_s whatever the target may do (the paper's HVs keep
+    # their lanes).
     keep_right_wait_s: float = 10.0
     # An HV is held back by blockers for at most this long per manoeuvre [s] (the impact on
     # the traffic behind is bounded; the swarm gives up rather than hold a lane forever).

@@ -174,3 +174,16 @@ def test_the_platoon_splitting_again_before_the_end_is_not_regrouped():
     rows.append(row(7, "c1", 300.0, lane=2))  # changes lane at the end
     df = frame(rows)
     assert overtake_times_s(df, CAVS, "truck", MAX_GAP_M) == (4.0, None)
+
+
+def test_the_overtake_block_describes_the_first_manoeuvre_and_lists_all_targets():
+    # A second overtake, of a car met past the truck: the run is judged on the truck (the
+    # first target, with the first decision time); every manoeuvre's target is listed.
+    from sumo_swarm.controllers.swarm import SwarmController
+
+    swarm = SwarmController()
+    swarm._count_manoeuvre(3.0, "truck")
+    swarm._count_manoeuvre(38.0, "car")
+    overtake = swarm.summary()["overtake"]
+    assert overtake["target"] == "truck" and overtake["t_start_s"] == 3.0
+    assert overtake["targets"] == ["truck", "car"] and overtake["manoeuvres"] == 2

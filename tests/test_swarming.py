@@ -638,6 +638,8 @@ def test_lane_for_pass_is_a_faster_lane_with_room_not_the_one_the_target_moves_i
     assert lane_for_pass(leader, tail, truck, [truck, coming], ROAD, [1], **free) is None
     far = car("b", 180.0, 1, 33.0)  # 65 m behind it
     assert lane_for_pass(leader, tail, truck, [truck, far], ROAD, [1], **free) == 1
+    slower = car("b", 200.0, 1, 14.0)  # 45 m behind, slower than the tail: it never comes up
+    assert lane_for_pass(leader, tail, truck, [truck, slower], ROAD, [1], **free) == 1
 
 
 def test_a_lane_pass_must_beat_the_cells_or_only_the_cruise_less_the_gain():

@@ -136,6 +136,7 @@ class SwarmController:
         self.t_start_s: float | None = None
         self.t_done_s: float | None = None
         self.overtakes = 0
+        self.targets: list[str] = []  # the target of each manoeuvre, in order
         self.aborts: Counter[str] = Counter()
         self.lateral_holds = 0
         self.lateral_yields = 0  # waits for a swarm CAV clearing a lane (tracker timing)
@@ -408,7 +409,8 @@ class SwarmController:
 
     def _may_keep_right(self, target: VehicleState, states) -> bool:
         """Will ``target`` soon move to the lane on its right of its own accord (a driver that
-        keeps right, with that lane free)? An event says so once per target."""
+        keeps right, with that lane free now or once before)? An event says so once per
+        target."""
         sc = self.ctx.scenario
         if sc.swarm.keep_right_wait_s <= 0.0:
             return False
@@ -426,7 +428,8 @@ class SwarmController:
             self._keep_right_target = target.vehicle_id
             self.ctx.event("target_may_keep_right", target=target.vehicle_id,
                            wait_s=sc.swarm.keep_right_wait_s)  # fmt: skip
-        return free
+        # Once seen free, the wait holds while that lane is taken for a moment.
+        return free or self._keep_right_target == target.vehicle_id
 
     def _decision_leader(self, states, platoon: list[str]) -> str:
         """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.
@@ -614,12 +617,20 @@ class SwarmController:
         return {lane for lane, _ in session.lanes_ending(edge, leader.rear_s_m, reach)}
 
     # ------------------------------------------------------------------ overtake
-    def _start_overtake(self, t_s: float, target: VehicleState) -> None:
-        self.mode = Mode.OVERTAKE
-        self.target_id = target.vehicle_id
+    def _count_manoeuvre(self, t_s: float, target_id: str) -> None:
+        """A manoeuvre on ``target_id`` starts: the summary's overtake block describes the
+        first one (its target and decision time), ``targets`` lists them all. (It gave the
+        last manoeuvre's target with the first one's decision time: after a second overtake,
+        of a car the platoon met past the truck, a run was judged on that car.)"""
+        self.target_id = target_id
         self.overtakes += 1
+        self.targets.append(target_id)
         if self.t_start_s is None:
             self.t_start_s = t_s
+
+    def _start_overtake(self, t_s: float, target: VehicleState) -> None:
+        self.mode = Mode.OVERTAKE
+        self._count_manoeuvre(t_s, target.vehicle_id)
         self.plan = None
         self.trigger = self._new_trigger()
         self.progress = Progress(t_s)
@@ -694,10 +705,7 @@ class SwarmController:
     ) -> None:
         """The platoon moves over to ``lane`` as a unit, each CAV through the lateral guard,
         entering speeding up, and passes ``target`` there (the cruise's re-forming)."""
-        self.target_id = target.vehicle_id
-        self.overtakes += 1
-        if self.t_start_s is None:
-            self.t_start_s = t_s
+        self._count_manoeuvre(t_s, target.vehicle_id)
         self.lane_pass = LanePass(target.vehicle_id, lane, t_s)
         self._target_lane = None
         self.reformer.move_to = (lane, self._edge_of(platoon[0]))
@@ -1102,7 +1110,8 @@ class SwarmController:
             "overtake": {
                 "regroup_lane": self.regroup_lane_used,
                 "triggered": self.t_start_s is not None,
-                "target": self.target_id,
+                "target": self.targets[0] if self.targets else None,
+                "targets": list(self.targets),
                 "t_start_s": self.t_start_s,
                 "behaving_steps": steps,
                 "behaving_interval_s": self.interval_s,

@@ -177,6 +177,7 @@ def build_summary(
     }
     extra = (
         "manoeuvres",
+        "targets",
         "behaving_interval_s",
         "lateral_holds_per_manoeuvre",
         "lateral_yields",

@@ -486,10 +486,11 @@ def lane_for_pass(
     """The lane of ``lanes`` (beside the leader) the platoon moves over to and passes
     ``target`` in, or None (the cells): its speed ahead of the leader (:func:`lane_speeds`, at
     most ``cruise_mps``) beats the cells' pace past the target (``pace_mps``; in a lane with no
-    HV beside the platoon or within ``range_m`` behind its tail, ``free_pace_mps`` where
-    given) by ``min_gain_mps``; it has room for the platoon (within ``range_m`` of its ends,
-    ``n_cavs`` cells per vehicle there; denser lanes: the cells make room, blocking); it is not
-    the lane the target is moving into (its centre more than ``tolerance_m`` off its lane's).
+    HV beside the platoon or coming up faster within ``range_m`` behind its tail,
+    ``free_pace_mps`` where given) by ``min_gain_mps``; it has room for the platoon (within
+    ``range_m`` of its ends, ``n_cavs`` cells per vehicle there; denser lanes: the cells make
+    room, blocking); it is not the lane the target is moving into (its centre more than
+    ``tolerance_m`` off its lane's).
     Ties go to the left, passing side (SUMO numbers lanes from the right). ``others``: the
     HVs. (With the free pace for every lane, a car at 17.5 m/s coming up beside the platoon
     made the CAVs brake to 12 m/s to let it by and follow it: stress scene 184.)"""
@@ -514,8 +515,12 @@ def lane_for_pass(
         return None
     if free_pace_mps is None:
         free_pace_mps = pace_mps
-    # Free: no HV beside the platoon or coming up behind it within range_m.
-    busy = {road.lane_of(o) for o in others if lo < o.s_m < leader.s_m}
+    # Free: no HV beside the platoon, nor one coming up behind it within range_m (faster than
+    # its tail; the truck just passed, behind and slower, leaves the lane free).
+    busy = {
+        road.lane_of(o) for o in others
+        if lo < o.s_m < leader.s_m and (o.s_m > tail.rear_s_m or o.speed_mps > tail.speed_mps)
+    }  # fmt: skip
 
     def gain(q: int) -> float:
         return min(speeds[q], cruise_mps) - (pace_mps if q in busy else free_pace_mps)
