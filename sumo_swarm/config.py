@@ -489,12 +489,14 @@ class SwarmSettings:
     # is waited for up to this long [s] before the swarm starts: SUMO's drivers move over
     # within seconds, and a swarm that had started lost more re-forming than the plain platoon
     # lost waiting (13 stress scenes where the truck moved right at 8 s into the lane of the
-    # CAV passing on its right: 1-7 % slower than cacc). Once seen so, the wait holds even
+    # CAV passing on its right: 1-7 % slower than cacc). For a target in the leftmost lane
+    # (every pass of it takes the lane it is to move into), once seen so, the wait holds even
     # while that lane is taken for a moment (a car passing there): the swarm that started
     # then, 2 s in, filled the lane the truck was to move to, and the truck moved only at
     # 22 s, into a CAV's lane (stress scene 51, 3.8 % slower than cacc, whose truck moved at
-    # 8 s). 0 = start after trigger_after_s whatever the target may do (the paper's HVs keep
-    # their lanes).
+    # 8 s). Not for a target with a lane on its left: there the swarm that passed at once was
+    # faster than waiting (a paper-scene variant). 0 = start after trigger_after_s whatever
+    # the target may do (the paper's HVs keep their lanes).
     keep_right_wait_s: float = 10.0
     # An HV is held back by blockers for at most this long per manoeuvre [s] (the impact on
     # the traffic behind is bounded; the swarm gives up rather than hold a lane forever).

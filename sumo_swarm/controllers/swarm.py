@@ -409,8 +409,8 @@ class SwarmController:
 
     def _may_keep_right(self, target: VehicleState, states) -> bool:
         """Will ``target`` soon move to the lane on its right of its own accord (a driver that
-        keeps right, with that lane free now or once before)? An event says so once per
-        target."""
+        keeps right, with that lane free now, or once before for a target in the leftmost
+        lane)? An event says so once per target."""
         sc = self.ctx.scenario
         if sc.swarm.keep_right_wait_s <= 0.0:
             return False
@@ -428,8 +428,10 @@ class SwarmController:
             self._keep_right_target = target.vehicle_id
             self.ctx.event("target_may_keep_right", target=target.vehicle_id,
                            wait_s=sc.swarm.keep_right_wait_s)  # fmt: skip
-        # Once seen free, the wait holds while that lane is taken for a moment.
-        return free or self._keep_right_target == target.vehicle_id
+        # Once seen free, the wait holds while that lane is taken for a moment, for a target in
+        # the leftmost lane: every pass of it would take the lane it is to move into.
+        leftmost = self.ctx.road.lane_of(target) == self.ctx.road.n_lanes - 1
+        return free or (leftmost and self._keep_right_target == target.vehicle_id)
 
     def _decision_leader(self, states, platoon: list[str]) -> str:
         """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.
