@@ -731,3 +731,29 @@ def test_no_lateral_move_brings_a_cav_beside_an_hv_straddling_the_lane_boundary(
     assert lateral_refusal(ego, y, 0.1, [ego, hv], ROAD, **guard) == "alongside"
     off = GuardSettings(side_clearance_m=0.0)
     assert lateral_refusal(ego, y, 0.1, [ego, hv], ROAD, settings=off, **guard) is None
+
+
+def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
+    # A keep-right truck with the lane to its right free: the swarm waits. A car then passes
+    # beside it there for a moment: in the leftmost lane (every pass takes the lane it is to
+    # move into) the wait holds; with a lane on its left, the swarm may start (and passed
+    # faster so in a paper-scene variant).
+    import types
+
+    from sumo_swarm.config import Scenario
+    from sumo_swarm.controllers.swarm import SwarmController
+
+    events = []
+    session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={})
+    ctx = types.SimpleNamespace(
+        scenario=Scenario(name="t", path=None), session=session, road=ROAD,
+        event=lambda kind, **data: events.append(kind),
+    )  # fmt: skip
+    for lane, holds in ((2, True), (1, False)):
+        swarm = SwarmController()
+        swarm.ctx = ctx
+        truck = car("truck", 300.0, lane, 14.0)
+        assert swarm._may_keep_right(truck, states_of(truck))  # the lane to its right is free
+        beside = car("c", 300.0, lane - 1, 14.0)
+        assert swarm._may_keep_right(truck, states_of(truck, beside)) is holds
+    assert events == ["target_may_keep_right"] * 2
