@@ -135,7 +135,6 @@ class SwarmController:
         self.lat_errors: list[float] = []
         self.t_start_s: float | None = None
         self.t_done_s: float | None = None
-        self.overtakes = 0
         self.targets: list[str] = []  # the target of each manoeuvre, in order
         self.aborts: Counter[str] = Counter()
         self.lateral_holds = 0
@@ -625,7 +624,6 @@ class SwarmController:
         last manoeuvre's target with the first one's decision time: after a second overtake,
         of a car the platoon met past the truck, a run was judged on that car.)"""
         self.target_id = target_id
-        self.overtakes += 1
         self.targets.append(target_id)
         if self.t_start_s is None:
             self.t_start_s = t_s
@@ -1117,7 +1115,7 @@ class SwarmController:
                 "t_start_s": self.t_start_s,
                 "behaving_steps": steps,
                 "behaving_interval_s": self.interval_s,
-                "manoeuvres": self.overtakes,
+                "manoeuvres": len(self.targets),
                 "aborted": sum(self.aborts.values()),
                 "abort_reasons": dict(self.aborts),
                 "lateral_holds": self.lateral_holds,
