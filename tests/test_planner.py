@@ -24,6 +24,7 @@ from sumo_swarm.core.planner import (
     evaluate_objective,
     make_planner,
     shift_plan,
+    solved_problem,
     validate_plan,
 )
 from sumo_swarm.core.planner.flow import build_flow_model, extract_paths, uncross_swaps
@@ -192,6 +193,46 @@ def test_blockers_are_enforced_or_dropped():
     )
     plan = CpSatPlanner(1.0).plan(blocked)
     assert plan.ok and plan.blockers == {} and "blockers dropped" in plan.message
+    # Such a plan is valid for the problem it solves (no blockers), not for the one asked.
+    assert plan.blockers_dropped
+    assert validate_plan(blocked, plan)  # the blocker is not in its cell
+    assert solved_problem(blocked, plan).blockers == ()
+    assert validate_plan(solved_problem(blocked, plan), plan) == []
+    kept = CpSatPlanner(1.0).plan(problem)
+    assert not kept.blockers_dropped and solved_problem(problem, kept) is problem
+
+
+def test_closing_the_lane_a_target_may_keep_right_into_sends_the_plan_left():
+    # [swarm] keep_right_middle = "left": a truck in the middle lane that keeps right may move
+    # into lane 0; its cells beside and behind the truck are closed, so the CAVs pass on the
+    # left. Grid: 8 rows of 15 m from s = 0; the truck's front at 62 m is in row 4, so rows 0-5
+    # of column 0 are closed and rows 6-7 (well ahead of it) stay open.
+    from sumo_swarm.core.grid import MovingGrid
+    from sumo_swarm.core.model import RoadSection, VehicleState
+    from sumo_swarm.core.swarming.manoeuvre import close_beside
+
+    grid = MovingGrid(0.0, 0.0, 15.0, 15.0, 8, RoadSection((3.2, 3.2, 3.2)))
+    truck = VehicleState("t", 62.0, 1, 0.0, 15.0, 10.0)
+    truck_cells = frozenset({(3, 1), (4, 1)})  # its footprint, rear at 52 m
+    hv_left = truck_cells | {(r, 2) for r in range(8)}  # and the left lane taken all along
+    open_left = small_problem(8, 3, 6, [(2, 1), (1, 1)], goal_row=5, lane=1, blocked=truck_cells)
+    closed = close_beside(open_left, grid, truck, 0.0, 0)
+    assert closed.blocked[0] == open_left.blocked[0]  # step 0 is not enforced
+    assert all(b - open_left.blocked[k + 1] == {(r, 0) for r in range(6)}
+               for k, b in enumerate(closed.blocked[1:]))  # fmt: skip
+    for plan in solve_both(closed):
+        assert all(cell[1] != 0 or cell[0] > 5 for path in plan.cells for cell in path[1:])
+        assert any(cell[1] == 2 for path in plan.cells for cell in path)  # passed on the left
+    # With the left lane taken too the CAVs wait behind the truck (open, the right lane was
+    # used to pass it).
+    right_only = small_problem(8, 3, 6, [(2, 1), (1, 1)], goal_row=5, lane=1, blocked=hv_left)
+    assert any(cell[1] == 0 for path in solve_both(right_only)[0].cells for cell in path)
+    for plan in solve_both(close_beside(right_only, grid, truck, 0.0, 0)):
+        assert all(cell[1] == 1 for path in plan.cells for cell in path)
+    # A CAV already in that lane keeps it open; a column off the grid closes nothing.
+    in_right = small_problem(8, 3, 6, [(2, 0), (1, 1)], goal_row=5, lane=1, blocked=truck_cells)
+    assert close_beside(in_right, grid, truck, 0.0, 0) is in_right
+    assert close_beside(open_left, grid, truck, 0.0, 3) is open_left
 
 
 # ----------------------------------------------------------------------------- brute force

@@ -413,6 +413,9 @@ class SwarmController:
         sc = self.ctx.scenario
         if sc.swarm.keep_right_wait_s <= 0.0:
             return False
+        leftmost = self.ctx.road.lane_of(target) == self.ctx.road.n_lanes - 1
+        if sc.swarm.keep_right_middle != "wait" and not leftmost:
+            return False  # passed at once (on its left only, with "left")
         keeps_right = getattr(self.ctx.session, "keeps_right", None)
         try:
             if keeps_right is None or not keeps_right(target.vehicle_id):
@@ -429,8 +432,35 @@ class SwarmController:
                            wait_s=sc.swarm.keep_right_wait_s)  # fmt: skip
         # Once seen free, the wait holds while that lane is taken for a moment, for a target in
         # the leftmost lane: every pass of it would take the lane it is to move into.
-        leftmost = self.ctx.road.lane_of(target) == self.ctx.road.n_lanes - 1
         return free or (leftmost and self._keep_right_target == target.vehicle_id)
+
+    def _keep_right_closure(self, t_s: float, target: VehicleState, states) -> int | None:
+        """The lane on the right of a target that keeps right with a lane on its left, while
+        that lane is free for it to move into (:func:`right_lane_free`, as for the wait), closed
+        to the cell plan beside and behind it for the first ``keep_right_wait_s`` of the
+        manoeuvre (``[swarm] keep_right_middle = "left"``); None: nothing closed. (Closed
+        whether free or not, it cost paper-scene variants whose truck could not move over up
+        to 4 m/s: the CAVs could not use that lane while it was open.)"""
+        sc = self.ctx.scenario
+        sw, road = sc.swarm, self.ctx.road
+        if sw.keep_right_middle != "left" or sw.keep_right_wait_s <= 0.0:
+            return None
+        lane = road.lane_of(target)
+        if not 0 < lane < road.n_lanes - 1:
+            return None  # no lane on its right, or the leftmost lane (waited for instead)
+        if t_s - self.progress.started_s > sw.keep_right_wait_s:
+            return None
+        keeps_right = getattr(self.ctx.session, "keeps_right", None)
+        try:
+            if keeps_right is None or not keeps_right(target.vehicle_id):
+                return None
+        except Exception:  # vanished, or TraCI cannot tell
+            return None
+        free = right_lane_free(
+            target, states.values(), road, move_s=KEEP_RIGHT_MOVE_S, ahead_s=KEEP_RIGHT_AHEAD_S,
+            min_gap_m=sc.cav.min_gap_m, secure_gap=self._secure_gap,
+        )  # fmt: skip
+        return lane - 1 if free else None
 
     def _decision_leader(self, states, platoon: list[str]) -> str:
         """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.
@@ -909,6 +939,7 @@ class SwarmController:
             obstacles=self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0),
             model_of=self.model_of, grid_speed_mps=grid_speed, cap_mps=cap, interval_s=interval,
             step_s=ctx.dt_s, block_budget=budget, previous=previous,
+            closed_lane=self._keep_right_closure(t_s, target, states),
         )  # fmt: skip
         record = outcome.record
         if self.prediction is not None and hasattr(self.prediction[1], "error_against"):

@@ -9,7 +9,13 @@ Public API::
     )
 """
 
-from sumo_swarm.core.planner.plan import Plan, ReplanTrigger, shift_plan, validate_plan
+from sumo_swarm.core.planner.plan import (
+    Plan,
+    ReplanTrigger,
+    shift_plan,
+    solved_problem,
+    validate_plan,
+)
 from sumo_swarm.core.planner.problem import (
     Blocker,
     PlannerSettings,
@@ -38,5 +44,6 @@ __all__ = [
     "evaluate_objective",
     "make_planner",
     "shift_plan",
+    "solved_problem",
     "validate_plan",
 ]

@@ -38,6 +38,9 @@ class Plan:
     t0_s: float = 0.0
     behaving_interval_s: float = 3.0
     cpu_ms: float | None = None
+    # The problem's blockers could not all be placed and the plan was solved without any
+    # (PlanningSolver.retry_without_blockers): it is valid for ``problem.with_blockers(())``.
+    blockers_dropped: bool = False
 
     @property
     def ok(self) -> bool:
@@ -85,6 +88,14 @@ def failed_plan(
         t0_s=problem.t0_s,
         behaving_interval_s=problem.behaving_interval_s,
     )
+
+
+def solved_problem(problem: PlanningProblem, plan: Plan) -> PlanningProblem:
+    """The problem ``plan`` solves: ``problem`` itself, or ``problem`` without blockers where
+    the solver had to drop them (``plan.blockers_dropped``). Judged against ``problem``, such a
+    plan broke the blockers it was never asked to place, and the swarm refused a usable plan
+    (a paper-scene variant gave its overtake up 10 s later)."""
+    return problem.with_blockers(()) if plan.blockers_dropped else problem
 
 
 def validate_plan(problem: PlanningProblem, plan: Plan) -> list[str]:

@@ -91,7 +91,9 @@ class _FlowPlanner:
                 # Space making is a means, not a goal: plan without blockers rather than not at all.
                 retry = self._plan_once(problem.with_blockers(()), hint, started)
                 if retry.ok:
-                    return replace(retry, message=f"blockers dropped: {result.message}")
+                    return replace(
+                        retry, message=f"blockers dropped: {result.message}", blockers_dropped=True
+                    )
             return result
         except Exception as exc:  # the simulation loop must survive any solver failure
             _LOG.exception("%s planner failed", self.backend)

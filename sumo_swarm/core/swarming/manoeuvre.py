@@ -43,6 +43,7 @@ from sumo_swarm.core.planner import (
     PlanningProblem,
     build_problem,
     shift_plan,
+    solved_problem,
     validate_plan,
 )
 from sumo_swarm.core.planner.problem import LANE_END_PREFIX, Blocker
@@ -201,7 +202,11 @@ class ManoeuvrePlanner:
         block_budget: Mapping[str, int] | None = None,
         previous: tuple[Plan, MovingGrid] | None = None,
         relax_to: str = "guard",
+        closed_lane: int | None = None,
     ) -> PlanOutcome:
+        """Plan the manoeuvre past ``target_id`` (margins relaxed up to ``relax_to`` while
+        infeasible). ``closed_lane``: a lane whose cells beside and behind the target the plan
+        may not enter (:func:`close_beside`; the lane a target that keeps right may move into)."""
         st = self.settings
         target = states[target_id]
         cavs = [states[v] for v in platoon]
@@ -254,6 +259,9 @@ class ManoeuvrePlanner:
                     block_margin=self._block_margin(level, models, grid_speed_mps, cap_mps,
                                                     step_s),
                 )  # fmt: skip
+                if closed_lane is not None:
+                    problem = close_beside(problem, grid, target, t_s, closed_lane)
+                    record["closed_lane"] = closed_lane
                 hint = _hint(previous, grid, t_s, platoon)
                 plan = (
                     self.planner.plan(problem, hint=hint)
@@ -267,6 +275,8 @@ class ManoeuvrePlanner:
                 if plan.ok or plan.status.value != "infeasible":
                     break
             plan = outcome.plan
+            if plan.ok:  # judged, driven and reported as the problem it solves
+                outcome.problem = solved_problem(outcome.problem, plan)
             violations = validate_plan(outcome.problem, plan) if plan.ok else []
             grid = outcome.grid
             record.update(
@@ -421,6 +431,23 @@ class ManoeuvrePlanner:
                 v_now=ego.speed_mps, a_now=ego.accel_mps2,
             )  # fmt: skip
         return refs
+
+
+def close_beside(
+    problem: PlanningProblem, grid: MovingGrid, target: VehicleState, t_s: float, col: int
+) -> PlanningProblem:
+    """``problem`` with the cells of column ``col`` from row 0 up to one row ahead of the
+    target's front claimed at every step >= 1 (eq. (15)): the plan passes the target on its
+    other side. Unchanged where a CAV starts in that column (it must be free to move on) or
+    ``col`` is not a column of the grid."""
+    if not 0 <= col < problem.n_cols or any(c == col for _, c in problem.start_cells):
+        return problem
+    top = min(grid.row_of(target.s_m, t_s) + 1, problem.n_rows - 1)
+    if top < 0:
+        return problem
+    closed = frozenset((r, col) for r in range(top + 1))
+    blocked = (problem.blocked[0], *(cells | closed for cells in problem.blocked[1:]))
+    return replace(problem, blocked=blocked)
 
 
 def _hint(
