@@ -736,24 +736,48 @@ def test_no_lateral_move_brings_a_cav_beside_an_hv_straddling_the_lane_boundary(
 def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
     # A keep-right truck with the lane to its right free: the swarm waits. A car then passes
     # beside it there for a moment: in the leftmost lane (every pass takes the lane it is to
-    # move into) the wait holds; with a lane on its left, the swarm may start (and passed
-    # faster so in a paper-scene variant).
+    # move into) the wait holds; with a lane on its left and [swarm] keep_right_middle =
+    # "wait", the swarm may start (and passed faster so in a paper-scene variant).
+    import dataclasses
     import types
 
     from sumo_swarm.config import Scenario
     from sumo_swarm.controllers.swarm import SwarmController
+    from sumo_swarm.core.swarming.decision import Progress
 
     events = []
     session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={})
-    ctx = types.SimpleNamespace(
-        scenario=Scenario(name="t", path=None), session=session, road=ROAD,
-        event=lambda kind, **data: events.append(kind),
-    )  # fmt: skip
-    for lane, holds in ((2, True), (1, False)):
+    default = Scenario(name="t", path=None)
+    waits = dataclasses.replace(
+        default, swarm=dataclasses.replace(default.swarm, keep_right_middle="wait")
+    )
+
+    def controller(scenario):
         swarm = SwarmController()
-        swarm.ctx = ctx
+        swarm.ctx = types.SimpleNamespace(
+            scenario=scenario, session=session, road=ROAD,
+            event=lambda kind, **data: events.append(kind),
+        )  # fmt: skip
+        swarm.progress = Progress(0.0)
+        return swarm
+
+    for lane, holds in ((2, True), (1, False)):
+        swarm = controller(waits)
         truck = car("truck", 300.0, lane, 14.0)
         assert swarm._may_keep_right(truck, states_of(truck))  # the lane to its right is free
         beside = car("c", 300.0, lane - 1, 14.0)
         assert swarm._may_keep_right(truck, states_of(truck, beside)) is holds
     assert events == ["target_may_keep_right"] * 2
+    # The default, "left": a target with a lane on its left is not waited for; its right lane
+    # is closed to the plan while free, for keep_right_wait_s (10 s) from the start.
+    swarm = controller(default)
+    truck = car("truck", 300.0, 1, 14.0)
+    assert not swarm._may_keep_right(truck, states_of(truck))
+    assert swarm._keep_right_closure(5.0, truck, states_of(truck)) == 0
+    beside = car("c", 300.0, 0, 14.0)
+    assert swarm._keep_right_closure(5.0, truck, states_of(truck, beside)) is None  # taken
+    assert swarm._keep_right_closure(10.5, truck, states_of(truck)) is None  # waited long enough
+    leftmost = car("truck", 300.0, 2, 14.0)
+    assert swarm._keep_right_closure(5.0, leftmost, states_of(leftmost)) is None  # waited for
+    assert swarm._may_keep_right(leftmost, states_of(leftmost))
+    assert controller(waits)._keep_right_closure(5.0, truck, states_of(truck)) is None
