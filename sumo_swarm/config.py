@@ -498,14 +498,15 @@ class SwarmSettings:
     # faster than waiting (a paper-scene variant). 0 = start after trigger_after_s whatever
     # the target may do (the paper's HVs keep their lanes).
     keep_right_wait_s: float = 10.0
-    # A target that keeps right with a lane on its left (not in the leftmost lane): "left",
-    # the swarm starts at once and passes it on its left: its right lane, beside and behind
-    # it, is closed to the cell plan while that lane is free for it to move into (up to
-    # keep_right_wait_s from the start; plans.jsonl: "closed_lane"); "wait", waited for as one in the leftmost lane; "go", started at once on either
-    # side. Waiting tied the plain platoon exactly where a truck in the middle lane moved
-    # right 7-8 s in (stress v2: 10 scenes; paper-scene variants 20, 21, 35); going at once on
-    # either side beat it by 1.2-2.9 % in those, but a CAV put in the truck's right lane was
-    # cut off by it (stress scene 182, 3.2 % slower than cacc).
+    # A target that keeps right with a lane on its left (not in the leftmost lane): "left", the
+    # swarm starts at once and passes it on its left: its right lane, beside and behind it, is
+    # closed to the cell plan while that lane is free for it to move into (up to
+    # keep_right_wait_s from the start; plans.jsonl: "closed_lane"); "wait", waited for as one
+    # in the leftmost lane; "go", started at once on either side. Waiting tied the plain platoon
+    # exactly where a truck in the middle lane moved right 7-8 s in (stress v2: 10 scenes;
+    # paper-scene variants 20, 21, 35); going at once on either side beat it by 1.2-2.9 % in
+    # those, but a CAV put in the truck's right lane was cut off by it (stress scene 182, 3.2 %
+    # slower than cacc).
     keep_right_middle: Literal["left", "wait", "go"] = "left"
     # An HV is held back by blockers for at most this long per manoeuvre [s] (the impact on
     # the traffic behind is bounded; the swarm gives up rather than hold a lane forever).
