@@ -416,16 +416,9 @@ class SwarmController:
         leftmost = self.ctx.road.lane_of(target) == self.ctx.road.n_lanes - 1
         if sc.swarm.keep_right_middle != "wait" and not leftmost:
             return False  # passed at once (on its left only, with "left")
-        keeps_right = getattr(self.ctx.session, "keeps_right", None)
-        try:
-            if keeps_right is None or not keeps_right(target.vehicle_id):
-                return False
-        except Exception:  # vanished, or TraCI cannot tell: do not wait
+        if not self._keeps_right(target):
             return False
-        free = right_lane_free(
-            target, states.values(), self.ctx.road, move_s=KEEP_RIGHT_MOVE_S,
-            ahead_s=KEEP_RIGHT_AHEAD_S, min_gap_m=sc.cav.min_gap_m, secure_gap=self._secure_gap,
-        )  # fmt: skip
+        free = self._right_lane_free(target, states)
         if free and self._keep_right_target != target.vehicle_id:
             self._keep_right_target = target.vehicle_id
             self.ctx.event("target_may_keep_right", target=target.vehicle_id,
@@ -441,8 +434,7 @@ class SwarmController:
         manoeuvre (``[swarm] keep_right_middle = "left"``); None: nothing closed. (Closed
         whether free or not, it cost paper-scene variants whose truck could not move over up
         to 4 m/s: the CAVs could not use that lane while it was open.)"""
-        sc = self.ctx.scenario
-        sw, road = sc.swarm, self.ctx.road
+        sw, road = self.ctx.scenario.swarm, self.ctx.road
         if sw.keep_right_middle != "left" or sw.keep_right_wait_s <= 0.0:
             return None
         lane = road.lane_of(target)
@@ -450,17 +442,27 @@ class SwarmController:
             return None  # no lane on its right, or the leftmost lane (waited for instead)
         if t_s - self.progress.started_s > sw.keep_right_wait_s:
             return None
+        if not self._keeps_right(target) or not self._right_lane_free(target, states):
+            return None
+        return lane - 1
+
+    def _keeps_right(self, target: VehicleState) -> bool:
+        """Does ``target``'s lane-change model keep right (read through libsumo)? False when
+        it vanished or TraCI cannot tell."""
         keeps_right = getattr(self.ctx.session, "keeps_right", None)
         try:
-            if keeps_right is None or not keeps_right(target.vehicle_id):
-                return None
-        except Exception:  # vanished, or TraCI cannot tell
-            return None
-        free = right_lane_free(
-            target, states.values(), road, move_s=KEEP_RIGHT_MOVE_S, ahead_s=KEEP_RIGHT_AHEAD_S,
-            min_gap_m=sc.cav.min_gap_m, secure_gap=self._secure_gap,
+            return keeps_right is not None and bool(keeps_right(target.vehicle_id))
+        except Exception:
+            return False
+
+    def _right_lane_free(self, target: VehicleState, states) -> bool:
+        """Is the lane on ``target``'s right free for it to move into now
+        (:func:`right_lane_free`)?"""
+        return right_lane_free(
+            target, states.values(), self.ctx.road, move_s=KEEP_RIGHT_MOVE_S,
+            ahead_s=KEEP_RIGHT_AHEAD_S, min_gap_m=self.ctx.scenario.cav.min_gap_m,
+            secure_gap=self._secure_gap,
         )  # fmt: skip
-        return lane - 1 if free else None
 
     def _decision_leader(self, states, platoon: list[str]) -> str:
         """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.
