@@ -235,6 +235,51 @@ def test_closing_the_lane_a_target_may_keep_right_into_sends_the_plan_left():
     assert close_beside(open_left, grid, truck, 0.0, 3) is open_left
 
 
+def test_a_car_following_the_target_inside_its_margin_may_follow_on():
+    # One lane; a 10 m truck (front 300 m) at 15 m/s and three CAVs 12 m apart behind it, the
+    # first 6 m behind its rear. Row 0 is centred on the tail CAV (origin 250 m), so the first
+    # CAV's cell, row 2 (centre 287.5 m), lies inside the truck's 5 m margin (from 285 m) while
+    # the CAV itself (centre 281.5 m) is 6 m behind the truck. Keeping the grid's speed it
+    # stays 6 m behind, so it may keep its cell for the whole horizon (stay_on). Without that
+    # it would have to fall back at step 2 into the row of the CAV behind it, which has no
+    # row to fall back into: no plan.
+    from sumo_swarm.core.planner.problem import stay_exempt
+
+    road = RoadSection((3.2,))
+    truck = VehicleState("truck", 300.0, 0, 0.0, 15.0, 10.0)
+
+    def problem_at(speed):
+        cavs = [VehicleState(f"c{i}", 284.0 - 12 * i, 0, 0.0, speed, 5.0, is_cav=True)
+                for i in range(3)]  # fmt: skip
+        grid = build_grid(cavs, truck, road, 0.0, speed, GridSettings())
+        assert grid.origin_s_m == 250.0
+        return build_problem(grid, cavs, [], truck, 0.0, PlannerSettings(n_steps=5),
+                             GridSettings())  # fmt: skip
+
+    problem = problem_at(15.0)
+    assert problem.start_cells == ((2, 0), (1, 0), (0, 0))
+    assert all((2, 0) in cells for cells in problem.blocked)  # claimed at every step
+    assert [set(cells) for cells in problem.stay_on] == [set(), {(2, 0)}, {(2, 0)}, {(2, 0)}]
+    for plan in solve_both(problem):
+        assert plan.cells == tuple(((r, 0),) * 5 for r in (2, 1, 0))  # all follow on
+    # Only where the cell stays claimed since the start: free at a step, the usual rules.
+    assert stay_exempt(problem, 2, (2, 0))
+    assert not stay_exempt(dataclasses.replace(problem, blocked=problem.blocked[:2]
+                                               + (frozenset(),) * 3), 2, (2, 0))  # fmt: skip
+    without = dataclasses.replace(problem, stay_on=())
+    assert validate_plan(without, solve_both(problem)[0]) == [
+        f"CAV c0 step {k}: (2, 0) is claimed by an HV" for k in (2, 3, 4)
+    ]
+    for planner in (CpSatPlanner(10.0), ScipPlanner(10.0)):
+        assert planner.plan(without).status is PlanStatus.INFEASIBLE
+    # On a grid 0.3 m/s faster than the truck the CAV keeping the grid's speed comes within
+    # 5 m of it after 6 s (4.2 m): it may keep its cell for step 1 only, and no plan exists
+    # (the swarm then plans again at the target's speed, SwarmController._replan).
+    faster = problem_at(15.3)
+    assert (2, 0) in faster.stay_ok and faster.stay_on == ()
+    assert CpSatPlanner(10.0).plan(faster).status is PlanStatus.INFEASIBLE
+
+
 # ----------------------------------------------------------------------------- brute force
 
 
@@ -620,6 +665,7 @@ def test_move_masks_agree_with_move_allowed_cell_by_cell():
             ),
             start_rows=tuple(r + rng.uniform(-0.5, 0.5) for r, _ in starts),
             stay_ok=frozenset({starts[0]}),
+            stay_on=tuple(some(0.3) | {starts[1]} for _ in range(n_steps - 1)),
             exempt_moves=frozenset(
                 {(0, starts[1], (starts[1][0], starts[1][1] + 1))} if starts[1][1] + 1 < n_cols
                 else set()

@@ -189,9 +189,13 @@ def test_infeasible_and_settings():
 
 def test_dump_round_trip_and_bad_input():
     problem = fig7_problem()
+    problem = replace(problem, stay_on=(frozenset(), frozenset({problem.start_cells[0]})))
     data = json.loads(json.dumps(problem_to_dict(problem)))
     again = problem_from_dict(data)
-    assert again == problem
+    assert again == problem and again.stay_on == problem.stay_on
+    older = dict(data)
+    del older["stay_on"]  # dumps written before stay_on existed
+    assert problem_from_dict(older).stay_on == ()
     assert again.blockers == problem.blockers and again.blocked == problem.blocked
     del data["goal_rows"]
     with pytest.raises(ConfigError, match="goal_rows"):

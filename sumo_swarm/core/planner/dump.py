@@ -49,6 +49,7 @@ def problem_to_dict(problem: PlanningProblem) -> dict[str, Any]:
         "hv_tracks": [[col, [round(r, 6) for r in rows]] for col, rows in problem.hv_tracks],
         "start_rows": [round(r, 6) for r in problem.start_rows],
         "stay_ok": _cells(problem.stay_ok),
+        "stay_on": [_cells(cells) for cells in problem.stay_on],
     }
 
 
@@ -92,6 +93,7 @@ def problem_from_dict(data: Mapping[str, Any]) -> PlanningProblem:
             ),
             start_rows=tuple(float(r) for r in data["start_rows"]),
             stay_ok=frozenset((int(r), int(c)) for r, c in data["stay_ok"]),
+            stay_on=_cell_sets(data.get("stay_on", [])),
         )
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise ConfigError(f"planning problem: bad or missing field ({exc!r})") from None

@@ -7,7 +7,12 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 from sumo_swarm.core.grid import Cell
-from sumo_swarm.core.planner.problem import PlanningProblem, PlanStatus, move_allowed
+from sumo_swarm.core.planner.problem import (
+    PlanningProblem,
+    PlanStatus,
+    move_allowed,
+    stay_exempt,
+)
 from sumo_swarm.errors import ConfigError
 
 Paths = tuple[tuple[Cell, ...], ...]
@@ -131,7 +136,7 @@ def validate_plan(problem: PlanningProblem, plan: Plan) -> list[str]:
             if not (0 <= row < n_rows and 0 <= col < n_cols):
                 errors.append(f"CAV {cav} step {k}: {cell} outside the grid")
             if k >= 1:
-                kept = k == 1 and cell == path[0] and cell in problem.stay_ok  # see stay_ok
+                kept = cell == path[k - 1] and stay_exempt(problem, k - 1, cell)  # see stay_ok
                 if cell in problem.blocked[k] and not kept:
                     errors.append(f"CAV {cav} step {k}: {cell} is claimed by an HV")
                 elif not move_allowed(problem, k - 1, path[k - 1], cell):

@@ -296,6 +296,12 @@ class PlanningProblem:
     # cell: the CAV itself, where it really is, is clear of every HV at step 1 (15 m cells
     # are coarse: a cell's centre may sit in a margin that the car in it is not in).
     stay_ok: frozenset[Cell] = frozenset()
+    # The same for later steps: ``stay_on[k]`` holds the start cells a CAV that has kept its
+    # start cell so far may keep from step k to k + 1 (k >= 1; index 0 is unused, see stay_ok)
+    # while an HV's hard margin covers them: keeping the grid's speed, the CAV is still clear
+    # of every HV in its lane at step k + 1. A car following the target closer than the cells'
+    # margins (the CACC gap) may follow on instead of having to fall back.
+    stay_on: tuple[frozenset[Cell], ...] = ()
 
     def __post_init__(self) -> None:
         if self.entry_blocked and len(self.entry_blocked) != self.n_steps:
@@ -362,10 +368,20 @@ class PlanningProblem:
         return replace(self, blockers=tuple(blockers))
 
 
+def stay_exempt(problem: PlanningProblem, k: int, cell: Cell) -> bool:
+    """May a CAV in ``cell`` at step ``k`` keep it at step ``k + 1`` whatever HV margin covers
+    it? At step 0, the cells of ``stay_ok``; later, those of ``stay_on[k]`` while an HV's margin
+    has covered the cell since the start (so the CAV in it can only be the one that started
+    there and kept it)."""
+    if k == 0:
+        return cell in problem.stay_ok
+    return k < len(problem.stay_on) and cell in problem.stay_on[k] and cell in problem.blocked[k]
+
+
 def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool:
     """May a CAV go from ``src`` at step ``k`` to ``dst`` at step ``k + 1``? (eq. (15) and the
     entry margins in front of HVs; moves of one row or column are checked elsewhere)."""
-    if k == 0 and src == dst and src in problem.stay_ok:
+    if src == dst and stay_exempt(problem, k, src):
         return True
     if dst in problem.blocked[k + 1]:
         return False
@@ -436,6 +452,10 @@ def move_masks(problem: PlanningProblem) -> np.ndarray:
     # Exceptions, cell by cell: a kept start cell, blockers' entries, refined start rows.
     for cell in problem.stay_ok:
         out[0, 0, cell[0], cell[1]] = True
+    for k in range(1, min(len(problem.stay_on), n_steps - 1)):
+        for cell in problem.stay_on[k]:
+            if stay_exempt(problem, k, cell):
+                out[0, k, cell[0], cell[1]] = True
     for m, (dr, dc) in enumerate(MOVES):
         for cell in set(problem.start_cells):
             dst = (cell[0] + dr, cell[1] + dc)
@@ -685,6 +705,7 @@ def build_problem(
         stay_ok=_stay_ok(grid, cavs, start_cells, all_hvs, predictor, now_s, times[1],
                          grid_settings, front_margin),
     )  # fmt: skip
+    final_predictor = predictor
     side_hvs = [all_hvs[h] for h in sorted(in_grid) if h != target.vehicle_id]
     side_hvs += [
         hv for h, hv in all_hvs.items() if h.startswith(LANE_END_PREFIX) and h not in in_grid
@@ -708,6 +729,12 @@ def build_problem(
             goal_rows=cells.goal_rows,
         )
         blockers = tuple(b for b in blockers if _blocker_free(problem, b))
+        final_predictor = blocked_predictor(blockers) if blockers else predictor
+    problem = replace(
+        problem,
+        stay_on=_stay_on(problem, grid, cavs, all_hvs, final_predictor, now_s, times,
+                         grid_settings, front_margin),
+    )  # fmt: skip
     return problem.with_blockers(blockers)
 
 
@@ -725,25 +752,72 @@ def _stay_ok(
     """Start cells whose CAV, keeping the grid's speed, is clear at step 1 of the hard margins of
     every HV in its lane (``gap_behind_m`` behind an HV ahead, the HV's hard margin ahead of an
     HV behind)."""
-    ok = set()
-    for cav, cell in zip(cavs, start_cells, strict=True):
-        front = cav.s_m + grid.speed_mps * (t1_s - now_s)
-        rear = front - cav.length_m
-        clear = True
-        for hv in all_hvs.values():
-            state = predictor.predict(hv, now_s, t1_s)
-            if hv_columns(grid, state, gs)[0] != cell[1]:
-                continue
-            if state.s_m >= front:
-                clear = state.rear_s_m - front >= gs.gap_behind_m
-            else:
-                hard = front_margin(state)[0] if front_margin else gs.gap_behind_m
-                clear = rear - state.s_m >= hard
-            if not clear:
+    return frozenset(
+        cell
+        for cav, cell in zip(cavs, start_cells, strict=True)
+        if _clear_keeping(grid, cav, cell[1], all_hvs, predictor, now_s, t1_s, gs, front_margin)
+    )
+
+
+def _stay_on(
+    problem: PlanningProblem,
+    grid: MovingGrid,
+    cavs: Sequence[VehicleState],
+    all_hvs: Mapping[str, VehicleState],
+    predictor: HvPredictor,
+    now_s: float,
+    times: Sequence[float],
+    gs: GridSettings,
+    front_margin: FrontMargin | None,
+) -> tuple[frozenset[Cell], ...]:
+    """``stay_on`` (see :class:`PlanningProblem`): for each start cell in ``stay_ok`` that an
+    HV's margin goes on covering, the steps k >= 1 through which its CAV, keeping the grid's
+    speed, is still clear at step k + 1 (the :func:`_stay_ok` test, step after step)."""
+    n = problem.n_steps
+    on: list[set[Cell]] = [set() for _ in range(n - 1)]
+    for cav, cell in zip(cavs, problem.start_cells, strict=True):
+        if cell not in problem.stay_ok:
+            continue
+        for k in range(1, n - 1):
+            if cell not in problem.blocked[k] or cell not in problem.blocked[k + 1]:
+                break  # free at k (the usual rules apply from there) or at k + 1 (no need)
+            if not _clear_keeping(grid, cav, cell[1], all_hvs, predictor, now_s, times[k + 1],
+                                  gs, front_margin):  # fmt: skip
                 break
-        if clear:
-            ok.add(cell)
-    return frozenset(ok)
+            on[k].add(cell)
+    if not any(on):
+        return ()
+    return tuple(frozenset(cells) for cells in on)
+
+
+def _clear_keeping(
+    grid: MovingGrid,
+    cav: VehicleState,
+    col: int,
+    all_hvs: Mapping[str, VehicleState],
+    predictor: HvPredictor,
+    now_s: float,
+    t_s: float,
+    gs: GridSettings,
+    front_margin: FrontMargin | None,
+) -> bool:
+    """Is ``cav``, keeping the grid's speed from where it is, clear at ``t_s`` of the hard
+    margins of every HV in column ``col`` (``gap_behind_m`` behind an HV ahead, the HV's hard
+    margin ahead of an HV behind)?"""
+    front = cav.s_m + grid.speed_mps * (t_s - now_s)
+    rear = front - cav.length_m
+    for hv in all_hvs.values():
+        state = predictor.predict(hv, now_s, t_s)
+        if hv_columns(grid, state, gs)[0] != col:
+            continue
+        if state.s_m >= front:
+            clear = state.rear_s_m - front >= gs.gap_behind_m
+        else:
+            hard = front_margin(state)[0] if front_margin else gs.gap_behind_m
+            clear = rear - state.s_m >= hard
+        if not clear:
+            return False
+    return True
 
 
 def _exempt(
