@@ -62,6 +62,31 @@ def test_platoon_reforms_in_one_lane_when_the_target_leaves_its_lane(tmp_path):
     assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
 
 
+def test_a_queue_behind_a_truck_slower_than_the_grid_is_planned_at_the_trucks_speed(tmp_path):
+    # Variant 17 of scenarios/variants.toml: 11 CAVs, a 13.4 m/s truck, both side lanes full
+    # of 17.5 m/s HVs. At 36 s six CAVs are past and five queue behind the truck, which has
+    # slowed to 12.6 m/s behind the CAVs ahead of it; the grid, held at 13.4 m/s by those CAVs,
+    # leaves the truck behind, the queue has to fall back row by row and the tail CAV is in
+    # row 0: no plan, and the swarm gave up with no_feasible_plan. Now it plans again at the
+    # truck's own speed (plans.jsonl: grid_speed_rule "target"), and the CAV following the
+    # truck closer than the cells' margin may follow on.
+    sweep = load_sweep(ROOT / "scenarios" / "variants.toml")
+    spec = next(
+        r for r in sweep.runs
+        if r.controller == "swarm" and r.params["cav.count"] == 11
+        and r.params["scene.hv.hv_target.speed_mps"] == pytest.approx(13.4)
+    )  # fmt: skip
+    swarm = run_scenario(spec.scenario(), "swarm", tmp_path, seed=spec.seed, progress=False)
+    plans = [json.loads(line) for line in (tmp_path / "plans.jsonl").read_text().splitlines()]
+    retried = [p for p in plans if p.get("grid_speed_rule") == "target"]
+    assert retried and retried[0]["status"] in ("optimal", "feasible")
+    assert retried[0]["grid_speed_mps"] < plans[0]["grid_speed_mps"] - 0.5
+    ends = [e for e in _events(tmp_path) if e["event"] == "overtake_end"]
+    assert ends and ends[0]["reason"] != "no_feasible_plan"
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["cav"]["gap_min_m"] >= 5.0
+
+
 @pytest.mark.parametrize("scene", [155, 181])
 def test_target_moving_into_the_front_cavs_lane_is_not_overtaken_again(tmp_path, scene):
     # Stress v2 scenes (scenarios/stress2.toml): the truck moves right at about 8 s, into the

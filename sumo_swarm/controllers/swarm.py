@@ -77,7 +77,7 @@ from sumo_swarm.core.swarming.guards import (
     lateral_refusal,
     yields_to_cav,
 )
-from sumo_swarm.core.swarming.manoeuvre import ManoeuvrePlanner, ManoeuvreSettings
+from sumo_swarm.core.swarming.manoeuvre import ManoeuvrePlanner, ManoeuvreSettings, PlanOutcome
 from sumo_swarm.core.swarming.planlog import PlanLog
 from sumo_swarm.core.swarming.tracker import Tracker
 from sumo_swarm.core.trajectory import Reference
@@ -108,6 +108,9 @@ CAP_DECEL_MPS2 = 2.0
 LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane that ends [m]
 # Replans that a safety check demands: they are not rate-limited.
 URGENT_TRIGGERS = frozenset({"initial", "cav_set_changed", "plan_done", "conflict"})
+# A plan found infeasible on a grid held this much above the target's speed [m/s] is tried
+# again at the target's own speed (SwarmController._replan).
+GRID_RETRY_MPS = 0.1
 
 
 class SwarmController:
@@ -936,35 +939,35 @@ class SwarmController:
             hv: max(0, math.floor((max_block - (t_s - since)) / interval + 1e-9))
             for hv, since in self.blocked_since_s.items()
         }
-        outcome = self.manoeuvre.plan(
-            t_s, reason, states, platoon, self.target_id, ctx.road,
-            obstacles=self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0),
-            model_of=self.model_of, grid_speed_mps=grid_speed, cap_mps=cap, interval_s=interval,
-            step_s=ctx.dt_s, block_budget=budget, previous=previous,
-            closed_lane=self._keep_right_closure(t_s, target, states),
-        )  # fmt: skip
-        record = outcome.record
-        if self.prediction is not None and hasattr(self.prediction[1], "error_against"):
-            errors = self.prediction[1].error_against(
-                {v: s for v, s in states.items() if not s.is_cav}, t_s
-            )
-            if errors:
-                values = [abs(e) for e in errors.values()]
-                record["prediction_error_m"] = {
-                    "made_at_s": self.prediction[0], "max": max(values),
-                    "mean": sum(values) / len(values), "hvs": len(values),
-                }  # fmt: skip
-        if outcome.plan is not None:
-            self.solve_ms.append(outcome.plan.solve_ms)
-            if outcome.plan.cpu_ms is not None:
-                self.solve_cpu_ms.append(outcome.plan.cpu_ms)
-            self.statuses[outcome.plan.status.value] += 1
-        else:
-            self.statuses["error"] += 1
-        if outcome.relaxed is not None:
-            self.relaxations[outcome.relaxed] += 1
-            ctx.event("margins_relaxed", level=outcome.relaxed, trigger=reason)
-        self.planlog.write(record)
+        closed = self._keep_right_closure(t_s, target, states)
+        own = max(target.speed_mps, 0.0)
+        tries = [(grid_speed, interval)]
+        if not cruise_grid and grid_speed > own + GRID_RETRY_MPS:
+            # Held above the target's speed by the CAVs ahead of it, the grid leaves the target
+            # behind: the CAVs queued behind it must fall back row by row over the horizon, and
+            # with the tail CAV in row 0 they may have nowhere to go (variant 17: 5 CAVs behind
+            # a truck 0.8 m/s slower than the grid). A plan found infeasible is tried once more
+            # at the target's own speed (the paper's Step 4).
+            own_interval = behaving_interval_s(
+                self.planner_settings.behaving_interval_s, sc.cell_length_m, own, cap,
+                sc.swarm.speed_margin_mps, sc.swarm.interval_rule,
+            )  # fmt: skip
+            if math.isfinite(own_interval):
+                tries.append((own, own_interval))
+        for n, (speed, speed_interval) in enumerate(tries):
+            outcome = self.manoeuvre.plan(
+                t_s, reason, states, platoon, self.target_id, ctx.road,
+                obstacles=self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0),
+                model_of=self.model_of, grid_speed_mps=speed, cap_mps=cap,
+                interval_s=speed_interval, step_s=ctx.dt_s, block_budget=budget,
+                previous=previous, closed_lane=closed,
+            )  # fmt: skip
+            if n:
+                outcome.record["grid_speed_rule"] = "target"
+            self._log_outcome(t_s, reason, outcome, states, prediction_error=not n)
+            interval = speed_interval
+            if outcome.plan is None or outcome.plan.status.value != "infeasible":
+                break
         if not outcome.usable:
             self._fail(t_s, reason, None)
             return
@@ -985,6 +988,45 @@ class SwarmController:
             until = t_s + (blocker.hold_steps + 1) * interval
             self.blocked_until_s[blocker.hv_id] = max(self.blocked_until_s.get(blocker.hv_id, 0.0),
                                                       until)  # fmt: skip
+
+    def _log_outcome(
+        self,
+        t_s: float,
+        reason: str,
+        outcome: PlanOutcome,
+        states: dict[str, VehicleState],
+        *,
+        prediction_error: bool,
+    ) -> None:
+        """Count one planning call's outcome and write its record to plans.jsonl (with the
+        last plan's prediction error against ``states`` when ``prediction_error``)."""
+        ctx = self.ctx
+        record = outcome.record
+        if (
+            prediction_error
+            and self.prediction is not None
+            and hasattr(self.prediction[1], "error_against")
+        ):
+            errors = self.prediction[1].error_against(
+                {v: s for v, s in states.items() if not s.is_cav}, t_s
+            )
+            if errors:
+                values = [abs(e) for e in errors.values()]
+                record["prediction_error_m"] = {
+                    "made_at_s": self.prediction[0], "max": max(values),
+                    "mean": sum(values) / len(values), "hvs": len(values),
+                }  # fmt: skip
+        if outcome.plan is not None:
+            self.solve_ms.append(outcome.plan.solve_ms)
+            if outcome.plan.cpu_ms is not None:
+                self.solve_cpu_ms.append(outcome.plan.cpu_ms)
+            self.statuses[outcome.plan.status.value] += 1
+        else:
+            self.statuses["error"] += 1
+        if outcome.relaxed is not None:
+            self.relaxations[outcome.relaxed] += 1
+            ctx.event("margins_relaxed", level=outcome.relaxed, trigger=reason)
+        self.planlog.write(record)
 
     def _waiting_steps(self) -> int:
         """Behaving steps in ``[swarm] give_up_waiting_s`` (a plan that keeps every CAV
