@@ -75,7 +75,7 @@ def test_rendered_sweep_loads(tmp_path):
     path = tmp_path / "v.toml"
     path.write_text(mv.render(mv.draw(SEED, 3), SEED, base=str(ROOT / "scenarios/paper.toml")))
     sweep = load_sweep(path)
-    assert len(sweep.runs) == 6 and set(sweep.controllers) == {"swarm", "cacc"}
+    assert len(sweep.runs) == 9 and set(sweep.controllers) == {"swarm", "cacc", "sumo-lc"}
     scenario = next(r for r in sweep.runs if r.controller == "swarm").scenario()
     assert scenario.simulation.duration_s == mv.DURATION_S
 
@@ -225,6 +225,40 @@ def test_stress_report_counts_lateral_holds_and_spreads(tmp_path):
     values = pd.Series([0.0] * 19 + [100.0, float("nan")])
     assert sr.spread(values) == "0 / 5 / 100"  # median, p95 (interpolated), max
     assert sr.spread(pd.Series([float("nan")])) == "n/a"
+
+
+def test_cavs_past_counts_each_cav_whose_rear_was_ever_ahead_of_the_truck():
+    # A truck with its front at 100 + 10 t m; c0 (5 m long) at 80 + 25 t has its rear 5 m
+    # ahead of the truck's front at t = 2 (125 > 120 m), not at t = 1 (100 < 110 m); c1 stays
+    # behind the truck.
+    rows = []
+    for t in (0.0, 1.0, 2.0):
+        rows.append({"time_s": t, "vehicle": "hv_target", "kind": "hv", "s_m": 100 + 10 * t,
+                     "length_m": 10.0})  # fmt: skip
+        rows.append({"time_s": t, "vehicle": "c0", "kind": "cav", "s_m": 80 + 25 * t,
+                     "length_m": 5.0})  # fmt: skip
+        rows.append({"time_s": t, "vehicle": "c1", "kind": "cav", "s_m": 70 + 10 * t,
+                     "length_m": 5.0})  # fmt: skip
+    df = pd.DataFrame(rows)
+    assert vr.cavs_past(df) == (1, 2)
+    assert vr.cavs_past(df[df["vehicle"] != "c0"]) == (0, 1)
+
+
+def test_sumo_lc_figures_split_the_failing_scenes_by_what_sumo_lc_did():
+    table = pd.DataFrame({
+        "overtake": [vr.PASS, vr.FAIL, vr.FAIL, vr.FAIL],
+        "sumo_lc_all_past": [True, True, False, None],
+        "cavs_past": [3, 5, 6, 2],
+        "sumo_lc_cavs_past": [3, 5, 1, None],
+        "mean_speed_mps": [18.0, 16.0, 15.0, 14.0],
+        "mean_speed_sumo_lc_mps": [17.0, 15.0, 13.0, None],
+    })  # fmt: skip
+    got = dict(vr._sumo_lc_figures(table))
+    assert got["scenes where sumo-lc got every CAV past the truck"] == "2 of 3"
+    assert got["failing the overtake check: sumo-lc got every CAV past / did not"] == "1 / 1"
+    assert got["CAVs past the truck, swarm / sumo-lc (sum over those scenes)"] == "14 / 9"
+    assert got["mean CAV speed, swarm / sumo-lc [m/s]"] == "16.33 / 15.00"
+    assert vr._sumo_lc_figures(table.assign(sumo_lc_all_past=None)) == []
 
 
 def test_report_exits_2_on_a_folder_that_is_not_a_batch(tmp_path, capsys):

@@ -14,7 +14,8 @@ one HV at its left-rear and one at its right-rear, upstream HVs in every lane) a
 The draws are stratified (a Latin hypercube): each range is cut into ``count`` equal strata, one
 value is drawn in each, and the lowest and highest strata take the range's ends exactly, so any
 set of two or more cases holds both extremes of every range. The integer ranges cycle through
-every value. Every case runs under ``swarm`` and ``cacc``.
+every value. Every case runs under ``swarm`` and ``cacc``, and under ``sumo-lc`` (SUMO's own
+drivers) to show whether they get the platoon past.
 
 Usage: python tools/make_variants.py [--seed 11] [--count 40] [--out scenarios/variants.toml]
 Run:   sumo-swarm batch scenarios/variants.toml --out variants --workers 2
@@ -160,7 +161,7 @@ def render(
     duration_s: float = DURATION_S,
     base: str = "paper.toml",
 ) -> str:
-    """The sweep file of ``cases`` (controllers swarm and cacc, seed 42).
+    """The sweep file of ``cases`` (controllers swarm, cacc and sumo-lc, seed 42).
 
     ``base``: the base scenario, relative to the sweep file or absolute.
     """
@@ -169,9 +170,10 @@ def render(
         "# Run: sumo-swarm batch scenarios/variants.toml --out variants --workers 2",
         "# Check: python tools/variants_report.py variants",
         'name = "variants"',
-        f'description = "{len(cases)} variants of the paper scene (issue 11), swarm vs cacc"',
+        f'description = "{len(cases)} variants of the paper scene (issue 11), swarm vs cacc, '
+        'with sumo-lc"',
         f'base = "{base}"',
-        'controllers = ["swarm", "cacc"]',
+        'controllers = ["swarm", "cacc", "sumo-lc"]',
         "seeds = [42]",
         "",
         "[fixed]",

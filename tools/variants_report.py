@@ -19,6 +19,12 @@ For every scene, its ``swarm`` run against its ``cacc`` run:
   core": the solves' process time (``planner.solve_cpu_ms_*``), else their wall time; both are
   in the table (no solve at all passes).
 
+Where the batch also has the scene's ``sumo-lc`` run (SUMO's own drivers, which pass the truck
+by their own lane-change model), the table says how many of its CAVs got past the truck and how
+many of the swarm's did (``cavs_past``, ``sumo_lc_cavs_past``), and the figures count the scenes
+failing the overtake check where SUMO's drivers got every CAV past and where they did not: a
+sign of whether a safe overtake of the whole platoon was there to be had. It judges nothing.
+
 A verdict is ``pass``, ``FAIL`` or ``n/a`` (a summary field the check needs is missing: not a
 pass). ``lateral_holds`` is reported per run (``overtake.lateral_holds``, else the number of
 ``lateral_hold`` events in the run's events.jsonl) and over the sweep (median, p95, max).
@@ -42,7 +48,10 @@ from typing import Any
 
 import pandas as pd
 
+from sumo_swarm.sim.summary import pass_times_s
+
 ROOT = Path(__file__).resolve().parent.parent
+TARGET = "hv_target"  # the paper scene's slow vehicle
 PASS, FAIL, NA = "pass", "FAIL", "n/a"
 CHECKS = (
     "ran",
@@ -279,6 +288,24 @@ def _read_records(folder: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     return sweep, records
 
 
+def cavs_past(trajectories: pd.DataFrame, target: str = TARGET) -> tuple[int, int]:
+    """(how many CAVs got past ``target`` at some step, how many CAVs) in a run's trajectories
+    (summary.py's :func:`pass_times_s`: rear bumper ahead of the target's front bumper)."""
+    cav_ids = tuple(
+        sorted(trajectories.loc[trajectories["kind"] == "cav", "vehicle"].astype(str).unique())
+    )
+    times = pass_times_s(trajectories, cav_ids, target)
+    return sum(t is not None for t in times.values()), len(cav_ids)
+
+
+def _run_cavs_past(folder: Path, record: Mapping[str, Any] | None) -> tuple[int, int] | None:
+    path = folder / "runs" / record["run_id"] / "trajectories.parquet" if record else None
+    if path is None or not path.is_file():
+        return None
+    columns = ["time_s", "vehicle", "kind", "s_m", "length_m"]
+    return cavs_past(pd.read_parquet(path, columns=columns))
+
+
 def scene_table(folder: Path) -> pd.DataFrame:
     """One row per scene of the batch in ``folder``: its parameters, numbers and verdicts."""
     _, records = _read_records(folder)
@@ -309,6 +336,15 @@ def scene_table(folder: Path) -> pd.DataFrame:
         cacc_dir = folder / "runs" / cacc["run_id"] if cacc else None
         row["lateral_holds_cacc"] = (
             lateral_holds((cacc or {}).get("summary"), cacc_dir) if cacc else None
+        )
+        past = _run_cavs_past(folder, swarm)
+        row["cavs_past"] = past[0] if past else None
+        lc = runs.get("sumo-lc")
+        lc_past = _run_cavs_past(folder, lc)
+        row["sumo_lc_cavs_past"] = lc_past[0] if lc_past else None
+        row["sumo_lc_all_past"] = bool(lc_past[0] == lc_past[1] > 0) if lc_past else None
+        row["mean_speed_sumo_lc_mps"] = _number(
+            field((lc or {}).get("summary") or {}, "cav.mean_speed_mps")
         )
         row["run_id"] = swarm["run_id"]
         rows.append(row)
@@ -363,8 +399,36 @@ def sweep_figures(table: pd.DataFrame) -> pd.DataFrame:
         ("run cost swarm/cacc, median / p95 / max", _quantiles(table["cost_ratio"])),
         ("min CAV-to-CAV gap over all scenes [m]", _round(table["gap_min_m"].min())),
         ("min CAV-behind-HV gap over all scenes [m]", _round(table["gap_min_hv_m"].min())),
+        *_sumo_lc_figures(table),
     ]
     return pd.DataFrame(rows, columns=["measure", "value"])
+
+
+def _sumo_lc_figures(table: pd.DataFrame) -> list[tuple[str, Any]]:
+    """What SUMO's own drivers did in the same scenes (rows only where sumo-lc ran)."""
+    if "sumo_lc_all_past" not in table or table["sumo_lc_all_past"].isna().all():
+        return []
+    ran = table[table["sumo_lc_all_past"].notna()]
+    all_past = ran["sumo_lc_all_past"].astype(bool)
+    failing = ran["overtake"] == FAIL
+    return [
+        (
+            "scenes where sumo-lc got every CAV past the truck",
+            f"{int(all_past.sum())} of {len(ran)}",
+        ),
+        (
+            "failing the overtake check: sumo-lc got every CAV past / did not",
+            f"{int((failing & all_past).sum())} / {int((failing & ~all_past).sum())}",
+        ),
+        (
+            "CAVs past the truck, swarm / sumo-lc (sum over those scenes)",
+            f"{int(ran['cavs_past'].fillna(0).sum())} / {int(ran['sumo_lc_cavs_past'].sum())}",
+        ),
+        (
+            "mean CAV speed, swarm / sumo-lc [m/s]",
+            f"{ran['mean_speed_mps'].mean():.2f} / {ran['mean_speed_sumo_lc_mps'].mean():.2f}",
+        ),
+    ]
 
 
 def _round(value: Any) -> Any:
@@ -382,6 +446,9 @@ def verdict_table(table: pd.DataFrame) -> pd.DataFrame:
         "blocked_hv_min_accel_mps2",
         "mean_speed_mps",
         "mean_speed_cacc_mps",
+        "mean_speed_sumo_lc_mps",
+        "cavs_past",
+        "sumo_lc_cavs_past",
         "cost_ratio",
         "solve_ms_p95",
         "solve_ms_max",
