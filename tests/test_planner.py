@@ -280,6 +280,32 @@ def test_a_car_following_the_target_inside_its_margin_may_follow_on():
     assert CpSatPlanner(10.0).plan(faster).status is PlanStatus.INFEASIBLE
 
 
+def test_following_on_never_drives_through_an_hv_or_beside_one_leaning_in():
+    # What stay_on must not allow (review of c830095). (a) A CAV 25 m/s fast on a 25 m/s grid,
+    # 40 m behind a 14 m/s truck in its lane: at 3 s it is 7 m behind the truck's rear, at 6 s
+    # 11 m ahead of its front, clear at both but driven through it; it may keep its cell for
+    # step 1 only. (b) An HV beside the first CAV of a queue, leaning 1 m into its lane, claims
+    # the CAV's cell: the CAV may not keep it beside that HV.
+    road = RoadSection((3.2, 3.2))
+    truck = VehicleState("truck", 300.0, 0, 0.0, 14.0, 10.0)
+    cavs = [VehicleState("c0", 250.0, 0, 0.0, 25.0, 5.0, is_cav=True),
+            VehicleState("c1", 238.0, 1, 0.0, 25.0, 5.0, is_cav=True)]  # fmt: skip
+    grid = build_grid(cavs, truck, road, 0.0, 25.0, GridSettings())
+    fast = build_problem(grid, cavs, [], truck, 0.0, PlannerSettings(n_steps=5), GridSettings())
+    assert (1, 0) in fast.stay_ok and fast.stay_on == ()
+    for plan in solve_both(fast):
+        assert plan.cells[0][2] != (1, 0)  # gone from the truck's lane by step 2
+    far = VehicleState("truck", 400.0, 1, 0.0, 15.0, 10.0)
+    queue = [VehicleState(f"c{i}", 284.0 - 12 * i, 0, 0.0, 15.0, 5.0, is_cav=True)
+             for i in range(3)]  # fmt: skip
+    leaning = VehicleState("hv", 286.0, 1, -1.0, 15.0, 5.0)
+    grid = build_grid(queue, far, road, 0.0, 15.0, GridSettings())
+    beside = build_problem(grid, queue, [leaning], far, 0.0, PlannerSettings(n_steps=5),
+                           GridSettings())  # fmt: skip
+    assert all((2, 0) in cells for cells in beside.blocked)
+    assert (2, 0) not in beside.stay_ok and beside.stay_on == ()
+
+
 # ----------------------------------------------------------------------------- brute force
 
 

@@ -136,7 +136,7 @@ def validate_plan(problem: PlanningProblem, plan: Plan) -> list[str]:
             if not (0 <= row < n_rows and 0 <= col < n_cols):
                 errors.append(f"CAV {cav} step {k}: {cell} outside the grid")
             if k >= 1:
-                kept = cell == path[k - 1] and stay_exempt(problem, k - 1, cell)  # see stay_ok
+                kept = cell == path[k - 1] and stay_exempt(problem, k - 1, cell)  # see stay_exempt
                 if cell in problem.blocked[k] and not kept:
                     errors.append(f"CAV {cav} step {k}: {cell} is claimed by an HV")
                 elif not move_allowed(problem, k - 1, path[k - 1], cell):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from enum import Enum
@@ -381,9 +382,10 @@ def stay_exempt(problem: PlanningProblem, k: int, cell: Cell) -> bool:
 def move_allowed(problem: PlanningProblem, k: int, src: Cell, dst: Cell) -> bool:
     """May a CAV go from ``src`` at step ``k`` to ``dst`` at step ``k + 1``? (eq. (15) and the
     entry margins in front of HVs; moves of one row or column are checked elsewhere)."""
-    if src == dst and stay_exempt(problem, k, src):
+    exempt = src == dst and stay_exempt(problem, k, src)
+    if exempt and k == 0:
         return True
-    if dst in problem.blocked[k + 1]:
+    if dst in problem.blocked[k + 1] and not exempt:
         return False
     if dst[1] == src[1] and dst[0] >= src[0] and problem.hv_tracks:
         limit = problem.pass_limits[k, src[1], src[0]]
@@ -453,8 +455,10 @@ def move_masks(problem: PlanningProblem) -> np.ndarray:
     for cell in problem.stay_ok:
         out[0, 0, cell[0], cell[1]] = True
     for k in range(1, min(len(problem.stay_on), n_steps - 1)):
-        for cell in problem.stay_on[k]:
-            if stay_exempt(problem, k, cell):
+        for cell in problem.stay_on[k]:  # not past an HV in its lane (pass_limits) either
+            if stay_exempt(problem, k, cell) and (
+                limits is None or cell[0] < limits[k, cell[1], cell[0]]
+            ):
                 out[0, k, cell[0], cell[1]] = True
     for m, (dr, dc) in enumerate(MOVES):
         for cell in set(problem.start_cells):
@@ -716,10 +720,10 @@ def build_problem(
     )  # fmt: skip
     problem = replace(problem, exempt_moves=_exempt(problem, blockers))
     if blockers and blocked_predictor is not None:
+        final_predictor = blocked_predictor(blockers)
         cells = _hv_cells(
-            grid, all_hvs, target, now_s, times, grid_settings, blocked_predictor(blockers),
-            front_margin,
-        )  # fmt: skip
+            grid, all_hvs, target, now_s, times, grid_settings, final_predictor, front_margin
+        )
         problem = replace(
             problem,
             exempt_moves=_exempt(problem, blockers),
@@ -729,7 +733,6 @@ def build_problem(
             goal_rows=cells.goal_rows,
         )
         blockers = tuple(b for b in blockers if _blocker_free(problem, b))
-        final_predictor = blocked_predictor(blockers) if blockers else predictor
     problem = replace(
         problem,
         stay_on=_stay_on(problem, grid, cavs, all_hvs, final_predictor, now_s, times,
@@ -752,11 +755,12 @@ def _stay_ok(
     """Start cells whose CAV, keeping the grid's speed, is clear at step 1 of the hard margins of
     every HV in its lane (``gap_behind_m`` behind an HV ahead, the HV's hard margin ahead of an
     HV behind)."""
-    return frozenset(
-        cell
-        for cav, cell in zip(cavs, start_cells, strict=True)
-        if _clear_keeping(grid, cav, cell[1], all_hvs, predictor, now_s, t1_s, gs, front_margin)
-    )
+    clear: dict[Cell, bool] = {}
+    for cav, cell in zip(cavs, start_cells, strict=True):  # a shared cell: every CAV in it
+        clear[cell] = clear.get(cell, True) and _clear_keeping(
+            grid, cav, cell[1], all_hvs, predictor, now_s, t1_s, gs, front_margin
+        )
+    return frozenset(cell for cell, ok in clear.items() if ok)
 
 
 def _stay_on(
@@ -774,9 +778,10 @@ def _stay_on(
     HV's margin goes on covering, the steps k >= 1 through which its CAV, keeping the grid's
     speed, is still clear at step k + 1 (the :func:`_stay_ok` test, step after step)."""
     n = problem.n_steps
+    sharing = Counter(problem.start_cells)
     on: list[set[Cell]] = [set() for _ in range(n - 1)]
     for cav, cell in zip(cavs, problem.start_cells, strict=True):
-        if cell not in problem.stay_ok:
+        if cell not in problem.stay_ok or sharing[cell] > 1:
             continue
         for k in range(1, n - 1):
             if cell not in problem.blocked[k] or cell not in problem.blocked[k + 1]:
@@ -802,18 +807,22 @@ def _clear_keeping(
     front_margin: FrontMargin | None,
 ) -> bool:
     """Is ``cav``, keeping the grid's speed from where it is, clear at ``t_s`` of the hard
-    margins of every HV in column ``col`` (``gap_behind_m`` behind an HV ahead, the HV's hard
-    margin ahead of an HV behind)?"""
+    margins of every HV that covers column ``col`` (its own lane, or leaning into it):
+    ``gap_behind_m`` behind an HV ahead, the HV's hard margin (``front_margin``, else the
+    paper's ``headway_s``) ahead of an HV behind, and on the same side of each HV as now (a
+    CAV clear at both ends may have driven through an HV between them)?"""
     front = cav.s_m + grid.speed_mps * (t_s - now_s)
     rear = front - cav.length_m
     for hv in all_hvs.values():
         state = predictor.predict(hv, now_s, t_s)
-        if hv_columns(grid, state, gs)[0] != col:
+        if col not in hv_columns(grid, state, gs):
             continue
+        if (hv.s_m >= cav.s_m) != (state.s_m >= front):
+            return False
         if state.s_m >= front:
             clear = state.rear_s_m - front >= gs.gap_behind_m
         else:
-            hard = front_margin(state)[0] if front_margin else gs.gap_behind_m
+            hard = front_margin(state)[0] if front_margin else gs.headway_s * state.speed_mps
             clear = rear - state.s_m >= hard
         if not clear:
             return False
