@@ -253,7 +253,7 @@ def test_sumo_lc_figures_split_the_failing_scenes_by_what_sumo_lc_did():
         "mean_speed_mps": [18.0, 16.0, 15.0, 14.0],
         "mean_speed_sumo_lc_mps": [17.0, 15.0, 13.0, None],
     })  # fmt: skip
-    got = dict(vr._sumo_lc_figures(table))
+    got = dict(vr._sumo_lc_figures(table))  # the last scene, sumo-lc not known, left out
     assert got["scenes where sumo-lc got every CAV past the truck"] == "2 of 3"
     assert got["failing the overtake check: sumo-lc got every CAV past / did not"] == "1 / 1"
     assert got["CAVs past the truck, swarm / sumo-lc (sum over those scenes)"] == "14 / 9"

@@ -299,11 +299,15 @@ def cavs_past(trajectories: pd.DataFrame, target: str = TARGET) -> tuple[int, in
 
 
 def _run_cavs_past(folder: Path, record: Mapping[str, Any] | None) -> tuple[int, int] | None:
-    path = folder / "runs" / record["run_id"] / "trajectories.parquet" if record else None
-    if path is None or not path.is_file():
+    """:func:`cavs_past` of a finished run (None: not finished, no trajectories, no CAV)."""
+    if not record or record.get("status") != "ok":
+        return None
+    path = folder / "runs" / record["run_id"] / "trajectories.parquet"
+    if not path.is_file():
         return None
     columns = ["time_s", "vehicle", "kind", "s_m", "length_m"]
-    return cavs_past(pd.read_parquet(path, columns=columns))
+    past = cavs_past(pd.read_parquet(path, columns=columns))
+    return past if past[1] > 0 else None
 
 
 def scene_table(folder: Path) -> pd.DataFrame:
@@ -342,7 +346,7 @@ def scene_table(folder: Path) -> pd.DataFrame:
         lc = runs.get("sumo-lc")
         lc_past = _run_cavs_past(folder, lc)
         row["sumo_lc_cavs_past"] = lc_past[0] if lc_past else None
-        row["sumo_lc_all_past"] = bool(lc_past[0] == lc_past[1] > 0) if lc_past else None
+        row["sumo_lc_all_past"] = lc_past[0] == lc_past[1] if lc_past else None
         row["mean_speed_sumo_lc_mps"] = _number(
             field((lc or {}).get("summary") or {}, "cav.mean_speed_mps")
         )
@@ -408,7 +412,12 @@ def _sumo_lc_figures(table: pd.DataFrame) -> list[tuple[str, Any]]:
     """What SUMO's own drivers did in the same scenes (rows only where sumo-lc ran)."""
     if "sumo_lc_all_past" not in table or table["sumo_lc_all_past"].isna().all():
         return []
-    ran = table[table["sumo_lc_all_past"].notna()]
+    # Like for like: the scenes where both runs' counts and speeds are known.
+    known = ["sumo_lc_all_past", "cavs_past", "sumo_lc_cavs_past", "mean_speed_mps",
+             "mean_speed_sumo_lc_mps"]  # fmt: skip
+    ran = table[table[known].notna().all(axis=1)]
+    if ran.empty:
+        return []
     all_past = ran["sumo_lc_all_past"].astype(bool)
     failing = ran["overtake"] == FAIL
     return [
@@ -422,7 +431,7 @@ def _sumo_lc_figures(table: pd.DataFrame) -> list[tuple[str, Any]]:
         ),
         (
             "CAVs past the truck, swarm / sumo-lc (sum over those scenes)",
-            f"{int(ran['cavs_past'].fillna(0).sum())} / {int(ran['sumo_lc_cavs_past'].sum())}",
+            f"{int(ran['cavs_past'].sum())} / {int(ran['sumo_lc_cavs_past'].sum())}",
         ),
         (
             "mean CAV speed, swarm / sumo-lc [m/s]",
