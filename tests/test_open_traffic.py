@@ -81,6 +81,8 @@ def test_a_queue_behind_a_truck_slower_than_the_grid_is_planned_at_the_trucks_sp
     retried = [p for p in plans if p.get("grid_speed_rule") == "target"]
     assert retried and retried[0]["status"] in ("optimal", "feasible")
     assert retried[0]["grid_speed_mps"] < plans[0]["grid_speed_mps"] - 0.5
+    assert swarm["planner"]["grid_retries"]["planned"] >= 1
+    assert swarm["planner"]["grid_retries"]["tried"] == len(retried)
     ends = [e for e in _events(tmp_path) if e["event"] == "overtake_end"]
     assert ends and ends[0]["reason"] != "no_feasible_plan"
     assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0

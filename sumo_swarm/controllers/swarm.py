@@ -135,6 +135,7 @@ class SwarmController:
         self.triggers: Counter[str] = Counter()
         self.fallbacks = 0
         self.relaxations: Counter[str] = Counter()
+        self.grid_retries: Counter[str] = Counter()  # "tried", "planned" (see _replan)
         self.lat_errors: list[float] = []
         self.t_start_s: float | None = None
         self.t_done_s: float | None = None
@@ -964,6 +965,8 @@ class SwarmController:
             )  # fmt: skip
             if n:
                 outcome.record["grid_speed_rule"] = "target"
+                self.grid_retries["tried"] += 1
+                self.grid_retries["planned"] += int(outcome.usable)
             self._log_outcome(t_s, reason, outcome, states, prediction_error=not n)
             interval = speed_interval
             if outcome.plan is None or outcome.plan.status.value != "infeasible":
@@ -1206,6 +1209,7 @@ class SwarmController:
                 "statuses": dict(self.statuses),
                 "fallbacks": self.fallbacks,
                 "relaxations": dict(self.relaxations),
+                "grid_retries": {"tried": 0, "planned": 0, **self.grid_retries},
                 "triggers": dict(self.triggers),
             },
             "speeds": {
