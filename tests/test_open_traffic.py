@@ -41,15 +41,20 @@ def _no_keep_right_wait(scenario):
     )
 
 
+def _variant_spec(cavs: int, truck_mps: float):
+    """The swarm run of the scenarios/variants.toml case with ``cavs`` CAVs and that truck."""
+    sweep = load_sweep(ROOT / "scenarios" / "variants.toml")
+    return next(
+        r for r in sweep.runs
+        if r.controller == "swarm" and r.params["cav.count"] == cavs
+        and r.params["scene.hv.hv_target.speed_mps"] == pytest.approx(truck_mps)
+    )  # fmt: skip
+
+
 def test_platoon_reforms_in_one_lane_when_the_target_leaves_its_lane(tmp_path):
     # Variant 10 of scenarios/variants.toml: 11 CAVs, a 16.5 m/s truck that changes to the
     # right lane at about 8 s, while the swarm is spread over all three lanes.
-    sweep = load_sweep(ROOT / "scenarios" / "variants.toml")
-    spec = next(
-        r for r in sweep.runs
-        if r.controller == "swarm" and r.params["cav.count"] == 11
-        and r.params["scene.hv.hv_target.speed_mps"] == pytest.approx(16.51)
-    )  # fmt: skip
+    spec = _variant_spec(11, 16.51)
     scenario = _no_keep_right_wait(spec.scenario())
     swarm = run_scenario(scenario, "swarm", tmp_path / "swarm", seed=spec.seed, progress=False)
     cacc = run_scenario(scenario, "cacc", tmp_path / "cacc", seed=spec.seed, progress=False)
@@ -70,12 +75,7 @@ def test_a_queue_behind_a_truck_slower_than_the_grid_is_planned_at_the_trucks_sp
     # row 0: no plan, and the swarm gave up with no_feasible_plan. Now it plans again at the
     # truck's own speed (plans.jsonl: grid_speed_rule "target"), and the CAV following the
     # truck closer than the cells' margin may follow on.
-    sweep = load_sweep(ROOT / "scenarios" / "variants.toml")
-    spec = next(
-        r for r in sweep.runs
-        if r.controller == "swarm" and r.params["cav.count"] == 11
-        and r.params["scene.hv.hv_target.speed_mps"] == pytest.approx(13.4)
-    )  # fmt: skip
+    spec = _variant_spec(11, 13.4)
     swarm = run_scenario(spec.scenario(), "swarm", tmp_path, seed=spec.seed, progress=False)
     plans = [json.loads(line) for line in (tmp_path / "plans.jsonl").read_text().splitlines()]
     retried = [p for p in plans if p.get("grid_speed_rule") == "target"]

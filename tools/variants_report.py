@@ -298,15 +298,24 @@ def cavs_past(trajectories: pd.DataFrame, target: str = TARGET) -> tuple[int, in
     return sum(t is not None for t in times.values()), len(cav_ids)
 
 
-def _run_cavs_past(folder: Path, record: Mapping[str, Any] | None) -> tuple[int, int] | None:
+TRAJECTORY_COLUMNS = ["time_s", "vehicle", "kind", "lane", "s_m", "length_m"]
+
+
+def _trajectories(folder: Path, record: Mapping[str, Any] | None) -> pd.DataFrame | None:
+    """The columns the report needs of a run's trajectories (None: no run, or none written)."""
+    path = folder / "runs" / record["run_id"] / "trajectories.parquet" if record else None
+    if path is None or not path.is_file():
+        return None
+    return pd.read_parquet(path, columns=TRAJECTORY_COLUMNS)
+
+
+def _finished_cavs_past(
+    record: Mapping[str, Any] | None, trajectories: pd.DataFrame | None
+) -> tuple[int, int] | None:
     """:func:`cavs_past` of a finished run (None: not finished, no trajectories, no CAV)."""
-    if not record or record.get("status") != "ok":
+    if not record or record.get("status") != "ok" or trajectories is None:
         return None
-    path = folder / "runs" / record["run_id"] / "trajectories.parquet"
-    if not path.is_file():
-        return None
-    columns = ["time_s", "vehicle", "kind", "s_m", "length_m"]
-    past = cavs_past(pd.read_parquet(path, columns=columns))
+    past = cavs_past(trajectories)
     return past if past[1] > 0 else None
 
 
@@ -324,12 +333,8 @@ def scene_table(folder: Path) -> pd.DataFrame:
             continue  # the swarm run of this scene has not finished
         run_dir = folder / "runs" / swarm["run_id"]
         max_speed, b_safe = scenario_limits(swarm)
-        platoon = None
-        traj = run_dir / "trajectories.parquet"
-        if traj.is_file():
-            platoon = platoon_at_end(
-                pd.read_parquet(traj, columns=["time_s", "kind", "lane", "s_m", "length_m"])
-            )
+        traj = _trajectories(folder, swarm)  # read once: the platoon at the end, the passes
+        platoon = platoon_at_end(traj) if traj is not None else None
         summary = swarm.get("summary") or {}
         row: dict[str, Any] = {"scene": i}
         params = swarm.get("params", {})
@@ -341,10 +346,10 @@ def scene_table(folder: Path) -> pd.DataFrame:
         row["lateral_holds_cacc"] = (
             lateral_holds((cacc or {}).get("summary"), cacc_dir) if cacc else None
         )
-        past = _run_cavs_past(folder, swarm)
+        past = _finished_cavs_past(swarm, traj)
         row["cavs_past"] = past[0] if past else None
         lc = runs.get("sumo-lc")
-        lc_past = _run_cavs_past(folder, lc)
+        lc_past = _finished_cavs_past(lc, _trajectories(folder, lc))
         row["sumo_lc_cavs_past"] = lc_past[0] if lc_past else None
         row["sumo_lc_all_past"] = lc_past[0] == lc_past[1] if lc_past else None
         row["mean_speed_sumo_lc_mps"] = _number(

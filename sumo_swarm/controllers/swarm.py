@@ -922,10 +922,14 @@ class SwarmController:
             # CAVs just ahead of the target set its pace: never let them pull the grid down.
             grid_speed = max(grid_speed, self.grid.speed_mps)
         cap = self._speed_cap(platoon)
-        interval = behaving_interval_s(
-            self.planner_settings.behaving_interval_s, sc.cell_length_m, grid_speed, cap,
-            sc.swarm.speed_margin_mps, sc.swarm.interval_rule,
-        )  # fmt: skip
+
+        def interval_at(speed: float) -> float:
+            return behaving_interval_s(
+                self.planner_settings.behaving_interval_s, sc.cell_length_m, speed, cap,
+                sc.swarm.speed_margin_mps, sc.swarm.interval_rule,
+            )  # fmt: skip
+
+        interval = interval_at(grid_speed)
         self.triggers[reason] += 1
         if not math.isfinite(interval):
             record = {"time_s": t_s, "trigger": reason, "status": "undrivable",
@@ -949,17 +953,14 @@ class SwarmController:
             # with the tail CAV in row 0 they may have nowhere to go (variant 17: 5 CAVs behind
             # a truck 0.8 m/s slower than the grid). A plan found infeasible is tried once more
             # at the target's own speed (the paper's Step 4).
-            own_interval = behaving_interval_s(
-                self.planner_settings.behaving_interval_s, sc.cell_length_m, own, cap,
-                sc.swarm.speed_margin_mps, sc.swarm.interval_rule,
-            )  # fmt: skip
+            own_interval = interval_at(own)
             if math.isfinite(own_interval):
                 tries.append((own, own_interval))
+        obstacles = self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0)
         for n, (speed, speed_interval) in enumerate(tries):
             outcome = self.manoeuvre.plan(
                 t_s, reason, states, platoon, self.target_id, ctx.road,
-                obstacles=self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0),
-                model_of=self.model_of, grid_speed_mps=speed, cap_mps=cap,
+                obstacles=obstacles, model_of=self.model_of, grid_speed_mps=speed, cap_mps=cap,
                 interval_s=speed_interval, step_s=ctx.dt_s, block_budget=budget,
                 previous=previous, closed_lane=closed,
             )  # fmt: skip

@@ -300,7 +300,8 @@ class PlanningProblem:
     # The same for later steps: ``stay_on[k]`` holds the start cells a CAV that has kept its
     # start cell so far may keep from step k to k + 1 (k >= 1; index 0 is unused, see stay_ok)
     # while an HV's hard margin covers them: keeping the grid's speed, the CAV is still clear
-    # of every HV in its lane at step k + 1. A car following the target closer than the cells'
+    # of every HV covering its lane at step k + 1, on the same side of each as at the start
+    # (_clear_keeping), and within pass_limits. A car following the target closer than the cells'
     # margins (the CACC gap) may follow on instead of having to fall back.
     stay_on: tuple[frozenset[Cell], ...] = ()
 
