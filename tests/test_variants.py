@@ -95,7 +95,7 @@ def _summary(**changes: object) -> dict:
             "triggered": True, "completed": True, "regrouped": True, "aborted": 0,
             "lateral_holds": 0, "blocked_hv_min_accel_mps2": -1.5,
         },
-        "safety": {"collisions": 0},
+        "safety": {"collisions": 0, "hard_brakes_cav": 0, "hard_brakes_hv": 1},
         "planner": {"solves": 4, "solve_ms_p95": 40.0, "solve_ms_max": 90.0},
         "timing": {"wall_s": 5.0},
     }  # fmt: skip
@@ -108,7 +108,9 @@ def _summary(**changes: object) -> dict:
     return s
 
 
-CACC = _record({"cav": {"mean_speed_mps": 17.0}, "timing": {"wall_s": 2.0}})
+CACC = _record(
+    {"cav": {"mean_speed_mps": 17.0}, "safety": {"hard_brakes_hv": 1}, "timing": {"wall_s": 2.0}}
+)
 
 
 def _judge(summary: dict, platoon=None, cacc=CACC, status="ok") -> dict:
@@ -125,6 +127,8 @@ def test_a_good_scene_passes_every_check():
     ("change", "check"),
     [
         ({"cav__gap_min_m": 4.97}, "min_gap"),
+        ({"safety__hard_brakes_hv": 2}, "hard_brakes"),  # one more HV than under cacc
+        ({"safety__hard_brakes_cav": 1}, "hard_brakes"),
         ({"cav__max_speed_mps": 25.11}, "max_speed"),
         ({"overtake__blocked_hv_min_accel_mps2": -2.01}, "blocked_hv_brake"),
         ({"cav__mean_speed_mps": 17.0}, "mean_speed"),  # equal is not above
@@ -156,6 +160,7 @@ def test_bounds_themselves_pass():
     [
         ({"overtake__blocked_hv_min_accel_mps2": None}, "blocked_hv_brake"),
         ({"timing__wall_s": None}, "run_cost"),
+        ({"safety__hard_brakes_hv": None}, "hard_brakes"),
         ({"planner__solve_ms_p95": None}, "planner_p95"),
         ({"overtake__completed": None, "overtake__aborted": None}, "overtake"),
     ],
@@ -178,15 +183,21 @@ def test_null_means_none_happened():
 
 @pytest.mark.parametrize(
     ("platoon", "verdict"),
-    [((1, 7.0), vr.PASS), ((1, None), vr.PASS), ((2, 7.0), vr.FAIL), ((1, 4.9), vr.FAIL)],
+    [
+        ((1, 7.0, 0), vr.PASS),
+        ((1, None, 0), vr.PASS),
+        ((2, 7.0, 0), vr.FAIL),
+        ((1, 4.9, 0), vr.FAIL),
+        ((1, 7.0, 1), vr.FAIL),  # one lane, the truck between its CAVs: split, not intact
+    ],
 )
 def test_give_up_is_clean_only_with_the_platoon_intact(platoon, verdict):
     gave_up = _summary(overtake__completed=False, overtake__regrouped=False, overtake__aborted=1)
     assert _judge(gave_up, platoon)["overtake"] == verdict
     # Not completed and no give-up: a failure, whatever the platoon looks like.
     stuck = _summary(overtake__completed=False, overtake__regrouped=False)
-    assert _judge(stuck, (1, 7.0))["overtake"] == vr.FAIL
-    assert _judge(stuck, (1, 7.0), status="failed")["ran"] == vr.FAIL
+    assert _judge(stuck, (1, 7.0, 0))["overtake"] == vr.FAIL
+    assert _judge(stuck, (1, 7.0, 0), status="failed")["ran"] == vr.FAIL
     assert _judge(_summary(), cacc=None)["ran"] == vr.NA  # its cacc run has not finished
 
 
@@ -200,9 +211,12 @@ def test_platoon_at_end_reads_the_last_step():
         (2.0, "cav", 1, 76.5, 5.0),  # 6.5 m behind the second
     ]
     df = pd.DataFrame(rows, columns=["time_s", "kind", "lane", "s_m", "length_m"])
-    assert vr.platoon_at_end(df) == (1, 6.5)
+    assert vr.platoon_at_end(df) == (1, 6.5, 0)  # the HV drives ahead of them
     df.loc[4, "lane"] = 0
-    assert vr.platoon_at_end(df) == (2, 7.0)
+    assert vr.platoon_at_end(df) == (2, 7.0, 0)
+    df.loc[4, "lane"] = 1
+    df.loc[3, "s_m"] = 82.0  # now between the second CAV and the third
+    assert vr.platoon_at_end(df) == (1, 6.5, 1)
 
 
 def test_lateral_holds_from_summary_else_events(tmp_path):

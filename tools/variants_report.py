@@ -4,8 +4,11 @@ For every scene, its ``swarm`` run against its ``cacc`` run:
 
 - ``ran``: both runs finished;
 - ``overtake``: completed and regrouped, or a clean give-up (``overtake.aborted`` > 0 with the
-  platoon intact at the end: every CAV in one lane, CAV-to-CAV gaps >= 5 m);
+  platoon intact at the end: every CAV in one lane, no other vehicle between them there,
+  CAV-to-CAV gaps >= 5 m);
 - ``no_collision``: 0 collisions (swarm);
+- ``hard_brakes``: no CAV braking harder than 4 m/s^2 (``safety.hard_brakes_cav``) and no more
+  HVs doing so than in the cacc run (``safety.hard_brakes_hv``), as in the stress sweep;
 - ``min_gap``: min CAV-to-CAV gap (``cav.gap_min_cav_m``; ``cav.gap_min_m`` in older summaries)
   >= 5 m; the gap behind HVs, which may cut in, is reported apart (``gap_min_hv_m``);
 - ``max_speed``: no CAV above the scenario's ``cav.max_speed_mps`` (+0.1 m/s);
@@ -57,6 +60,7 @@ CHECKS = (
     "ran",
     "overtake",
     "no_collision",
+    "hard_brakes",
     "min_gap",
     "max_speed",
     "blocked_hv_brake",
@@ -147,27 +151,32 @@ def lateral_holds(summary: Mapping[str, Any] | None, run_dir: Path | None) -> in
     return count
 
 
-def platoon_at_end(trajectories: pd.DataFrame) -> tuple[int, float | None]:
-    """(number of lanes the CAVs occupy, min CAV-to-CAV bumper gap [m]) at the last step.
+def platoon_at_end(trajectories: pd.DataFrame) -> tuple[int, float | None, int]:
+    """(number of lanes the CAVs occupy, min CAV-to-CAV bumper gap [m], number of other
+    vehicles between CAVs in a lane) at the last step.
 
     The gap is taken between CAVs that follow each other in one lane (front bumper ``s_m``
     minus the leader's length minus the follower's front); None with fewer than two CAVs in a
-    lane.
+    lane. A vehicle in a lane between the front-most and the rearmost CAV there splits the
+    platoon: CAVs on both sides of the truck in its lane are in one lane, and not one platoon.
     """
     last = trajectories[trajectories["time_s"] == trajectories["time_s"].max()]
     cavs = last[last["kind"] == "cav"]
     lanes = int(cavs["lane"].nunique())
     gaps: list[float] = []
-    for _, lane in cavs.groupby("lane", observed=True):
+    between = 0
+    for lane_id, lane in cavs.groupby("lane", observed=True):
         lane = lane.sort_values("s_m", ascending=False)
         s = lane["s_m"].to_numpy()
         length = lane["length_m"].to_numpy()
         gaps.extend(float(s[i] - length[i] - s[i + 1]) for i in range(len(s) - 1))
-    return lanes, (min(gaps) if gaps else None)
+        others = last[(last["kind"] != "cav") & (last["lane"] == lane_id)]["s_m"]
+        between += int(((others < s[0]) & (others > s[-1])).sum())
+    return lanes, (min(gaps) if gaps else None), between
 
 
 def judge_overtake(
-    summary: Mapping[str, Any], platoon: tuple[int, float | None] | None
+    summary: Mapping[str, Any], platoon: tuple[int, float | None, int] | None
 ) -> tuple[str, str]:
     """Completed and regrouped, or a clean give-up. Returns (verdict, how)."""
     completed = field(summary, "overtake.completed")
@@ -178,9 +187,13 @@ def judge_overtake(
     if aborted is not None and aborted > 0:
         if platoon is None:
             return NA, "gave up; no trajectories"
-        lanes, gap = platoon
-        intact = lanes == 1 and (gap is None or gap >= MIN_GAP_M)
-        how = f"gave up; platoon {'intact' if intact else 'broken'} ({lanes} lanes, gap {gap})"
+        lanes, gap, between = (*platoon, 0)[:3]
+        intact = lanes == 1 and between == 0 and (gap is None or gap >= MIN_GAP_M)
+        gap_text = "none" if gap is None else f"{gap:.1f} m"
+        how = (
+            f"gave up; platoon {'intact' if intact else 'broken'} "
+            f"({lanes} lanes, gap {gap_text}, {between} vehicles between CAVs)"
+        )
         return (PASS if intact else FAIL), how
     if completed is MISSING or regrouped is MISSING:
         return NA, "overtake fields missing"
@@ -206,7 +219,7 @@ def judge_scene(
     cacc: Mapping[str, Any] | None,
     max_speed_mps: float,
     b_safe_mps2: float,
-    platoon: tuple[int, float | None] | None = None,
+    platoon: tuple[int, float | None, int] | None = None,
     holds: int | None = None,
 ) -> dict[str, Any]:
     """The verdicts (``CHECKS``) and the numbers behind them for one scene.
@@ -224,6 +237,15 @@ def judge_scene(
     collisions = _number(field(s, "safety.collisions"))
     out["collisions"] = collisions
     out["no_collision"] = NA if collisions is None else (PASS if collisions == 0 else FAIL)
+    cav_brakes = _number(field(s, "safety.hard_brakes_cav"))
+    hv_brakes = _number(field(s, "safety.hard_brakes_hv"))
+    hv_brakes_cacc = _number(field(c, "safety.hard_brakes_hv"))
+    out["hard_brakes_cav"], out["hard_brakes_hv"] = cav_brakes, hv_brakes
+    out["hard_brakes_hv_cacc"] = hv_brakes_cacc
+    if None in (cav_brakes, hv_brakes, hv_brakes_cacc):
+        out["hard_brakes"] = NA
+    else:
+        out["hard_brakes"] = PASS if cav_brakes == 0 and hv_brakes <= hv_brakes_cacc else FAIL
     # The swarm's own spacing: CAV behind CAV (issue 12: gaps to HVs that cut in apart).
     cav_gap = field(s, "cav.gap_min_cav_m")
     out["gap_min_m"] = _number(field(s, "cav.gap_min_m") if cav_gap is MISSING else cav_gap)
