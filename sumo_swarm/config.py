@@ -479,6 +479,24 @@ class SwarmSettings:
     # veh/h/lane), the CAVs get past as SUMO's own drivers do, one gap at a time, and re-form
     # ahead.
     pass_singly_s: float = 60.0
+    # After a give-up that leaves the target between CAVs past it and CAVs behind it, the CAVs
+    # past it wait for the others up to this long [s] (0 = they drive on): they re-form in its
+    # lane ahead of it, where they hold up nobody but it, and keep its speed once they are
+    # wait_lead_m ahead of the room the CAVs behind need to get in ahead of it (each a CAV
+    # length plus cav.desired_gap_m, plus the target's secure gap by its model); the CAVs
+    # behind it keep their lanes and pass it as they can, in any lane beside once the wait has
+    # lasted pass_switch_s. The wait ends once every CAV is past and in one lane. Driving on,
+    # the CAVs past were 190 m ahead when the last one got by, and the platoon was still in
+    # two lanes when the run ended (variants 24, 27, 39). A choice of ours (the paper's swarm
+    # never gives up): while it lasts, the CAVs past the target lose their speed above it.
+    wait_ahead_s: float = 45.0
+    # Waiting, the CAVs past the target keep up to this much more room [m] ahead of it than the
+    # CAVs behind need (they slow to its speed only beyond it; cacc.k_close per metre): a CAV
+    # that gets past soon after the give-up costs the others nothing, and one that gets past
+    # late has this much to close at its catch-up speed. 0 = they hold just the room needed
+    # (an earlier form of the wait, measured both ways: at 0, 34 variants passing the
+    # overtake check and a mean CAV speed of 17.56 m/s; at 50 m, 33 and 17.71 m/s).
+    wait_lead_m: float = 50.0
     # A CAV passing on its own is followed at once by the CAV behind it, in the same lane, once
     # its centre is in that lane (a train, as SUMO's drivers overtake); false = each CAV starts
     # its pass only once the CAV ahead is past the slow vehicle (5-6 s a CAV: platoons of 9-12
@@ -529,7 +547,8 @@ class SwarmSettings:
         check_non_negative(
             self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
-            "cooldown_s", "pass_singly_s", "max_block_s", "prediction_error_m",
+            "cooldown_s", "pass_singly_s", "wait_ahead_s", "wait_lead_m", "max_block_s",
+            "prediction_error_m",
             "max_leader_ease_mps", "regroup_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s", "max_pass_s", "pass_switch_s", "drop_behind_s", "keep_right_wait_s",
             "give_up_waiting_s",

@@ -89,6 +89,39 @@ def test_a_queue_behind_a_truck_slower_than_the_grid_is_planned_at_the_trucks_sp
     assert swarm["cav"]["gap_min_m"] >= 5.0
 
 
+def test_after_a_give_up_the_cavs_past_the_truck_wait_for_the_one_behind_it(tmp_path):
+    # Variant 24 of scenarios/variants.toml: 5 CAVs, a 14.9 m/s truck, side lanes of 20 and
+    # 23 m/s. At 30 s four CAVs are past and the swarm gives up (no way past for the fifth).
+    # The four drove on at 20 m/s: the fifth got by at 58 s, 190 m behind them, and the
+    # platoon was still in two lanes at 80 s. Now they wait in the truck's lane ahead of it.
+    spec = _variant_spec(5, 14.87)
+    swarm = run_scenario(spec.scenario(), "swarm", tmp_path, seed=spec.seed, progress=False)
+    events = _events(tmp_path)
+    starts = [e for e in events if e["event"] == "wait_start"]
+    assert [(e["slow"], e["past"], e["behind"]) for e in starts] == [("hv_target", 4, 1)]
+    assert swarm["overtake"]["waits_ahead"] == {"started": 1, "ended": {"rejoined": 1}}
+    assert swarm["overtake"]["regrouped"] is True
+    assert len(_cav_lanes_at_end(tmp_path)) == 1
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["cav"]["gap_min_cav_m"] >= 5.0
+
+
+def test_after_a_give_up_the_cavs_behind_the_truck_keep_their_lanes(tmp_path):
+    # Variant 39: 11 CAVs, a 15.0 m/s truck; at 36 s two CAVs are past it and nine behind, in
+    # two lanes, and the planner finds no plan. The nine merged into one lane behind the
+    # truck and hv_right, slowing to 3 m/s, the HVs behind them to 4 m/s. Now they keep their
+    # lanes and pass it from there, while the two wait ahead of it.
+    spec = _variant_spec(11, 15.01)
+    swarm = run_scenario(spec.scenario(), "swarm", tmp_path, seed=spec.seed, progress=False)
+    starts = [e for e in _events(tmp_path) if e["event"] == "wait_start"]
+    assert starts and starts[0]["slow"] == "hv_target" and starts[0]["behind"] == 9
+    df = pd.read_parquet(tmp_path / "trajectories.parquet")
+    late = df[df["time_s"] > starts[0]["time_s"]]
+    assert late["speed_mps"].min() > 10.0  # no CAV and no HV crawls behind the truck
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes"] == 0
+    assert swarm["cav"]["gap_min_cav_m"] >= 5.0
+
+
 @pytest.mark.parametrize("scene", [155, 181])
 def test_target_moving_into_the_front_cavs_lane_is_not_overtaken_again(tmp_path, scene):
     # Stress v2 scenes (scenarios/stress2.toml): the truck moves right at about 8 s, into the

@@ -608,3 +608,124 @@ def test_a_platoon_cav_slows_the_hv_beside_a_stranded_cav_so_it_can_get_in():
     st["c1"] = car("c1", 275.0, 1, 14.0, cav=True)
     r2.held_s["c2"] = (1, SCENARIO.swarm.block_assist_after_s + 0.1)
     assert r2.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"][1] > -brake
+
+
+def split_scene():
+    """Two CAVs past a 12 m/s truck in lane 1, one behind it in lane 2 and one behind it in
+    its own lane; lane 0 is free ahead."""
+    return states(
+        car("c0", 320.0, 0, 20.0, cav=True),
+        car("c1", 300.0, 0, 20.0, cav=True),
+        car("slow", 270.0, 1, 12.0),
+        car("c2", 250.0, 2, 14.0, cav=True),
+        car("c3", 240.0, 1, 12.0, cav=True),
+    )
+
+
+def test_a_platoon_split_by_the_target_waits_in_its_lane_and_the_cavs_behind_keep_theirs():
+    events = []
+    r = reformer(events)
+    st, platoon = split_scene(), ["c0", "c1", "c2", "c3"]
+    # Without a wait the platoon re-forms in lane 0, which holds most of its CAVs: c2 would
+    # cross the truck's lane behind it.
+    assert r.lane(st, platoon, ROAD, ending=(), cap_mps=25.0) == 0
+    assert r.goals(0.0, st, platoon, ROAD, 0, cap_mps=25.0)["c2"] == 0
+    r.reset()
+    events.clear()
+    r.waiting = ("slow", 60.0)
+    assert r.split_by(10.0, st, platoon, ROAD) is st["slow"]
+    assert r.lane(st, platoon, ROAD, ending=(), cap_mps=25.0) == 1  # the truck's lane
+    assert events[-1] == ("reform_lane", {"lane": 1, "lane_speeds_mps": {}, "wait": "slow"})
+    goals = r.goals(10.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    # c0 and c1 move in ahead of the truck; c2 keeps lane 2 and drives past it there; c3
+    # keeps the truck's lane (and passes it as the CAV ahead of it is past).
+    assert goals == {"c0": 1, "c1": 1, "c2": 2, "c3": 1}
+    # A lane that ends ahead is never waited in.
+    assert r.split_by(10.0, st, platoon, ROAD, ending={1}) is None
+    assert events[-1] == ("wait_end", {"slow": "slow", "reason": "lane_ends"})
+
+
+@pytest.mark.parametrize(
+    ("change", "t_s", "reason"),
+    [
+        ({"c0": 330.0, "c1": 315.0, "c2": 300.0, "c3": 285.0}, 10.0, "rejoined"),
+        ({"c0": 260.0, "c1": 255.0}, 10.0, "none_past"),
+        ({}, 61.0, "timeout"),
+    ],
+)
+def test_the_wait_ends_once_the_platoon_is_no_longer_split_or_its_time_is_up(change, t_s, reason):
+    events = []
+    r = reformer(events)
+    st, platoon = split_scene(), ["c0", "c1", "c2", "c3"]
+    for vid, s in change.items():
+        st[vid] = replace(st[vid], s_m=s, lane=0 if reason == "rejoined" else st[vid].lane)
+    r.waiting = ("slow", 60.0)
+    if reason == "rejoined":  # all past, not yet in one lane: the wait goes on
+        assert r.split_by(t_s, {**st, "c3": replace(st["c3"], lane=1)}, platoon, ROAD)
+    assert r.split_by(t_s, st, platoon, ROAD) is None
+    assert r.waiting is None and r.wait_ends == {reason: 1}
+    assert events == [("wait_end", {"slow": "slow", "reason": reason})]
+    del st["slow"]  # and once the vehicle is gone
+    r.waiting = ("slow", 60.0)
+    assert r.split_by(10.0, st, platoon, ROAD) is None and r.wait_ends["gone"] == 1
+
+
+def test_the_cavs_waiting_keep_the_room_the_others_need_ahead_of_the_target_and_no_more():
+    r = reformer()  # the truck's model: min gap 2.5 m, tau 1 s
+    r.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, wait_lead_m=0.0))
+    platoon = ["c0", "c1", "c2", "c3"]
+    st = split_scene()
+    # Only CAVs past the truck and in its lane are held; none is there yet.
+    assert r.wait_cruise(st, platoon, ROAD, st["slow"], 20.0) == {}
+    st["c0"] = car("c0", 320.0, 1, 20.0, cav=True)
+    st["c1"] = car("c1", 300.0, 1, 20.0, cav=True)
+    # Two CAVs behind need 2 * (5 + 10) m plus the truck's secure gap 2.5 + 1.0 * 12 m:
+    # 44.5 m. c1's rear is 25 m ahead of the truck: 19.5 m short, 0.15 m/s per metre.
+    assert r.wait_cruise(st, platoon, ROAD, st["slow"], 20.0) == {
+        "c0": pytest.approx(14.925), "c1": pytest.approx(14.925)
+    }  # fmt: skip
+    # A CAV past the truck in another lane alongside them or ahead is still to drop in
+    # behind them: nobody is held until it is in.
+    st["c0"] = car("c0", 320.0, 0, 20.0, cav=True)
+    assert r.wait_cruise(st, platoon, ROAD, st["slow"], 20.0) == {}
+    # One just past the truck gets in behind them, ahead of the truck: they wait on.
+    st["c0"] = car("c0", 280.0, 0, 20.0, cav=True)
+    assert r.wait_cruise(st, platoon, ROAD, st["slow"], 20.0) == {"c1": pytest.approx(14.925)}
+    # With the room there they keep the truck's speed; never above the cruise they are given.
+    st["c1"] = car("c1", 330.0, 1, 20.0, cav=True)
+    assert r.wait_cruise(st, platoon, ROAD, st["slow"], 20.0) == {"c1": 12.0}
+    st["c0"] = car("c0", 320.0, 1, 20.0, cav=True)
+    st["c1"] = car("c1", 285.0, 1, 20.0, cav=True)  # 10 m of room
+    assert r.wait_cruise(st, platoon, ROAD, st["slow"], 16.0) == {"c0": 16.0, "c1": 16.0}
+    # With a lead of 50 m they keep their cruise until they are 50 m further ahead.
+    r.scenario = SCENARIO
+    assert SCENARIO.swarm.wait_lead_m == 50.0
+    st["c0"] = car("c0", 320.0, 1, 20.0, cav=True)
+    st["c1"] = car("c1", 330.0, 1, 20.0, cav=True)  # c0 rearmost: 45 m of room, 49.5 m short
+    assert r.wait_cruise(st, platoon, ROAD, st["slow"], 20.0) == {
+        "c0": pytest.approx(19.425), "c1": pytest.approx(19.425)
+    }  # fmt: skip
+
+
+def test_a_cav_the_platoon_waits_for_passes_in_any_lane_beside_once_the_wait_has_lasted():
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 320.0, 1, 12.0, cav=True),
+        car("slow", 270.0, 1, 12.0),
+        car("c1", 255.0, 1, 12.0, cav=True),  # right behind the truck
+        car("right", 256.0, 0, 12.5),  # an HV beside it on either side, no faster
+        car("left", 256.0, 2, 12.5),
+    )  # fmt: skip
+    platoon = ["c0", "c1"]
+    r.waiting = ("slow", 60.0)  # started at 15 s ([swarm] wait_ahead_s = 45)
+    # Neither lane beside is faster by the gain: c1 stays behind the truck for now...
+    assert r.goals(16.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}
+    assert events == []
+    # ... and once the wait has lasted pass_switch_s (6 s), it passes in the lane beside.
+    goals = r.goals(21.0, st, platoon, ROAD, 1, cap_mps=25.0)
+    assert goals["c1"] in (0, 2)
+    assert events == [("passing_start", {"vehicle": "c1", "slow": "slow", "lane": goals["c1"]})]
+    # Without a wait it never does.
+    r2 = reformer()
+    assert r2.goals(21.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}

@@ -90,12 +90,66 @@ class Reformer:
     pulling: tuple[str, str] | None = None  # (CAV, HV) the platoon pulls away from (pull_away)
     block_s: dict[str, float] = field(default_factory=dict)  # HV -> time held by block_assist
     left_for_held: tuple[int, str | None] | None = None  # (lane, edge) left by _held_switch
+    # (slow vehicle, until [s]): after a give-up with the platoon split by that vehicle, the
+    # CAVs past it wait for the others in its lane ahead of it (see split_by)
+    waiting: tuple[str, float] | None = None
+    wait_ends: Counter[str] = field(default_factory=Counter)  # why the waits ended, counted
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
         self.lane_id = None
         self.left_for_held = None
+        self.waiting = None
         self.block_s.clear()
+
+    def past(self, ego: VehicleState, slow: VehicleState) -> bool:
+        """Is ego's rear ``cav.min_gap_m`` ahead of ``slow``'s front?"""
+        return ego.rear_s_m >= slow.s_m + self.scenario.cav.min_gap_m
+
+    def split_by(
+        self,
+        t_s: float,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        ending: Collection[int] = (),
+    ) -> VehicleState | None:
+        """The vehicle the platoon waits at (:attr:`waiting`), until every CAV is past it and in
+        one lane (``rejoined``), none is (``none_past``), it is gone, its lane ends ahead
+        (``ending``: ``lane_ends``) or the wait is over (``timeout``). While it lasts the CAVs
+        past it re-form in its lane ahead of it (:meth:`lane`), where they hold up nobody
+        behind them but it, no faster than it beyond the room the others need to get in ahead
+        of it (:meth:`wait_cruise`); the CAVs behind it keep their lanes (:meth:`goals`) and
+        pass it as they can. Clears the wait once it is over (a ``wait_end`` event with the
+        reason)."""
+        if self.waiting is None:
+            return None
+        slow_id, until_s = self.waiting
+        slow = states.get(slow_id)
+        how = None
+        if slow is None:
+            how = "gone"
+        elif t_s > until_s:
+            how = "timeout"
+        elif road.lane_of(slow) in ending:
+            how = "lane_ends"
+        else:
+            past = [self.past(states[v], slow) for v in platoon]
+            if all(past):
+                # Past, the last CAVs still have to close up: the others wait on at its speed
+                # until every CAV is in one lane (driving on, they pulled away at the cruise,
+                # and the last two had 52 and 74 m to make up at 5 m/s: stress scene 43).
+                if len({road.lane_of(states[v]) for v in platoon}) == 1:
+                    how = "rejoined"
+            elif not any(past):
+                how = "none_past"
+        if how is None:
+            return slow
+        self.waiting = None
+        self.lane_id = None  # chosen afresh from where the CAVs are
+        self.wait_ends[how] += 1
+        self.event("wait_end", slow=slow_id, reason=how)
+        return None
 
     def _held_switch(
         self,
@@ -140,6 +194,45 @@ class Reformer:
             return math.inf
         return self.model_of(vehicle.vehicle_id).desired_speed_mps
 
+    def wait_cruise(
+        self,
+        states: Mapping[str, VehicleState],
+        platoon: Sequence[str],
+        road: RoadSection,
+        slow: VehicleState,
+        cruise_mps: float,
+    ) -> dict[str, float]:
+        """Cruising speed [m/s] of each CAV past ``slow`` and in its lane while the platoon
+        waits there for the CAVs behind it (:meth:`split_by`): ``slow``'s speed, plus
+        ``cacc.k_close`` per metre the room ahead of it (to the rearmost of those CAVs) falls
+        short of what the CAVs behind need to get in (each a CAV length plus
+        ``cav.desired_gap_m``, plus ``slow``'s secure gap by its model: ``min_gap_m + tau_s *
+        v``, plus ``[swarm] wait_lead_m``), at most ``cruise_mps``. Never slower than
+        ``slow``: it is held up by nobody.
+        None is held while a CAV past ``slow`` in another lane is still to drop in behind them
+        (its front within ``cav.desired_gap_m`` of their rear or ahead of it): it would slow
+        to their speed beside the target, holding up the lane it leaves (variant 14: the HVs
+        there then kept the CAV behind the target out of that lane for 26 s more)."""
+        sc = self.scenario
+        lane = road.lane_of(slow)
+        ahead = [v for v in platoon if self.past(states[v], slow)]
+        waiting = [v for v in ahead if road.lane_of(states[v]) == lane]
+        if not waiting:
+            return {}
+        rear = min(states[v].rear_s_m for v in waiting)
+        if any(states[v].s_m > rear - sc.cav.desired_gap_m for v in ahead if v not in waiting):
+            return {}
+        behind = len(platoon) - len(ahead)
+        model = self.model_of(slow.vehicle_id)
+        need = (
+            behind * (sc.cav.length_m + sc.cav.desired_gap_m)
+            + (model.min_gap_m + model.tau_s * slow.speed_mps)
+            + sc.swarm.wait_lead_m
+        )
+        room = rear - slow.s_m
+        speed = min(slow.speed_mps + sc.cacc.k_close * max(need - room, 0.0), cruise_mps)
+        return dict.fromkeys(waiting, speed)
+
     # ------------------------------------------------------------------ the platoon's lane
     def lane(
         self,
@@ -152,7 +245,15 @@ class Reformer:
         edge: str | None = None,
     ) -> int:
         """The lane the platoon cruises in (``ending``: lanes that end ahead of the leader;
-        ``edge``: the leader's edge, whose lane indices the choice is in)."""
+        ``edge``: the leader's edge, whose lane indices the choice is in). While it waits at a
+        vehicle (:meth:`split_by`), that vehicle's lane."""
+        slow = states.get(self.waiting[0]) if self.waiting is not None else None
+        if slow is not None and road.lane_of(slow) not in ending:
+            held = road.lane_of(slow)
+            if self.lane_id != held:
+                self.event("reform_lane", lane=held, lane_speeds_mps={}, wait=slow.vehicle_id)
+            self.lane_id = held
+            return held
         sc = self.scenario
         if edge != self.edge:  # lane indices change between edges (ramps, lane drops)
             self.edge, self.lane_id = edge, None
@@ -238,9 +339,17 @@ class Reformer:
         sw = sc.swarm
         members = set(platoon)
         others = [st for v, st in states.items() if v not in members]
+        waits_at = states.get(self.waiting[0]) if self.waiting is not None else None
+        platoon_lane = lane
         goals = {}
         for i, vid in enumerate(platoon):
             ego = states[vid]
+            lane = platoon_lane
+            if waits_at is not None and not self.past(ego, waits_at):
+                # Behind the vehicle the platoon waits at: ego keeps its lane and passes it as
+                # it can (merging behind it into its lane only to pass it again cost 10 m/s of
+                # speed to the CAVs and the HVs behind them: variant 39).
+                lane = road.lane_of(ego)
             goals[vid] = lane
             passing = self.passing.get(vid)
             if passing is not None:
@@ -291,11 +400,24 @@ class Reformer:
             speeds = lane_speeds(ego, others, road, side, range_m=sw.detect_range_m,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip
             best = max(speeds, key=speeds.get, default=None)
-            if best is not None and speeds[best] - slow.speed_mps >= sw.min_speed_gain_mps:
+            gain = sw.min_speed_gain_mps
+            if self._waited_at(slow, t_s) >= sw.pass_switch_s:
+                # The platoon waits for ego ahead of this vehicle: ego passes it to re-join,
+                # not to drive faster, in whichever lane beside is fastest (an HV beside the
+                # truck at 15.8 m/s kept the only side lane from being 2 m/s faster than the
+                # truck's 15.6 for 15 s, and the wait ran out: stress scene 40).
+                gain = -math.inf
+            if best is not None and speeds[best] - slow.speed_mps >= gain:
                 self.passing[vid] = (slow.vehicle_id, best, t_s)
                 goals[vid] = best
                 self.event("passing_start", vehicle=vid, slow=slow.vehicle_id, lane=best)
         return goals
+
+    def _waited_at(self, slow: VehicleState, t_s: float) -> float:
+        """How long [s] the platoon has waited at ``slow`` (:attr:`waiting`; 0: it does not)."""
+        if self.waiting is None or self.waiting[0] != slow.vehicle_id:
+            return 0.0
+        return t_s - (self.waiting[1] - self.scenario.swarm.wait_ahead_s)
 
     def _splits(
         self,

@@ -143,6 +143,7 @@ class SwarmController:
         self.aborts: Counter[str] = Counter()
         self.lateral_holds = 0
         self.lateral_yields = 0  # waits for a swarm CAV clearing a lane (tracker timing)
+        self.waits_started = 0  # waits ahead of a target splitting the platoon (wait_ahead_s)
         self._yielding: dict[str, float] = {}
         self.holds_per_manoeuvre: list[int] = []
         self._holding: dict[str, float] = {}
@@ -322,6 +323,7 @@ class SwarmController:
                 if give_up is not None:
                     self._finish(t_s, completed=False, reason=give_up)
                     self.watch.cool_down(t_s + sc.swarm.cooldown_s)
+                    self._wait_if_split(t_s, target, cavs)
                     if sc.swarm.pass_singly_s > 0.0 and give_up in PASS_SINGLY_AFTER:
                         # No way past together: the CAVs pass it one by one, as SUMO's
                         # drivers do, through the guards, and re-form the platoon ahead.
@@ -542,6 +544,7 @@ class SwarmController:
         reach = sc.swarm.detect_range_m + 10.0 * sc.cav.cruising_speed_mps
         ending = self._ending_lanes(states[platoon[0]], platoon[0], reach)
         edge = self._edge_of(platoon[0])
+        waits_at = reformer.split_by(t_s, states, platoon, road, ending)
         lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap, edge=edge)
         goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap)
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
@@ -557,6 +560,11 @@ class SwarmController:
             slow_below_mps=sc.cav.cruising_speed_mps - sc.swarm.min_speed_gain_mps,
             reach_m=sc.swarm.detect_range_m, width_m=sc.cav.width_m,
         ) if sc.swarm.catch_up_across_lanes else {}  # fmt: skip
+        if waits_at is not None and boost <= 0.0:
+            wait = reformer.wait_cruise(states, platoon, road, waits_at, base)
+            catch_up = {**catch_up, **{v: min(catch_up.get(v, base), w) for v, w in wait.items()}}
+            if platoon[0] in wait:
+                leader_cruise = min(leader_cruise, wait[platoon[0]])
         command_cacc(ctx, platoon, leader_cruise,
                      accel_limits={vid: m[1] for vid, m in moves.items()},
                      accel_floors=reformer.floors, states=states, cruise_mps=cruise,
@@ -564,6 +572,21 @@ class SwarmController:
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)
+
+    def _wait_if_split(
+        self, t_s: float, target: VehicleState | None, cavs: dict[str, VehicleState]
+    ) -> None:
+        """After a give-up: wait for the CAVs behind ``target`` if it splits the platoon
+        (``[swarm] wait_ahead_s``, :meth:`Reformer.split_by`; a ``wait_start`` event)."""
+        wait_s = self.ctx.scenario.swarm.wait_ahead_s
+        if wait_s <= 0.0 or target is None:
+            return
+        past = sum(self.reformer.past(c, target) for c in cavs.values())
+        if 0 < past < len(cavs):
+            self.waits_started += 1
+            self.reformer.waiting = (target.vehicle_id, t_s + wait_s)
+            self.ctx.event("wait_start", slow=target.vehicle_id, past=past,
+                           behind=len(cavs) - past, until_s=round(t_s + wait_s, 2))  # fmt: skip
 
     def _leader_ease_cap(self, states: dict[str, VehicleState], platoon: list[str]) -> float:
         """How much [m/s] the cruising leader may slow to let a stretched platoon close up
@@ -1199,6 +1222,11 @@ class SwarmController:
                 "abort_reasons": dict(self.aborts),
                 "lateral_holds": self.lateral_holds,
                 "lateral_yields": self.lateral_yields,
+                # waits ahead of a target that split the platoon at a give-up (wait_ahead_s)
+                "waits_ahead": {
+                    "started": self.waits_started,
+                    "ended": dict(self.reformer.wait_ends) if self.ctx else {},
+                },
                 "lateral_holds_per_manoeuvre": list(self.holds_per_manoeuvre),
                 "blocked_hv_min_accel_mps2": blocked,
                 "blocked_hvs": sorted(self.blocked_min_accel),

@@ -181,6 +181,7 @@ def build_summary(
         "behaving_interval_s",
         "lateral_holds_per_manoeuvre",
         "lateral_yields",
+        "waits_ahead",
         "blocked_hvs",
     )
     for key in extra:
