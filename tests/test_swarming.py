@@ -330,6 +330,18 @@ def test_lateral_guard_uses_the_followers_own_model():
     assert refusal(centred, [car("h", 71.0, 2, 24.0)], dlat=0.05) is None
 
 
+def test_lateral_guard_sees_the_lanes_follower_behind_an_hv_leaning_towards_it():
+    ego = car("c0", 100.0, 1, 17.5, cav=True, lat=1.0)  # moving left, about to cross
+    # An HV of ego's own lane 15 m back, slower, leaning 0.5 m towards lane 2: it counts as
+    # overlapping the lane ego enters, and the entry suits it.
+    lean = car("lean", 90.0, 1, 15.0, lat=0.5)
+    assert refusal(ego, [lean]) is None
+    # Behind it, lane 2's own HV closes in at 6.5 m/s and would brake hard: held, although
+    # the leaning HV is the nearer one (variant 24: an HV braked at 9 m/s^2).
+    assert refusal(ego, [lean, car("h", 71.0, 2, 24.0)]) == "follower_brake"
+    assert refusal(ego, [lean, car("h", 55.0, 2, 17.5)]) is None  # 40 m back, no faster
+
+
 def test_plan_log_writes_lines_and_drops_a_failing_listener(tmp_path):
     log = PlanLog(tmp_path)
     seen = []
