@@ -632,7 +632,7 @@ def test_a_platoon_split_by_the_target_waits_in_its_lane_and_the_cavs_behind_kee
     assert r.goals(0.0, st, platoon, ROAD, 0, cap_mps=25.0)["c2"] == 0
     r.reset()
     events.clear()
-    r.waiting = ("slow", 60.0)
+    r.waiting = ("slow", 15.0, 60.0)
     assert r.split_by(10.0, st, platoon, ROAD) is st["slow"]
     assert r.lane(st, platoon, ROAD, ending=(), cap_mps=25.0) == 1  # the truck's lane
     assert events[-1] == ("reform_lane", {"lane": 1, "lane_speeds_mps": {}, "wait": "slow"})
@@ -659,14 +659,14 @@ def test_the_wait_ends_once_the_platoon_is_no_longer_split_or_its_time_is_up(cha
     st, platoon = split_scene(), ["c0", "c1", "c2", "c3"]
     for vid, s in change.items():
         st[vid] = replace(st[vid], s_m=s, lane=0 if reason == "rejoined" else st[vid].lane)
-    r.waiting = ("slow", 60.0)
+    r.waiting = ("slow", 15.0, 60.0)
     if reason == "rejoined":  # all past, not yet in one lane: the wait goes on
         assert r.split_by(t_s, {**st, "c3": replace(st["c3"], lane=1)}, platoon, ROAD)
     assert r.split_by(t_s, st, platoon, ROAD) is None
     assert r.waiting is None and r.wait_ends == {reason: 1}
     assert events == [("wait_end", {"slow": "slow", "reason": reason})]
     del st["slow"]  # and once the vehicle is gone
-    r.waiting = ("slow", 60.0)
+    r.waiting = ("slow", 15.0, 60.0)
     assert r.split_by(10.0, st, platoon, ROAD) is None and r.wait_ends["gone"] == 1
 
 
@@ -718,7 +718,7 @@ def test_a_cav_the_platoon_waits_for_passes_in_any_lane_beside_once_the_wait_has
         car("left", 256.0, 2, 12.5),
     )  # fmt: skip
     platoon = ["c0", "c1"]
-    r.waiting = ("slow", 60.0)  # started at 15 s ([swarm] wait_ahead_s = 45)
+    r.waiting = ("slow", 15.0, 60.0)  # from 15 s to 60 s
     # Neither lane beside is faster by the gain: c1 stays behind the truck for now...
     assert r.goals(16.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}
     assert events == []

@@ -39,7 +39,7 @@ from sumo_swarm.core.neighbours import (
     vehicle_behind,
     within,
 )
-from sumo_swarm.core.swarming.decision import lane_speeds
+from sumo_swarm.core.swarming.decision import is_past, lane_speeds
 from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal, run_up
 
 Move = tuple[float, float]  # (lateral move [m], acceleration bound [m/s^2])
@@ -90,9 +90,9 @@ class Reformer:
     pulling: tuple[str, str] | None = None  # (CAV, HV) the platoon pulls away from (pull_away)
     block_s: dict[str, float] = field(default_factory=dict)  # HV -> time held by block_assist
     left_for_held: tuple[int, str | None] | None = None  # (lane, edge) left by _held_switch
-    # (slow vehicle, until [s]): after a give-up with the platoon split by that vehicle, the
-    # CAVs past it wait for the others in its lane ahead of it (see split_by)
-    waiting: tuple[str, float] | None = None
+    # (slow vehicle, since [s], until [s]): after a give-up with the platoon split by that
+    # vehicle, the CAVs past it wait for the others in its lane ahead of it (see split_by)
+    waiting: tuple[str, float, float] | None = None
     wait_ends: Counter[str] = field(default_factory=Counter)  # why the waits ended, counted
 
     def reset(self) -> None:
@@ -103,8 +103,8 @@ class Reformer:
         self.block_s.clear()
 
     def past(self, ego: VehicleState, slow: VehicleState) -> bool:
-        """Is ego's rear ``cav.min_gap_m`` ahead of ``slow``'s front?"""
-        return ego.rear_s_m >= slow.s_m + self.scenario.cav.min_gap_m
+        """Is ego past ``slow`` (:func:`is_past` by ``cav.min_gap_m``)?"""
+        return is_past(ego, slow, self.scenario.cav.min_gap_m)
 
     def split_by(
         self,
@@ -124,7 +124,7 @@ class Reformer:
         reason)."""
         if self.waiting is None:
             return None
-        slow_id, until_s = self.waiting
+        slow_id, _, until_s = self.waiting
         slow = states.get(slow_id)
         how = None
         if slow is None:
@@ -355,7 +355,7 @@ class Reformer:
             if passing is not None:
                 slow_id, side, since = passing
                 slow = states.get(slow_id)
-                done = slow is None or ego.rear_s_m >= slow.s_m + sc.cav.min_gap_m
+                done = slow is None or self.past(ego, slow)
                 # The slow vehicle moved over into the lane ego passes it in, ahead of it: ego
                 # would follow it there (a target keeping right had two CAVs behind it at its
                 # speed for 25 s beside the platoon's free lane, stress scene 51).
@@ -417,7 +417,7 @@ class Reformer:
         """How long [s] the platoon has waited at ``slow`` (:attr:`waiting`; 0: it does not)."""
         if self.waiting is None or self.waiting[0] != slow.vehicle_id:
             return 0.0
-        return t_s - (self.waiting[1] - self.scenario.swarm.wait_ahead_s)
+        return t_s - self.waiting[1]
 
     def _splits(
         self,

@@ -584,7 +584,7 @@ class SwarmController:
         past = sum(self.reformer.past(c, target) for c in cavs.values())
         if 0 < past < len(cavs):
             self.waits_started += 1
-            self.reformer.waiting = (target.vehicle_id, t_s + wait_s)
+            self.reformer.waiting = (target.vehicle_id, t_s, t_s + wait_s)
             self.ctx.event("wait_start", slow=target.vehicle_id, past=past,
                            behind=len(cavs) - past, until_s=round(t_s + wait_s, 2))  # fmt: skip
 

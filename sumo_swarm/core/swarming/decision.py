@@ -370,10 +370,14 @@ def keeps_cell(cells: Sequence[Sequence[int]], steps: int | None = None) -> bool
     return all(tuple(cell) == first for cell in stretch)
 
 
+def is_past(cav: VehicleState, target: VehicleState, min_gap_m: float) -> bool:
+    """Is ``cav``'s rear ahead of ``target``'s front by ``min_gap_m``?"""
+    return cav.rear_s_m >= target.s_m + min_gap_m
+
+
 def cavs_behind(target: VehicleState, cavs: Iterable[VehicleState], min_gap_m: float) -> list[str]:
-    """Ids of the CAVs not yet past ``target``: rear not ahead of its front by ``min_gap_m``."""
-    line = target.s_m + min_gap_m
-    return [cav.vehicle_id for cav in cavs if cav.rear_s_m < line]
+    """Ids of the CAVs not yet past ``target`` (:func:`is_past`)."""
+    return [cav.vehicle_id for cav in cavs if not is_past(cav, target, min_gap_m)]
 
 
 def stranded_cavs(cells: Mapping[str, Sequence[Sequence[int]]], behind: Iterable[str]) -> set[str]:

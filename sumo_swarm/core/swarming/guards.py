@@ -298,27 +298,38 @@ def lateral_refusal(
         if behind is None:
             return None
         follower, gap = behind
-    if gap < min_gap_m:
-        return "follower_gap"
-    model = model_of(follower.vehicle_id)
-    if not accepts_entry(model, follower.speed_mps, ego.speed_mps, gap, b_safe_mps2, step_s,
-                         lead_accel_mps2=ego_accel_mps2, lead_final_mps=ego_final_mps):  # fmt: skip
-        return "follower_brake"
+    entry = (ego, model_of, min_gap_m, b_safe_mps2, step_s, ego_accel_mps2, ego_final_mps)
+    why = _follower_refusal(follower, gap, *entry)
+    if why is not None:
+        return why
     # The nearest vehicle behind is not always the lane's follower: an HV of ego's own lane
     # leaning towards the next one counts as overlapping it, nearer, and hid the HV of that
     # lane behind it, which braked at 9 m/s^2 (paper-scene variant 24: a CAV cut in 24 m
     # ahead of it, 8.5 m/s slower). That HV must accept the entry too.
-    lane_next = None if near is None else entering_lane(road, y, dlat, settings)
-    if lane_next is None:
-        return None
-    own = _behind_in_lane(ego, others, road, lane_next)
+    lane_next = entering_lane(road, y, dlat, settings)
+    own = None if lane_next is None else _behind_in_lane(ego, others, road, lane_next)
     if own is None or own[0] is follower or own[0].is_cav:
         return None
-    hv, hv_gap = own
-    if hv_gap < min_gap_m:
+    return _follower_refusal(*own, *entry)
+
+
+def _follower_refusal(
+    hv: VehicleState,
+    gap: float,
+    ego: VehicleState,
+    model_of: Callable[[str], DriverModel],
+    min_gap_m: float,
+    b_safe_mps2: float,
+    step_s: float,
+    ego_accel_mps2: float,
+    ego_final_mps: float | None,
+) -> str | None:
+    """``"follower_gap"`` or ``"follower_brake"`` if the HV ``hv``, ``gap`` [m] behind ego,
+    refuses ego's entry (:func:`lateral_refusal`), else None."""
+    if gap < min_gap_m:
         return "follower_gap"
     model = model_of(hv.vehicle_id)
-    if accepts_entry(model, hv.speed_mps, ego.speed_mps, hv_gap, b_safe_mps2, step_s,
+    if accepts_entry(model, hv.speed_mps, ego.speed_mps, gap, b_safe_mps2, step_s,
                      lead_accel_mps2=ego_accel_mps2, lead_final_mps=ego_final_mps):  # fmt: skip
         return None
     return "follower_brake"
