@@ -439,7 +439,7 @@ def test_lateral_guard_leaves_room_to_stop_closing_in_on_the_leader():
 
 
 def test_an_idle_plan_is_one_that_keeps_every_cav_in_its_cell():
-    from sumo_swarm.controllers.swarm import plan_is_idle
+    from sumo_swarm.controllers.replanner import plan_is_idle
     from sumo_swarm.core.planner import Plan, PlanStatus
 
     def plan(*paths):
@@ -754,8 +754,9 @@ def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
     import types
 
     from sumo_swarm.config import Scenario
-    from sumo_swarm.controllers.swarm import SwarmController
-    from sumo_swarm.core.swarming.decision import Progress
+    from sumo_swarm.controllers.decider import Decider
+    from sumo_swarm.controllers.lanes import LaneView
+    from sumo_swarm.core.hvmodel import DriverModel
 
     events = []
     session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={})
@@ -765,31 +766,30 @@ def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
     )
 
     def controller(scenario):
-        swarm = SwarmController()
-        swarm.ctx = types.SimpleNamespace(
+        ctx = types.SimpleNamespace(
             scenario=scenario, session=session, road=ROAD,
             event=lambda kind, **data: events.append(kind),
         )  # fmt: skip
-        swarm.progress = Progress(0.0)
-        return swarm
+        return Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=scenario.planner,
+                       model_of=lambda vid: DriverModel(model="unknown"))  # fmt: skip
 
     for lane, holds in ((2, True), (1, False)):
-        swarm = controller(waits)
+        decider = controller(waits)
         truck = car("truck", 300.0, lane, 14.0)
-        assert swarm._may_keep_right(truck, states_of(truck))  # the lane to its right is free
+        assert decider.may_keep_right(truck, states_of(truck))  # the lane to its right is free
         beside = car("c", 300.0, lane - 1, 14.0)
-        assert swarm._may_keep_right(truck, states_of(truck, beside)) is holds
+        assert decider.may_keep_right(truck, states_of(truck, beside)) is holds
     assert events == ["target_may_keep_right"] * 2
     # The default, "left": a target with a lane on its left is not waited for; its right lane
     # is closed to the plan while free, for keep_right_wait_s (10 s) from the start.
-    swarm = controller(default)
+    decider = controller(default)
     truck = car("truck", 300.0, 1, 14.0)
-    assert not swarm._may_keep_right(truck, states_of(truck))
-    assert swarm._keep_right_closure(5.0, truck, states_of(truck)) == 0
+    assert not decider.may_keep_right(truck, states_of(truck))
+    assert decider.keep_right_closure(5.0, 0.0, truck, states_of(truck)) == 0
     beside = car("c", 300.0, 0, 14.0)
-    assert swarm._keep_right_closure(5.0, truck, states_of(truck, beside)) is None  # taken
-    assert swarm._keep_right_closure(10.5, truck, states_of(truck)) is None  # waited long enough
+    assert decider.keep_right_closure(5.0, 0.0, truck, states_of(truck, beside)) is None  # taken
+    assert decider.keep_right_closure(10.5, 0.0, truck, states_of(truck)) is None  # waited enough
     leftmost = car("truck", 300.0, 2, 14.0)
-    assert swarm._keep_right_closure(5.0, leftmost, states_of(leftmost)) is None  # waited for
-    assert swarm._may_keep_right(leftmost, states_of(leftmost))
-    assert controller(waits)._keep_right_closure(5.0, truck, states_of(truck)) is None
+    assert decider.keep_right_closure(5.0, 0.0, leftmost, states_of(leftmost)) is None  # waited for
+    assert decider.may_keep_right(leftmost, states_of(leftmost))
+    assert controller(waits).keep_right_closure(5.0, 0.0, truck, states_of(truck)) is None

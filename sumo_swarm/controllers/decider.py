@@ -1,0 +1,333 @@
+"""The swarm's decisions while it cruises: which vehicle to overtake, how, and the speed cap.
+
+:class:`Decider` asks the pure tests of :mod:`sumo_swarm.core.swarming.decision` with what the
+run's session can tell (driver models, keep-right, speed limits, lanes that end) and says each
+decision once as an event. It holds only what must last from one step to the next: the target
+being watched (:class:`TargetWatch`), the target's lane at the decision, the speed cap and its
+sources, and the vehicles already reported as not worth passing or keeping right.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from sumo_swarm.config import PlannerSettings
+from sumo_swarm.controllers.lanes import LaneView
+from sumo_swarm.controllers.reform import Reformer
+from sumo_swarm.core.grid import MovingGrid
+from sumo_swarm.core.hvmodel import DriverModel
+from sumo_swarm.core.model import VehicleState
+from sumo_swarm.core.neighbours import Snapshot
+from sumo_swarm.core.swarming.decision import (
+    TargetWatch,
+    behaving_interval_s,
+    lane_for_pass,
+    lane_pass_pace,
+    lane_speeds,
+    only_catching_up,
+    passing_lane,
+    right_lane_free,
+    secure_gap_m,
+    slow_vehicle_ahead,
+    speed_cap_mps,
+)
+
+States = Mapping[str, VehicleState]
+# A keep-right driver starts moving over this long [s] after the lane to its right is free
+# for it (SUMO's LC2013/SL2015: the wish builds over KEEP_RIGHT_TIME = 5 s at lcKeepRight 1),
+# if the follower there is then at least at its secure gap; the swarm waits for it only where
+# that holds with the follower closing in at its speed till then (decision.right_lane_free),
+# and nothing slower is within KEEP_RIGHT_AHEAD_S [s] ahead there.
+KEEP_RIGHT_MOVE_S = 5.0
+KEEP_RIGHT_AHEAD_S = 4.0
+
+
+class Decider:
+    """Targets, lane passes and the speed cap for one swarm (see the module docstring).
+
+    ``ctx`` is the run's context (``scenario``, ``session``, ``road``, ``event``);
+    ``reformer`` gives the platoon's lane and the desired speeds of the vehicles around;
+    ``model_of`` an HV's driver model.
+    """
+
+    def __init__(
+        self,
+        ctx: Any,
+        *,
+        lanes: LaneView,
+        reformer: Reformer | None,
+        model_of: Callable[[str], DriverModel],
+        planner: PlannerSettings,
+    ) -> None:
+        self.ctx = ctx
+        self.lanes = lanes
+        self.reformer = reformer
+        self.model_of = model_of
+        self.planner = planner
+        self.watch = TargetWatch(ctx.scenario.swarm.trigger_after_s)
+        self.cap_mps = math.inf
+        self.cap_sources: dict[str, float] = {}
+        self.cells_for: str | None = None  # a target whose lane pass stalled: cells only
+        self._no_gain_target: str | None = None
+        self._keep_right_target: str | None = None
+        self._target_lane: tuple[str | None, int] | None = None
+
+    # ------------------------------------------------------------------ speeds
+    def slow_below(self) -> float:
+        """Below this speed [m/s] a vehicle ahead is slow (``trigger_speed_ratio`` of the
+        cruise)."""
+        sw, cav = self.ctx.scenario.swarm, self.ctx.scenario.cav
+        return cav.cruising_speed_mps * sw.trigger_speed_ratio
+
+    def speed_cap(self, platoon: list[str]) -> float:
+        """The lowest of cav.max_speed_mps, the CAVs' vType maxSpeed and allowed lane speed
+        (``platoon``: the CAVs to ask; the leader alone while cruising)."""
+        sources = {"cav.max_speed_mps": self.ctx.scenario.cav.max_speed_mps}
+        limits = getattr(self.ctx.session, "speed_limits", None)
+        if limits is not None:
+            for vid in platoon:
+                try:
+                    vtype_max, allowed = limits(vid)
+                except Exception:
+                    continue
+                sources["vType maxSpeed"] = min(sources.get("vType maxSpeed", math.inf), vtype_max)
+                sources["lane limit"] = min(sources.get("lane limit", math.inf), allowed)
+        self.cap_sources = sources
+        self.cap_mps = speed_cap_mps(list(sources.values()))
+        return self.cap_mps
+
+    def secure_gap(self, follower: VehicleState, v_lead_mps: float) -> float:
+        """SUMO's secure gap [m] of ``follower`` (an HV by its own model; a CAV by the swarm's
+        braking) behind a vehicle at ``v_lead_mps``."""
+        if follower.is_cav:
+            cav = self.ctx.scenario.cav
+            return secure_gap_m(0.0, -cav.accel_min_mps2, follower.speed_mps, v_lead_mps)
+        model = self.model_of(follower.vehicle_id)
+        return secure_gap_m(model.tau_s, model.decel_mps2, follower.speed_mps, v_lead_mps)
+
+    # ------------------------------------------------------------------ the target
+    def decide(self, t_s: float, states: States, platoon: list[str]) -> VehicleState | None:
+        """The vehicle to overtake, once it has been one for ``trigger_after_s``; else None."""
+        ctx = self.ctx
+        sw = ctx.scenario.swarm
+        if ctx.road.n_lanes < 2 or t_s < sw.start_after_s:
+            return None
+        leader = states[self.leader(states, platoon)]
+        # Sorted once for both look-ups (the vehicle ahead of the leader, then the line ahead of
+        # a candidate): every cruise step asks, a plain list scanned every vehicle each time.
+        vehicles = Snapshot(states.values(), ctx.road)
+        candidate = slow_vehicle_ahead(
+            leader, vehicles, ctx.road,
+            slow_below_mps=self.slow_below(), detect_range_m=sw.detect_range_m,
+            cap_mps=self.speed_cap(platoon[:1]),
+            min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
+        )  # fmt: skip
+        # Not in a lane that ends within reach plus two 3 s intervals at the cruise (an
+        # acceleration lane, a lane drop): everyone leaves that lane anyway.
+        reach = sw.detect_range_m + 2.0 * 3.0 * ctx.scenario.cav.cruising_speed_mps
+        if candidate is not None and leader.lane in self.lanes.ending(leader, platoon[0], reach):
+            candidate = None
+        if candidate is not None and self._catching_up(candidate, vehicles):
+            candidate = None
+        if candidate is not None and not self._side_lane_pays(leader, candidate, states):
+            candidate = None
+        wait_s = 0.0
+        if candidate is not None and self.may_keep_right(candidate, states):
+            wait_s = sw.keep_right_wait_s
+        return self.watch.update(t_s, candidate, wait_s)
+
+    def leader(self, states: States, platoon: list[str]) -> str:
+        """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.
+        A CAV ahead of it in another lane is merging back (or passing on its own): a slow
+        vehicle in front of it is not the platoon's. (After a target moved into the lane of
+        the front CAV, the swarm took that CAV as its leader and overtook the same truck again,
+        in a lane full of traffic, while the plain platoon drove on.)"""
+        lane = self.reformer.lane_id
+        if lane is not None and self.reformer.edge == self.lanes.edge_of(platoon[0]):
+            road = self.ctx.road
+            for vid in platoon:
+                if road.lane_of(states[vid]) == lane:
+                    return vid
+        return platoon[0]
+
+    def _catching_up(self, candidate: VehicleState, vehicles: Snapshot) -> bool:
+        """Is ``candidate`` only catching up (:func:`only_catching_up`)? An event
+        ``overtake_not_worth`` (reason ``catching_up``) says so once per vehicle."""
+        ctx = self.ctx
+        desired = self.reformer.desired_speed
+        if not only_catching_up(
+            candidate, vehicles, ctx.road, desired_of=desired,
+            slow_below_mps=self.slow_below(), width_m=ctx.scenario.cav.width_m,
+        ):  # fmt: skip
+            return False
+        if self._no_gain_target != candidate.vehicle_id:
+            self._no_gain_target = candidate.vehicle_id
+            ctx.event("overtake_not_worth", target=candidate.vehicle_id,
+                      target_speed_mps=candidate.speed_mps, reason="catching_up",
+                      desired_speed_mps=desired(candidate))  # fmt: skip
+        return True
+
+    def _side_lane_pays(self, leader: VehicleState, target: VehicleState, states: States) -> bool:
+        """Is a lane beside the leader's faster than the target by ``min_speed_gain_mps``? The
+        swarm passes in the lanes beside it: when they are as slow as the target (dense
+        traffic), overtaking gains nothing and only disturbs them (MOBIL's incentive)."""
+        ctx = self.ctx
+        road, sw = ctx.road, ctx.scenario.swarm
+        lane = road.lane_of(leader)
+        side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
+        others = [st for st in states.values() if not st.is_cav]
+        reach = sw.detect_range_m + 2.0 * ctx.scenario.cell_length_m
+        speeds = lane_speeds(leader, others, road, side, range_m=reach, cap_mps=self.cap_mps,
+                             desired_of=self.reformer.desired_speed)  # fmt: skip
+        best = max(speeds.values(), default=-math.inf)
+        pays = best - target.speed_mps >= sw.min_speed_gain_mps
+        if not pays and self._no_gain_target != target.vehicle_id:
+            self._no_gain_target = target.vehicle_id
+            ctx.event("overtake_not_worth", target=target.vehicle_id,
+                      target_speed_mps=target.speed_mps,
+                      lane_speeds_mps={str(k): round(v, 2) for k, v in speeds.items()})  # fmt: skip
+        return pays
+
+    def new_target(self) -> None:
+        """A manoeuvre starts: the target's lane is read afresh (:meth:`target_changed_lane`)."""
+        self._target_lane = None
+
+    def target_changed_lane(self, target: VehicleState | None) -> bool:
+        """Has the target changed lanes on its own since the decision? Lane indices change
+        where a lane ends (netconvert drops the rightmost), so only a new lane on the same edge,
+        with the target settled in it, counts."""
+        if target is None:
+            return False
+        edge = self.ctx.session.edges.get(target.vehicle_id)
+        if self._target_lane is None or self._target_lane[0] != edge:
+            self._target_lane = (edge, target.lane)
+            return False
+        return target.lane != self._target_lane[1] and abs(target.lat_m) < 0.5
+
+    # ------------------------------------------------------------------ keeping right
+    def may_keep_right(self, target: VehicleState, states: States) -> bool:
+        """Will ``target`` soon move to the lane on its right of its own accord (a driver that
+        keeps right, with that lane free now, or once before for a target in the leftmost
+        lane)? An event says so once per target."""
+        sc = self.ctx.scenario
+        if sc.swarm.keep_right_wait_s <= 0.0:
+            return False
+        leftmost = self.ctx.road.lane_of(target) == self.ctx.road.n_lanes - 1
+        if sc.swarm.keep_right_middle != "wait" and not leftmost:
+            return False  # passed at once (on its left only, with "left")
+        if not self._keeps_right(target):
+            return False
+        free = self._right_lane_free(target, states)
+        if free and self._keep_right_target != target.vehicle_id:
+            self._keep_right_target = target.vehicle_id
+            self.ctx.event("target_may_keep_right", target=target.vehicle_id,
+                           wait_s=sc.swarm.keep_right_wait_s)  # fmt: skip
+        # Once seen free, the wait holds while that lane is taken for a moment, for a target in
+        # the leftmost lane: every pass of it would take the lane it is to move into.
+        return free or (leftmost and self._keep_right_target == target.vehicle_id)
+
+    def keep_right_closure(
+        self, t_s: float, started_s: float, target: VehicleState, states: States
+    ) -> int | None:
+        """The lane on the right of a target that keeps right with a lane on its left, while
+        that lane is free for it to move into (:func:`right_lane_free`, as for the wait), closed
+        to the cell plan beside and behind it for the first ``keep_right_wait_s`` of the
+        manoeuvre that started at ``started_s`` (``[swarm] keep_right_middle = "left"``); None:
+        nothing closed. (Closed whether free or not, it cost paper-scene variants whose truck
+        could not move over up to 4 m/s: the CAVs could not use that lane while it was open.)"""
+        sw, road = self.ctx.scenario.swarm, self.ctx.road
+        if sw.keep_right_middle != "left" or sw.keep_right_wait_s <= 0.0:
+            return None
+        lane = road.lane_of(target)
+        if not 0 < lane < road.n_lanes - 1:
+            return None  # no lane on its right, or the leftmost lane (waited for instead)
+        if t_s - started_s > sw.keep_right_wait_s:
+            return None
+        if not self._keeps_right(target) or not self._right_lane_free(target, states):
+            return None
+        return lane - 1
+
+    def _keeps_right(self, target: VehicleState) -> bool:
+        """Does ``target``'s lane-change model keep right (read through libsumo)? False when
+        it vanished or TraCI cannot tell."""
+        keeps_right = getattr(self.ctx.session, "keeps_right", None)
+        try:
+            return keeps_right is not None and bool(keeps_right(target.vehicle_id))
+        except Exception:
+            return False
+
+    def _right_lane_free(self, target: VehicleState, states: States) -> bool:
+        """Is the lane on ``target``'s right free for it to move into now
+        (:func:`right_lane_free`)?"""
+        return right_lane_free(
+            target, states.values(), self.ctx.road, move_s=KEEP_RIGHT_MOVE_S,
+            ahead_s=KEEP_RIGHT_AHEAD_S, min_gap_m=self.ctx.scenario.cav.min_gap_m,
+            secure_gap=self.secure_gap,
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------ passing in a lane
+    def passing_in_lane(
+        self,
+        target: VehicleState,
+        cavs: Mapping[str, VehicleState],
+        states: States,
+        grid: MovingGrid | None,
+        interval_s: float | None,
+    ) -> bool:
+        """Has every CAV left the target's lane for one lane, faster than the target by
+        ``[swarm] min_speed_gain_mps`` ahead of the front CAV (``hand_over_in_lane``)?
+        ``grid`` and ``interval_s`` are the plan's (None before the first plan)."""
+        sc = self.ctx.scenario
+        sw, road = sc.swarm, self.ctx.road
+        if not sw.hand_over_in_lane or len(cavs) < 1:
+            return False
+        lane = passing_lane(target, list(cavs.values()), road, tolerance_m=sw.in_lane_tolerance_m)
+        front = max(cavs.values(), key=lambda c: c.s_m)
+        if lane is None or lane in self.lanes.ending(front, front.vehicle_id):
+            return False
+        others = [st for v, st in states.items() if v not in cavs]
+        speeds = lane_speeds(
+            front, others, road, [lane], range_m=sw.detect_range_m, cap_mps=self.cap_mps,
+            desired_of=self.reformer.desired_speed,
+        )  # fmt: skip
+        # The cruise must pay: faster than the plan's pace (one cell per behaving interval
+        # above the grid) by the gain; with the cruise barely above the target (the paper's
+        # 20 m/s beside an 18 m/s HV) the plan passes faster, up to the cap.
+        interval = interval_s or self.planner.behaving_interval_s
+        grid_speed = grid.speed_mps if grid is not None else target.speed_mps
+        pace = max(grid_speed, target.speed_mps) + sc.cell_length_m / interval
+        cruise = min(speeds[lane], sc.cav.cruising_speed_mps)
+        return cruise - pace >= sw.min_speed_gain_mps
+
+    def lane_beats_plan(
+        self, target: VehicleState, states: States, platoon: list[str]
+    ) -> int | None:
+        """The lane the platoon moves over to and passes ``target`` in (``[swarm] lane_pass``,
+        :func:`lane_for_pass`), or None: the cells."""
+        sc = self.ctx.scenario
+        road, sw = self.ctx.road, sc.swarm
+        if not sw.lane_pass or target.vehicle_id == self.cells_for:
+            return None
+        leader = states[self.leader(states, platoon)]
+        lane = road.lane_of(leader)
+        side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
+        side = [q for q in side if q not in self.lanes.ending(leader, leader.vehicle_id)]
+        interval = behaving_interval_s(
+            self.planner.behaving_interval_s, sc.cell_length_m, target.speed_mps,
+            self.cap_mps, sw.speed_margin_mps, sw.interval_rule,
+        )  # fmt: skip
+        return lane_for_pass(
+            leader, states[platoon[-1]], target, [st for st in states.values() if not st.is_cav],
+            road, side, n_cavs=len(platoon), cell_length_m=sc.cell_length_m,
+            range_m=sw.detect_range_m, cap_mps=self.cap_mps,
+            cruise_mps=sc.cav.cruising_speed_mps,
+            pace_mps=target.speed_mps + sc.cell_length_m / interval,
+            free_pace_mps=lane_pass_pace(
+                target.speed_mps, sc.cell_length_m / interval, cruise_mps=sc.cav.cruising_speed_mps,
+                min_gain_mps=sw.min_speed_gain_mps, rule=sw.lane_pass_beats,
+            ),
+            min_gain_mps=sw.min_speed_gain_mps, tolerance_m=sw.in_lane_tolerance_m,
+            desired_of=self.reformer.desired_speed,
+        )  # fmt: skip

@@ -1,0 +1,151 @@
+"""Driving the plan: each CAV tracks its reference, every command through the guards.
+
+:class:`PlanFollower` asks the tracker (the MPCs) for each CAV's acceleration and lateral move,
+then the guards of :mod:`sumo_swarm.core.swarming.guards`: a lane change waits for a swarm CAV
+clearing the lane (a *yield*), is refused where an HV would brake harder than b_safe (a *hold*,
+counted once per episode and per manoeuvre), and is held near a lane shift or a lane that ends;
+the speed is bounded by the gap ahead, matched to a faster lane being entered, and brought down
+to the cap gently. Commands go to SUMO as ``setSpeed`` and ``changeSublane``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import replace
+from typing import Any
+
+from sumo_swarm.controllers.lanes import LaneView
+from sumo_swarm.controllers.reform import clip
+from sumo_swarm.core.hvmodel import DriverModel
+from sumo_swarm.core.model import VehicleState
+from sumo_swarm.core.neighbours import Snapshot
+from sumo_swarm.core.swarming.guards import (
+    gap_accel_limit,
+    gentle_for_follower,
+    lane_speed_match,
+    lateral_refusal,
+    yields_to_cav,
+)
+from sumo_swarm.core.swarming.tracker import Tracker
+from sumo_swarm.core.trajectory import Reference
+
+# A CAV above the speed cap slows to it at this rate [m/s^2] (well inside the 4 m/s^2 line).
+CAP_DECEL_MPS2 = 2.0
+
+
+class PlanFollower:
+    """The CAVs' commands while a plan is in force, and the guards' holds and yields."""
+
+    def __init__(
+        self,
+        ctx: Any,
+        tracker: Tracker,
+        lanes: LaneView,
+        model_of: Callable[[str], DriverModel],
+    ) -> None:
+        self.ctx = ctx
+        self.tracker = tracker
+        self.lanes = lanes
+        self.model_of = model_of
+        self.lat_errors: list[float] = []
+        self.holds = 0
+        self.yields = 0  # waits for a swarm CAV clearing a lane (tracker timing)
+        self.holds_per_manoeuvre: list[int] = []
+        self._yielding: dict[str, float] = {}
+        self._holding: dict[str, float] = {}
+
+    def new_manoeuvre(self) -> None:
+        self.holds_per_manoeuvre.append(0)
+
+    def drive(
+        self,
+        t_s: float,
+        states: Mapping[str, VehicleState],
+        platoon: list[str],
+        references: Mapping[str, Reference],
+        cap_mps: float,
+    ) -> None:
+        """Command every CAV of ``platoon`` with a reference for the next step."""
+        ctx = self.ctx
+        sc = ctx.scenario
+        road = ctx.road
+        dt = ctx.dt_s
+        others = Snapshot(states.values(), road)
+        solve = self.tracker.tick()
+        cap = cap_mps if math.isfinite(cap_mps) else sc.cav.max_speed_mps
+        gentle = sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
+        for vid in platoon:
+            ego = states[vid]
+            ref = references.get(vid)
+            if ref is None:
+                continue
+            cmd = self.tracker.command(t_s, ego, ref, road, dt, solve)
+            self.lat_errors.append(cmd.lat_error_m)
+            y = road.y_of(ego.lane, ego.lat_m)
+            step_m = sc.cav.max_lateral_speed_mps * dt
+            escape = self.lanes.end_escape(ego, cmd.dlat_m, step_m)
+            if escape != cmd.dlat_m:
+                cmd = replace(cmd, dlat_m=escape)
+            waits_for = yields_to_cav(
+                ego, y, cmd.dlat_m, others, road, min_gap_m=sc.cav.min_gap_m,
+                width_m=sc.cav.width_m, settings=sc.guards,
+            )  # fmt: skip
+            refusal = None
+            if waits_for is None:
+                refusal = lateral_refusal(
+                    ego, y, cmd.dlat_m, others, road, min_gap_m=sc.cav.min_gap_m,
+                    width_m=sc.cav.width_m, model_of=self.model_of,
+                    b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt, settings=sc.guards,
+                    brake_mps2=-sc.cav.accel_min_mps2,
+                )  # fmt: skip
+            else:
+                self._count_yield(vid, t_s)
+            shift = self.lanes.shift_hold(ego, y, cmd.dlat_m)
+            dlat = 0.0 if refusal or waits_for is not None else cmd.dlat_m
+            if shift:  # back to the lane centre: never straddle two lanes near the junction
+                dlat = clip(road.lane_centre_y(road.lane_of_y(y)) - y, step_m)
+            self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)
+            self.tracker.commit(ego, cmd, dlat != cmd.dlat_m, road, dt)
+            accel = cmd.accel_mps2
+            # Into a faster lane at that lane's speed (up to the cap); with an HV close behind,
+            # slow down only gently (that is how a blocker brings a lane down to its speed).
+            lane_to = road.lane_of_y(
+                ref.y_at_s(ego.centre_s_m + sc.swarm.match_lookahead_s * ego.speed_mps)
+            )
+            accel = max(
+                accel, lane_speed_match(ego, lane_to, others, road, sc.cav.width_m, cap, sc.guards)
+            )
+            accel = max(
+                accel, gentle_for_follower(ego, others, road, sc.cav.width_m, gentle, sc.guards)
+            )
+            limit = gap_accel_limit(
+                ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
+            )
+            accel = min(max(min(accel, limit), sc.cav.accel_min_mps2), sc.cav.accel_max_mps2)
+            # Above the cap (a CAV that departed faster, a lower limit ahead) it comes down to
+            # it gently, never by a jump in the commanded speed (SUMO would brake at decel).
+            v_cmd = min(ego.speed_mps + accel * dt, max(cap, ego.speed_mps - CAP_DECEL_MPS2 * dt))
+            ctx.session.set_speed(vid, max(v_cmd, 0.0))
+            ctx.session.change_sublane(vid, dlat)
+
+    def _new_episode(self, seen: dict[str, float], vid: str, t_s: float) -> bool:
+        """Record ``vid`` in ``seen`` at ``t_s``: a new episode unless it was there within
+        ``[swarm] hold_episode_s``."""
+        last = seen.get(vid)
+        seen[vid] = t_s
+        return last is None or t_s - last > self.ctx.scenario.swarm.hold_episode_s
+
+    def _count_yield(self, vid: str, t_s: float) -> None:
+        """One yield per episode: a CAV waiting for a swarm CAV to clear a lane."""
+        if self._new_episode(self._yielding, vid, t_s):
+            self.yields += 1
+
+    def _count_hold(self, vid: str, refusal: str | None, lane: int, t_s: float) -> None:
+        """One ``lateral_hold`` per episode: a CAV held, not held again within hold_episode_s."""
+        if refusal is None or not self._new_episode(self._holding, vid, t_s):
+            return
+        self.holds += 1
+        if self.holds_per_manoeuvre:
+            self.holds_per_manoeuvre[-1] += 1
+        self.ctx.event("lateral_hold", vehicle=vid, lane=lane, reason=refusal)

@@ -1,0 +1,125 @@
+"""The swarm controller's parts without SUMO: lanes ahead, blocked HVs, plan statistics.
+
+Hand-made sessions stand in for the bridge: a route where lane 0 ends at s = 900 m.
+"""
+
+import types
+
+import pytest
+
+from sumo_swarm.config import Scenario
+from sumo_swarm.controllers.cruise import Cruiser
+from sumo_swarm.controllers.lanes import (
+    LANE_END_LENGTH_M,
+    LANE_END_PREFIX,
+    LaneView,
+)
+from sumo_swarm.controllers.reform import Reformer
+from sumo_swarm.controllers.replanner import BlockWatch, PlanStats
+from sumo_swarm.core.hvmodel import DriverModel
+from sumo_swarm.core.model import RoadSection, VehicleState
+
+ROAD = RoadSection((3.2, 3.2, 3.2))
+LANE_0_ENDS_M = 900.0
+
+
+def cav(vid, s, lane, v=20.0, lat=0.0):
+    return VehicleState(vid, s, lane, lat, v, 5.0, 0.0, True)
+
+
+def view(*own_states, near_shift=False):
+    """A LaneView over a session whose edge "e" loses lane 0 at LANE_0_ENDS_M."""
+
+    def lanes_ending(edge, s_from_m, s_to_m):
+        return [(0, LANE_0_ENDS_M)] if edge == "e" and s_from_m <= LANE_0_ENDS_M <= s_to_m else []
+
+    session = types.SimpleNamespace(
+        edges={st.vehicle_id: "e" for st in own_states},
+        states={st.vehicle_id: st for st in own_states},
+        lanes_ending=lanes_ending,
+        frame=types.SimpleNamespace(lane_count=lambda edge: 3),
+        near_lane_shift=lambda s_m, within_m: near_shift,
+    )
+    ctx = types.SimpleNamespace(session=session, road=ROAD, scenario=Scenario(name="t", path=None))
+    return LaneView(ctx)
+
+
+def test_a_cav_whose_lane_ends_within_8_s_heads_left_and_not_before():
+    # 20 m/s: 8 s is 160 m, less than the 300 m floor, so the lane end is seen 300 m ahead.
+    step = 0.1
+    near = cav("c", 650.0, 0)  # 250 m to the end
+    assert view(near).end_escape(near, 0.0, step) == pytest.approx(step)  # to lane 1
+    far = cav("c", 550.0, 0)  # 350 m: beyond the 300 m
+    assert view(far).end_escape(far, 0.0, step) == 0.0
+    other = cav("c", 650.0, 1)  # its own lane goes on
+    assert view(other).end_escape(other, -0.05, step) == -0.05
+
+
+def test_no_lane_change_into_a_lane_that_ends_or_near_a_lane_shift():
+    ego = cav("c", 650.0, 1)
+    y = ROAD.lane_centre_y(1) - 1.0  # near the line to lane 0
+    assert view(ego).shift_hold(ego, y, -0.1)  # into lane 0, which ends 250 m ahead
+    assert not view(ego).shift_hold(ego, ROAD.lane_centre_y(1) + 1.0, 0.1)  # into lane 2
+    assert not view(ego).shift_hold(ego, ROAD.lane_centre_y(1), 0.0)  # no lane change
+    early = cav("c", 550.0, 1)
+    assert not view(early).shift_hold(early, y, -0.1)
+    assert view(early, near_shift=True).shift_hold(early, y, -0.1)  # lane indices shift here
+
+
+def test_lanes_ending_ahead_are_renumbered_as_the_leaders_edge_counts_them():
+    # The controller's state counts lanes as on the leader's edge (one more lane there): the
+    # CAV's own lane 0 is lane 1 in that numbering, and so is the lane that ends.
+    own = cav("c", 650.0, 0)
+    in_leader_numbering = cav("c", 650.0, 1)
+    assert view(own).ends_ahead(in_leader_numbering) == {1}
+    assert view(own).ends_ahead(own) == {0}
+
+
+def test_a_lane_that_ends_is_a_standing_obstacle_from_its_end_on():
+    lanes = view(cav("c", 650.0, 1))
+    (wall,) = lanes.end_obstacles("e", 600.0, 1000.0)
+    assert wall.vehicle_id == f"{LANE_END_PREFIX}0@900" and wall.lane == 0
+    assert wall.rear_s_m == pytest.approx(LANE_0_ENDS_M) and wall.speed_mps == 0.0
+    assert wall.length_m == LANE_END_LENGTH_M
+    assert lanes.end_obstacles("e", 0.0, 800.0) == [] and lanes.end_obstacles(None, 0, 1e4) == []
+
+
+def test_a_blocked_hv_is_held_at_most_max_block_s_and_its_braking_is_watched():
+    blocks = BlockWatch()
+    blocks.blocked("hv", 10.0, 16.0)
+    blocks.blocked("hv", 13.0, 15.0)  # a later plan: blocked since 10 s, still until 16 s
+    assert blocks.since_s == {"hv": 10.0} and blocks.until_s == {"hv": 16.0}
+    # 10 s at most, 4 s used at 14 s: two more 3 s behaving steps; none once past.
+    assert blocks.budget(14.0, 10.0, 3.0) == {"hv": 2}
+    assert blocks.budget(25.0, 10.0, 3.0) == {"hv": 0}
+    braking = {"hv": VehicleState("hv", 0.0, 0, 0.0, 15.0, 5.0, -1.5)}
+    blocks.watch(18.0, braking, grace_s=3.0)  # within the interval after its release
+    blocks.watch(20.0, {"hv": VehicleState("hv", 0.0, 0, 0.0, 15.0, 5.0, -3.0)}, grace_s=3.0)
+    assert blocks.strongest() == -1.5  # the -3 m/s^2 at 20 s came after 16 + 3 s
+    blocks.new_manoeuvre()  # a new manoeuvre forgets who is blocked, not how hard they braked
+    assert blocks.since_s == {} and blocks.budget(30.0, 10.0, 3.0) == {}
+    assert blocks.strongest() == -1.5
+
+
+def test_the_planner_block_of_a_run_without_solves():
+    block = PlanStats().block()
+    assert block["solves"] == 0 and block["fallbacks"] == 0
+    assert block["grid_retries"] == {"tried": 0, "planned": 0}
+    assert block["statuses"] == {} and block["triggers"] == {}
+
+
+def test_a_give_up_that_leaves_cavs_on_both_sides_of_the_target_starts_the_wait():
+    sc = Scenario(name="t", path=None)
+    events = []
+    ctx = types.SimpleNamespace(scenario=sc, event=lambda kind, **data: events.append(data))
+    reformer = Reformer(sc, lambda vid: DriverModel(model="unknown"))
+    cruiser = Cruiser(ctx, reformer, decider=None, lanes=None, tracker=None)
+    truck = VehicleState("truck", 300.0, 1, 0.0, 15.0, 12.0)
+    past, behind = cav("c0", 340.0, 1), cav("c1", 270.0, 1)
+    cruiser.wait_if_split(30.0, truck, {"c0": past})  # all past: nothing to wait for
+    cruiser.wait_if_split(30.0, truck, {"c1": behind})  # none past: nothing either
+    assert cruiser.waits_started == 0 and reformer.waiting is None
+    cruiser.wait_if_split(30.0, truck, {"c0": past, "c1": behind})
+    assert cruiser.waits_started == 1
+    assert reformer.waiting == ("truck", 30.0, 30.0 + sc.swarm.wait_ahead_s)
+    assert events == [{"slow": "truck", "past": 1, "behind": 1, "until_s": 75.0}]
