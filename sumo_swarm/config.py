@@ -402,6 +402,12 @@ class SwarmSettings:
     # its own lane during the lane change. 0: the guard assumes it keeps its speed.
     entry_accel_mps2: float = 1.5
     run_up_after_s: float = 2.0  # ...once the guard has held its lane change this long [s]
+    # A run-up goes on this long [s] after the last step a gap would take the CAV (the HVs do
+    # not drive at the constant speeds the look-ahead assumes; a run-up stopped half-way is
+    # lost); dropping back to its run-up gap, a CAV slows at most run_up_drop_mps below the
+    # slow vehicle [m/s].
+    run_up_commit_s: float = 1.0
+    run_up_drop_mps: float = 2.0
     # A CAV held this long [s] next to the platoon's lane by an HV that follows the platoon
     # there (at its speed, alongside or just behind the CAV) makes the whole platoon pull away
     # from that HV: every CAV cruises up to pull_away_mps [m/s] faster (at most the speed cap)
@@ -526,6 +532,13 @@ class SwarmSettings:
     # those, but a CAV put in the truck's right lane was cut off by it (stress scene 182, 3.2 %
     # slower than cacc).
     keep_right_middle: Literal["left", "wait", "go"] = "left"
+    # A keep-right driver starts moving over this long [s] after the lane to its right is free
+    # for it (SUMO's LC2013/SL2015: the wish builds over KEEP_RIGHT_TIME = 5 s at lcKeepRight
+    # 1), if the follower there is then at least at its secure gap: the swarm waits for it only
+    # where that holds with the follower closing in at its speed till then, and nothing slower
+    # is within keep_right_ahead_s [s] ahead there (decision.right_lane_free).
+    keep_right_move_s: float = 5.0
+    keep_right_ahead_s: float = 4.0
     # An HV is held back by blockers for at most this long per manoeuvre [s] (the impact on
     # the traffic behind is bounded; the swarm gives up rather than hold a lane forever).
     max_block_s: float = 30.0
@@ -537,6 +550,19 @@ class SwarmSettings:
     # A CAV matches the speed of the lane its reference enters this far ahead [s].
     match_lookahead_s: float = 2.0
     hold_episode_s: float = 1.0  # lateral holds of one CAV closer together count once [s]
+    # Lanes that end (an on-ramp's acceleration lane, a lane drop): no CAV moves into a lane
+    # that ends within lane_end_hold_s at its speed, and a CAV whose lane ends within
+    # lane_end_escape_s heads out of it (left first), both looking at least lane_end_min_m ahead
+    # (an acceleration lane of netbuild's motorway is 250 m). No lane change within
+    # lane_shift_hold_m [m] of a place where lane indices shift (a lane added or dropped on the
+    # right): the vehicles on either side count their lanes differently there.
+    lane_end_hold_s: float = 12.0
+    lane_end_escape_s: float = 8.0
+    lane_end_min_m: float = 300.0
+    lane_shift_hold_m: float = 40.0
+    # A CAV above the speed cap (it departed faster, a lower limit ahead) slows to it at this
+    # rate [m/s^2], never by a jump in the commanded speed (SUMO would brake at its decel).
+    cap_decel_mps2: float = 2.0
     in_lane_tolerance_m: float = 0.3  # a CAV is "in" a lane within this of its centre [m]
 
     def __post_init__(self) -> None:
@@ -551,8 +577,11 @@ class SwarmSettings:
             "prediction_error_m",
             "max_leader_ease_mps", "regroup_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s", "max_pass_s", "pass_switch_s", "drop_behind_s", "keep_right_wait_s",
-            "give_up_waiting_s",
+            "give_up_waiting_s", "run_up_commit_s", "run_up_drop_mps", "keep_right_move_s",
+            "keep_right_ahead_s", "lane_end_hold_s", "lane_end_escape_s", "lane_end_min_m",
+            "lane_shift_hold_m",
         )  # fmt: skip
+        check_positive(self, "cap_decel_mps2")
         check_non_negative(
             self,
             "give_up_waiting_plans",

@@ -3,6 +3,7 @@
 Hand-made sessions stand in for the bridge: a route where lane 0 ends at s = 900 m.
 """
 
+import dataclasses
 import types
 
 import pytest
@@ -27,8 +28,9 @@ def cav(vid, s, lane, v=20.0, lat=0.0):
     return VehicleState(vid, s, lane, lat, v, 5.0, 0.0, True)
 
 
-def view(*own_states, near_shift=False):
-    """A LaneView over a session whose edge "e" loses lane 0 at LANE_0_ENDS_M."""
+def view(*own_states, near_shift=False, **swarm):
+    """A LaneView over a session whose edge "e" loses lane 0 at LANE_0_ENDS_M (``swarm``:
+    ``[swarm]`` settings)."""
 
     def lanes_ending(edge, s_from_m, s_to_m):
         return [(0, LANE_0_ENDS_M)] if edge == "e" and s_from_m <= LANE_0_ENDS_M <= s_to_m else []
@@ -40,7 +42,9 @@ def view(*own_states, near_shift=False):
         frame=types.SimpleNamespace(lane_count=lambda edge: 3),
         near_lane_shift=lambda s_m, within_m: near_shift,
     )
-    ctx = types.SimpleNamespace(session=session, road=ROAD, scenario=Scenario(name="t", path=None))
+    scenario = Scenario(name="t", path=None)
+    scenario = dataclasses.replace(scenario, swarm=dataclasses.replace(scenario.swarm, **swarm))
+    ctx = types.SimpleNamespace(session=session, road=ROAD, scenario=scenario)
     return LaneView(ctx)
 
 
@@ -51,6 +55,9 @@ def test_a_cav_whose_lane_ends_within_8_s_heads_left_and_not_before():
     assert view(near).end_escape(near, 0.0, step) == pytest.approx(step)  # to lane 1
     far = cav("c", 550.0, 0)  # 350 m: beyond the 300 m
     assert view(far).end_escape(far, 0.0, step) == 0.0
+    # The thresholds are the scenario's: looking only 8 s (160 m) ahead, it stays.
+    assert view(near, lane_end_min_m=100.0).end_escape(near, 0.0, step) == 0.0
+    assert view(near, lane_end_min_m=100.0, lane_end_escape_s=13.0).end_escape(near, 0.0, step) > 0
     other = cav("c", 650.0, 1)  # its own lane goes on
     assert view(other).end_escape(other, -0.05, step) == -0.05
 

@@ -425,7 +425,7 @@ def test_a_stranded_cav_holds_back_from_the_slow_car_then_runs_up_into_a_gap():
     # 15 m behind the slow car, no gap takes it at the speed that room allows: it drops back.
     dlat, bound = r.moves(scene(240.0), platoon, ROAD, 1, goals, 0.1)["c1"]
     assert dlat == 0.0 and bound == pytest.approx(gentle) and r.floors == {}
-    # Never more than RUN_UP_DROP_MPS below the slow car's speed.
+    # Never more than [swarm] run_up_drop_mps below the slow car's speed.
     assert r.moves(scene(240.0, 9.9), platoon, ROAD, 1, goals, 0.1)["c1"][1] >= 0.0
     # 40 m behind it, f 10 m farther back: running up to 19.2 m/s (2.4 s), it would be taken
     # behind f: it accelerates at its maximum (a floor under the CACC, which would close in on

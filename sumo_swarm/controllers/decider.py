@@ -35,13 +35,6 @@ from sumo_swarm.core.swarming.decision import (
 )
 
 States = Mapping[str, VehicleState]
-# A keep-right driver starts moving over this long [s] after the lane to its right is free
-# for it (SUMO's LC2013/SL2015: the wish builds over KEEP_RIGHT_TIME = 5 s at lcKeepRight 1),
-# if the follower there is then at least at its secure gap; the swarm waits for it only where
-# that holds with the follower closing in at its speed till then (decision.right_lane_free),
-# and nothing slower is within KEEP_RIGHT_AHEAD_S [s] ahead there.
-KEEP_RIGHT_MOVE_S = 5.0
-KEEP_RIGHT_AHEAD_S = 4.0
 
 
 class Decider:
@@ -261,9 +254,10 @@ class Decider:
     def _right_lane_free(self, target: VehicleState, states: States) -> bool:
         """Is the lane on ``target``'s right free for it to move into now
         (:func:`right_lane_free`)?"""
+        sc = self.ctx.scenario
         return right_lane_free(
-            target, states.values(), self.ctx.road, move_s=KEEP_RIGHT_MOVE_S,
-            ahead_s=KEEP_RIGHT_AHEAD_S, min_gap_m=self.ctx.scenario.cav.min_gap_m,
+            target, states.values(), self.ctx.road, move_s=sc.swarm.keep_right_move_s,
+            ahead_s=sc.swarm.keep_right_ahead_s, min_gap_m=sc.cav.min_gap_m,
             secure_gap=self.secure_gap,
         )  # fmt: skip
 

@@ -5,7 +5,8 @@ then the guards of :mod:`sumo_swarm.core.swarming.guards`: a lane change waits f
 clearing the lane (a *yield*), is refused where an HV would brake harder than b_safe (a *hold*,
 counted once per episode and per manoeuvre), and is held near a lane shift or a lane that ends;
 the speed is bounded by the gap ahead, matched to a faster lane being entered, and brought down
-to the cap gently. Commands go to SUMO as ``setSpeed`` and ``changeSublane``.
+to the cap gently (``[swarm] cap_decel_mps2``). Commands go to SUMO as ``setSpeed`` and
+``changeSublane``.
 """
 
 from __future__ import annotations
@@ -29,9 +30,6 @@ from sumo_swarm.core.swarming.guards import (
 )
 from sumo_swarm.core.swarming.tracker import Tracker
 from sumo_swarm.core.trajectory import Reference
-
-# A CAV above the speed cap slows to it at this rate [m/s^2] (well inside the 4 m/s^2 line).
-CAP_DECEL_MPS2 = 2.0
 
 
 class PlanFollower:
@@ -125,7 +123,8 @@ class PlanFollower:
             accel = min(max(min(accel, limit), sc.cav.accel_min_mps2), sc.cav.accel_max_mps2)
             # Above the cap (a CAV that departed faster, a lower limit ahead) it comes down to
             # it gently, never by a jump in the commanded speed (SUMO would brake at decel).
-            v_cmd = min(ego.speed_mps + accel * dt, max(cap, ego.speed_mps - CAP_DECEL_MPS2 * dt))
+            floor = ego.speed_mps - sc.swarm.cap_decel_mps2 * dt
+            v_cmd = min(ego.speed_mps + accel * dt, max(cap, floor))
             ctx.session.set_speed(vid, max(v_cmd, 0.0))
             ctx.session.change_sublane(vid, dlat)
 

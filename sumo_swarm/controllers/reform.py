@@ -43,11 +43,6 @@ from sumo_swarm.core.swarming.decision import is_past, lane_speeds
 from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal, run_up
 
 Move = tuple[float, float]  # (lateral move [m], acceleration bound [m/s^2])
-# Dropping back to its run-up gap, a CAV slows at most this much below the slow vehicle [m/s].
-RUN_UP_DROP_MPS = 2.0
-# A run-up goes on this long [s] after the last step a gap would take the CAV (the HVs do not
-# drive at the constant speeds the look-ahead assumes; a run-up stopped half-way is lost).
-RUN_UP_COMMIT_S = 1.0
 
 
 def clip(x: float, bound: float) -> float:
@@ -777,7 +772,7 @@ class Reformer:
             min_gain_mps=sw.min_speed_gain_mps, entry_ok=entry_ok,
         )  # fmt: skip
         if what == "run":
-            self.running[vid] = RUN_UP_COMMIT_S
+            self.running[vid] = sw.run_up_commit_s
             return math.inf, sc.cav.accel_max_mps2 if value > ego.speed_mps else 0.0
         if what == "brake":
             self.running.pop(vid, None)
@@ -786,10 +781,10 @@ class Reformer:
             self.running[vid] -= step_s
             return math.inf, sc.cav.accel_max_mps2
         # No gap takes it: keep the run-up gap behind the slow vehicle, braking gently and
-        # dropping at most RUN_UP_DROP_MPS below its speed (the HVs behind wait too).
+        # dropping at most ``run_up_drop_mps`` below its speed (the HVs behind wait too).
         extra = max(sw.run_up_gap_m - sc.cav.desired_gap_m, 0.0)
         bound = self._follow_gently(ego, slow, gap - extra)
-        if ego.speed_mps <= slow.speed_mps - RUN_UP_DROP_MPS:
+        if ego.speed_mps <= slow.speed_mps - sw.run_up_drop_mps:
             bound = max(bound, 0.0)
         return bound, 0.0
 
