@@ -287,6 +287,15 @@ class SwarmSettings:
     trigger_after_s: float = 2.0  # ...for this long, by a slower vehicle ahead: overtake
     detect_range_m: float = 60.0  # the slower vehicle must be within this gap of the leader
     start_after_s: float = 1.0  # no overtaking decision before this time
+    # A vehicle ahead accelerating harder than this [m/s^2] is getting up to speed (after a
+    # merge), not a target.
+    accelerating_mps2: float = 0.5
+    # A slow vehicle is only catching up (not a target) when it and every vehicle ahead of it
+    # in its lane within this [m] want at least the trigger speed (decision.only_catching_up).
+    catching_up_ahead_m: float = 300.0
+    # Progress of a manoeuvre, besides CAVs past the target or out of its lane: the CAVs still
+    # behind it closer to passing it by this much in all [m] (give_up_no_progress_intervals).
+    progress_step_m: float = 3.0
     # MPC re-solve period [s]; in between, the solved inputs are applied (zero-order hold on the
     # MPC's own 0.1 s step). 0.18 s = 6 SUMO steps at the paper's 0.03 s step: the tracking
     # error stays at 0.07 m RMS on the paper scene and a run costs half what 0.09 s costs.
@@ -577,7 +586,8 @@ class SwarmSettings:
             "prediction_error_m",
             "max_leader_ease_mps", "regroup_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s", "max_pass_s", "pass_switch_s", "drop_behind_s", "keep_right_wait_s",
-            "give_up_waiting_s", "run_up_commit_s", "run_up_drop_mps", "keep_right_move_s",
+            "give_up_waiting_s", "accelerating_mps2", "catching_up_ahead_m", "progress_step_m",
+            "run_up_commit_s", "run_up_drop_mps", "keep_right_move_s",
             "keep_right_ahead_s", "lane_end_hold_s", "lane_end_escape_s", "lane_end_min_m",
             "lane_shift_hold_m",
         )  # fmt: skip

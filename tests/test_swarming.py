@@ -182,9 +182,17 @@ def test_progress_counts_only_the_cavs_still_behind():
     assert (
         p.give_up_reason(19.0, no_progress_s=18.0, no_plan_s=30.0, has_plan=True) == "no_progress"
     )
-    # The stuck CAV closing in on the truck by 4 m (> GAIN_STEP_M) is progress.
-    p.update(19.5, truck, [*cavs[:2], car("c2", 189.0, 0, 12.0, cav=True)], 5.0)
+    # The stuck CAV closing in on the truck by 4 m (> progress_step_m, 3 m) is progress; with
+    # a step of 5 m it is not.
+    import copy
+
+    coarse = copy.copy(p)
+    coarse.gain_step_m = 5.0
+    closer = [*cavs[:2], car("c2", 189.0, 0, 12.0, cav=True)]
+    p.update(19.5, truck, closer, 5.0)
     assert p.give_up_reason(20.0, 18.0, 30.0, True) is None
+    coarse.update(19.5, truck, closer, 5.0)
+    assert coarse.give_up_reason(20.0, 18.0, 30.0, True) == "no_progress"
 
 
 def test_partly_past_gives_up_sooner():

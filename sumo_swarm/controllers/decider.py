@@ -116,6 +116,7 @@ class Decider:
             slow_below_mps=self.slow_below(), detect_range_m=sw.detect_range_m,
             cap_mps=self.speed_cap(platoon[:1]),
             min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
+            accelerating_mps2=sw.accelerating_mps2,
         )  # fmt: skip
         # Not in a lane that ends within reach plus two 3 s intervals at the cruise (an
         # acceleration lane, a lane drop): everyone leaves that lane anyway.
@@ -153,6 +154,7 @@ class Decider:
         if not only_catching_up(
             candidate, vehicles, ctx.road, desired_of=desired,
             slow_below_mps=self.slow_below(), width_m=ctx.scenario.cav.width_m,
+            ahead_m=ctx.scenario.swarm.catching_up_ahead_m,
         ):  # fmt: skip
             return False
         if self._no_gain_target != candidate.vehicle_id:

@@ -302,7 +302,7 @@ class SwarmController:
         self.mode = Mode.OVERTAKE
         self._count_manoeuvre(t_s, target.vehicle_id)
         self.replanner.start()
-        self.progress = Progress(t_s)
+        self.progress = Progress(t_s, gain_step_m=self.ctx.scenario.swarm.progress_step_m)
         self.follower.new_manoeuvre()
         lane = self.planner_settings.regroup_lane
         self.regroup_lane_used = target.lane if lane is None else lane

@@ -26,9 +26,9 @@ from enum import Enum
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import vehicle_ahead, vehicle_behind
 
-# A vehicle accelerating harder than this [m/s^2] is getting up to speed, not slow.
+# Defaults of [swarm] accelerating_mps2 and progress_step_m (see config.SwarmSettings).
 ACCELERATING_MPS2 = 0.5
-GAIN_STEP_M = 3.0  # a gain of the CAVs' mean position on the target that counts as progress [m]
+GAIN_STEP_M = 3.0
 
 
 class Mode(Enum):
@@ -107,12 +107,14 @@ def slow_vehicle_ahead(
     cap_mps: float,
     min_gain_mps: float,
     width_m: float,
+    accelerating_mps2: float = ACCELERATING_MPS2,
 ) -> VehicleState | None:
     """The vehicle holding the leader back, if it is one worth overtaking (else ``None``).
 
     It must be the nearest vehicle ahead in the leader's lane (by lateral overlap, so a vehicle
     in a neighbouring lane never qualifies), human-driven, within ``detect_range_m``, slower than
-    ``slow_below_mps`` while the leader is too, and slower than the cap by ``min_gain_mps``.
+    ``slow_below_mps`` while the leader is too, slower than the cap by ``min_gain_mps``, and not
+    accelerating harder than ``accelerating_mps2`` (getting up to speed, not slow).
     """
     ahead = vehicle_ahead(leader, others, road, width_m=width_m)
     if ahead is None:
@@ -128,7 +130,7 @@ def slow_vehicle_ahead(
         # In another lane, or still changing into the leader's: a car merging from a ramp is
         # slow only while it merges, it becomes a candidate (with persistence) once in the lane.
         return None
-    if vehicle.accel_mps2 > ACCELERATING_MPS2:
+    if vehicle.accel_mps2 > accelerating_mps2:
         return None  # speeding up (e.g. after merging): not a slow vehicle
     return vehicle
 
@@ -147,19 +149,21 @@ def only_catching_up(
     desired_of: Callable[[VehicleState], float],
     slow_below_mps: float,
     width_m: float,
+    ahead_m: float = CHAIN_AHEAD_M,
 ) -> bool:
     """Is ``candidate`` slow only for now: it wants at least ``slow_below_mps`` (its model's
     desired speed, ``desired_of``), and so does every vehicle ahead of it in its lane within
-    ``CHAIN_AHEAD_M`` (none holds the lane back for good)? Such a car speeds up on its own; it is
-    not "persistently slower than the cruise" (a car at 18.9 m/s, in a line of cars closing in
-    on 19.7 m/s at IDM's slow pace, was overtaken by a swarm cruising at 20: stress scene 0).
+    ``ahead_m`` (``[swarm] catching_up_ahead_m``; none holds the lane back for good)? Such a
+    car speeds up on its own; it is not "persistently slower than the cruise" (a car at 18.9
+    m/s, in a line of cars closing in on 19.7 m/s at IDM's slow pace, was overtaken by a swarm
+    cruising at 20: stress scene 0).
     """
     ahead = candidate
     for _ in range(CHAIN_AHEAD_VEHICLES):
         if desired_of(ahead) < slow_below_mps:
             return False  # this one holds the lane back: a slow vehicle for good
         found = vehicle_ahead(ahead, vehicles, road, width_m=width_m)
-        if found is None or found[0].s_m - candidate.s_m > CHAIN_AHEAD_M:
+        if found is None or found[0].s_m - candidate.s_m > ahead_m:
             return True
         ahead = found[0]
     return True
@@ -280,12 +284,13 @@ class Progress:
     stranding_plans: int = 0  # fresh plans in a row that leave CAVs behind the target for good
     waiting_plans: int = 0  # fresh plans in a row that keep every CAV behind it waiting
     stranded: frozenset[str] = frozenset()  # the CAVs the last of them left behind
+    gain_step_m: float = GAIN_STEP_M  # [swarm] progress_step_m
 
     def update(
         self, t_s: float, target: VehicleState, platoon: Sequence[VehicleState], min_gap_m: float
     ) -> None:
         """Progress is any of: more CAVs past the target, more CAVs out of its lane (cut
-        through), or the CAVs still behind it closer to passing by GAIN_STEP_M in all.
+        through), or the CAVs still behind it closer to passing by ``gain_step_m`` in all.
 
         Only the CAVs still behind count for the gain: CAVs already past drifting away from a
         target at a few m/s looked like progress while the last CAV stayed stuck behind it
@@ -294,9 +299,10 @@ class Progress:
         past = sum(cav.rear_s_m >= line for cav in platoon)
         out = sum(cav.lane != target.lane and cav.rear_s_m < target.s_m for cav in platoon)
         # Gain [m]: how far the CAVs behind the target still are from passing it (negative),
-        # summed, so that any one CAV closing in by GAIN_STEP_M counts.
+        # summed, so that any one CAV closing in by gain_step_m counts.
         gain = sum(min(cav.rear_s_m - line, 0.0) for cav in platoon)
-        if past > self.best_past or out > self.best_out or gain > self.best_gain_m + GAIN_STEP_M:
+        closer = gain > self.best_gain_m + self.gain_step_m
+        if past > self.best_past or out > self.best_out or closer:
             self.last_progress_s = t_s
             self.best_gain_m = max(self.best_gain_m, gain)
         self.best_past = max(self.best_past, past)

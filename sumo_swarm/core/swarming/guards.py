@@ -43,21 +43,28 @@ class GuardSettings:
     # 0.07 m into the CAV's lane, 4 m behind it and 3.6 m/s faster, braked at 9 m/s^2 when a
     # CAV moved 0.2 m towards it within its own lane (stress scene 113). 0 = off.
     follower_lat_gap_m: float = 0.6
+    # The gap guard feeds forward a leader's braking beyond this [m/s^2]. Under a leader
+    # braking steadily at b, the gains settle (b - this) / gap_gain inside the gap they aim at
+    # (the minimum plus gap_extra_m): at most this / gap_gain = 0.75 m, within the 1 m of
+    # gap_extra_m. With 1.0 it was 1.25 m: 4.75 m behind a CAV braking at 1 m/s^2 (4.998 m
+    # seen, a held-out stress scene).
+    feedforward_from_mps2: float = 0.6
+    # The lateral guard looks for the entered lane's own follower this far behind the CAV [m].
+    lane_follower_reach_m: float = 150.0
+    # A CAV waits for a swarm CAV still in the lane it enters (a yield, not a refusal) when that
+    # CAV clears it by at least this much faster ahead or slower behind [m/s].
+    clearing_mps: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("gap_gain", "speed_gain", "gap_extra_m", "lane_probe_m", "match_gain",
-                     "follower_range_m", "side_clearance_m", "follower_lat_gap_m"):  # fmt: skip
+                     "follower_range_m", "side_clearance_m", "follower_lat_gap_m",
+                     "feedforward_from_mps2", "lane_follower_reach_m", "clearing_mps"):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
 
 
 DEFAULT = GuardSettings()
-# The gap guard feeds forward a leader's braking beyond this [m/s^2]. Under a leader braking
-# steadily at b, the gains settle (b - this) / gap_gain inside the gap they aim at (the minimum
-# plus gap_extra_m): at most this / gap_gain = 0.75 m, within the 1 m of gap_extra_m. With 1.0
-# it was 1.25 m: 4.75 m behind a CAV braking at 1 m/s^2 (4.998 m seen, a held-out stress scene).
-FEEDFORWARD_FROM_MPS2 = 0.6
 
 
 def entering_lane(
@@ -209,12 +216,12 @@ def gap_accel_limit(
             continue
         lead, gap = ahead
         d = min_gap_m + settings.gap_extra_m
-        # Plus the leader's braking beyond FEEDFORWARD_FROM_MPS2, as it happens: behind a
+        # Plus the leader's braking beyond feedforward_from_mps2, as it happens: behind a
         # leader braking hard the gap would otherwise shrink for a moment below the minimum
         # (4.99 m seen); milder braking (dawdling, speed keeping) is left to the gains, which a
         # full feedforward made so cautious that the paper scene stalled with noisy states; the
-        # part left to them is bounded so that they keep the minimum gap (see the constant).
-        feedforward = min(0.0, lead.accel_mps2 + FEEDFORWARD_FROM_MPS2)
+        # part left to them is bounded so that they keep the minimum gap (see the setting).
+        feedforward = min(0.0, lead.accel_mps2 + settings.feedforward_from_mps2)
         limit = min(
             limit,
             settings.gap_gain * (gap - d)
@@ -307,7 +314,8 @@ def lateral_refusal(
     # lane behind it, which braked at 9 m/s^2 (paper-scene variant 24: a CAV cut in 24 m
     # ahead of it, 8.5 m/s slower). That HV must accept the entry too.
     lane_next = entering_lane(road, y, dlat, settings)
-    own = None if lane_next is None else _behind_in_lane(ego, others, road, lane_next)
+    reach = settings.lane_follower_reach_m
+    own = None if lane_next is None else _behind_in_lane(ego, others, road, lane_next, reach)
     if own is None or own[0] is follower or own[0].is_cav:
         return None
     return _follower_refusal(*own, *entry)
@@ -335,16 +343,13 @@ def _follower_refusal(
     return "follower_brake"
 
 
-# The lane's own follower is looked for this far behind ego's front [m].
-LANE_FOLLOWER_REACH_M = 150.0
-
-
 def _behind_in_lane(
-    ego: VehicleState, others: list[VehicleState], road: RoadSection, lane: int
+    ego: VehicleState, others: list[VehicleState], road: RoadSection, lane: int, reach_m: float
 ) -> tuple[VehicleState, float] | None:
-    """The nearest vehicle behind ``ego`` whose centre is in ``lane``, with the bumper gap."""
+    """The nearest vehicle behind ``ego`` (within ``reach_m`` of its front) whose centre is in
+    ``lane``, with the bumper gap."""
     best: tuple[VehicleState, float] | None = None
-    for other in within(others, ego.s_m, LANE_FOLLOWER_REACH_M):
+    for other in within(others, ego.s_m, reach_m):
         if other.vehicle_id == ego.vehicle_id or other.s_m >= ego.s_m:
             continue
         if road.lane_of(other) != lane:
@@ -353,11 +358,6 @@ def _behind_in_lane(
         if best is None or gap < best[1]:
             best = (other, gap)
     return best
-
-
-# A CAV alongside clears the lane being entered when it pulls away (or drops back) at least
-# this fast relative to the ego [m/s].
-CLEARING_MPS = 0.5
 
 
 def yields_to_cav(
@@ -382,13 +382,14 @@ def yields_to_cav(
     ahead, behind = (None, None) if near is None else near
     if behind is None:  # within its lane, or nobody behind there: one leaning in from beside
         behind = follower_beside(ego, y, dlat, others, road, width_m, settings.follower_lat_gap_m)
+    clearing = settings.clearing_mps
     if ahead is not None:
         lead, gap = ahead
-        if lead.is_cav and gap < min_gap_m and lead.speed_mps >= ego.speed_mps + CLEARING_MPS:
+        if lead.is_cav and gap < min_gap_m and lead.speed_mps >= ego.speed_mps + clearing:
             return lead.vehicle_id
     if behind is not None:
         back, gap = behind
-        if back.is_cav and gap < min_gap_m and back.speed_mps <= ego.speed_mps - CLEARING_MPS:
+        if back.is_cav and gap < min_gap_m and back.speed_mps <= ego.speed_mps - clearing:
             return back.vehicle_id
     return None
 
