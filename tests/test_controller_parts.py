@@ -1,4 +1,5 @@
-"""The swarm controller's parts without SUMO: lanes ahead, blocked HVs, plan statistics.
+"""The swarm controller's parts without SUMO: lanes ahead, blocked HVs, plan statistics, the
+wait, and the replanner's fallback when a solve fails.
 
 Hand-made sessions stand in for the bridge: a route where lane 0 ends at s = 900 m.
 """
@@ -16,9 +17,12 @@ from sumo_swarm.controllers.lanes import (
     LaneView,
 )
 from sumo_swarm.controllers.reform import Reformer
-from sumo_swarm.controllers.replanner import BlockWatch, PlanStats
+from sumo_swarm.controllers.replanner import BlockWatch, PlanStats, Replanner
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.swarming.decision import Progress
+from sumo_swarm.core.swarming.manoeuvre import PlanOutcome
+from sumo_swarm.core.swarming.planlog import PlanLog
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
 LANE_0_ENDS_M = 900.0
@@ -130,3 +134,52 @@ def test_a_give_up_that_leaves_cavs_on_both_sides_of_the_target_starts_the_wait(
     assert cruiser.waits_started == 1
     assert reformer.waiting == ("truck", 30.0, 30.0 + sc.swarm.wait_ahead_s)
     assert events == [{"slow": "truck", "past": 1, "behind": 1, "until_s": 75.0}]
+
+
+class _FailingManoeuvre:
+    """A manoeuvre planner whose solver never finds a plan (it counts the calls)."""
+
+    def __init__(self):
+        self.calls = []
+        self.planner = types.SimpleNamespace(plan=lambda problem: None)  # no warm-start hint
+
+    def plan(self, t_s, reason, *args, **kwargs):
+        self.calls.append((t_s, reason, kwargs["grid_speed_mps"]))
+        record = {"time_s": t_s, "trigger": reason, "status": "error"}
+        return PlanOutcome(plan=None, grid=None, problem=None, record=record)
+
+
+def test_a_failed_solve_is_a_fallback_recorded_and_retried_after_retry_after_s():
+    sc = Scenario(name="t", path=None)
+    events = []
+    truck = VehicleState("truck", 300.0, 1, 0.0, 15.0, 12.0)
+    cavs = [cav("c0", 280.0, 1, 15.0), cav("c1", 265.0, 1, 15.0)]
+    states = {v.vehicle_id: v for v in [truck, *cavs]}
+    session = types.SimpleNamespace(states=states, edges={})
+    ctx = types.SimpleNamespace(
+        scenario=sc, road=ROAD, session=session, cav_ids=["c0", "c1"], dt_s=0.1,
+        event=lambda kind, **data: events.append((kind, data)),
+    )  # fmt: skip
+    manoeuvre, stats, resets = _FailingManoeuvre(), PlanStats(), []
+    decider = types.SimpleNamespace(speed_cap=lambda platoon: 25.0,
+                                    keep_right_closure=lambda *args: None)  # fmt: skip
+    replanner = Replanner(
+        ctx, manoeuvre, sc.planner, decider=decider, lanes=LaneView(ctx),
+        model_of=lambda vid: DriverModel(model="unknown"), planlog=PlanLog(None),
+        tracker_reset=lambda: resets.append(1), stats=stats, blocks=BlockWatch(),
+    )  # fmt: skip
+    progress = Progress(0.0)
+    replanner.start()
+    replanner.maybe_replan(1.0, states, ["c0", "c1"], "truck", progress)
+    assert manoeuvre.calls == [(1.0, "initial", 15.0)]  # the grid at the target's speed
+    assert replanner.plan is None and progress.failing and not resets
+    assert stats.fallbacks == 1 and stats.statuses == {"error": 1}
+    assert stats.triggers == {"initial": 1}
+    assert events == [("planner_fallback", {"trigger": "initial", "kept_last_plan": False})]
+    # Nothing is asked again before retry_after_s (1 s) has passed; then it is.
+    replanner.maybe_replan(1.5, states, ["c0", "c1"], "truck", progress)
+    assert len(manoeuvre.calls) == 1
+    replanner.maybe_replan(1.0 + sc.swarm.retry_after_s + 0.1, states, ["c0", "c1"], "truck",
+                           progress)  # fmt: skip
+    assert len(manoeuvre.calls) == 2 and stats.fallbacks == 2
+    assert stats.block()["solves"] == 0  # no solver ran to a result
