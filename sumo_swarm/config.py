@@ -517,6 +517,13 @@ class SwarmSettings:
     # its pass only once the CAV ahead is past the slow vehicle (5-6 s a CAV: platoons of 9-12
     # that gave up were still in two lanes 50 s later).
     pass_in_train: bool = True
+    # A CAV passing a slow vehicle on its own judges the lanes beside over detect_range_m plus
+    # this many seconds at the cruise [s]: the pass takes that long, and a slower vehicle just
+    # beyond detect_range_m holds it there (variant 23: three CAVs passing a queued car in the
+    # truck's lane, the truck 94 m ahead, ended behind the truck for 20 s and the platoon never
+    # regrouped). 0 = detect_range_m only (the former rule; it passed 6 s sooner in one
+    # held-out stress scene, where a car 2 m/s faster drove 100 m ahead in the passing lane).
+    pass_reach_s: float = 5.0
     # A target that keeps right (its lane-change model's lcKeepRight > 0 and its lane-change
     # mode allows right-drive changes, read through libsumo) with the lane to its right free
     # is waited for up to this long [s] before the swarm starts: SUMO's drivers move over
@@ -587,6 +594,7 @@ class SwarmSettings:
             "max_leader_ease_mps", "regroup_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
             "hold_episode_s", "max_pass_s", "pass_switch_s", "drop_behind_s", "keep_right_wait_s",
             "give_up_waiting_s", "accelerating_mps2", "catching_up_ahead_m", "progress_step_m",
+            "pass_reach_s",
             "run_up_commit_s", "run_up_drop_mps", "keep_right_move_s",
             "keep_right_ahead_s", "lane_end_hold_s", "lane_end_escape_s", "lane_end_min_m",
             "lane_shift_hold_m",

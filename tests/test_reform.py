@@ -176,6 +176,29 @@ def test_past_the_target_the_platoon_reforms_in_its_regroup_lane():
     assert r5.lane(split, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) != 2
 
 
+def test_a_passing_lane_is_judged_over_the_length_of_the_pass():
+    # c1 is cut off by a 12 m/s car in lane 1. Lane 0 is free for 60 m (detect_range_m), but
+    # a truck drives 11 m/s 120 m ahead there, within the 100 m the pass looks further
+    # (pass_reach_s, 5 s at the cruise): c1 would end up behind it. It passes in lane 2.
+    def goal(truck_ahead_m, **swarm):
+        import dataclasses
+
+        sc = dataclasses.replace(SCENARIO, swarm=dataclasses.replace(SCENARIO.swarm, **swarm))
+        r = Reformer(sc, lambda vid: DriverModel(desired_speed_mps=30.0))
+        st = states(
+            car("c0", 300.0, 1, 20.0, cav=True),
+            car("slow", 240.0, 1, 12.0),
+            car("c1", 220.0, 1, 12.0, cav=True),
+            car("truck", 220.0 + truck_ahead_m, 0, 11.0),
+            car("left", 290.0, 2, 16.0),  # lane 2: 16 m/s
+        )  # fmt: skip
+        return r.goals(0.0, st, ["c0", "c1"], ROAD, 1, cap_mps=25.0)["c1"]
+
+    assert goal(120.0) == 2
+    assert goal(200.0) == 0  # beyond the pass's reach: lane 0 is free for it
+    assert goal(120.0, pass_reach_s=0.0) == 0  # detect_range_m only: the former rule
+
+
 def passing_on_the_right(events):
     """c1, cut off from c0 by a slow car in lane 1, starts passing it in lane 0."""
     r = reformer(events)

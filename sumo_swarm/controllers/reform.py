@@ -392,7 +392,8 @@ class Reformer:
             side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes and q not in ending]
             if train in side:
                 side = [train]  # behind the CAV ahead, in the lane it passes in
-            speeds = lane_speeds(ego, others, road, side, range_m=sw.detect_range_m,
+            reach = sw.detect_range_m + sw.pass_reach_s * sc.cav.cruising_speed_mps
+            speeds = lane_speeds(ego, others, road, side, range_m=reach,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip
             best = max(speeds, key=speeds.get, default=None)
             gain = sw.min_speed_gain_mps
