@@ -122,6 +122,24 @@ def test_after_a_give_up_the_cavs_behind_the_truck_keep_their_lanes(tmp_path):
     assert swarm["cav"]["gap_min_cav_m"] >= 5.0
 
 
+def test_cavs_passing_on_their_own_do_not_pass_into_the_trucks_lane_just_behind_it(tmp_path):
+    # Variant 23: 12 CAVs, a 12.4 m/s truck that moves into the lane on its right at 16 s. The
+    # last CAVs, passing queued cars there on their own, judged that lane free over 60 m with
+    # the truck 94 m ahead in it: three ended behind the truck for 20 s and the platoon never
+    # regrouped. The lanes beside are judged over the pass's reach now ([swarm] pass_reach_s).
+    spec = _variant_spec(12, 12.38)
+    swarm = run_scenario(spec.scenario(), "swarm", tmp_path / "swarm", seed=spec.seed,
+                         progress=False)  # fmt: skip
+    cacc = run_scenario(spec.scenario(), "cacc", tmp_path / "cacc", seed=spec.seed,
+                        progress=False)  # fmt: skip
+    assert swarm["overtake"]["completed"] is True and swarm["overtake"]["regrouped"] is True
+    assert len(_cav_lanes_at_end(tmp_path / "swarm")) == 1
+    assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"] + 2.0
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["safety"]["hard_brakes"] <= cacc["safety"]["hard_brakes"]
+    assert swarm["cav"]["gap_min_cav_m"] >= 5.0
+
+
 @pytest.mark.parametrize("scene", [155, 181])
 def test_target_moving_into_the_front_cavs_lane_is_not_overtaken_again(tmp_path, scene):
     # Stress v2 scenes (scenarios/stress2.toml): the truck moves right at about 8 s, into the
