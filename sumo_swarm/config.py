@@ -442,7 +442,8 @@ class SwarmSettings:
     # (Counted from the cap, not the cruise: passing at up to the cap, a swarm cruising at 20
     # m/s that overtook a car at 18.3 m/s drove 17% faster than one that stayed behind it.)
     # A car slower than the trigger speed that wants at least it, as does every vehicle ahead
-    # of it in its lane within 300 m, is catching up, not a target (decision.only_catching_up).
+    # of it in its lane within catching_up_ahead_m, is catching up, not a target
+    # (decision.only_catching_up).
     min_speed_gain_mps: float = 2.0
     # "drivable": each behaving interval lasts at least one cell length at (cap - speed_margin -
     # grid speed), so a one-row move per interval never needs a speed above the cap (issue 11);

@@ -1,5 +1,5 @@
 """The swarm controller's parts without SUMO: lanes ahead, blocked HVs, plan statistics, the
-wait, and the replanner's fallback when a solve fails.
+wait, the replanner's fallback when a solve fails, and the plan follower's guards.
 
 Hand-made sessions stand in for the bridge: a route where lane 0 ends at s = 900 m.
 """
@@ -11,6 +11,7 @@ import pytest
 
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers.cruise import Cruiser
+from sumo_swarm.controllers.follower import PlanFollower
 from sumo_swarm.controllers.lanes import (
     LANE_END_LENGTH_M,
     LANE_END_PREFIX,
@@ -23,12 +24,13 @@ from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.decision import Progress
 from sumo_swarm.core.swarming.manoeuvre import PlanOutcome
 from sumo_swarm.core.swarming.planlog import PlanLog
+from sumo_swarm.core.swarming.tracker import TrackCommand
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
 LANE_0_ENDS_M = 900.0
 
 
-def cav(vid, s, lane, v=20.0, lat=0.0):
+def cav(vid, s, lane, v=20.0, lat=0.0):  # a CAV of 5 m
     return VehicleState(vid, s, lane, lat, v, 5.0, 0.0, True)
 
 
@@ -183,3 +185,73 @@ def test_a_failed_solve_is_a_fallback_recorded_and_retried_after_retry_after_s()
                            progress)  # fmt: skip
     assert len(manoeuvre.calls) == 2 and stats.fallbacks == 2
     assert stats.block()["solves"] == 0  # no solver ran to a result
+
+
+class _FixedTracker:
+    """A tracker that asks every CAV for the same command (injected as the controller's is)."""
+
+    def __init__(self, accel_mps2=0.0, dlat_m=0.0):
+        self.cmd = TrackCommand(accel_mps2, dlat_m, 0.0, 0.0)
+        self.held = []
+
+    def tick(self):
+        return True
+
+    def command(self, t_s, ego, ref, road, dt_s, solve):
+        return self.cmd
+
+    def commit(self, ego, cmd, held, road, dt_s):
+        self.held.append(held)
+
+
+def follower_run(ego, others=(), tracker=None, steps=1, **swarm):
+    """Drive ``ego`` with a PlanFollower for ``steps`` steps of 0.1 s: the commands and events."""
+    scenario = Scenario(name="t", path=None)
+    scenario = dataclasses.replace(scenario, swarm=dataclasses.replace(scenario.swarm, **swarm))
+    commands, events = [], []
+    states = {v.vehicle_id: v for v in (ego, *others)}
+    session = types.SimpleNamespace(
+        states=states,
+        set_speed=lambda vid, v: commands.append(("speed", vid, v)),
+        change_sublane=lambda vid, d: commands.append(("lat", vid, d)),
+    )
+    ctx = types.SimpleNamespace(
+        scenario=scenario, session=session, road=ROAD, dt_s=0.1,
+        event=lambda kind, **data: events.append((kind, data)),
+    )  # fmt: skip
+    tracker = tracker or _FixedTracker()
+    idm = DriverModel(model="IDM", accel_mps2=2.6, decel_mps2=4.5, tau_s=1.0, min_gap_m=2.5,
+                      desired_speed_mps=30.0)  # fmt: skip
+    follower = PlanFollower(ctx, tracker, LaneView(ctx), lambda vid: idm)
+    follower.new_manoeuvre()
+    centre = types.SimpleNamespace(y_at_s=lambda s: ROAD.lane_centre_y(ego.lane))
+    for k in range(steps):
+        follower.drive(0.1 * k, states, [ego.vehicle_id], {ego.vehicle_id: centre}, cap_mps=25.0)
+    return follower, tracker, commands, events
+
+
+def test_a_cav_above_the_cap_comes_down_to_it_at_cap_decel_mps2():
+    fast = cav("c", 300.0, 1, 30.0)
+    _, _, commands, _ = follower_run(fast)
+    assert commands[0] == ("speed", "c", pytest.approx(30.0 - 2.0 * 0.1))
+    _, _, commands, _ = follower_run(fast, cap_decel_mps2=4.0)
+    assert commands[0] == ("speed", "c", pytest.approx(30.0 - 4.0 * 0.1))
+    # At the cap it drives on at the tracker's acceleration.
+    _, _, commands, _ = follower_run(cav("c", 300.0, 1, 24.0), tracker=_FixedTracker(1.0))
+    assert commands[0] == ("speed", "c", pytest.approx(24.1))
+
+
+def test_a_lane_change_the_guard_refuses_is_held_and_counted_once_per_episode():
+    # The CAV's side is at the line to lane 2; an HV there 5 m behind closes in at 8 m/s.
+    ego = cav("c", 300.0, 1, 20.0, lat=1.0)
+    hv = VehicleState("hv", 290.0, 2, 0.0, 28.0, 5.0)
+    follower, tracker, commands, events = follower_run(
+        ego, [hv], _FixedTracker(dlat_m=0.1), steps=3
+    )
+    assert [c for c in commands if c[0] == "lat"] == [("lat", "c", 0.0)] * 3
+    assert tracker.held == [True] * 3
+    assert [e[0] for e in events] == ["lateral_hold"]  # three steps, one episode
+    assert follower.holds == 1 and follower.holds_per_manoeuvre == [1]
+    # With the lane beside free the move goes ahead.
+    _, tracker, commands, events = follower_run(ego, [], _FixedTracker(dlat_m=0.1))
+    assert ("lat", "c", 0.1) in commands and tracker.held == [False] and events == []

@@ -274,7 +274,7 @@ def test_a_car_following_the_target_inside_its_margin_may_follow_on():
         assert planner.plan(without).status is PlanStatus.INFEASIBLE
     # On a grid 0.3 m/s faster than the truck the CAV keeping the grid's speed comes within
     # 5 m of it after 6 s (4.2 m): it may keep its cell for step 1 only, and no plan exists
-    # (the swarm then plans again at the target's speed, SwarmController._replan).
+    # (the swarm then plans again at the target's speed, Replanner.replan).
     faster = problem_at(15.3)
     assert (2, 0) in faster.stay_ok and faster.stay_on == ()
     assert CpSatPlanner(10.0).plan(faster).status is PlanStatus.INFEASIBLE

@@ -73,6 +73,11 @@ def test_no_target_when_it_does_not_pay_or_is_far_or_a_cav():
     assert find(leader, [leader, car("c9", 130.0, 1, 15.0, cav=True)]) is None
     fast_leader = car("c0", 100.0, 1, 19.5, cav=True)  # not held back
     assert find(fast_leader, [fast_leader, truck]) is None
+    # Speeding up at 0.8 m/s^2 (after a merge): not slow, unless [swarm] accelerating_mps2
+    # allows that much.
+    merging = dataclasses.replace(truck, accel_mps2=0.8)
+    assert find(leader, [leader, merging]) is None
+    assert find(leader, [leader, merging], accelerating_mps2=1.0).vehicle_id == "truck"
 
 
 def test_target_watch_needs_persistence_and_respects_cool_down():
@@ -384,6 +389,8 @@ def test_a_slow_car_is_only_catching_up_when_nothing_ahead_wants_less():
     far = car("truck", 200.0 + 301.0, 1, 14.0)
     assert only_catching_up(car18, [car18, far], ROAD, **kw)
     assert only_catching_up(car18, [car18, car("truck", 230.0, 2, 14.0)], ROAD, **kw)
+    # ...within a reach of 400 m ([swarm] catching_up_ahead_m) it does.
+    assert not only_catching_up(car18, [car18, far], ROAD, ahead_m=400.0, **kw)
 
 
 # --------------------------------------------------------------------------- lane speeds

@@ -405,14 +405,15 @@ class Replanner:
         return ahead is not None and ahead[0].is_cav and ahead[1] < 3 * sc.cell_length_m
 
     def _fail(
-        self, t_s: float, reason: str, record: dict[str, Any] | None, progress: Progress
+        self, t_s: float, reason: str, record: dict[str, Any] | None, progress: Progress | None
     ) -> None:
         """Failed, timed out or invalid: keep the last valid plan while it lasts, else CACC."""
         if record is not None:
             self.stats.statuses[record["status"]] += 1
             self.planlog.write(record)
         self.stats.fallbacks += 1
-        progress.failed()
+        if progress is not None:
+            progress.failed()
         self.replan_not_before_s = t_s + self.ctx.scenario.swarm.retry_after_s
         # A plan some CAV has drifted away from is not kept: that CAV would chase its cell at
         # full braking (a stale plan braked a CAV at 3.5 m/s^2, the CAV behind it came within
