@@ -195,7 +195,7 @@ class Decider:
         with the target settled in it, counts."""
         if target is None:
             return False
-        edge = self.ctx.session.edges.get(target.vehicle_id)
+        edge = self.lanes.edge_of(target.vehicle_id)
         if self._target_lane is None or self._target_lane[0] != edge:
             self._target_lane = (edge, target.lane)
             return False

@@ -429,9 +429,8 @@ class Replanner:
 
     def _lane_ends(self, s_from_m: float, s_to_m: float) -> list[VehicleState]:
         """Lanes that end ahead of the front CAV's edge, as standing obstacles."""
-        session = self.ctx.session
-        platoon = ordered_platoon(session.states, self.ctx.cav_ids)
-        edge = session.edges.get(platoon[0]) if platoon else None
+        platoon = ordered_platoon(self.ctx.session.states, self.ctx.cav_ids)
+        edge = self.lanes.edge_of(platoon[0]) if platoon else None
         return self.lanes.end_obstacles(edge, s_from_m, s_to_m)
 
 

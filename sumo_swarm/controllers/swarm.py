@@ -44,7 +44,7 @@ from sumo_swarm.controllers.replanner import BlockWatch, PlanStats, Replanner
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.neighbours import ordered_platoon
-from sumo_swarm.core.planner import CellPlanner, make_planner
+from sumo_swarm.core.planner import CellPlanner, Plan, make_planner
 from sumo_swarm.core.stats import lateral_rms, summarise_ms
 from sumo_swarm.core.swarming.decision import (
     REGROUPED_GAP_FACTOR,
@@ -149,7 +149,7 @@ class SwarmController:
         return self.replanner.manoeuvre.planner
 
     @property
-    def plan(self):
+    def plan(self) -> Plan | None:
         """The cell plan in force (None while cruising or after a failed solve)."""
         return None if self.replanner is None else self.replanner.plan
 
@@ -403,13 +403,25 @@ class SwarmController:
             self.planlog.close()
 
     def summary(self) -> dict[str, Any]:
-        attached = self.ctx is not None
-        interval = self.replanner.interval_s if attached else None
-        unit = interval or (self.planner_settings.behaving_interval_s if attached else 3.0)
+        if self.ctx is None:  # never attached: the manoeuvre counters only, no parts yet
+            interval, unit, speeds = None, 3.0, {"cap_mps": None, "cap_sources": {}}
+            follower = PlanFollower(None, None, None, None)  # nothing counted
+            waits, mpc_ms = {"started": 0, "ended": {}}, []
+        else:
+            interval = self.replanner.interval_s
+            unit = interval or self.planner_settings.behaving_interval_s
+            cap = self.decider.cap_mps
+            speeds = {
+                **self.ctx.speeds_block(),
+                "cap_mps": cap if math.isfinite(cap) else None,
+                "cap_sources": dict(self.decider.cap_sources),
+            }
+            follower = self.follower
+            waits = {"started": self.cruiser.waits_started, "ended": dict(self.reformer.wait_ends)}
+            mpc_ms = self.tracker.solve_ms
         steps = None
         if self.t_start_s is not None and self.t_done_s is not None:
             steps = math.ceil((self.t_done_s - self.t_start_s) / unit - 1e-9)
-        follower, cap = self.follower, self.decider.cap_mps if attached else math.inf
         return {
             "overtake": {
                 "regroup_lane": self.regroup_lane_used,
@@ -422,27 +434,16 @@ class SwarmController:
                 "manoeuvres": len(self.targets),
                 "aborted": sum(self.aborts.values()),
                 "abort_reasons": dict(self.aborts),
-                "lateral_holds": follower.holds if attached else 0,
-                "lateral_yields": follower.yields if attached else 0,
+                "lateral_holds": follower.holds,
+                "lateral_yields": follower.yields,
                 # waits ahead of a target that split the platoon at a give-up (wait_ahead_s)
-                "waits_ahead": {
-                    "started": self.cruiser.waits_started if attached else 0,
-                    "ended": dict(self.reformer.wait_ends) if attached else {},
-                },
-                "lateral_holds_per_manoeuvre": (
-                    list(follower.holds_per_manoeuvre) if attached else []
-                ),
+                "waits_ahead": waits,
+                "lateral_holds_per_manoeuvre": list(follower.holds_per_manoeuvre),
                 "blocked_hv_min_accel_mps2": self.blocks.strongest(),
                 "blocked_hvs": sorted(self.blocks.min_accel),
             },
             "planner": self.stats.block(),
-            "speeds": {
-                **(self.ctx.speeds_block() if attached else {}),
-                "cap_mps": cap if math.isfinite(cap) else None,
-                "cap_sources": dict(self.decider.cap_sources) if attached else {},
-            },
-            "lat_error_rms_m": lateral_rms(follower.lat_errors if attached else []),
-            "mpc": summarise_ms(
-                self.tracker.solve_ms if attached else [], prefix="solve_ms_per_cav_"
-            ),
+            "speeds": speeds,
+            "lat_error_rms_m": lateral_rms(follower.lat_errors),
+            "mpc": summarise_ms(mpc_ms, prefix="solve_ms_per_cav_"),
         }

@@ -296,7 +296,7 @@ class Progress:
         target at a few m/s looked like progress while the last CAV stayed stuck behind it
         (a stress scene held a stale plan for 27 s that way)."""
         line = target.s_m + min_gap_m
-        past = sum(cav.rear_s_m >= line for cav in platoon)
+        past = sum(is_past(cav, target, min_gap_m) for cav in platoon)
         out = sum(cav.lane != target.lane and cav.rear_s_m < target.s_m for cav in platoon)
         # Gain [m]: how far the CAVs behind the target still are from passing it (negative),
         # summed, so that any one CAV closing in by gain_step_m counts.
