@@ -378,6 +378,13 @@ class SwarmSettings:
     # CAV waited 30 s to pass a truck through a dense stream on its right while the lane on
     # its left was free (paper-scene variants with 9-11 CAVs).
     pass_switch_s: float = 6.0
+    # Held towards its passing side for this long [s] already (0 = never), a CAV passing a
+    # slow vehicle switches to the other side at once when the guard would let it in there
+    # now, without waiting out pass_switch_s (not a CAV heading for the platoon's lane: it
+    # would leave that lane): a CAV held 7 s towards a stream of 18 m/s traffic on its left
+    # was still held there when the lane on its right, whose traffic had gone by, opened
+    # (held-out variants: the last CAV of five behind the truck for 60 s).
+    pass_open_side_s: float = 1.0
     # A CAV held this long [s] out of the platoon's lane beside a CAV of that lane whose front
     # is a little behind its own drops back behind that CAV (0 = never): neither counts the
     # other as ahead, and two CAVs at the same speed stayed side by side for 35 s (stress scenes
@@ -593,7 +600,8 @@ class SwarmSettings:
             "cooldown_s", "pass_singly_s", "wait_ahead_s", "wait_lead_m", "max_block_s",
             "prediction_error_m",
             "max_leader_ease_mps", "regroup_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
-            "hold_episode_s", "max_pass_s", "pass_switch_s", "drop_behind_s", "keep_right_wait_s",
+            "hold_episode_s", "max_pass_s", "pass_switch_s", "pass_open_side_s", "drop_behind_s",
+            "keep_right_wait_s",
             "give_up_waiting_s", "accelerating_mps2", "catching_up_ahead_m", "progress_step_m",
             "pass_reach_s",
             "run_up_commit_s", "run_up_drop_mps", "keep_right_move_s",

@@ -50,6 +50,7 @@ def test_paper_scenario_holds_section_iv_c(paper_path):
         ("[swarm]\ncap_decel_mps2 = 0.0\n", "cap_decel_mps2 must be > 0"),
         ("[guards]\nclearing_mps = -0.5\n", "clearing_mps must be a finite number >= 0"),
         ("[swarm]\nkeep_right_wait_s = -1\n", "keep_right_wait_s"),
+        ("[swarm]\npass_open_side_s = -1.0\n", "pass_open_side_s must be >= 0"),
         ('[cell]\nrule = "fixed"\ncell_length_m = 2.0\n', "must be at least as long as a CAV"),
         ("[bogus]\nx = 1\n", "unknown section '[bogus]'"),
         ("[evaluation]\nend_s = 500.0\n", "is after simulation.duration_s"),

@@ -342,6 +342,57 @@ def test_a_cav_held_out_of_its_passing_lane_tries_the_other_side():
     assert "c1" not in r.held_s
 
 
+def _held_towards_lane_0(open_side, dt=0.1):
+    """c1 behind a slow car in lane 1, passing in lane 0, held there by a car right behind it
+    in lane 0; lane 2 is free or (``open_side`` false) a car there is right behind c1 too.
+    Returns the time at which c1 switches to lane 2 (None: not within pass_switch_s)."""
+    events = []
+    r = reformer(events)
+    st = states(
+        car("c0", 300.0, 1, 20.0, cav=True),
+        car("slow", 240.0, 1, 12.0),
+        car("c1", 220.0, 1, 12.0, cav=True, lat=-0.6),
+        car("beside", 214.0, 0, 12.0),
+        car("l2", 300.0, 2, 16.0),
+    )  # fmt: skip
+    if not open_side:
+        st["behind2"] = car("behind2", 213.0, 2, 16.0)  # closing in on c1's rear in lane 2
+    platoon = ["c0", "c1"]
+    goals = r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0, step_s=dt)
+    assert goals["c1"] == 0
+    t = 0.0
+    while t < SCENARIO.swarm.pass_switch_s - 1.5 * dt:
+        assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] == 0.0  # held
+        t += dt
+        goals = r.goals(t, st, platoon, ROAD, 1, cap_mps=25.0, step_s=dt)
+        if goals["c1"] == 2:
+            assert events[-1] == (
+                "passing_switch",
+                {"vehicle": "c1", "slow": "slow", "held_lane": 0, "lane": 2, "open": True},
+            )
+            assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] > 0.0  # and it goes
+            return t
+    return None
+
+
+def test_a_held_cav_switches_at_once_to_the_other_side_when_that_opens():
+    # Lane 2 would let c1 in: it switches once held for pass_open_side_s, not pass_switch_s.
+    t = _held_towards_lane_0(open_side=True)
+    assert t == pytest.approx(SCENARIO.swarm.pass_open_side_s, abs=0.11)
+    # Lane 2 would refuse it too (a car closing in right behind): it keeps waiting for lane 0.
+    assert _held_towards_lane_0(open_side=False) is None
+
+
+def test_the_early_switch_can_be_turned_off():
+    global SCENARIO
+    kept = SCENARIO
+    SCENARIO = replace(kept, swarm=replace(kept.swarm, pass_open_side_s=0.0))
+    try:
+        assert _held_towards_lane_0(open_side=True) is None  # only after pass_switch_s
+    finally:
+        SCENARIO = kept
+
+
 def test_a_cav_held_out_of_the_platoons_lane_behind_a_slow_car_passes_on_the_other_side():
     events = []
     r = reformer(events)

@@ -13,7 +13,7 @@ from typing import Any
 from sumo_swarm.config import CaccSettings, CavSettings
 from sumo_swarm.controllers.base import LC_MODE_STRATEGIC, RouteWatch, RunContext
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.neighbours import vehicle_ahead
+from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead
 
 
 def cacc_accel(
@@ -73,7 +73,7 @@ def command_cacc(
     ``cruise_of``: some CAVs' own cruising speed instead (never the leader's)."""
     if states is None:
         states = ctx.session.states
-    others = list(states.values())
+    others = Snapshot(states.values(), ctx.road)  # sorted once: a look-up per CAV below
     sc = ctx.scenario
     for vid in platoon:
         ego = states[vid]

@@ -64,7 +64,7 @@ class Cruiser:
         edge = self.lanes.edge_of(platoon[0])
         waits_at = reformer.split_by(t_s, states, platoon, road, ending)
         lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap, edge=edge)
-        goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap)
+        goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap, step_s=ctx.dt_s)
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
         cruise = None
         boost = reformer.pull_away(states, platoon, road, lane, cap_mps=cap)

@@ -327,16 +327,29 @@ class Reformer:
         lane: int,
         *,
         cap_mps: float,
+        step_s: float = 0.0,
     ) -> dict[str, int]:
         """The lane each CAV heads for (``passing_start``/``passing_end`` events); a CAV never
-        passes in a lane that ends ahead of it (``ends``: an acceleration lane)."""
+        passes in a lane that ends ahead of it (``ends``: an acceleration lane). ``step_s``:
+        the simulation step (0: no look at the side opposite a held lane change, see
+        :meth:`_switch`)."""
         sc = self.scenario
         sw = sc.swarm
         members = set(platoon)
         others = [st for v, st in states.items() if v not in members]
+        everyone = Snapshot(states.values(), road)  # sorted once: a look-up per CAV below
         waits_at = states.get(self.waiting[0]) if self.waiting is not None else None
         platoon_lane = lane
         goals = {}
+
+        def switch(ego: VehicleState, goal: int, *, passing: bool) -> int:
+            # Only a CAV passing a slow vehicle may switch early: either side passes it. One
+            # heading for the platoon's lane would leave it (stress scene 133: a CAV held 1 s
+            # towards the platoon's lane went on to pass a car on the other side, and the
+            # platoon had not regrouped 40 s later).
+            return self._switch(t_s, ego, goal, states, others, road, cap_mps=cap_mps,
+                                everyone=everyone if passing else None, step_s=step_s)  # fmt: skip
+
         for i, vid in enumerate(platoon):
             ego = states[vid]
             lane = platoon_lane
@@ -363,12 +376,12 @@ class Reformer:
                     del self.passing[vid]
                     self.event("passing_end", vehicle=vid, slow=slow_id, past=done)
                 else:
-                    goals[vid] = self._switch(t_s, ego, side, states, others, road, cap_mps=cap_mps)
+                    goals[vid] = switch(ego, side, passing=True)
                 continue
             if road.lane_of(ego) != lane:
-                goals[vid] = self._switch(t_s, ego, lane, states, others, road, cap_mps=cap_mps)
+                goals[vid] = switch(ego, lane, passing=False)
                 continue
-            ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
+            ahead = vehicle_ahead(ego, everyone, road, width_m=sc.cav.width_m)
             if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
                 continue
             slow = ahead[0]
@@ -471,16 +484,25 @@ class Reformer:
         road: RoadSection,
         *,
         cap_mps: float,
+        everyone: Snapshot | None = None,
+        step_s: float = 0.0,
     ) -> int:
         """``goal``, or the lane on ego's other side once the guard has held ego's lane change
         towards ``goal`` for ``[swarm] pass_switch_s`` with a slow vehicle ahead of it in its
         own lane, and that other lane is faster than the slow vehicle by the gain: ego then
-        passes the slow vehicle there (``passing_switch`` event) and comes back after."""
+        passes the slow vehicle there (``passing_switch`` event) and comes back after. Held
+        for ``[swarm] pass_open_side_s`` already, ego switches sooner if the guard would let
+        it move towards the other lane now (``everyone``: every vehicle, ``step_s``: the
+        simulation step; a ``passing_switch`` event with ``open: true``)."""
         sc = self.scenario
         sw = sc.swarm
         vid = ego.vehicle_id
         held_lane, held = self.held_s.get(vid, (goal, 0.0))
-        if sw.pass_switch_s <= 0.0 or held_lane != goal or held + 1e-9 < sw.pass_switch_s:
+        if sw.pass_switch_s <= 0.0 or held_lane != goal:
+            return goal
+        waited = held + 1e-9 >= sw.pass_switch_s
+        look = everyone is not None and step_s > 0.0 and 0.0 < sw.pass_open_side_s <= held + 1e-9
+        if not waited and not look:
             return goal
         here = road.lane_of(ego)
         if goal == here:
@@ -500,11 +522,36 @@ class Reformer:
                             cap_mps=cap_mps, desired_of=self.desired_speed)[other]  # fmt: skip
         if speed - slow.speed_mps < sw.min_speed_gain_mps:
             return goal
+        opened = not waited
+        if opened and not self._open_towards(ego, other, everyone, road, step_s):
+            return goal
         since = self.passing[vid][2] if vid in self.passing else t_s
         self.passing[vid] = (slow.vehicle_id, other, since)  # max_pass_s counts from the start
         self.held_s.pop(vid, None)
-        self.event("passing_switch", vehicle=vid, slow=slow.vehicle_id, held_lane=goal, lane=other)
+        extra = {"open": True} if opened else {}
+        self.event("passing_switch", vehicle=vid, slow=slow.vehicle_id, held_lane=goal,
+                   lane=other, **extra)  # fmt: skip
         return other
+
+    def _open_towards(
+        self, ego: VehicleState, lane: int, everyone: Snapshot, road: RoadSection, step_s: float
+    ) -> bool:
+        """Would the lateral guard let ego into the adjacent ``lane`` now, entering it as
+        :meth:`_steer` would (speeding up into it where it may)? Asked where the guard decides:
+        with ego's side at the lane line and with ego half across it (the first steps of a
+        lane change, still in its own lane, are let through whatever the lane beside holds)."""
+        sc = self.scenario
+        here = road.lane_of(ego)
+        sign = 1.0 if road.lane_centre_y(lane) > road.lane_centre_y(here) else -1.0
+        line = 0.5 * (road.lane_centre_y(here) + road.lane_centre_y(lane))
+        step = sign * sc.cav.max_lateral_speed_mps * step_s
+        near = [o for o in within(everyone, ego.s_m, 2.0 * sc.swarm.detect_range_m)
+                if o.vehicle_id != ego.vehicle_id]  # fmt: skip
+        commit = self._speed_up_into(ego, lane, near, everyone, road)
+        return all(
+            self._refusal(ego, y, step, everyone, road, step_s, commit) is None
+            for y in (line - sign * 0.5 * sc.cav.width_m, line)
+        )
 
     # ------------------------------------------------------------------ commands
     def moves(
