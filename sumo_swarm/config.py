@@ -370,7 +370,8 @@ class SwarmSettings:
     # platoon in both side lanes.
     lane_pass_beats: Literal["cells", "free"] = "free"
     # A cruising CAV cut off from the platoon by a slow vehicle passes it on its own, in the
-    # faster lane beside; it gives that up after this long [s] and heads for the platoon's lane.
+    # faster lane beside; it gives that up after this long [s] and heads for the platoon's lane
+    # (not while it is alongside the slow vehicle in the passing lane: the pass goes on).
     max_pass_s: float = 30.0
     # A CAV whose lane change towards its goal (the side it passes in, or the platoon's lane)
     # the guard has refused for this long [s] in a row, with a slow vehicle ahead in its own

@@ -372,7 +372,11 @@ class Reformer:
                 # from it): nothing is left to pass, and a CAV held out of a lane of 25-28 m/s
                 # traffic kept trying for 30 s, 50 m behind its platoon (stress scene 39).
                 gone = not done and abs(road.lane_of(slow) - side) >= 2
-                if done or moved or gone or t_s - since > sw.max_pass_s:
+                # Out of time, but alongside it in the passing lane already: the pass goes on
+                # (given up there, a CAV past it 2 s later was recorded as not past).
+                alongside = not done and road.lane_of(ego) == side and ego.s_m > slow.rear_s_m
+                late = t_s - since > sw.max_pass_s and not alongside
+                if done or moved or gone or late:
                     del self.passing[vid]
                     self.event("passing_end", vehicle=vid, slow=slow_id, past=done)
                 else:
