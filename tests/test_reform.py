@@ -803,3 +803,23 @@ def test_a_cav_the_platoon_waits_for_passes_in_any_lane_beside_once_the_wait_has
     # Without a wait it never does.
     r2 = reformer()
     assert r2.goals(21.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}
+
+
+def test_a_pass_out_of_time_goes_on_while_alongside_the_slow_vehicle():
+    events = []
+    r = reformer(events)
+    late = -(SCENARIO.swarm.max_pass_s + 1.0)  # the pass started longer ago than max_pass_s
+    platoon = ["c0", "c1"]
+    # c1 in the passing lane, its front past the slow car's rear: the pass goes on
+    st = states(
+        car("c0", 400.0, 1, 20.0, cav=True),
+        car("slow", 240.0, 1, 12.0),
+        car("c1", 238.0, 0, 16.0, cav=True),
+    )  # fmt: skip
+    r.passing["c1"] = ("slow", 0, late)
+    assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 0
+    assert "c1" in r.passing and not any(kind == "passing_end" for kind, _ in events)
+    # still behind it: given up, back to the platoon's lane
+    st["c1"] = car("c1", 230.0, 0, 16.0, cav=True)
+    assert r.goals(0.1, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1
+    assert events[-1] == ("passing_end", {"vehicle": "c1", "slow": "slow", "past": False})
