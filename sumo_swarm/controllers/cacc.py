@@ -63,6 +63,7 @@ def command_cacc(
     states: Mapping[str, VehicleState] | None = None,
     cruise_mps: float | None = None,
     cruise_of: Mapping[str, float] | None = None,
+    everyone: Snapshot | None = None,
 ) -> None:
     """Command one CACC step for every CAV of ``platoon`` (front-most first when
     ``leader_cruise_mps`` is given: that CAV cruises at that speed instead). ``accel_limits``:
@@ -70,10 +71,12 @@ def command_cacc(
     ``accel_floors``: lower bounds of some (a CAV running up to a faster lane's speed), never
     above the CAV's upper bound. ``states``: the vehicles as the caller sees them (default
     the session's); ``cruise_mps``: the other CAVs' cruising speed (default the scenario's);
-    ``cruise_of``: some CAVs' own cruising speed instead (never the leader's)."""
+    ``cruise_of``: some CAVs' own cruising speed instead (never the leader's); ``everyone``:
+    ``states`` as a :class:`Snapshot`, if the caller has one."""
     if states is None:
         states = ctx.session.states
-    others = Snapshot(states.values(), ctx.road)  # sorted once: a look-up per CAV below
+    # sorted once: a look-up per CAV below
+    others = Snapshot(states.values(), ctx.road) if everyone is None else everyone
     sc = ctx.scenario
     for vid in platoon:
         ego = states[vid]

@@ -19,6 +19,7 @@ from sumo_swarm.controllers.decider import Decider
 from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.core.model import VehicleState
+from sumo_swarm.core.neighbours import Snapshot
 from sumo_swarm.core.swarming.decision import leader_ease_cap, straggler_cruise
 from sumo_swarm.core.swarming.tracker import Tracker
 
@@ -64,8 +65,10 @@ class Cruiser:
         edge = self.lanes.edge_of(platoon[0])
         waits_at = reformer.split_by(t_s, states, platoon, road, ending)
         lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap, edge=edge)
-        goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap, step_s=ctx.dt_s)
-        moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s)
+        everyone = Snapshot(states.values(), road)  # sorted once for this step's look-ups
+        goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap, step_s=ctx.dt_s,
+                               everyone=everyone)  # fmt: skip
+        moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s, everyone=everyone)
         cruise = None
         boost = reformer.pull_away(states, platoon, road, lane, cap_mps=cap)
         if boost > 0.0:  # an HV following the platoon keeps a CAV out of its lane
@@ -86,7 +89,7 @@ class Cruiser:
         command_cacc(ctx, platoon, leader_cruise,
                      accel_limits={vid: m[1] for vid, m in moves.items()},
                      accel_floors=reformer.floors, states=states, cruise_mps=cruise,
-                     cruise_of=catch_up)  # fmt: skip
+                     cruise_of=catch_up, everyone=everyone)  # fmt: skip
         for vid, (dlat, _) in moves.items():
             ctx.session.change_sublane(vid, dlat)
         self.tracker.straighten(platoon)

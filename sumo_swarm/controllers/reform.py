@@ -328,16 +328,19 @@ class Reformer:
         *,
         cap_mps: float,
         step_s: float = 0.0,
+        everyone: Snapshot | None = None,
     ) -> dict[str, int]:
         """The lane each CAV heads for (``passing_start``/``passing_end`` events); a CAV never
         passes in a lane that ends ahead of it (``ends``: an acceleration lane). ``step_s``:
         the simulation step (0: no look at the side opposite a held lane change, see
-        :meth:`_switch`)."""
+        :meth:`_switch`); ``everyone``: ``states`` as a :class:`Snapshot`, if the caller has
+        one."""
         sc = self.scenario
         sw = sc.swarm
         members = set(platoon)
         others = [st for v, st in states.items() if v not in members]
-        everyone = Snapshot(states.values(), road)  # sorted once: a look-up per CAV below
+        if everyone is None:
+            everyone = Snapshot(states.values(), road)  # sorted once: a look-up per CAV below
         waits_at = states.get(self.waiting[0]) if self.waiting is not None else None
         platoon_lane = lane
         goals = {}
@@ -347,8 +350,8 @@ class Reformer:
             # heading for the platoon's lane would leave it (stress scene 133: a CAV held 1 s
             # towards the platoon's lane went on to pass a car on the other side, and the
             # platoon had not regrouped 40 s later).
-            return self._switch(t_s, ego, goal, states, others, road, cap_mps=cap_mps,
-                                everyone=everyone if passing else None, step_s=step_s)  # fmt: skip
+            return self._switch(t_s, ego, goal, states, others, everyone, road,
+                                cap_mps=cap_mps, early=passing, step_s=step_s)  # fmt: skip
 
         for i, vid in enumerate(platoon):
             ego = states[vid]
@@ -485,19 +488,21 @@ class Reformer:
         goal: int,
         states: Mapping[str, VehicleState],
         others: Sequence[VehicleState],
+        everyone: Snapshot,
         road: RoadSection,
         *,
         cap_mps: float,
-        everyone: Snapshot | None = None,
+        early: bool = False,
         step_s: float = 0.0,
     ) -> int:
         """``goal``, or the lane on ego's other side once the guard has held ego's lane change
         towards ``goal`` for ``[swarm] pass_switch_s`` with a slow vehicle ahead of it in its
         own lane, and that other lane is faster than the slow vehicle by the gain: ego then
-        passes the slow vehicle there (``passing_switch`` event) and comes back after. Held
-        for ``[swarm] pass_open_side_s`` already, ego switches sooner if the guard would let
-        it move towards the other lane now (``everyone``: every vehicle, ``step_s``: the
-        simulation step; a ``passing_switch`` event with ``open: true``)."""
+        passes the slow vehicle there (``passing_switch`` event) and comes back after. With
+        ``early``, held for ``[swarm] pass_open_side_s`` already, ego switches sooner if the
+        guard would let it into the other lane now (``step_s``: the simulation step; a
+        ``passing_switch`` event with ``open: true``). ``others``: the vehicles outside the
+        platoon, ``everyone``: all of them."""
         sc = self.scenario
         sw = sc.swarm
         vid = ego.vehicle_id
@@ -505,7 +510,7 @@ class Reformer:
         if sw.pass_switch_s <= 0.0 or held_lane != goal:
             return goal
         waited = held + 1e-9 >= sw.pass_switch_s
-        look = everyone is not None and step_s > 0.0 and 0.0 < sw.pass_open_side_s <= held + 1e-9
+        look = early and step_s > 0.0 and 0.0 < sw.pass_open_side_s <= held + 1e-9
         if not waited and not look:
             return goal
         here = road.lane_of(ego)
@@ -514,7 +519,7 @@ class Reformer:
         other = here - (1 if goal > here else -1)
         if not 0 <= other < road.n_lanes or other in self.ends(ego):
             return goal
-        ahead = vehicle_ahead(ego, states.values(), road, width_m=sc.cav.width_m)
+        ahead = vehicle_ahead(ego, everyone, road, width_m=sc.cav.width_m)
         if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
             return goal
         slow = ahead[0]
@@ -549,9 +554,7 @@ class Reformer:
         sign = 1.0 if road.lane_centre_y(lane) > road.lane_centre_y(here) else -1.0
         line = 0.5 * (road.lane_centre_y(here) + road.lane_centre_y(lane))
         step = sign * sc.cav.max_lateral_speed_mps * step_s
-        near = [o for o in within(everyone, ego.s_m, 2.0 * sc.swarm.detect_range_m)
-                if o.vehicle_id != ego.vehicle_id]  # fmt: skip
-        commit = self._speed_up_into(ego, lane, near, everyone, road)
+        commit = self._speed_up_into(ego, lane, self._near(ego, everyone), everyone, road)
         return all(
             self._refusal(ego, y, step, everyone, road, step_s, commit) is None
             for y in (line - sign * 0.5 * sc.cav.width_m, line)
@@ -566,9 +569,11 @@ class Reformer:
         lane: int,
         goals: Mapping[str, int],
         step_s: float,
+        everyone: Snapshot | None = None,
     ) -> dict[str, Move]:
-        """Lateral move and acceleration bound of every CAV of ``platoon``."""
-        others = Snapshot(states.values(), road)
+        """Lateral move and acceleration bound of every CAV of ``platoon`` (``everyone``:
+        ``states`` as a :class:`Snapshot`, if the caller has one)."""
+        others = Snapshot(states.values(), road) if everyone is None else everyone
         self.floors = {}
         moves = {vid: self._steer(states[vid], goals[vid], others, road, step_s) for vid in platoon}
         for vid in platoon:  # how long each CAV's lane change has been held, in a row
@@ -674,8 +679,7 @@ class Reformer:
         y_next = road.lane_centre_y(next_lane)
         dlat = clip(y_next - y, step)
         # The vehicles around ego, for the entry speed and the run-up
-        reach = 2.0 * sc.swarm.detect_range_m
-        near = [o for o in within(others, ego.s_m, reach) if o.vehicle_id != ego.vehicle_id]
+        near = self._near(ego, others)
         commit = self._speed_up_into(ego, next_lane, near, others, road)
         refusal = self._refusal(ego, y, dlat, others, road, step_s, commit)
         accel = math.inf
@@ -711,6 +715,12 @@ class Reformer:
         if ego.vehicle_id in self.floors:
             self.floors[ego.vehicle_id] = min(self.floors[ego.vehicle_id], bound)
         return dlat, bound
+
+    def _near(self, ego: VehicleState, others: Sequence[VehicleState]) -> list[VehicleState]:
+        """The vehicles of ``others`` around ego (within twice ``detect_range_m``), ego not:
+        what its entry speed and its run-up into the next lane are judged against."""
+        reach = 2.0 * self.scenario.swarm.detect_range_m
+        return [o for o in within(others, ego.s_m, reach) if o.vehicle_id != ego.vehicle_id]
 
     def _refusal(
         self,
