@@ -275,6 +275,26 @@ def test_sumo_lc_figures_split_the_failing_scenes_by_what_sumo_lc_did():
     assert vr._sumo_lc_figures(table.assign(sumo_lc_all_past=None)) == []
 
 
+def test_hardest_cav_brake_is_the_cavs_most_negative_sample():
+    df = pd.DataFrame({
+        "kind": ["cav", "cav", "hv", "cav"],
+        "accel_mps2": [-1.2, 0.8, -6.0, -3.7],  # the HV's -6 is not a CAV's
+    })  # fmt: skip
+    assert vr.hardest_cav_brake(df) == -3.7
+    assert vr.hardest_cav_brake(df[df["kind"] == "hv"]) is None
+
+
+def test_brake_figures_name_the_scenes_near_the_hard_brake_line():
+    table = pd.DataFrame({"scene": [0, 1, 2, 3], "cav_min_accel_mps2": [-1.0, -3.5, -3.49, None]})
+    got = dict(vr._brake_figures(table))
+    assert got["hardest CAV braking over all scenes [m/s^2]"] == -3.5
+    assert got["scenes with a CAV braking at 3.5 m/s^2 or harder"] == "1"
+    assert dict(vr._brake_figures(table.iloc[[0]]))[
+        "scenes with a CAV braking at 3.5 m/s^2 or harder"
+    ] == "none"
+    assert vr._brake_figures(table.iloc[[3]]) == []
+
+
 def test_report_exits_2_on_a_folder_that_is_not_a_batch(tmp_path, capsys):
     assert vr.main([str(tmp_path), "--to", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
