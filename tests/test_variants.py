@@ -286,12 +286,11 @@ def test_hardest_cav_brake_is_the_cavs_most_negative_sample():
 
 def test_brake_figures_name_the_scenes_near_the_hard_brake_line():
     table = pd.DataFrame({"scene": [0, 1, 2, 3], "cav_min_accel_mps2": [-1.0, -3.5, -3.49, None]})
+    near = "scenes with a CAV braking at 3.5 m/s^2 or harder"
     got = dict(vr._brake_figures(table))
     assert got["hardest CAV braking over all scenes [m/s^2]"] == -3.5
-    assert got["scenes with a CAV braking at 3.5 m/s^2 or harder"] == "1"
-    assert dict(vr._brake_figures(table.iloc[[0]]))[
-        "scenes with a CAV braking at 3.5 m/s^2 or harder"
-    ] == "none"
+    assert got[near] == "1"
+    assert dict(vr._brake_figures(table.iloc[[0]]))[near] == "none"
     assert vr._brake_figures(table.iloc[[3]]) == []
 
 
