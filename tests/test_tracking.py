@@ -189,6 +189,19 @@ def test_speed_step_saturates_at_a_max_then_converges():
     assert abs(speeds[-1] - 20.0) < 1e-3
 
 
+def test_a_cav_ahead_of_its_reference_and_faster_brakes_less_with_a_larger_r_lon():
+    # A CAV let go by the lane-speed match: 1.35 m ahead of its reference, 1.7 m/s faster.
+    # The default weights (r_lon = 1) take that out braking at a_min; r_lon = 2 brakes at
+    # 3.2 m/s^2 (docs/dense-traffic.md, the nineteenth session: not made the default).
+    def first_input(settings):
+        t = settings.dt_s * np.arange(settings.horizon + 1)
+        ref_s, ref_v = 1000.0 + 14.6 * t, np.full(settings.horizon + 1, 14.6)
+        return LongitudinalMpc(settings).solve(1001.35, 16.3, ref_s, ref_v).u0
+
+    assert first_input(LongitudinalSettings()) == pytest.approx(-4.0, abs=1e-3)
+    assert first_input(LongitudinalSettings(r_lon=2.0)) == pytest.approx(-3.22, abs=0.01)
+
+
 def test_speed_bound_holds_and_a_start_above_it_stays_feasible():
     settings = LongitudinalSettings(v_max=25.0)
     mpc = LongitudinalMpc(settings)

@@ -110,7 +110,11 @@ class LongitudinalSettings:
         Number of steps K.
     q_s, q_v, r_lon
         Weights on the position error [1/m^2], speed error [s^2/m^2] and acceleration
-        [s^4/m^2].
+        [s^4/m^2]. The paper gives no values; ours are 1, 2 and 1. These take out a speed
+        error of 1.7 m/s braking at a_min (-4 m/s^2): 27 of the 40 paper-scene variants have
+        a CAV braking at 3.5 m/s^2 or harder. ``[longitudinal] r_lon = 2`` halves that (13)
+        with the same overtakes and mean speed there, but one noise draw of the paper scene
+        then gives up (docs/dense-traffic.md, the nineteenth session).
     v_min, v_max
         Speed bounds [m/s]; relaxed per call to what the acceleration bounds can reach from
         the current speed, so the QP stays feasible.
