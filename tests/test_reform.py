@@ -588,6 +588,15 @@ def test_an_hv_following_the_platoon_beside_a_held_cav_is_pulled_away_from():
     assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == pytest.approx(3.0)
     assert events == [("pull_away", {"vehicle": "c1", "follower": "hv", "boost_mps": 3.0})]
     assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=22.0) == pytest.approx(2.0)  # the cap
+    # The condition lapsing for a step and back (noisy states) is not a new event.
+    held = r.held_s.pop("c1")
+    assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == 0.0
+    r.held_s["c1"] = held
+    assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == pytest.approx(3.0)
+    assert len(events) == 1
+    r.reset()  # a new manoeuvre: announced again
+    r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0)
+    assert len(events) == 2
     # Not for an HV that wants as much as the faster cruise (it would follow), not before
     # pull_away_after_s, not for a CAV still behind a slow car of its own lane.
     r, st, _ = held_beside_a_follower(33.0, 3.5)

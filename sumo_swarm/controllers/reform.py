@@ -82,7 +82,9 @@ class Reformer:
     # (lane, edge): the platoon moves over to this lane as a unit (a lane pass), whatever
     # lanes its CAVs are in now, while the leader is on that edge
     move_to: tuple[int, str | None] | None = None
-    pulling: tuple[str, str] | None = None  # (CAV, HV) the platoon pulls away from (pull_away)
+    # (CAV, HV) pairs the platoon has pulled away from since the last reset (one pull_away
+    # event each: with noisy states the condition lapsed and returned every 0.1 s)
+    pulled: set[tuple[str, str]] = field(default_factory=set)
     block_s: dict[str, float] = field(default_factory=dict)  # HV -> time held by block_assist
     left_for_held: tuple[int, str | None] | None = None  # (lane, edge) left by _held_switch
     # (slow vehicle, since [s], until [s]): after a give-up with the platoon split by that
@@ -96,6 +98,7 @@ class Reformer:
         self.left_for_held = None
         self.waiting = None
         self.block_s.clear()
+        self.pulled.clear()
 
     def past(self, ego: VehicleState, slow: VehicleState) -> bool:
         """Is ego past ``slow`` (:func:`is_past` by ``cav.min_gap_m``)?"""
@@ -973,7 +976,7 @@ class Reformer:
         """How much faster [m/s] than the cruise the platoon drives to pull away from an HV that
         keeps one of its CAVs out of ``lane`` (:meth:`_held_by_hv` for ``[swarm]
         pull_away_after_s``) and wants less than that faster cruise. 0: no such HV. A
-        ``pull_away`` event once per CAV and HV."""
+        ``pull_away`` event once per CAV and HV until :meth:`reset`."""
         sw = self.scenario.swarm
         boost = self._boost(cap_mps)
         if boost <= 0.0:
@@ -981,12 +984,11 @@ class Reformer:
         for ego, hv in self._held_by_hv(states, platoon, road, lane, sw.pull_away_after_s):
             if not self._left_behind(hv, boost):
                 continue
-            if self.pulling != (ego.vehicle_id, hv.vehicle_id):
-                self.pulling = (ego.vehicle_id, hv.vehicle_id)
+            if (ego.vehicle_id, hv.vehicle_id) not in self.pulled:
+                self.pulled.add((ego.vehicle_id, hv.vehicle_id))
                 self.event("pull_away", vehicle=ego.vehicle_id, follower=hv.vehicle_id,
                            boost_mps=round(boost, 2))  # fmt: skip
             return boost
-        self.pulling = None
         return 0.0
 
     def _follow_gently(self, ego: VehicleState, lead: VehicleState, gap_m: float) -> float:
