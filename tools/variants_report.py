@@ -51,6 +51,7 @@ from typing import Any
 
 import pandas as pd
 
+from sumo_swarm.sim.metrics import HARD_BRAKE_MPS2
 from sumo_swarm.sim.summary import pass_times_s
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -326,7 +327,6 @@ TRAJECTORY_COLUMNS = ["time_s", "vehicle", "kind", "lane", "s_m", "length_m", "a
 # passed the hard_brakes check by that little (a column of nine CAVs behind a truck after a
 # dropped plan: the ninth at -4.0 m/s^2, held-out variant 24).
 NEAR_HARD_BRAKE_MPS2 = 0.5
-HARD_BRAKE_MPS2 = 4.0
 
 
 def hardest_cav_brake(trajectories: pd.DataFrame) -> float | None:
