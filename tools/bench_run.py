@@ -4,17 +4,30 @@ Runs the two controllers alternately (so both see the same machine load), each r
 process (libsumo holds one simulation per process), and prints and saves a table of wall time
 (median, p95, max), the swarm/cacc ratio, and the MPC's solve time per CAV.
 
+With ``--sweep FILE --cases 3,29``: those cases of a sweep file (e.g. scenarios/variants.toml)
+instead, one after the other, each ``--repeats`` times with cacc and swarm alternated, one run
+at a time: the run cost of issue 11 ("a run costing <= 3x a cacc run") measured the way a
+batch cannot, where the two runs of a scene are minutes apart and share the 2 cores with
+whatever the other worker runs (the same scene's ratio went 2.1x in one batch, 3.7x in the
+next). The table gives per case the process-time ratio (``timing.cpu_s``: SUMO and controller,
+the loop's CPU) and the wall ratio, median / p95 / max over the repeats.
+
 Usage: python tools/bench_run.py [--repeats 5] [--scenario scenarios/paper.toml]
                                  [--out docs/bench/run]
+       python tools/bench_run.py --sweep scenarios/variants.toml --cases 3,29 [--repeats 3]
+                                 [--out docs/bench/run_variants]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import subprocess
 import sys
 import tempfile
+import tomllib
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +46,70 @@ def one_run(scenario: Path, controller: str) -> dict:
         return json.loads((Path(tmp) / "summary.json").read_text())
 
 
+def case_run(sweep_path: str, case: int, controller: str) -> dict:
+    """One run of case ``case`` of a sweep file under ``controller`` (call it in a fresh
+    process: libsumo holds one simulation per process); its summary."""
+    from sumo_swarm.sim.runner import run_scenario
+    from sumo_swarm.study.batch.sweep import load_sweep
+
+    with open(sweep_path, "rb") as f:
+        wanted = tomllib.load(f)["cases"][case]
+    spec = next(
+        r for r in load_sweep(sweep_path).runs
+        if r.controller == controller and all(r.params.get(k) == v for k, v in wanted.items())
+    )  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        return run_scenario(spec.scenario(), controller, tmp, seed=spec.seed, progress=False)
+
+
+def bench_cases(sweep: Path, cases: list[int], repeats: int, out: Path) -> int:
+    """The ``--sweep`` benchmark (module docstring): prints and saves the table."""
+    with open(sweep, "rb") as f:
+        listed = tomllib.load(f)["cases"]
+    counts = {c: listed[c].get("cav.count") for c in cases}
+    context = multiprocessing.get_context("spawn")
+    rows = []
+    for case in cases:
+        for i in range(repeats):
+            for controller in ("cacc", "swarm"):
+                with ProcessPoolExecutor(1, mp_context=context) as pool:
+                    s = pool.submit(case_run, str(sweep), case, controller).result()
+                t = s["timing"]
+                rows.append({"case": case, "repeat": i, "controller": controller,
+                             "cavs": counts[case], **t})  # fmt: skip
+                print(f"case {case} run {i} {controller:6s} cpu {t['cpu_s']:.2f} s "
+                      f"wall {t['wall_s']:.2f} s", flush=True)  # fmt: skip
+    df = pd.DataFrame(rows)
+    table = []
+    for case in cases:
+        sub = df[df["case"] == case]
+        swarm, cacc = sub[sub.controller == "swarm"], sub[sub.controller == "cacc"]
+        for measure, key in (("cpu ratio", "cpu_s"), ("wall ratio", "wall_s")):
+            ratio = swarm[key].to_numpy() / cacc[key].to_numpy()
+            table.append({"case": case, "measure": measure, **stats(list(ratio))})
+        table.append({"case": case, "measure": "swarm cpu_s", **stats(list(swarm["cpu_s"]))})
+        table.append({"case": case, "measure": "cacc cpu_s", **stats(list(cacc["cpu_s"]))})
+    result = pd.DataFrame(table)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    df.to_csv(out.with_suffix(".runs.csv"), index=False)
+    result.to_csv(out.with_suffix(".csv"), index=False)
+    head = (f"Run cost, cases {', '.join(map(str, cases))} of {_shown(sweep)}, {repeats} repeats "
+            "(cacc and swarm alternated, one run at a time): "
+            f"`python tools/bench_run.py --sweep {_shown(sweep)} --cases "
+            f"{','.join(map(str, cases))} --repeats {repeats}`\n\n")  # fmt: skip
+    md = result.to_markdown(index=False, floatfmt=".2f") if _has_tabulate() else result.to_string()
+    out.with_suffix(".md").write_text(head + md + "\n", encoding="utf-8")
+    print(md)
+    return 0
+
+
+def _shown(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
 def stats(values: list[float]) -> dict[str, float]:
     a = np.asarray(values, dtype=float)
     return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": a.max()}
@@ -42,8 +119,31 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--scenario", type=Path, default=ROOT / "scenarios" / "paper.toml")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "run")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="path without extension (default docs/bench/run, with --sweep "
+                             "docs/bench/run_variants)")  # fmt: skip
+    parser.add_argument("--sweep", type=Path, help="a sweep file: bench its --cases instead")
+    parser.add_argument("--cases", default="", help="with --sweep: case indices, e.g. 3,29")
     args = parser.parse_args(argv)
+    if args.sweep is not None:
+        try:
+            cases = [int(c) for c in args.cases.split(",") if c.strip()]
+        except ValueError:
+            parser.error(f"--cases: expected indices like 3,29, got {args.cases!r}")
+        if not cases:
+            parser.error("--sweep needs --cases")
+        if not args.sweep.is_file():
+            parser.error(f"--sweep: file not found: {args.sweep}")
+        try:
+            with open(args.sweep, "rb") as f:
+                listed = len(tomllib.load(f).get("cases", []))
+        except tomllib.TOMLDecodeError as exc:
+            parser.error(f"--sweep: {args.sweep} is not valid TOML: {exc}")
+        if bad := [c for c in cases if not 0 <= c < listed]:
+            parser.error(f"--cases: {bad} not in {args.sweep} (it lists cases 0-{listed - 1})")
+        out = args.out or ROOT / "docs" / "bench" / "run_variants"
+        return bench_cases(args.sweep, cases, args.repeats, out)
+    args.out = args.out or ROOT / "docs" / "bench" / "run"
     rows = []
     for i in range(args.repeats):
         for controller in ("cacc", "swarm"):
