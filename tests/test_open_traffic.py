@@ -4,6 +4,7 @@ than the paper's 20 m/s. Each swarm run is compared with a baseline on the same 
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 from pathlib import Path
@@ -41,14 +42,26 @@ def _no_keep_right_wait(scenario):
     )
 
 
+# The variant tests below were written against the paper's 80 s run (window 0-60 s); the sweep
+# now runs 150 s (tools/make_variants.py). Their stories and thresholds are those of 80 s: a
+# longer run dilutes a gain made in the first minute with cruising (variant 23: +1.53 m/s over
+# cacc in 150 s, +2 or more in 80 s), and 80 s keeps them quick.
+VARIANT_TEST_WINDOW = {"duration_s": 80.0, "end_s": 60.0}
+
+
 def _variant_spec(cavs: int, truck_mps: float):
-    """The swarm run of the scenarios/variants.toml case with ``cavs`` CAVs and that truck."""
+    """The swarm run of the scenarios/variants.toml case with ``cavs`` CAVs and that truck,
+    over the paper's 80 s (``VARIANT_TEST_WINDOW``)."""
     sweep = load_sweep(ROOT / "scenarios" / "variants.toml")
-    return next(
+    spec = next(
         r for r in sweep.runs
         if r.controller == "swarm" and r.params["cav.count"] == cavs
         and r.params["scene.hv.hv_target.speed_mps"] == pytest.approx(truck_mps)
     )  # fmt: skip
+    overrides = copy.deepcopy(spec.overrides)
+    overrides.setdefault("simulation", {})["duration_s"] = VARIANT_TEST_WINDOW["duration_s"]
+    overrides.setdefault("evaluation", {})["end_s"] = VARIANT_TEST_WINDOW["end_s"]
+    return dataclasses.replace(spec, overrides=overrides)
 
 
 def test_platoon_reforms_in_one_lane_when_the_target_leaves_its_lane(tmp_path):
