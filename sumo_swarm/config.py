@@ -690,7 +690,7 @@ class Scenario:
     cell: CellLengthSettings = field(default_factory=CellLengthSettings)
     grid: GridSettings = field(default_factory=GridSettings)
     # [planner]: every key is a PlannerSettings field (core/planner/problem.py documents them).
-    # Speed: network_work (exact min-cost-flow search, 16000 arcs x flows), network_only (true:
+    # Speed: network_work (exact min-cost-flow search, 20000 arcs x flows), network_only (true:
     # its best plan when it does not finish, no CP-SAT), time_limit_s (wall safety net, 0.25 s).
     planner: PlannerSettings = field(default_factory=PlannerSettings)
     cacc: CaccSettings = field(default_factory=CaccSettings)

@@ -416,7 +416,7 @@ def test_fig7_problem_data():
 @pytest.mark.parametrize("backend", ["cp-sat", "scip"])
 def test_fig7_swarm_overtakes_blocks_and_regroups(backend):
     problem = fig7_problem()
-    # The proof budget of `sumo-swarm reproduce` (28000 would do): the default (16000) finds
+    # The proof budget of `sumo-swarm reproduce` (28000 would do): the default (20000) finds
     # the same plan in the same time but leaves it 4 units above its bound (checked below).
     settings = PlannerSettings(backend=backend, time_limit_s=30.0, network_work=PROOF_WORK)
     plan = make_planner(settings).plan(problem)

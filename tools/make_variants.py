@@ -56,11 +56,11 @@ MIN_LEADER_FRONT_M = 300.0  # the paper's
 # How long each variant runs, and the evaluation window (speeds, gaps) over all of it [s]. Not
 # the paper's 80 s (window 0-60 s): a swarm of 10-12 CAVs that gives up mid-manoeuvre (no safe
 # way past the side streams) and then passes the truck CAV by CAV, waiting for each other ahead
-# of it, needs up to 143 s to regroup (scene 10 of the 40, planner budget 20000: 142.8 s), and
-# 80 s judged such a recovering overtake as failed half-way (5 of 40 scenes; all five pass the
-# check within 150 s). 150 s keeps the CAVs on the 3 km road: the first reach its end at about
-# 139 s; a CAV that has left is no longer judged. The window covers the whole run, so that no
-# gap after 60 s goes unjudged.
+# of it, needs up to 143 s to regroup (scene 10 of the 40: 142.8 s), and 80 s judged such a
+# recovering overtake as failed half-way (5 of 40 scenes; all five regroup within 150 s).
+# 150 s keeps the CAVs on the 3 km road: the first reach its end at about 139 s; a CAV that
+# has left is no longer judged. The window covers the whole run, so that no gap after 60 s
+# goes unjudged.
 DURATION_S = 150.0
 EVALUATION_END_S = 150.0
 

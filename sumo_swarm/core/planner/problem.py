@@ -129,15 +129,19 @@ class PlannerSettings:
         solved while the sum of their networks' arc counts stays within it (a flow costs about
         1.5 us of cpu per arc). A problem with every delta fixed takes one flow and is proved
         at once; the paper scene's (6 CAVs, 1700-2400 arcs) need 15-16 flows (26000-36000) to
-        be proved; a 12-CAV one (3000-3700 arcs) gets about 5 flows. 16000 keeps the solve
-        within 50 ms of CPU: on the 50 stored swarm problems (tests/data), alternated in one
-        session, CPU p95 / max 37 / 53 ms against 51 / 67 ms at 20000 (the default until the
-        variants ran 150 s; 36000 before that), with the very same plan for every one of them
-        (12000 lost a plan and made 5 worse). The price is in proofs: 11 of 50 proved (17 at
-        36000), plans at most 4.2 % above the best known objective. ``sumo-swarm reproduce``
-        gives the swarm 150000 (every plan of the paper scene proved). A search that finishes
-        proves the optimum (or infeasibility) and CP-SAT is not called. A count, not a time:
-        the plan does not depend on the machine's load. 0: CP-SAT only, as before.
+        be proved; a 12-CAV one (3000-3700 arcs) gets about 6 flows. 20000 keeps the solve
+        within 50 ms of CPU (p95 over the 40-scene variant sweep: 45.8 ms CPU against 70.3 ms
+        at 36000, mean CAV speed the same: +0.02 m/s) at a price in proofs: on the stored
+        swarm problems 12 of 50 proved (17 at 36000) and plans at most 4.2 % above the best
+        known objective. 16000 was tried (twenty-second session): the same plan for all 50
+        stored problems at CPU p95 / max 22.8 / 28.1 ms against 27.3 / 32.7 (alternated in one
+        process), but in closed loop it planned 9-10 CAVs worse: 7 of the 200 stress scenes
+        slower by 0.11-1.75 m/s, 3 of them no longer regrouped; 20000 stays. (The 150 s variant
+        runs where 20000 had a per-run planner CPU p95 of 52-58 ms were on a machine that took
+        51 ms at p95 for those 50 problems.) ``sumo-swarm reproduce`` gives the swarm 150000
+        (every plan of the paper scene proved). A search that finishes proves the optimum (or infeasibility) and
+        CP-SAT is not called. A count, not a time: the plan does not depend on the machine's
+        load. 0: CP-SAT only, as before.
     network_ref_cavs
         The CAV count ``network_work`` is meant for: above it a search that has found a plan
         stops at ``network_work * network_ref_cavs / n_cavs`` (one without a plan goes on
@@ -145,8 +149,8 @@ class PlannerSettings:
         augmenting path per CAV, so its cost grows with both arcs and CAVs: 10-CAV stress
         problems (about 2900 arcs) took 8-9 ms a flow, 7 flows within 20000, up to 61 ms of
         CPU (7 runs of 200 above 50 ms at p95); the paper scene's 6 CAVs take 2-3 ms a flow.
-        6: the paper scene and anything smaller plan within ``network_work``, 10 CAVs stop at
-        9600 (3 flows). A count: the plan is still the same on every machine. 0: ``network_work``
+        6: the paper scene and anything smaller plan as before, 10 CAVs stop at 12000 (4
+        flows). A count: the plan is still the same on every machine. 0: ``network_work``
         whatever the CAVs.
     network_only
         When the network search does not finish, return its best plan (``feasible``, with the
@@ -166,7 +170,7 @@ class PlannerSettings:
     block_steps: int | Literal["auto"] = 1
     max_blockers: int = 2
     num_workers: int = 1
-    network_work: int = 16_000
+    network_work: int = 20_000
     network_only: bool = True
     network_ref_cavs: int = 6
 
