@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pandas as pd
@@ -21,7 +22,7 @@ import pytest
 
 from sumo_swarm.cli import main
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.study.batch import load_sweep, run_batch
+from sumo_swarm.study.batch import find_case, load_sweep, run_batch
 from sumo_swarm.study.impact import markdown_table
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -355,3 +356,16 @@ def test_ray_backend_on_a_local_instance(sweep_file, tmp_path):
     assert sorted(df["controller"]) == ["cacc", "sumo-cacc"]
     assert set(df["status"]) == {"ok"} and (df["cav.count"] == 4).all()
     assert df["run.pid"].nunique() == 2  # a fresh worker process per run
+
+
+def test_find_case_picks_the_run_of_a_case_by_its_place_in_the_file():
+    path = ROOT / "scenarios" / "variants.toml"
+    listed = tomllib.loads(path.read_text())["cases"]
+    run = find_case(path, 3, "cacc")
+    assert run.controller == "cacc"
+    assert run.params == pytest.approx(listed[3])
+    assert find_case(path, 3).controller == "swarm" and find_case(path, 3).params == run.params
+    with pytest.raises(ConfigError, match="no case 40"):
+        find_case(path, len(listed))
+    with pytest.raises(ConfigError, match="has no lqr run"):
+        find_case(path, 0, "lqr")

@@ -26,12 +26,15 @@ import multiprocessing
 import subprocess
 import sys
 import tempfile
-import tomllib
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.runner import run_scenario
+from sumo_swarm.study.batch import find_case
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -49,24 +52,14 @@ def one_run(scenario: Path, controller: str) -> dict:
 def case_run(sweep_path: str, case: int, controller: str) -> dict:
     """One run of case ``case`` of a sweep file under ``controller`` (call it in a fresh
     process: libsumo holds one simulation per process); its summary."""
-    from sumo_swarm.sim.runner import run_scenario
-    from sumo_swarm.study.batch.sweep import load_sweep
-
-    with open(sweep_path, "rb") as f:
-        wanted = tomllib.load(f)["cases"][case]
-    spec = next(
-        r for r in load_sweep(sweep_path).runs
-        if r.controller == controller and all(r.params.get(k) == v for k, v in wanted.items())
-    )  # fmt: skip
+    spec = find_case(sweep_path, case, controller)
     with tempfile.TemporaryDirectory() as tmp:
         return run_scenario(spec.scenario(), controller, tmp, seed=spec.seed, progress=False)
 
 
-def bench_cases(sweep: Path, cases: list[int], repeats: int, out: Path) -> int:
-    """The ``--sweep`` benchmark (module docstring): prints and saves the table."""
-    with open(sweep, "rb") as f:
-        listed = tomllib.load(f)["cases"]
-    counts = {c: listed[c].get("cav.count") for c in cases}
+def bench_cases(sweep: Path, cases: dict[int, int], repeats: int, out: Path) -> int:
+    """The ``--sweep`` benchmark (module docstring) of ``cases`` (index -> CAV count): prints
+    and saves the table."""
     context = multiprocessing.get_context("spawn")
     rows = []
     for case in cases:
@@ -76,7 +69,7 @@ def bench_cases(sweep: Path, cases: list[int], repeats: int, out: Path) -> int:
                     s = pool.submit(case_run, str(sweep), case, controller).result()
                 t = s["timing"]
                 rows.append({"case": case, "repeat": i, "controller": controller,
-                             "cavs": counts[case], **t})  # fmt: skip
+                             "cavs": cases[case], **t})  # fmt: skip
                 print(f"case {case} run {i} {controller:6s} cpu {t['cpu_s']:.2f} s "
                       f"wall {t['wall_s']:.2f} s", flush=True)  # fmt: skip
     df = pd.DataFrame(rows)
@@ -132,17 +125,12 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--cases: expected indices like 3,29, got {args.cases!r}")
         if not cases:
             parser.error("--sweep needs --cases")
-        if not args.sweep.is_file():
-            parser.error(f"--sweep: file not found: {args.sweep}")
         try:
-            with open(args.sweep, "rb") as f:
-                listed = len(tomllib.load(f).get("cases", []))
-        except tomllib.TOMLDecodeError as exc:
-            parser.error(f"--sweep: {args.sweep} is not valid TOML: {exc}")
-        if bad := [c for c in cases if not 0 <= c < listed]:
-            parser.error(f"--cases: {bad} not in {args.sweep} (it lists cases 0-{listed - 1})")
+            counts = {c: find_case(args.sweep, c).params.get("cav.count") for c in cases}
+        except ConfigError as exc:
+            parser.error(f"--sweep: {exc}")
         out = args.out or ROOT / "docs" / "bench" / "run_variants"
-        return bench_cases(args.sweep, cases, args.repeats, out)
+        return bench_cases(args.sweep, counts, args.repeats, out)
     args.out = args.out or ROOT / "docs" / "bench" / "run"
     rows = []
     for i in range(args.repeats):

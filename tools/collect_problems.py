@@ -17,7 +17,6 @@ import argparse
 import json
 import sys
 import tempfile
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,7 @@ from sumo_swarm.core.planner import CellPlanner, Plan, PlanningProblem, make_pla
 from sumo_swarm.core.planner.dump import problem_to_dict
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.runner import run_scenario
-from sumo_swarm.study.batch.sweep import RunSpec, load_sweep
+from sumo_swarm.study.batch.sweep import find_case
 
 
 class RecordingPlanner:
@@ -51,26 +50,6 @@ class RecordingPlanner:
             }
         )
         return plan
-
-
-def find_case(sweep_path: Path, index: int, controller: str = "swarm") -> RunSpec:
-    """The run of case ``index`` (0-based, file order) under ``controller``."""
-    sweep = load_sweep(sweep_path)
-    cases = tomllib.loads(sweep_path.read_text())["cases"]
-    if not 0 <= index < len(cases):
-        raise ConfigError(f"{sweep_path}: no case {index} (0..{len(cases) - 1})")
-    want = cases[index]
-
-    def matches(params: dict[str, Any]) -> bool:
-        return all(
-            abs(params[k] - v) < 1e-9 if isinstance(v, float) else params[k] == v
-            for k, v in want.items()
-        )
-
-    for run in sweep.runs:
-        if run.controller == controller and matches(run.params):
-            return run
-    raise ConfigError(f"{sweep_path}: case {index} has no {controller} run")
 
 
 def main(argv: list[str] | None = None) -> int:

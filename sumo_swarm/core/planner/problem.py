@@ -139,9 +139,9 @@ class PlannerSettings:
         slower by 0.11-1.75 m/s, 3 of them no longer regrouped; 20000 stays. (The 150 s variant
         runs where 20000 had a per-run planner CPU p95 of 52-58 ms were on a machine that took
         51 ms at p95 for those 50 problems.) ``sumo-swarm reproduce`` gives the swarm 150000
-        (every plan of the paper scene proved). A search that finishes proves the optimum (or infeasibility) and
-        CP-SAT is not called. A count, not a time: the plan does not depend on the machine's
-        load. 0: CP-SAT only, as before.
+        (every plan of the paper scene proved). A search that finishes proves the optimum (or
+        infeasibility) and CP-SAT is not called. A count, not a time: the plan does not depend
+        on the machine's load. 0: CP-SAT only, as before.
     network_ref_cavs
         The CAV count ``network_work`` is meant for: above it a search that has found a plan
         stops at ``network_work * network_ref_cavs / n_cavs`` (one without a plan goes on

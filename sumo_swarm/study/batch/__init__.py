@@ -24,7 +24,7 @@ from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.runner import prepare_out_dir
 from sumo_swarm.study.batch.backends import Backend, LocalBackend, RayBackend, make_backend
 from sumo_swarm.study.batch.store import RESULTS, STATUS_FAILED, BatchStore
-from sumo_swarm.study.batch.sweep import RunSpec, Sweep, load_sweep
+from sumo_swarm.study.batch.sweep import RunSpec, Sweep, find_case, load_sweep
 
 log = logging.getLogger(__name__)
 
@@ -228,6 +228,7 @@ __all__ = [
     "RayBackend",
     "RunSpec",
     "Sweep",
+    "find_case",
     "load_sweep",
     "run_batch",
     "run_specs",

@@ -365,6 +365,28 @@ def load_sweep(path: str | Path) -> Sweep:
         raise ConfigError(f"{path}: {exc}") from None
 
 
+def find_case(path: str | Path, index: int, controller: str = "swarm") -> RunSpec:
+    """The run of case ``index`` (0-based, in the order of the file's ``[[cases]]``) of the
+    sweep file ``path`` under ``controller``; ConfigError when there is no such case or run."""
+    path = Path(path)
+    sweep = load_sweep(path)
+    cases = read_toml(path, "sweep file").get("cases", [])
+    if not 0 <= index < len(cases):
+        raise ConfigError(f"{path}: no case {index} (it lists {len(cases)}: 0..{len(cases) - 1})")
+    want = cases[index]
+
+    def matches(params: dict[str, Any]) -> bool:
+        return all(
+            abs(params[k] - v) < 1e-9 if isinstance(v, float) else params[k] == v
+            for k, v in want.items()
+        )
+
+    for run in sweep.runs:
+        if run.controller == controller and matches(run.params):
+            return run
+    raise ConfigError(f"{path}: case {index} has no {controller} run")
+
+
 def _build(path: Path, data: dict[str, Any]) -> Sweep:
     if "base" not in data and set(data) & set(SECTIONS):
         raise ConfigError(
