@@ -187,6 +187,36 @@ def test_a_failed_solve_is_a_fallback_recorded_and_retried_after_retry_after_s()
     assert stats.block()["solves"] == 0  # no solver ran to a result
 
 
+def test_a_lane_the_target_comes_to_want_is_closed_by_a_replan_once():
+    # The plan in force was made with the target's right lane open; then its driver shows
+    # it wants to move there (Decider.keep_right_closure): the replanner asks for a plan
+    # without that lane ("keep_right"), once: not again while that plan's lane is closed.
+    sc = Scenario(name="t", path=None)
+    truck = VehicleState("truck", 300.0, 1, 0.0, 15.0, 12.0)
+    states = {"truck": truck, "c0": cav("c0", 280.0, 1, 15.0)}
+    session = types.SimpleNamespace(edges={})
+    ctx = types.SimpleNamespace(scenario=sc, road=ROAD, session=session, cav_ids=["c0"], dt_s=0.1,
+                                event=lambda kind, **data: None)  # fmt: skip
+    closure = {"lane": None}
+    decider = types.SimpleNamespace(speed_cap=lambda platoon: 25.0,
+                                    keep_right_closure=lambda *args: closure["lane"])  # fmt: skip
+    replanner = Replanner(
+        ctx, _FailingManoeuvre(), sc.planner, decider=decider, lanes=LaneView(ctx),
+        model_of=lambda vid: DriverModel(model="unknown"), planlog=PlanLog(None),
+        tracker_reset=lambda: None, stats=PlanStats(), blocks=BlockWatch(),
+    )  # fmt: skip
+    progress = Progress(0.0)
+    replanner.start()
+    assert not replanner._lane_to_close(1.0, states, "truck", progress)  # nothing wanted
+    closure["lane"] = 0
+    assert replanner._lane_to_close(1.0, states, "truck", progress)
+    assert not replanner._lane_to_close(1.0, states, "gone", progress)  # no target: no replan
+    replanner.closed_lane = 0  # the plan made then kept out of it
+    assert not replanner._lane_to_close(2.0, states, "truck", progress)
+    replanner.start()  # a new manoeuvre: its first plan decides afresh
+    assert replanner.closed_lane is None
+
+
 class _FixedTracker:
     """A tracker that asks every CAV for the same command (injected as the controller's is)."""
 

@@ -259,3 +259,39 @@ def test_keeps_right_read_from_the_lane_change_model(tmp_path):
         assert not sumo.keeps_right("lazy")
         assert not sumo.keeps_right("paper")  # the paper's HVs keep their lanes
         assert not sumo.keeps_right("traci")
+
+
+def test_the_wish_to_keep_right_read_while_the_right_lane_is_taken(tmp_path):
+    # SUMO's default driver in the left lane with a car alongside on its right wants to move
+    # right to keep right (its lane-change state) but cannot; one with lcKeepRight 0 does not
+    # want to. Once the car on its right has dropped back, it moves over.
+    routes = tmp_path / "wish.rou.xml"
+    routes.write_text(
+        f"""<routes>{TYPES}
+  <vType id="keeper" maxSpeed="20" speedDev="0"/>
+  <vType id="lazy" lcKeepRight="0" maxSpeed="20" speedDev="0"/>
+  <vType id="beside" maxSpeed="20" speedDev="0" {LC_OFF}/>
+  <route id="r" edges="hwy"/>
+  <vehicle id="keeper" type="keeper" route="r" depart="0" departLane="1" departPos="300"
+           departSpeed="20"/>
+  <vehicle id="lazy" type="lazy" route="r" depart="0" departLane="1" departPos="200"
+           departSpeed="20"/>
+  <vehicle id="c1" type="beside" route="r" depart="0" departLane="0" departPos="300"
+           departSpeed="20"/>
+  <vehicle id="c2" type="beside" route="r" depart="0" departLane="0" departPos="200"
+           departSpeed="20"/>
+</routes>""",
+        encoding="utf-8",
+    )
+    with _session(routes) as sumo:
+        for _ in range(80):  # 8 s: longer than the 5 s a keep-right wish takes to build
+            sumo.step()
+        assert sumo.api.vehicle.getLaneIndex("keeper") == 1  # held: the lane is taken
+        assert sumo.wants_right("keeper")
+        assert not sumo.wants_right("lazy")
+        assert not sumo.wants_right("c1")  # already in the rightmost lane
+        assert not sumo.wants_right("nobody")  # not in the simulation: no wish, no error
+        sumo.api.vehicle.setSpeed("c1", 10.0)  # drops back: the lane frees up
+        for _ in range(150):
+            sumo.step()
+        assert sumo.api.vehicle.getLaneIndex("keeper") == 0

@@ -82,6 +82,28 @@ def test_a_cav_cut_off_by_a_slow_vehicle_passes_it_and_comes_back():
     assert goals["c2"] == 1 and events[-1][1] == {"vehicle": "c2", "slow": "slow", "past": False}
 
 
+def test_no_pass_on_the_right_of_a_slow_vehicle_that_wants_to_move_there():
+    # The slow car in the middle lane wants to move right to keep right (SUMO's lane-change
+    # state): c1 passes it on its left, although lane 0 is the faster one; a slow car in
+    # the leftmost lane (no lane on its left) is still passed on its right.
+    events = []
+    r = reformer(events)
+    r.moves_right = lambda vehicle, states: vehicle.vehicle_id == "slow"
+    st = states(
+        car("c0", 300.0, 1, 20.0, cav=True),
+        car("slow", 240.0, 1, 12.0),
+        car("c1", 220.0, 1, 12.0, cav=True),
+        car("left", 400.0, 2, 16.0),  # lane 2 is 4 m/s faster than the slow car, lane 0 free
+    )  # fmt: skip
+    assert r.goals(0.0, st, ["c0", "c1"], ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 2}
+    assert events == [("passing_start", {"vehicle": "c1", "slow": "slow", "lane": 2})]
+    r = reformer()
+    r.moves_right = lambda vehicle, states: True
+    st = states(car("c0", 300.0, 2, 20.0, cav=True), car("slow", 240.0, 2, 12.0),
+                car("c1", 220.0, 2, 12.0, cav=True))  # fmt: skip
+    assert r.goals(0.0, st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == {"c0": 2, "c1": 1}
+
+
 def test_cavs_cut_off_by_a_slow_vehicle_pass_it_in_a_train():
     # c1 passes the slow car in lane 0; once its centre is in lane 0, c2 follows it there at
     # once (as SUMO's drivers overtake) instead of waiting until c1 is past (5-6 s a CAV).

@@ -23,6 +23,7 @@ from sumo_swarm.core.swarming.decision import (
     only_catching_up,
     passing_lane,
     right_lane_free,
+    right_lane_opens_within,
     secure_gap_m,
     slow_vehicle_ahead,
     speed_cap_mps,
@@ -137,6 +138,36 @@ def test_right_lane_free_hand_computed():
     assert free(truck, car("b", 268.0, 0, 14.0))
     assert free(truck, car("b", 230.0, 0, 15.0))  # no slower: moving over loses nothing
     assert free(truck, car("c", 150.0, 2, 30.0))  # the lane on its left does not count
+
+
+def test_right_lane_opens_when_the_last_car_of_a_stream_has_passed():
+    # The truck (15 m/s, front 200 m, 12 m long) and cars at 20 m/s on its right; secure gap
+    # at 20 behind 15: 1 s * 20 + (400 - 225) / 4 = 63.75 m, plus 2. Constant speeds.
+    truck = car("truck", 200.0, 1, 15.0, length=12.0)
+
+    def opens(within_s, *others):
+        return right_lane_opens_within(
+            truck, [truck, *others], ROAD, within_s=within_s, move_s=0.0, ahead_s=4.0,
+            min_gap_m=2.0, secure_gap=lambda f, v: secure_gap_m(1.0, 2.0, f.speed_mps, v),
+        )  # fmt: skip
+
+    assert opens(10.0) == 0.0  # nothing there
+    assert opens(10.0, car("x", 150.0, 0, 30.0), car("y", 100.0, 2, 30.0)) is not None
+    # "a" 8 m behind its rear: clear once its rear (175 + 20 t) is 2 m past the truck's front
+    # (200 + 15 t): t > 5.4 s, the sample at 5.5 s.
+    a = car("a", 180.0, 0, 20.0)
+    assert opens(10.0, a) == pytest.approx(5.5)
+    assert opens(5.0, a) is None
+    # "b" 80 m behind "a": short of its secure gap once "a" has passed (88 - 5 t < 65.75 m),
+    # clear itself at t > 21.4 s.
+    b = car("b", 100.0, 0, 20.0)
+    assert opens(10.0, a, b) is None
+    assert opens(30.0, a, b) == pytest.approx(21.5)
+    assert opens(30.0, a, car("b", 40.0, 0, 20.0)) == pytest.approx(5.5)  # far enough back
+    assert opens(30.0, car("t", 200.0, 0, 15.0)) is None  # alongside at its speed for good
+    rightmost = car("truck", 200.0, 0, 15.0)  # no lane on its right
+    assert right_lane_opens_within(rightmost, [], ROAD, within_s=10.0, move_s=0.0, ahead_s=4.0,
+                                   min_gap_m=2.0, secure_gap=lambda f, v: 0.0) is None  # fmt: skip
 
 
 def test_speed_cap_and_drivable_interval():
@@ -808,3 +839,51 @@ def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
     assert decider.keep_right_closure(5.0, 0.0, leftmost, states_of(leftmost)) is None  # waited for
     assert decider.may_keep_right(leftmost, states_of(leftmost))
     assert controller(waits).keep_right_closure(5.0, 0.0, truck, states_of(truck)) is None
+
+
+def test_the_right_lane_stays_closed_while_a_middle_lane_target_wants_to_move_there():
+    # A keep-right truck in the middle lane whose driver wants to move right (SUMO's
+    # lane-change state) while a stream passes on its right: that lane is not free, and the
+    # wait for it is over, yet it stays closed to the plan for as long as the wish lasts (the
+    # truck moves over once the stream has passed; CAVs passing there kept it from doing so:
+    # held-out variants, 0.3-0.4 m/s slower than cacc). [swarm] keep_right_wish = false: the
+    # former rule, closed only while free.
+    import dataclasses
+    import types
+
+    from sumo_swarm.config import Scenario
+    from sumo_swarm.controllers.decider import Decider
+    from sumo_swarm.controllers.lanes import LaneView
+    from sumo_swarm.core.hvmodel import DriverModel
+
+    wish = {"truck": True}
+    session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={},
+                                    wants_right=lambda vid: wish[vid])  # fmt: skip
+    default = Scenario(name="t", path=None)
+    off = dataclasses.replace(
+        default, swarm=dataclasses.replace(default.swarm, keep_right_wish=False)
+    )
+
+    def decider(scenario):
+        ctx = types.SimpleNamespace(scenario=scenario, session=session, road=ROAD,
+                                    event=lambda kind, **data: None)  # fmt: skip
+        return Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=scenario.planner,
+                       model_of=lambda vid: DriverModel(model="unknown"))  # fmt: skip
+
+    truck = car("truck", 300.0, 1, 14.0)
+    stream = car("c", 290.0, 0, 23.0)  # passing on its right: the lane is not free
+    states = states_of(truck, stream)
+    assert decider(default).keep_right_closure(40.0, 0.0, truck, states) == 0
+    # A stream that passes it for longer than keep_right_soon_s (10 s): not closed for it.
+    long = [car(f"s{k}", 290.0 - 25.0 * k, 0, 23.0) for k in range(12)]
+    assert decider(default).keep_right_closure(40.0, 0.0, truck, states_of(truck, *long)) is None
+    cavs = [car(f"s{k}", 290.0 - 25.0 * k, 0, 23.0, cav=True) for k in range(12)]
+    assert decider(default).keep_right_closure(40.0, 0.0, truck, states_of(truck, *cavs)) == 0
+    assert decider(off).keep_right_closure(40.0, 0.0, truck, states) is None
+    assert decider(off).keep_right_closure(5.0, 0.0, truck, states) is None  # taken
+    wish["truck"] = False  # no wish: the former rule
+    assert decider(default).keep_right_closure(40.0, 0.0, truck, states) is None
+    assert decider(default).keep_right_closure(5.0, 0.0, truck, states_of(truck)) == 0
+    leftmost = car("truck", 300.0, 2, 14.0)  # waited for instead (keep_right_wait_s)
+    wish["truck"] = True
+    assert decider(default).keep_right_closure(40.0, 0.0, leftmost, states_of(leftmost)) is None

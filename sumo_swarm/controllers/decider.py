@@ -29,6 +29,7 @@ from sumo_swarm.core.swarming.decision import (
     only_catching_up,
     passing_lane,
     right_lane_free,
+    right_lane_opens_within,
     secure_gap_m,
     slow_vehicle_ahead,
     speed_cap_mps,
@@ -238,9 +239,13 @@ class Decider:
         lane = road.lane_of(target)
         if not 0 < lane < road.n_lanes - 1:
             return None  # no lane on its right, or the leftmost lane (waited for instead)
+        if not self._keeps_right(target):
+            return None
+        if self.moves_right_soon(target, states):
+            return lane - 1  # SUMO's driver shows it, and the lane lets it soon
         if t_s - started_s > sw.keep_right_wait_s:
             return None
-        if not self._keeps_right(target) or not self._right_lane_free(target, states):
+        if not self._right_lane_free(target, states):
             return None
         return lane - 1
 
@@ -252,6 +257,41 @@ class Decider:
             return keeps_right is not None and bool(keeps_right(target.vehicle_id))
         except Exception:
             return False
+
+    def moves_right_soon(self, target: VehicleState, states: States) -> bool:
+        """Does ``target`` keep right, want to move right now (:meth:`wants_right`), and will
+        the lane there open for it soon (:meth:`_right_lane_opens`)?"""
+        return (
+            self._keeps_right(target)
+            and self.wants_right(target)
+            and self._right_lane_opens(target, states)
+        )
+
+    def wants_right(self, target: VehicleState) -> bool:
+        """Does ``target``'s driver want to move right to keep right now, the lane there free
+        or not (SUMO's lane-change state, read through libsumo)? False with ``[swarm]
+        keep_right_wish`` off, or when TraCI cannot tell."""
+        if not self.ctx.scenario.swarm.keep_right_wish:
+            return False
+        wants_right = getattr(self.ctx.session, "wants_right", None)
+        try:
+            return wants_right is not None and bool(wants_right(target.vehicle_id))
+        except Exception:
+            return False
+
+    def _right_lane_opens(self, target: VehicleState, states: States) -> bool:
+        """Will the lane on ``target``'s right open for it within ``[swarm] keep_right_soon_s``
+        (:func:`right_lane_opens_within`; HVs only: where the CAVs go is the plan's to say)?
+        Always, with keep_right_soon_s = 0."""
+        sw = self.ctx.scenario.swarm
+        if sw.keep_right_soon_s <= 0.0:
+            return True
+        hvs = [st for st in states.values() if not st.is_cav]
+        return right_lane_opens_within(
+            target, hvs, self.ctx.road, within_s=sw.keep_right_soon_s,
+            move_s=sw.keep_right_move_s, ahead_s=sw.keep_right_ahead_s,
+            min_gap_m=self.ctx.scenario.cav.min_gap_m, secure_gap=self.secure_gap,
+        ) is not None  # fmt: skip
 
     def _right_lane_free(self, target: VehicleState, states: States) -> bool:
         """Is the lane on ``target``'s right free for it to move into now

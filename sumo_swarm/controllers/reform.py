@@ -64,6 +64,10 @@ class Reformer:
     # ends(ego): the lanes that end ahead of ego, where it never passes (the hold refuses them:
     # a CAV waited 30 s to pass a truck in an on-ramp's acceleration lane)
     ends: Callable[[VehicleState], Collection[int]] = lambda ego: ()
+    # Will this vehicle move right soon, to keep right (Decider.moves_right_soon)?
+    moves_right: Callable[[VehicleState, Mapping[str, VehicleState]], bool] = (
+        lambda vehicle, states: False
+    )
     lane_id: int | None = None
     edge: str | None = None  # the edge whose lane indices lane_id is in
     # CAV -> (the slow vehicle it passes, the lane it passes in, since when [s])
@@ -415,6 +419,11 @@ class Reformer:
             side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes and q not in ending]
             if train in side:
                 side = [train]  # behind the CAV ahead, in the lane it passes in
+            slow_lane = road.lane_of(slow)
+            if 0 < slow_lane < road.n_lanes - 1 and self.moves_right(slow, states):
+                # Not on the right of a driver about to move there, with a lane on its left
+                # (the swarm's plan keeps out of it too: Decider.keep_right_closure).
+                side = [q for q in side if q != slow_lane - 1]
             reach = sw.detect_range_m + sw.pass_reach_s * sc.cav.cruising_speed_mps
             speeds = lane_speeds(ego, others, road, side, range_m=reach,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip

@@ -153,6 +153,7 @@ class Replanner:
         self.last_plan_s = -math.inf
         self.last_check_s = -math.inf
         self.prediction: tuple[float, Any] | None = None
+        self.closed_lane: int | None = None  # the lane the last plan was asked to keep out of
         self.trigger = self._new_trigger()
 
     def _new_trigger(self) -> ReplanTrigger:
@@ -166,6 +167,7 @@ class Replanner:
     def start(self) -> None:
         """A manoeuvre starts: no plan yet, a fresh trigger, no HV blocked."""
         self.plan = None
+        self.closed_lane = None
         self.trigger = self._new_trigger()
         self.blocks.new_manoeuvre()
 
@@ -216,6 +218,8 @@ class Replanner:
                     reason = "idle_plan"
                 elif self._still_waiting(t_s, states, target_id):
                     reason = "waiting_plan"  # the same for a gap it sees far ahead in time
+            if reason is None and self._lane_to_close(t_s, states, target_id, progress):
+                reason = "keep_right"
         elif self.plan is None and self.trigger.plan is not None:
             reason = self.trigger.check(t_s, {}, ())  # "initial" once the retry time has passed
         if reason is None or t_s < self.replan_not_before_s:
@@ -225,6 +229,18 @@ class Replanner:
         if reason not in URGENT_TRIGGERS and t_s - self.last_plan_s < min_gap:
             return
         self.replan(t_s, reason, states, platoon, target_id, progress)
+
+    def _lane_to_close(
+        self, t_s: float, states: States, target_id: str, progress: Progress
+    ) -> bool:
+        """Is the target's right lane to be closed to the plan now (it wants to move there,
+        :meth:`Decider.keep_right_closure`) while the plan in force was made with it open?
+        The wish shows seconds after the start (SUMO's keep-right drivers build it over 5 s),
+        and a CAV planned into that lane beside or behind the target keeps it from moving."""
+        target = states.get(target_id)
+        if self.closed_lane is not None or target is None:
+            return False
+        return self.decider.keep_right_closure(t_s, progress.started_s, target, states) is not None
 
     def _still_waiting(self, t_s: float, states: States, target_id: str) -> bool:
         """Does the rest of the plan keep every CAV behind the target waiting (see
@@ -314,6 +330,7 @@ class Replanner:
             previous = (self.plan, self.grid)  # the warm start of the next solve
         budget = self.blocks.budget(t_s, sc.swarm.max_block_s, interval)
         closed = self.decider.keep_right_closure(t_s, progress.started_s, target, states)
+        self.closed_lane = closed
         own = max(target.speed_mps, 0.0)
         tries = [(grid_speed, interval)]
         if not cruise_grid and grid_speed > own + GRID_RETRY_MPS:

@@ -27,6 +27,10 @@ DEFAULT_WIDTHS_M = (3.2, 3.2)  # the road assumed until a route is known (SUMO's
 # SUMO's default lane-change mode, for a CAV that leaves the swarm: every lane-change motive on
 # while respecting others' speed and gaps (TraCI's documented default).
 LC_MODE_DEFAULT = 0b011001010101
+# SUMO's lane-change state bits (libsumo vehicle.getLaneChangeState): a change to the right is
+# wanted, for the keep-right reason.
+LCA_RIGHT = 1 << 2
+LCA_KEEPRIGHT = 1 << 6
 RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
 
 
@@ -464,6 +468,16 @@ class SumoSession:
             cached = eager > 0.0 and (vehicle.getLaneChangeMode(vid) >> 6) & 3 != 0
             self._keeps_right[vid] = cached
         return cached
+
+    def wants_right(self, vid: str) -> bool:
+        """Does ``vid``'s lane-change model want to move right to keep right now, whether the
+        lane there lets it or not (SUMO's own state of it: LCA_RIGHT with LCA_KEEPRIGHT, the
+        wish a keep-right driver shows while the right lane is taken)? False when it vanished."""
+        try:
+            state = self.api.vehicle.getLaneChangeState(vid, -1)[0]
+        except Exception:  # the vehicle left, or a TraCI without the call
+            return False
+        return state & LCA_RIGHT != 0 and state & LCA_KEEPRIGHT != 0
 
     def speed_limits(self, vid: str) -> tuple[float, float]:
         """(vType maxSpeed, speed allowed on its lane with its speedFactor) of a vehicle [m/s]."""

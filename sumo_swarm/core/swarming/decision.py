@@ -20,7 +20,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 from sumo_swarm.core.model import RoadSection, VehicleState
@@ -204,6 +204,37 @@ def right_lane_free(
         elif other.speed_mps < v and other.rear_s_m - target.s_m < min_gap_m + ahead_s * v:
             return False  # slower ahead there
     return True
+
+
+def right_lane_opens_within(
+    target: VehicleState,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    *,
+    within_s: float,
+    step_s: float = 0.5,
+    move_s: float,
+    ahead_s: float,
+    min_gap_m: float,
+    secure_gap: Callable[[VehicleState, float], float],
+) -> float | None:
+    """The first time [s] from now, within ``within_s``, at which the lane to the right of
+    ``target`` is free for it to move into (:func:`right_lane_free`), everyone driving on at
+    constant speed (sampled every ``step_s``); None: not within, or no lane there. A stream
+    passing a slow truck opens no gap a keep-right driver accepts (the follower's secure gap
+    at 23 m/s behind 13 m/s is about 60 m): the lane opens when its last car has passed."""
+    lane = road.lane_of(target)
+    if lane == 0:
+        return None
+    right = [o for o in others if o.vehicle_id != target.vehicle_id and road.lane_of(o) == lane - 1]
+    for k in range(int(within_s / step_s + 1e-9) + 1):
+        t = k * step_s
+        ahead = replace(target, s_m=target.s_m + target.speed_mps * t)
+        moved = [replace(o, s_m=o.s_m + o.speed_mps * t) for o in right]
+        if right_lane_free(ahead, moved, road, move_s=move_s, ahead_s=ahead_s,
+                           min_gap_m=min_gap_m, secure_gap=secure_gap):  # fmt: skip
+            return t
+    return None
 
 
 def secure_gap_m(tau_s: float, decel_mps2: float, v_mps: float, v_lead_mps: float) -> float:
