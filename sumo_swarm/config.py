@@ -567,10 +567,11 @@ class SwarmSettings:
     # lane-change state, read through libsumo: the wish it shows while that lane is taken, a
     # stream passing), its right lane is closed to the cell plan too, as long as the wish
     # lasts and that lane will open for it within keep_right_soon_s [s] (the HVs there driving
-    # on at their speeds: decision.right_lane_opens_within). The CAVs passing a truck on its
-    # right in the gap after a stream kept it from moving over, held-out variants 8 and 24
-    # 0.3-0.4 m/s slower than cacc; closed for as long as the wish lasted (keep_right_soon_s
-    # = 0), the swarm lost 1.2-1.7 m/s in three others whose stream passed for 60-90 s.
+    # on at their speeds: decision.right_lane_opens_within). CAVs passing a truck on its right
+    # just after a stream kept it from moving over (held-out variants 6, 8 and 24: 0.08-0.40
+    # m/s slower than cacc; with 10 s, 6 is 0.19 faster, 8 and 24 are 0.11 and 0.25 slower).
+    # Closed for as long as the wish lasted (keep_right_soon_s = 0), 8 passed too, but three
+    # others whose stream went on for 60-90 s lost 1.2-1.7 m/s (10 s: at most 0.48).
     # keep_right_wish = false: the former rule, closed only while free, within
     # keep_right_wait_s of the start.
     keep_right_wish: bool = True

@@ -525,3 +525,53 @@ def test_no_overtake_of_a_car_that_is_only_catching_up(tmp_path):
     worth = [e for e in _events(tmp_path / "swarm") if e["event"] == "overtake_not_worth"]
     assert worth and worth[0]["reason"] == "catching_up" and worth[0]["target"] == "hv_target"
     assert swarm["safety"]["collisions"] == 0
+
+
+# A paper-scene variant drawn like those of scenarios/variants.toml (another seed): 2 CAVs
+# behind a 12 m truck at 12.6 m/s in the middle lane, HV lane changes on, seven HVs per lane
+# upstream whose right-lane stream (up to 21 m/s) passes the truck for some 45 s.
+STREAM_CASE = {
+    "cav.count": 2, "scene.initial_speed_mps": 12.61, "scene.upstream_speed_mps": 12.61,
+    "scene.hv.hv_target.front_m": 322.0, "scene.hv.hv_target.length_m": 12.0,
+    "scene.hv.hv_target.speed_mps": 12.61, "scene.hv.hv_target.desired_speed_mps": 12.61,
+    "scene.hv.hv_left.desired_speed_mps": 19.95, "scene.hv.hv_right.desired_speed_mps": 20.99,
+    "scene.upstream_gap_m": 22.7, "scene.upstream_per_lane": 7, "hv.lane_changes": True,
+    "simulation.duration_s": 150.0, "evaluation.end_s": 150.0,
+}  # fmt: skip
+
+
+def _stream_spec(tmp_path: Path, **swarm):
+    lines = [f'base = "{(ROOT / "scenarios" / "paper.toml").as_posix()}"',
+             'controllers = ["swarm", "cacc"]', "[fixed]"]  # fmt: skip
+    lines += [f'"{k}" = {json.dumps(v)}' for k, v in STREAM_CASE.items()]
+    lines += [f'"swarm.{k}" = {json.dumps(v)}' for k, v in swarm.items()]
+    path = tmp_path / "stream.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return {run.controller: run for run in load_sweep(path).runs}
+
+
+def test_a_truck_that_wants_to_keep_right_behind_a_stream_is_not_passed_on_its_right(tmp_path):
+    # Its driver wants to move right from about 5 s on (SUMO's lane-change state) and moves
+    # over once the stream has passed. Passed on that side right after the stream, the CAV
+    # there kept it from moving, and the swarm was 0.08 m/s slower than cacc; with the lane
+    # closed to the plan while the wish lasts and the lane opens within keep_right_soon_s, the
+    # swarm passes it on its left and is faster than cacc.
+    runs = _stream_spec(tmp_path)
+    results = {}
+    for controller in ("swarm", "cacc"):
+        spec = runs[controller]
+        out = tmp_path / controller
+        results[controller] = run_scenario(spec.scenario(), controller, out, seed=spec.seed,
+                                           progress=False)  # fmt: skip
+    swarm, cacc = results["swarm"], results["cacc"]
+    plans = [json.loads(line) for line in (tmp_path / "swarm" / "plans.jsonl").read_text(
+        encoding="utf-8").splitlines() if line.strip()]  # fmt: skip
+    assert any(p.get("closed_lane") == 0 for p in plans)
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["cav"]["gap_min_cav_m"] >= 5.0
+    assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"] + 0.05
+    # The former rule (closed only while free): slower than cacc on this scene.
+    old = _stream_spec(tmp_path, keep_right_wish=False)["swarm"]
+    former = run_scenario(old.scenario(), "swarm", tmp_path / "former", seed=old.seed,
+                          progress=False)  # fmt: skip
+    assert former["cav"]["mean_speed_mps"] < cacc["cav"]["mean_speed_mps"]

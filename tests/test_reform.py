@@ -88,7 +88,7 @@ def test_no_pass_on_the_right_of_a_slow_vehicle_that_wants_to_move_there():
     # the leftmost lane (no lane on its left) is still passed on its right.
     events = []
     r = reformer(events)
-    r.moves_right = lambda vehicle, states: vehicle.vehicle_id == "slow"
+    r.moves_right = lambda vehicle, states, t_s: vehicle.vehicle_id == "slow"
     st = states(
         car("c0", 300.0, 1, 20.0, cav=True),
         car("slow", 240.0, 1, 12.0),
@@ -98,7 +98,7 @@ def test_no_pass_on_the_right_of_a_slow_vehicle_that_wants_to_move_there():
     assert r.goals(0.0, st, ["c0", "c1"], ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 2}
     assert events == [("passing_start", {"vehicle": "c1", "slow": "slow", "lane": 2})]
     r = reformer()
-    r.moves_right = lambda vehicle, states: True
+    r.moves_right = lambda vehicle, states, t_s: True
     st = states(car("c0", 300.0, 2, 20.0, cav=True), car("slow", 240.0, 2, 12.0),
                 car("c1", 220.0, 2, 12.0, cav=True))  # fmt: skip
     assert r.goals(0.0, st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == {"c0": 2, "c1": 1}

@@ -38,6 +38,11 @@ from sumo_swarm.core.swarming.decision import (
 States = Mapping[str, VehicleState]
 
 
+# How long [s] an answer of Decider.moves_right_soon holds: the sampling step of its
+# prediction (decision.right_lane_opens_within).
+RECHECK_S = 0.5
+
+
 class Decider:
     """Targets, lane passes and the speed cap for one swarm (see the module docstring).
 
@@ -66,6 +71,7 @@ class Decider:
         self.cells_for: str | None = None  # a target whose lane pass stalled: cells only
         self._no_gain_target: str | None = None
         self._keep_right_target: str | None = None
+        self._moves_right: dict[str, tuple[float, bool]] = {}  # vehicle -> (time, answer)
         self._target_lane: tuple[str | None, int] | None = None
 
     # ------------------------------------------------------------------ speeds
@@ -241,7 +247,7 @@ class Decider:
             return None  # no lane on its right, or the leftmost lane (waited for instead)
         if not self._keeps_right(target):
             return None
-        if self.moves_right_soon(target, states):
+        if self.moves_right_soon(target, states, t_s):
             return lane - 1  # SUMO's driver shows it, and the lane lets it soon
         if t_s - started_s > sw.keep_right_wait_s:
             return None
@@ -258,14 +264,20 @@ class Decider:
         except Exception:
             return False
 
-    def moves_right_soon(self, target: VehicleState, states: States) -> bool:
+    def moves_right_soon(self, target: VehicleState, states: States, t_s: float) -> bool:
         """Does ``target`` keep right, want to move right now (:meth:`wants_right`), and will
-        the lane there open for it soon (:meth:`_right_lane_opens`)?"""
-        return (
+        the lane there open for it soon (:meth:`_right_lane_opens`)? Asked afresh at most
+        every ``RECHECK_S`` per vehicle (each step of a manoeuvre asks, a tenth of its cost)."""
+        seen = self._moves_right.get(target.vehicle_id)
+        if seen is not None and 0.0 <= t_s - seen[0] < RECHECK_S:
+            return seen[1]
+        answer = (
             self._keeps_right(target)
             and self.wants_right(target)
             and self._right_lane_opens(target, states)
         )
+        self._moves_right[target.vehicle_id] = (t_s, answer)
+        return answer
 
     def wants_right(self, target: VehicleState) -> bool:
         """Does ``target``'s driver want to move right to keep right now, the lane there free

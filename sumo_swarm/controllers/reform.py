@@ -65,8 +65,8 @@ class Reformer:
     # a CAV waited 30 s to pass a truck in an on-ramp's acceleration lane)
     ends: Callable[[VehicleState], Collection[int]] = lambda ego: ()
     # Will this vehicle move right soon, to keep right (Decider.moves_right_soon)?
-    moves_right: Callable[[VehicleState, Mapping[str, VehicleState]], bool] = (
-        lambda vehicle, states: False
+    moves_right: Callable[[VehicleState, Mapping[str, VehicleState], float], bool] = (
+        lambda vehicle, states, t_s: False
     )
     lane_id: int | None = None
     edge: str | None = None  # the edge whose lane indices lane_id is in
@@ -420,7 +420,7 @@ class Reformer:
             if train in side:
                 side = [train]  # behind the CAV ahead, in the lane it passes in
             slow_lane = road.lane_of(slow)
-            if 0 < slow_lane < road.n_lanes - 1 and self.moves_right(slow, states):
+            if 0 < slow_lane < road.n_lanes - 1 and self.moves_right(slow, states, t_s):
                 # Not on the right of a driver about to move there, with a lane on its left
                 # (the swarm's plan keeps out of it too: Decider.keep_right_closure).
                 side = [q for q in side if q != slow_lane - 1]

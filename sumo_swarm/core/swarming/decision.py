@@ -20,7 +20,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from enum import Enum
 
 from sumo_swarm.core.model import RoadSection, VehicleState
@@ -186,24 +186,10 @@ def right_lane_free(
     driver change lanes only in front of a follower at its secure gap); and nothing slower
     than it within ``ahead_s`` [s] at its speed ahead (moving over would gain it nothing).
     False where there is no lane to its right."""
-    lane = road.lane_of(target)
-    if lane == 0:
-        return False
-    v = target.speed_mps
-    for other in others:
-        if other.vehicle_id == target.vehicle_id:
-            continue
-        if road.lane_of(other) != lane - 1:
-            continue
-        if other.s_m <= target.rear_s_m:  # behind it
-            gap = target.rear_s_m - other.s_m - max(0.0, other.speed_mps - v) * move_s
-            if gap < min_gap_m + secure_gap(other, v):
-                return False
-        elif other.rear_s_m <= target.s_m + min_gap_m:  # alongside
-            return False
-        elif other.speed_mps < v and other.rear_s_m - target.s_m < min_gap_m + ahead_s * v:
-            return False  # slower ahead there
-    return True
+    right = _right_lane(target, others, road, min_gap_m, secure_gap)
+    return right is not None and _clear_at(
+        target, 0.0, right, move_s=move_s, ahead_s=ahead_s, min_gap_m=min_gap_m
+    )
 
 
 def right_lane_opens_within(
@@ -223,18 +209,63 @@ def right_lane_opens_within(
     constant speed (sampled every ``step_s``); None: not within, or no lane there. A stream
     passing a slow truck opens no gap a keep-right driver accepts (the follower's secure gap
     at 23 m/s behind 13 m/s is about 60 m): the lane opens when its last car has passed."""
+    right = _right_lane(target, others, road, min_gap_m, secure_gap)
+    if right is None:
+        return None
+    for k in range(int(within_s / step_s + 1e-9) + 1):
+        t = k * step_s
+        if _clear_at(target, t, right, move_s=move_s, ahead_s=ahead_s, min_gap_m=min_gap_m):
+            return t
+    return None
+
+
+# A vehicle in the lane to the right of a target: front [m], length [m], speed [m/s], and the
+# gap [m] it needs behind the target for the target to move in front of it.
+_RightVehicle = tuple[float, float, float, float]
+
+
+def _right_lane(
+    target: VehicleState,
+    others: Iterable[VehicleState],
+    road: RoadSection,
+    min_gap_m: float,
+    secure_gap: Callable[[VehicleState, float], float],
+) -> list[_RightVehicle] | None:
+    """The vehicles in the lane to the right of ``target`` (None: there is no such lane)."""
     lane = road.lane_of(target)
     if lane == 0:
         return None
-    right = [o for o in others if o.vehicle_id != target.vehicle_id and road.lane_of(o) == lane - 1]
-    for k in range(int(within_s / step_s + 1e-9) + 1):
-        t = k * step_s
-        ahead = replace(target, s_m=target.s_m + target.speed_mps * t)
-        moved = [replace(o, s_m=o.s_m + o.speed_mps * t) for o in right]
-        if right_lane_free(ahead, moved, road, move_s=move_s, ahead_s=ahead_s,
-                           min_gap_m=min_gap_m, secure_gap=secure_gap):  # fmt: skip
-            return t
-    return None
+    v = target.speed_mps
+    return [
+        (o.s_m, o.length_m, o.speed_mps, min_gap_m + secure_gap(o, v))
+        for o in others
+        if o.vehicle_id != target.vehicle_id and road.lane_of(o) == lane - 1
+    ]
+
+
+def _clear_at(
+    target: VehicleState,
+    t_s: float,
+    right: list[_RightVehicle],
+    *,
+    move_s: float,
+    ahead_s: float,
+    min_gap_m: float,
+) -> bool:
+    """:func:`right_lane_free` ``t_s`` [s] from now, everyone at constant speed."""
+    v = target.speed_mps
+    front = target.s_m + v * t_s
+    rear = front - target.length_m
+    for s_m, length_m, speed, needed_m in right:
+        s_m += speed * t_s
+        if s_m <= rear:  # behind it
+            if rear - s_m - max(0.0, speed - v) * move_s < needed_m:
+                return False
+        elif s_m - length_m <= front + min_gap_m:  # alongside
+            return False
+        elif speed < v and s_m - length_m - front < min_gap_m + ahead_s * v:
+            return False  # slower ahead there
+    return True
 
 
 def secure_gap_m(tau_s: float, decel_mps2: float, v_mps: float, v_lead_mps: float) -> float:
