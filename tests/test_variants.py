@@ -315,6 +315,10 @@ def variant_table(tmp_path_factory) -> pd.DataFrame:
     table = vr.scene_table(folder / "out")
     assert len(table) == SCENES
     print("\n" + vr.render(table, folder / "out"))  # shown with -s: the whole verdict
+    # The report's own tables go into the batch folder unless --to says otherwise.
+    assert vr.main([str(folder / "out")]) in (0, 1)
+    assert (folder / "out" / "variants.md").is_file()
+    assert (folder / "out" / "variants.csv").is_file()
     return table
 
 

@@ -32,8 +32,9 @@ A verdict is ``pass``, ``FAIL`` or ``n/a`` (a summary field the check needs is m
 pass). ``lateral_holds`` is reported per run (``overtake.lateral_holds``, else the number of
 ``lateral_hold`` events in the run's events.jsonl) and over the sweep (median, p95, max).
 
-Writes docs/bench/variants.md and docs/bench/variants.csv (``--to`` another folder); exit
-status 0 when every check of every scene passes, 1 otherwise, 2 on bad input.
+Writes variants.md and variants.csv into DIR (``--to`` another folder: ``--to docs/bench``
+publishes them); exit status 0 when every check of every scene passes, 1 otherwise, 2 on bad
+input.
 
 Usage: python tools/variants_report.py DIR [--to FOLDER]
 """
@@ -54,7 +55,6 @@ import pandas as pd
 from sumo_swarm.sim.metrics import HARD_BRAKE_MPS2
 from sumo_swarm.sim.summary import pass_times_s
 
-ROOT = Path(__file__).resolve().parent.parent
 TARGET = "hv_target"  # the paper scene's slow vehicle
 PASS, FAIL, NA = "pass", "FAIL", "n/a"
 CHECKS = (
@@ -562,8 +562,10 @@ def render(table: pd.DataFrame, folder: Path) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", type=Path)
-    parser.add_argument("--to", type=Path, default=ROOT / "docs" / "bench")
+    parser.add_argument("--to", type=Path, help="where the tables go (default: DIR itself)")
     args = parser.parse_args(argv)
+    if args.to is None:
+        args.to = args.folder
     try:
         table = scene_table(args.folder)
     except BadInputError as exc:
