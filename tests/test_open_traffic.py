@@ -17,6 +17,7 @@ from sumo_swarm.sim.bridge import sumo_binary
 from sumo_swarm.sim.netbuild import HighwaySpec
 from sumo_swarm.sim.runner import run_scenario, run_sumocfg
 from sumo_swarm.study.batch import load_sweep
+from tests.toolload import load_tool
 from tests.usercases import write_exit_case, write_user_case
 
 pytestmark = pytest.mark.sumo
@@ -529,24 +530,23 @@ def test_no_overtake_of_a_car_that_is_only_catching_up(tmp_path):
 
 # A paper-scene variant drawn like those of scenarios/variants.toml (another seed): 2 CAVs
 # behind a 12 m truck at 12.6 m/s in the middle lane, HV lane changes on, seven HVs per lane
-# upstream whose right-lane stream (up to 21 m/s) passes the truck for some 45 s.
+# upstream whose right-lane stream (up to 21 m/s) passes the truck for some 45 s; 150 s.
 STREAM_CASE = {
     "cav.count": 2, "scene.initial_speed_mps": 12.61, "scene.upstream_speed_mps": 12.61,
     "scene.hv.hv_target.front_m": 322.0, "scene.hv.hv_target.length_m": 12.0,
     "scene.hv.hv_target.speed_mps": 12.61, "scene.hv.hv_target.desired_speed_mps": 12.61,
     "scene.hv.hv_left.desired_speed_mps": 19.95, "scene.hv.hv_right.desired_speed_mps": 20.99,
     "scene.upstream_gap_m": 22.7, "scene.upstream_per_lane": 7, "hv.lane_changes": True,
-    "simulation.duration_s": 150.0, "evaluation.end_s": 150.0,
 }  # fmt: skip
 
 
 def _stream_spec(tmp_path: Path, **swarm):
-    lines = [f'base = "{(ROOT / "scenarios" / "paper.toml").as_posix()}"',
-             'controllers = ["swarm", "cacc"]', "[fixed]"]  # fmt: skip
-    lines += [f'"{k}" = {json.dumps(v)}' for k, v in STREAM_CASE.items()]
-    lines += [f'"swarm.{k}" = {json.dumps(v)}' for k, v in swarm.items()]
+    """The runs of STREAM_CASE (``swarm``: ``[swarm]`` keys), by controller, from a sweep file
+    written by tools/make_variants.py."""
+    case = {**STREAM_CASE, **{f"swarm.{k}": v for k, v in swarm.items()}}
     path = tmp_path / "stream.toml"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    base = (ROOT / "scenarios" / "paper.toml").as_posix()
+    path.write_text(load_tool("make_variants").render([case], seed=0, base=base), encoding="utf-8")
     return {run.controller: run for run in load_sweep(path).runs}
 
 

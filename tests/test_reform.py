@@ -82,13 +82,29 @@ def test_a_cav_cut_off_by_a_slow_vehicle_passes_it_and_comes_back():
     assert goals["c2"] == 1 and events[-1][1] == {"vehicle": "c2", "slow": "slow", "past": False}
 
 
+def _decider(wishing):
+    """A Decider over a session whose drivers keep right and where those in ``wishing`` want
+    to move right now (SUMO's lane-change state)."""
+    import types
+
+    from sumo_swarm.controllers.decider import Decider
+    from sumo_swarm.controllers.lanes import LaneView
+
+    session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={},
+                                    wants_right=lambda vid: vid in wishing)  # fmt: skip
+    ctx = types.SimpleNamespace(scenario=SCENARIO, session=session, road=ROAD,
+                                event=lambda kind, **data: None)  # fmt: skip
+    return Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=SCENARIO.planner,
+                   model_of=lambda vid: DriverModel(model="unknown"))  # fmt: skip
+
+
 def test_no_pass_on_the_right_of_a_slow_vehicle_that_wants_to_move_there():
     # The slow car in the middle lane wants to move right to keep right (SUMO's lane-change
     # state): c1 passes it on its left, although lane 0 is the faster one; a slow car in
     # the leftmost lane (no lane on its left) is still passed on its right.
     events = []
     r = reformer(events)
-    r.moves_right = lambda vehicle, states, t_s: vehicle.vehicle_id == "slow"
+    r.lane_wanted_right = _decider(wishing={"slow"}).lane_wanted_right
     st = states(
         car("c0", 300.0, 1, 20.0, cav=True),
         car("slow", 240.0, 1, 12.0),
@@ -98,7 +114,7 @@ def test_no_pass_on_the_right_of_a_slow_vehicle_that_wants_to_move_there():
     assert r.goals(0.0, st, ["c0", "c1"], ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 2}
     assert events == [("passing_start", {"vehicle": "c1", "slow": "slow", "lane": 2})]
     r = reformer()
-    r.moves_right = lambda vehicle, states, t_s: True
+    r.lane_wanted_right = _decider(wishing={"slow"}).lane_wanted_right
     st = states(car("c0", 300.0, 2, 20.0, cav=True), car("slow", 240.0, 2, 12.0),
                 car("c1", 220.0, 2, 12.0, cav=True))  # fmt: skip
     assert r.goals(0.0, st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == {"c0": 2, "c1": 1}

@@ -233,27 +233,37 @@ class Decider:
     def keep_right_closure(
         self, t_s: float, started_s: float, target: VehicleState, states: States
     ) -> int | None:
-        """The lane on the right of a target that keeps right with a lane on its left, while
-        that lane is free for it to move into (:func:`right_lane_free`, as for the wait), closed
-        to the cell plan beside and behind it for the first ``keep_right_wait_s`` of the
-        manoeuvre that started at ``started_s`` (``[swarm] keep_right_middle = "left"``); None:
-        nothing closed. (Closed whether free or not, it cost paper-scene variants whose truck
-        could not move over up to 4 m/s: the CAVs could not use that lane while it was open.)"""
+        """The lane on the right of a target that keeps right with a lane on its left, closed
+        to the cell plan beside and behind it (``[swarm] keep_right_middle = "left"``) while
+        the target is about to move there (:meth:`lane_wanted_right`), or, for the first
+        ``keep_right_wait_s`` of the manoeuvre that started at ``started_s``, while that lane
+        is free for it to move into (:func:`right_lane_free`, as for the wait); None: nothing
+        closed. (Closed whether free or not, it cost paper-scene variants whose truck could
+        not move over up to 4 m/s: the CAVs could not use that lane while it was open.)"""
         sw, road = self.ctx.scenario.swarm, self.ctx.road
         if sw.keep_right_middle != "left" or sw.keep_right_wait_s <= 0.0:
             return None
+        wanted = self.lane_wanted_right(target, states, t_s)
+        if wanted is not None:
+            return wanted
         lane = road.lane_of(target)
         if not 0 < lane < road.n_lanes - 1:
             return None  # no lane on its right, or the leftmost lane (waited for instead)
-        if not self._keeps_right(target):
-            return None
-        if self.moves_right_soon(target, states, t_s):
-            return lane - 1  # SUMO's driver shows it, and the lane lets it soon
         if t_s - started_s > sw.keep_right_wait_s:
             return None
-        if not self._right_lane_free(target, states):
+        if not self._keeps_right(target) or not self._right_lane_free(target, states):
             return None
         return lane - 1
+
+    def lane_wanted_right(self, vehicle: VehicleState, states: States, t_s: float) -> int | None:
+        """The lane on the right of ``vehicle``, with a lane on its left too, that it is about
+        to move into (:meth:`moves_right_soon`); None otherwise. Neither the plan
+        (:meth:`keep_right_closure`) nor a CAV passing on its own uses it."""
+        road = self.ctx.road
+        lane = road.lane_of(vehicle)
+        if 0 < lane < road.n_lanes - 1 and self.moves_right_soon(vehicle, states, t_s):
+            return lane - 1
+        return None
 
     def _keeps_right(self, target: VehicleState) -> bool:
         """Does ``target``'s lane-change model keep right (read through libsumo)? False when

@@ -64,9 +64,9 @@ class Reformer:
     # ends(ego): the lanes that end ahead of ego, where it never passes (the hold refuses them:
     # a CAV waited 30 s to pass a truck in an on-ramp's acceleration lane)
     ends: Callable[[VehicleState], Collection[int]] = lambda ego: ()
-    # Will this vehicle move right soon, to keep right (Decider.moves_right_soon)?
-    moves_right: Callable[[VehicleState, Mapping[str, VehicleState], float], bool] = (
-        lambda vehicle, states, t_s: False
+    # The lane on this vehicle's right it is about to move into (Decider.lane_wanted_right)
+    lane_wanted_right: Callable[[VehicleState, Mapping[str, VehicleState], float], int | None] = (
+        lambda vehicle, states, t_s: None
     )
     lane_id: int | None = None
     edge: str | None = None  # the edge whose lane indices lane_id is in
@@ -419,11 +419,11 @@ class Reformer:
             side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes and q not in ending]
             if train in side:
                 side = [train]  # behind the CAV ahead, in the lane it passes in
-            slow_lane = road.lane_of(slow)
-            if 0 < slow_lane < road.n_lanes - 1 and self.moves_right(slow, states, t_s):
+            wanted = self.lane_wanted_right(slow, states, t_s)
+            if wanted is not None:
                 # Not on the right of a driver about to move there, with a lane on its left
                 # (the swarm's plan keeps out of it too: Decider.keep_right_closure).
-                side = [q for q in side if q != slow_lane - 1]
+                side = [q for q in side if q != wanted]
             reach = sw.detect_range_m + sw.pass_reach_s * sc.cav.cruising_speed_mps
             speeds = lane_speeds(ego, others, road, side, range_m=reach,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip

@@ -135,7 +135,7 @@ class SwarmController:
             ctx, lanes=self.lanes, reformer=self.reformer, model_of=self.model_of,
             planner=self.planner_settings,
         )  # fmt: skip
-        self.reformer.moves_right = self.decider.moves_right_soon
+        self.reformer.lane_wanted_right = self.decider.lane_wanted_right
         self.replanner = Replanner(
             ctx, manoeuvre, self.planner_settings, decider=self.decider, lanes=self.lanes,
             model_of=self.model_of, planlog=self.planlog, tracker_reset=self.tracker.reset,
