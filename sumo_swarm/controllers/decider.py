@@ -268,9 +268,15 @@ class Decider:
     def _keeps_right(self, target: VehicleState) -> bool:
         """Does ``target``'s lane-change model keep right (read through libsumo)? False when
         it vanished or TraCI cannot tell."""
-        keeps_right = getattr(self.ctx.session, "keeps_right", None)
+        return self._session_says("keeps_right", target)
+
+    def _session_says(self, question: str, vehicle: VehicleState) -> bool:
+        """The session's answer to ``question`` (a method of it, asked with the vehicle's
+        id) about ``vehicle``; False when the session has no such method or it fails (the
+        vehicle left)."""
+        ask = getattr(self.ctx.session, question, None)
         try:
-            return keeps_right is not None and bool(keeps_right(target.vehicle_id))
+            return ask is not None and bool(ask(vehicle.vehicle_id))
         except Exception:
             return False
 
@@ -294,13 +300,7 @@ class Decider:
         """Does ``target``'s driver want to move right to keep right now, the lane there free
         or not (SUMO's lane-change state, read through libsumo)? False with ``[swarm]
         keep_right_wish`` off, or when TraCI cannot tell."""
-        if not self.ctx.scenario.swarm.keep_right_wish:
-            return False
-        wants_right = getattr(self.ctx.session, "wants_right", None)
-        try:
-            return wants_right is not None and bool(wants_right(target.vehicle_id))
-        except Exception:
-            return False
+        return self.ctx.scenario.swarm.keep_right_wish and self._session_says("wants_right", target)
 
     def _right_lane_opens(self, target: VehicleState, states: States) -> bool:
         """Will the lane on ``target``'s right open for it within ``[swarm] keep_right_soon_s``
