@@ -43,19 +43,27 @@ V_HV = 20.0
 V_LEAD = 16.0
 
 
-def _routes(tmp_path: Path, hv_type: str) -> Path:
-    path = tmp_path / f"{hv_type}.rou.xml"
+def _routes_file(path: Path, body: str) -> Path:
+    """A routes file at ``path``: the vTypes of TYPES, route "r" along the highway, and
+    ``body`` (more vTypes, the vehicles)."""
     path.write_text(
         f"""<routes>{TYPES}
   <route id="r" edges="hwy"/>
-  <vehicle id="hv" type="{hv_type}" route="r" depart="0" departLane="0" departPos="100"
-           departSpeed="{V_HV}"/>
-  <vehicle id="cut" type="cutter" route="r" depart="0" departLane="1" departPos="150"
-           departSpeed="{V_LEAD}"/>
+{body}
 </routes>""",
         encoding="utf-8",
     )
     return path
+
+
+def _routes(tmp_path: Path, hv_type: str) -> Path:
+    return _routes_file(
+        tmp_path / f"{hv_type}.rou.xml",
+        f"""  <vehicle id="hv" type="{hv_type}" route="r" depart="0" departLane="0" departPos="100"
+           departSpeed="{V_HV}"/>
+  <vehicle id="cut" type="cutter" route="r" depart="0" departLane="1" departPos="150"
+           departSpeed="{V_LEAD}"/>""",
+    )
 
 
 def _session(routes: Path, step_s: float = STEP_S) -> SumoSession:
@@ -192,18 +200,14 @@ def test_predictor_follows_sumo(tmp_path, hv_type, gap_m, dt_s):
 
 
 def test_driver_model_reads_the_vtypes(tmp_path):
-    routes = tmp_path / "types.rou.xml"
-    routes.write_text(
-        f"""<routes>{TYPES}
-  <route id="r" edges="hwy"/>
-  <vehicle id="idm" type="idm" route="r" depart="0" departPos="100" departSpeed="10"/>
+    routes = _routes_file(
+        tmp_path / "types.rou.xml",
+        """  <vehicle id="idm" type="idm" route="r" depart="0" departPos="100" departSpeed="10"/>
   <vehicle id="krauss" type="krauss" route="r" depart="0" departLane="1" departPos="100"
            departSpeed="10"/>
   <vehicle id="delta" type="idm_delta" route="r" depart="0" departPos="50" departSpeed="10"/>
   <vehicle id="w99" type="w99" route="r" depart="0" departLane="1" departPos="50"
-           departSpeed="10"/>
-</routes>""",
-        encoding="utf-8",
+           departSpeed="10"/>""",
     )
     with _session(routes, step_s=0.03) as sumo:
         sumo.step()
@@ -238,18 +242,14 @@ def test_idm_identified_with_sumo_iterations(tmp_path):
 
 
 def test_keeps_right_read_from_the_lane_change_model(tmp_path):
-    routes = tmp_path / "lc.rou.xml"
-    routes.write_text(
-        f"""<routes>{TYPES}
-  <vType id="default" maxSpeed="30"/>
+    routes = _routes_file(
+        tmp_path / "lc.rou.xml",
+        """  <vType id="default" maxSpeed="30"/>
   <vType id="lazy" lcKeepRight="0" maxSpeed="30"/>
-  <route id="r" edges="hwy"/>
   <vehicle id="sumo" type="default" route="r" depart="0" departLane="1" departPos="100"/>
   <vehicle id="lazy" type="lazy" route="r" depart="0" departLane="1" departPos="50"/>
   <vehicle id="paper" type="idm" route="r" depart="0" departLane="1" departPos="10"/>
-  <vehicle id="traci" type="default" route="r" depart="0" departLane="0" departPos="100"/>
-</routes>""",
-        encoding="utf-8",
+  <vehicle id="traci" type="default" route="r" depart="0" departLane="0" departPos="100"/>""",
     )
     with _session(routes) as sumo:
         sumo.step()
@@ -265,13 +265,11 @@ def test_the_wish_to_keep_right_read_while_the_right_lane_is_taken(tmp_path):
     # SUMO's default driver in the left lane with a car alongside on its right wants to move
     # right to keep right (its lane-change state) but cannot; one with lcKeepRight 0 does not
     # want to. Once the car on its right has dropped back, it moves over.
-    routes = tmp_path / "wish.rou.xml"
-    routes.write_text(
-        f"""<routes>{TYPES}
-  <vType id="keeper" maxSpeed="20" speedDev="0"/>
+    routes = _routes_file(
+        tmp_path / "wish.rou.xml",
+        f"""  <vType id="keeper" maxSpeed="20" speedDev="0"/>
   <vType id="lazy" lcKeepRight="0" maxSpeed="20" speedDev="0"/>
   <vType id="beside" maxSpeed="20" speedDev="0" {LC_OFF}/>
-  <route id="r" edges="hwy"/>
   <vehicle id="keeper" type="keeper" route="r" depart="0" departLane="1" departPos="300"
            departSpeed="20"/>
   <vehicle id="lazy" type="lazy" route="r" depart="0" departLane="1" departPos="200"
@@ -279,9 +277,7 @@ def test_the_wish_to_keep_right_read_while_the_right_lane_is_taken(tmp_path):
   <vehicle id="c1" type="beside" route="r" depart="0" departLane="0" departPos="300"
            departSpeed="20"/>
   <vehicle id="c2" type="beside" route="r" depart="0" departLane="0" departPos="200"
-           departSpeed="20"/>
-</routes>""",
-        encoding="utf-8",
+           departSpeed="20"/>""",
     )
     with _session(routes) as sumo:
         for _ in range(80):  # 8 s: longer than the 5 s a keep-right wish takes to build
