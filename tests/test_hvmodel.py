@@ -9,6 +9,7 @@ import random
 import numpy as np
 import pytest
 
+from sumo_swarm.core import hvmodel
 from sumo_swarm.core.grid import ConstantSpeedPredictor
 from sumo_swarm.core.hvmodel import (
     CarFollowingPredictor,
@@ -195,6 +196,25 @@ def test_array_version_agrees_with_model_accel(step_s):
     for i, m in enumerate(models):
         lead = (v_lead[i], gap[i]) if math.isfinite(gap[i]) else (None, None)
         assert got[i] == pytest.approx(model_accel(m, v[i], *lead, step_s, dawdle=0.5), abs=1e-9)
+
+
+@pytest.mark.parametrize("step_s", [0.03, 0.1, 0.5, 1.0])
+def test_reaction_step_is_model_accel_bit_for_bit(step_s):
+    # A simulated reaction evaluates IDM through a written-out copy of next_speed (its hot
+    # loop): the same numbers as model_accel, to the last bit, overlaps and stops included.
+    rng = random.Random(11)
+    for _ in range(3000):
+        m = DriverModel(
+            "IDM", rng.uniform(0.5, 3.0), rng.uniform(1.0, 5.0), rng.choice([9.0, 4.5]),
+            rng.uniform(0.5, 2.0), rng.uniform(1.0, 3.0), rng.choice([4.0, 2.0, 3.5]),
+            rng.choice([rng.uniform(5.0, 40.0), 0.0]),
+            idm_stepping_s=rng.choice([0.25, 0.1]),
+        )  # fmt: skip
+        v = rng.choice([0.0, rng.uniform(-1.0, 40.0)])
+        v_lead = rng.uniform(0.0, 40.0)
+        gap = rng.choice([0.0, rng.uniform(-5.0, 200.0), 1e6])
+        got = hvmodel._accel_of(m, step_s)(v, v_lead, gap)
+        assert got == model_accel(m, v, v_lead, gap, step_s), (m, v, v_lead, gap)
 
 
 # ---------------------------------------------------------------------- predictor

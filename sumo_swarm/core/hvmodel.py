@@ -122,6 +122,55 @@ class _Idm:
             v_safe = min(v_safe, self.follow_speed(v, v_lead, gap, v0))
         return _finalize(self.m, v, v_safe, self.step_s, self.min_decel)[1]
 
+    def accel(self, v_mps: float, v_lead_mps: float, gap_m: float) -> float:
+        """``(next_speed(v, v_lead, gap) - v) / step_s`` with ``v = max(0, v_mps)``: the
+        acceleration [m/s^2] over the step. Written out in one function, the same operations
+        in the same order (the same numbers, bit for bit): a simulated reaction evaluates it
+        at each of its steps, and the calls were half its cost."""
+        m, h, two_sqrt_ab = self.m, self.h, self.two_sqrt_ab
+        a, tau, s0, delta = m.accel_mps2, m.tau_s, m.min_gap_m, m.delta
+        v = v_mps if v_mps > 0.0 else 0.0  # max(0.0, v_mps)
+        v0_mps = m.desired_speed_mps
+        v0 = v0_mps if v0_mps > _EPS else _EPS  # max(_EPS, v0)
+        # SUMO's freeSpeed: follow_speed(v, v0, _FREE_GAP_M, v0)
+        speed, gap = v, _FREE_GAP_M
+        for _ in range(self.iterations):
+            s_star = speed * tau + speed * (speed - v0_mps) / two_sqrt_ab
+            s_star = (s_star if s_star > 0.0 else 0.0) + s0
+            gap = gap if gap > _EPS else _EPS
+            acc = a * (1.0 - (speed / v0) ** delta - (s_star * s_star) / (gap * gap))
+            speed += acc * h
+            speed = speed if speed > 0.0 else 0.0
+            closing = (speed - v0_mps) * h
+            gap -= closing if closing > 0.0 else 0.0
+        free = speed
+        # follow_speed(v, v_lead, gap, v0)
+        speed, gap = v, gap_m
+        for _ in range(self.iterations):
+            s_star = speed * tau + speed * (speed - v_lead_mps) / two_sqrt_ab
+            s_star = (s_star if s_star > 0.0 else 0.0) + s0
+            gap = gap if gap > _EPS else _EPS
+            acc = a * (1.0 - (speed / v0) ** delta - (s_star * s_star) / (gap * gap))
+            speed += acc * h
+            speed = speed if speed > 0.0 else 0.0
+            closing = (speed - v_lead_mps) * h
+            gap -= closing if closing > 0.0 else 0.0
+        v_safe = speed if speed < free else free  # min(free, speed)
+        # _finalize(m, v, v_safe, step_s, min_decel)[1]
+        step_s = self.step_s
+        v_min_emergency = v - m.emergency_decel_mps2 * step_s
+        v_min_emergency = v_min_emergency if v_min_emergency > 0.0 else 0.0
+        braked = v - self.min_decel * step_s
+        braked = braked if braked > 0.0 else 0.0
+        lowest = v_min_emergency if v_min_emergency > v_safe else v_safe
+        v_min = lowest if lowest < braked else braked
+        v_max = v + a * step_s
+        desired = 0.0 if v0_mps < 0.0 else v0_mps
+        v_max = desired if desired < v_max else v_max
+        v_max = v_safe if v_safe < v_max else v_max
+        v_next = v_max if v_max > v_min else v_min
+        return (v_next - v) / step_s
+
 
 def brake_gap_euler(v_mps: float, decel_mps2: float, step_s: float) -> float:
     """Distance [m] to stop from ``v_mps`` braking ``decel_mps2`` per Euler step (SUMO)."""
@@ -265,13 +314,7 @@ def _accel_of(m: DriverModel, step_s: float) -> Callable[[float, float, float], 
     IDM driver's with its constants worked out once (the same numbers, bit for bit)."""
     if m.model not in IDM_MODELS:
         return lambda v, v_lead, gap: model_accel(m, v, v_lead, gap, step_s)
-    idm = _Idm(m, step_s)
-
-    def accel(v_mps: float, v_lead_mps: float, gap_m: float) -> float:
-        v = max(0.0, v_mps)
-        return (idm.next_speed(v, v_lead_mps, gap_m) - v) / step_s
-
-    return accel
+    return _Idm(m, step_s).accel
 
 
 def braking_needed(
@@ -326,17 +369,21 @@ def _reaction_peak(
     exceeds ``limit`` the reaction is not followed further (the answer is then some braking
     above ``limit``: enough for a yes/no against it, at a fraction of the cost)."""
     sim_dt = max(step_s, 0.1)
-    entry_accel, sim_accel = _accel_of(m, step_s), _accel_of(m, sim_dt)
+    accel, sim_accel = _accel_of(m, step_s), _accel_of(m, sim_dt)
     peak = previous = 0.0
     closed_steps = 0
+    dt = step_s  # the entry step is SUMO's, the rest sim_dt
+    settled_at = v_final + 1e-9
+    speeding_up = lead_decel < 0.0  # a leader speeding up towards v_final
+    # The max() and min() of the loop written as conditionals, the same values: this is the
+    # guard's and the blocking margin's inner loop, run at every step of every reaction.
     for k in range(max(2, round(horizon_s / sim_dt))):
-        acc = entry_accel(v, v_lead, gap) if k == 0 else sim_accel(v, v_lead, gap)
+        acc = accel(v, v_lead, gap)
         braking = -acc if -acc > 0.0 else 0.0  # max(0.0, -acc), as in _Idm.follow_speed
         peak = braking if braking > peak else peak
         if peak > limit:
             break
-        settled = v_lead <= v_final + 1e-9
-        closed = k > 0 and settled and v <= v_lead + _CLOSED_MPS
+        closed = k > 0 and v_lead <= settled_at and v <= v_lead + _CLOSED_MPS
         if closed and braking <= previous:
             break  # closing in no more and easing off: the strongest braking is behind
         # Krauss' worst-case dawdling brakes and recovers every other step, so "easing off"
@@ -345,14 +392,16 @@ def _reaction_peak(
         if closed_steps * sim_dt >= _SETTLED_S:
             break
         previous = braking
-        dt = step_s if k == 0 else sim_dt
         v += acc * dt
         v = v if v > 0.0 else 0.0
-        if lead_decel >= 0.0:
-            v_lead = max(v_final, v_lead - lead_decel * dt)
-        else:  # a leader speeding up towards v_final
-            v_lead = min(v_final, v_lead - lead_decel * dt)
+        v_next = v_lead - lead_decel * dt
+        if speeding_up:
+            v_lead = v_next if v_next < v_final else v_final  # min(v_final, .)
+        else:
+            v_lead = v_next if v_next > v_final else v_final  # max(v_final, .)
         gap += (v_lead - v) * dt
+        if k == 0:
+            accel, dt = sim_accel, sim_dt
     return peak
 
 
