@@ -200,8 +200,8 @@ def test_array_version_agrees_with_model_accel(step_s):
 
 @pytest.mark.parametrize("step_s", [0.03, 0.1, 0.5, 1.0])
 def test_reaction_step_is_model_accel_bit_for_bit(step_s):
-    # A simulated reaction evaluates IDM through a written-out copy of next_speed (its hot
-    # loop): the same numbers as model_accel, to the last bit, overlaps and stops included.
+    # A simulated reaction evaluates IDM through _Idm.accel (its hot loop): the same numbers
+    # as model_accel, to the last bit, overlaps and stops included.
     rng = random.Random(11)
     for _ in range(3000):
         m = DriverModel(

@@ -123,53 +123,11 @@ class _Idm:
         return _finalize(self.m, v, v_safe, self.step_s, self.min_decel)[1]
 
     def accel(self, v_mps: float, v_lead_mps: float, gap_m: float) -> float:
-        """``(next_speed(v, v_lead, gap) - v) / step_s`` with ``v = max(0, v_mps)``: the
-        acceleration [m/s^2] over the step. Written out in one function, the same operations
-        in the same order (the same numbers, bit for bit): a simulated reaction evaluates it
-        at each of its steps, and the calls were half its cost."""
-        m, h, two_sqrt_ab = self.m, self.h, self.two_sqrt_ab
-        a, tau, s0, delta = m.accel_mps2, m.tau_s, m.min_gap_m, m.delta
+        """Acceleration [m/s^2] over the step behind a leader at bumper gap ``gap_m``:
+        ``(next_speed(v, v_lead, gap) - v) / step_s`` with ``v = max(0, v_mps)``, what a
+        simulated reaction (:func:`_reaction_peak`) evaluates at each of its steps."""
         v = v_mps if v_mps > 0.0 else 0.0  # max(0.0, v_mps)
-        v0_mps = m.desired_speed_mps
-        v0 = v0_mps if v0_mps > _EPS else _EPS  # max(_EPS, v0)
-        # SUMO's freeSpeed: follow_speed(v, v0, _FREE_GAP_M, v0)
-        speed, gap = v, _FREE_GAP_M
-        for _ in range(self.iterations):
-            s_star = speed * tau + speed * (speed - v0_mps) / two_sqrt_ab
-            s_star = (s_star if s_star > 0.0 else 0.0) + s0
-            gap = gap if gap > _EPS else _EPS
-            acc = a * (1.0 - (speed / v0) ** delta - (s_star * s_star) / (gap * gap))
-            speed += acc * h
-            speed = speed if speed > 0.0 else 0.0
-            closing = (speed - v0_mps) * h
-            gap -= closing if closing > 0.0 else 0.0
-        free = speed
-        # follow_speed(v, v_lead, gap, v0)
-        speed, gap = v, gap_m
-        for _ in range(self.iterations):
-            s_star = speed * tau + speed * (speed - v_lead_mps) / two_sqrt_ab
-            s_star = (s_star if s_star > 0.0 else 0.0) + s0
-            gap = gap if gap > _EPS else _EPS
-            acc = a * (1.0 - (speed / v0) ** delta - (s_star * s_star) / (gap * gap))
-            speed += acc * h
-            speed = speed if speed > 0.0 else 0.0
-            closing = (speed - v_lead_mps) * h
-            gap -= closing if closing > 0.0 else 0.0
-        v_safe = speed if speed < free else free  # min(free, speed)
-        # _finalize(m, v, v_safe, step_s, min_decel)[1]
-        step_s = self.step_s
-        v_min_emergency = v - m.emergency_decel_mps2 * step_s
-        v_min_emergency = v_min_emergency if v_min_emergency > 0.0 else 0.0
-        braked = v - self.min_decel * step_s
-        braked = braked if braked > 0.0 else 0.0
-        lowest = v_min_emergency if v_min_emergency > v_safe else v_safe
-        v_min = lowest if lowest < braked else braked
-        v_max = v + a * step_s
-        desired = 0.0 if v0_mps < 0.0 else v0_mps
-        v_max = desired if desired < v_max else v_max
-        v_max = v_safe if v_safe < v_max else v_max
-        v_next = v_max if v_max > v_min else v_min
-        return (v_next - v) / step_s
+        return (self.next_speed(v, v_lead_mps, gap_m) - v) / self.step_s
 
 
 def brake_gap_euler(v_mps: float, decel_mps2: float, step_s: float) -> float:
