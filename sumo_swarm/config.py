@@ -563,6 +563,18 @@ class SwarmSettings:
     # where that holds with the follower closing in at its speed till then, and nothing slower
     # is within keep_right_ahead_s [s] ahead there (decision.right_lane_free).
     keep_right_move_s: float = 5.0
+    # keep_right_due: the move comes sooner where SUMO's driver model says its wish will show
+    # sooner: its keepRightProbability, read through libsumo, builds up towards the threshold
+    # (decision.keep_right_due_s), and a driver that has built it up for 3 s moves 2 s later.
+    # Each follower there is then judged as SUMO's lane-change check will see it: its own
+    # minGap (not the CAVs' min_gap_m), and, speeding up, at its speed then. Judged 5 s ahead
+    # with 5 m, a truck in the middle lane whose wish was 2 s away, with a car closing in at
+    # 2.9 m/s 62 m behind it on its right, was judged unable to move over: the plan sent a
+    # blocker into that lane, and the truck, which moved over at 7 s under cacc and sumo-lc,
+    # stayed in the platoon's way until 17 s (a fresh variant of seed 23, 1 % slower than
+    # cacc). false: keep_right_move_s from now with min_gap_m, whatever SUMO's state (and for
+    # LC2013, whose reading is a whole number, always).
+    keep_right_due: bool = True
     # With "left": while the target's driver wants to move right to keep right (SUMO's
     # lane-change state, read through libsumo: the wish it shows while that lane is taken, a
     # stream passing), its right lane is closed to the cell plan too, as long as the wish

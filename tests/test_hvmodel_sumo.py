@@ -6,6 +6,7 @@ the HV's lane at a chosen bumper gap; the HV then reacts by its own car-followin
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -291,3 +292,44 @@ def test_the_wish_to_keep_right_read_while_the_right_lane_is_taken(tmp_path):
         for _ in range(150):
             sumo.step()
         assert sumo.api.vehicle.getLaneIndex("keeper") == 0
+
+
+def test_when_a_keep_right_wish_will_show_read_from_sumo(tmp_path):
+    # SUMO's default driver departing in the left lane of an empty road, with the sublane
+    # model the swarm runs with (SL2015): its keep-right wish builds up over 5 s (lcKeepRight
+    # 1), and it starts moving right once it shows. The session reads how far off the wish is
+    # from SUMO's own build-up: about 4 s to go 1 s in, 2 s to go 3 s in, 0 as the driver
+    # starts moving over. One with lcKeepRight 0 never wishes. LC2013 (no sublane model)
+    # rounds its reading to a whole number: no answer.
+    routes = _routes_file(
+        tmp_path / "due.rou.xml",
+        """  <vType id="keeper" maxSpeed="20" speedDev="0"/>
+  <vType id="lazy" lcKeepRight="0" maxSpeed="20" speedDev="0"/>
+  <vehicle id="keeper" type="keeper" route="r" depart="0" departLane="1" departPos="300"
+           departSpeed="20"/>
+  <vehicle id="lazy" type="lazy" route="r" depart="0" departLane="1" departPos="100"
+           departSpeed="20"/>""",
+    )
+    sumo = _session(routes)
+    sumo.args += ["--lateral-resolution", "0.8"]
+    with sumo:
+        dues, lats = {}, {}
+        for _ in range(round(8.0 / STEP_S)):
+            sumo.step()
+            sumo.refresh()
+            t = round(sumo.time_s, 1)
+            dues[t] = sumo.keep_right_due_s("keeper")
+            lats[t] = sumo.api.vehicle.getLateralLanePosition("keeper")
+            assert sumo.keep_right_due_s("lazy") == math.inf
+        assert sumo.keep_right_due_s("nobody") is None  # not in the simulation: no answer
+    t_due = min(t for t, due in dues.items() if due == 0.0)
+    t_move = min(t for t, lat in lats.items() if abs(lat) > 0.01)
+    assert 4.5 <= t_due <= 5.5
+    assert abs(t_move - t_due) <= 0.3
+    assert dues[1.0] == pytest.approx(t_due - 1.0, abs=0.3)
+    assert dues[3.0] == pytest.approx(t_due - 3.0, abs=0.3)
+    with _session(routes) as coarse:
+        for _ in range(round(3.0 / STEP_S)):
+            coarse.step()
+            coarse.refresh()
+        assert coarse.keep_right_due_s("keeper") is None

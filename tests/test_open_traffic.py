@@ -575,3 +575,66 @@ def test_a_truck_that_wants_to_keep_right_behind_a_stream_is_not_passed_on_its_r
     former = run_scenario(old.scenario(), "swarm", tmp_path / "former", seed=old.seed,
                           progress=False)  # fmt: skip
     assert former["cav"]["mean_speed_mps"] < cacc["cav"]["mean_speed_mps"]
+
+
+def test_a_truck_about_to_keep_right_is_passed_on_its_left_when_sumo_says_it_will_move(tmp_path):
+    # A fresh variant of seed 23 (python tools/make_variants.py --seed 23, scene 28): a keep-
+    # right truck at 14.97 m/s in the middle lane, a car at 17.5-18.5 m/s on its right 70 m
+    # behind it. Under cacc the truck moves right at 7 s. Judged 5 s ahead, its right lane was
+    # not free for it at the start (3 s); the plan sent a blocker into that lane and the truck
+    # stayed in the platoon's way until 17 s (19.45 m/s against cacc's 19.65). Read from SUMO,
+    # its wish was 2 s away: the lane is closed to the plan, the swarm passes on its left and
+    # the truck moves over as under cacc.
+    paper = (ROOT / "scenarios" / "paper.toml").as_posix()
+    sweep_file = tmp_path / "case.toml"
+    sweep_file.write_text(
+        f"""name = "keep-right-due"
+base = "{paper}"
+controllers = ["swarm"]
+seeds = [42]
+
+[fixed]
+"simulation.duration_s" = 80.0
+"evaluation.end_s" = 60.0
+
+[[cases]]
+"cav.count" = 9
+"scene.leader_front_m" = 300.0
+"scene.initial_speed_mps" = 14.97
+"scene.hv.hv_target.front_m" = 315.9
+"scene.hv.hv_target.length_m" = 5.9
+"scene.hv.hv_target.speed_mps" = 14.97
+"scene.hv.hv_target.desired_speed_mps" = 14.97
+"scene.hv.hv_left.front_m" = 255.0
+"scene.hv.hv_left.speed_mps" = 17.5
+"scene.hv.hv_left.desired_speed_mps" = 22.41
+"scene.hv.hv_right.front_m" = 240.0
+"scene.hv.hv_right.speed_mps" = 17.5
+"scene.hv.hv_right.desired_speed_mps" = 18.54
+"scene.upstream_gap_m" = 37.0
+"scene.upstream_per_lane" = 3
+"scene.upstream_speed_mps" = 14.97
+"hv.lane_changes" = true
+""",
+        encoding="utf-8",
+    )
+    scenario = load_sweep(sweep_file).runs[0].scenario()
+    swarm = run_scenario(scenario, "swarm", tmp_path / "swarm", seed=42, progress=False)
+    cacc = run_scenario(scenario, "cacc", tmp_path / "cacc", seed=42, progress=False)
+    tr = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    truck = tr[tr["vehicle"] == "hv_target"]
+    moved_s = truck[truck["lane"] != truck["lane"].iloc[0]]["time_s"].min()
+    assert moved_s < 9.0  # as under cacc (7 s), not held up by a CAV in its right lane
+    before = tr[(tr["kind"] == "cav") & (tr["time_s"] < moved_s)]
+    assert not (before["lane"] == truck["lane"].iloc[0] - 1).any()  # none in its right lane
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
+    assert swarm["cav"]["gap_min_cav_m"] >= 5.0
+    assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
+    # Judged the former way (keep_right_move_s from now): the truck is held up.
+    old = dataclasses.replace(
+        scenario, swarm=dataclasses.replace(scenario.swarm, keep_right_due=False)
+    )
+    run_scenario(old, "swarm", tmp_path / "old", seed=42, progress=False)
+    tr = pd.read_parquet(tmp_path / "old" / "trajectories.parquet")
+    truck = tr[tr["vehicle"] == "hv_target"]
+    assert truck[truck["lane"] != truck["lane"].iloc[0]]["time_s"].min() > 12.0

@@ -15,6 +15,7 @@ from sumo_swarm.core.swarming.decision import (
     Progress,
     TargetWatch,
     behaving_interval_s,
+    keep_right_due_s,
     lane_for_pass,
     lane_pass_pace,
     lane_speeds,
@@ -138,6 +139,24 @@ def test_right_lane_free_hand_computed():
     assert free(truck, car("b", 268.0, 0, 14.0))
     assert free(truck, car("b", 230.0, 0, 15.0))  # no slower: moving over loses nothing
     assert free(truck, car("c", 150.0, 2, 30.0))  # the lane on its left does not count
+
+
+def test_keep_right_due_hand_computed():
+    # SUMO's defaults (lcKeepRight 1, lcSpeedGain 1): the wish shows once the build-up passes
+    # 2, at most 2 / 5 s = 0.4 per second.
+    due = dict(keep_right=1.0, speed_gain=1.0)
+    assert keep_right_due_s(1.2, None, 3.0, **due) == pytest.approx(2.0)  # at the fastest rate
+    assert keep_right_due_s(-1.2, None, 3.0, **due) == pytest.approx(2.0)  # LC2013's sign
+    assert keep_right_due_s(1.0, (2.0, 0.8), 3.0, **due) == pytest.approx(5.0)  # 0.2 per s seen
+    assert keep_right_due_s(1.0, (2.9, 0.8), 3.0, **due) == pytest.approx(2.5)  # 0.1 s: too short
+    assert keep_right_due_s(1.0, (2.0, 1.0), 3.0, **due) == math.inf  # not building up
+    assert keep_right_due_s(2.0, None, 3.0, **due) == 0.0  # shown
+    assert keep_right_due_s(2.5, (2.0, 1.0), 3.0, **due) == 0.0
+    assert keep_right_due_s(1.0, None, 3.0, keep_right=0.0, speed_gain=1.0) == math.inf
+    # lcSpeedGain 2 halves the threshold (1) and the rate (0.2 per s); lcKeepRight 2 doubles
+    # the rate: the wish comes in 5 / lcKeepRight s from nothing.
+    assert keep_right_due_s(0.5, None, 3.0, keep_right=1.0, speed_gain=2.0) == pytest.approx(2.5)
+    assert keep_right_due_s(0.0, None, 3.0, keep_right=2.0, speed_gain=1.0) == pytest.approx(2.5)
 
 
 def test_right_lane_opens_when_the_last_car_of_a_stream_has_passed():
@@ -839,6 +858,60 @@ def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
     assert decider.keep_right_closure(5.0, 0.0, leftmost, states_of(leftmost)) is None  # waited for
     assert decider.may_keep_right(leftmost, states_of(leftmost))
     assert controller(waits).keep_right_closure(5.0, 0.0, truck, states_of(truck)) is None
+
+
+def test_the_right_lane_is_judged_for_when_sumo_says_the_truck_will_move():
+    # A fresh variant of seed 23: a keep-right truck at 14.97 m/s in the middle lane, 3 s into
+    # the run (its wish 2 s away by SUMO's build-up), a car at 17.87 m/s on its right 62 m
+    # behind its rear. SUMO lets the truck in front of it at its minGap (2 m) plus its secure
+    # gap at IDM's 1.2 s and 1.67 m/s^2 (21.44 + 28.51 = 49.95 m): 51.95 m. Judged the old way,
+    # 5 s ahead with the CAVs' 5 m, it has closed 14.5 m (47.5 m left, 54.95 needed): not
+    # free, and the plan sent a blocker there, which kept the truck in the platoon's way
+    # until 17 s (it moved at 7 s under cacc). Judged 2 s ahead (56.2 m left): free, so
+    # closed to the plan.
+    import types
+
+    from sumo_swarm.config import Scenario
+    from sumo_swarm.controllers.decider import Decider
+    from sumo_swarm.controllers.lanes import LaneView
+    from sumo_swarm.core.hvmodel import DriverModel
+
+    due = {"truck": 2.0}
+    session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={},
+                                    wants_right=lambda vid: False,
+                                    keep_right_due_s=lambda vid: due["truck"])  # fmt: skip
+    idm = DriverModel(model="IDM", accel_mps2=0.73, decel_mps2=1.67, tau_s=1.2, min_gap_m=2.0,
+                      desired_speed_mps=18.5)  # fmt: skip
+    default = Scenario(name="t", path=None)
+    off = dataclasses.replace(
+        default, swarm=dataclasses.replace(default.swarm, keep_right_due=False)
+    )
+
+    def closure(scenario, *vehicles):
+        ctx = types.SimpleNamespace(scenario=scenario, session=session, road=ROAD,
+                                    event=lambda kind, **data: None)  # fmt: skip
+        decider = Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=scenario.planner,
+                          model_of=lambda vid: idm)  # fmt: skip
+        return decider.keep_right_closure(3.0, 3.0, vehicles[0], states_of(*vehicles))
+
+    truck = car("truck", 360.36, 1, 14.97)
+    follower = car("hv_right", 360.36 - 5.0 - 62.0, 0, 17.87)
+    assert secure_gap_m(1.2, 1.67, 17.87, 14.97) == pytest.approx(49.95, abs=0.01)
+    assert closure(default, truck, follower) == 0
+    assert closure(off, truck, follower) is None  # keep_right_move_s (5 s) ahead, 5 m
+    # Speeding up at 0.3 m/s^2 (towards a desired speed well above): 18.47 m/s in 2 s, 0.6 m
+    # closer, secure gap 22.16 + 35.04: 59.8 m needed, 56.2 left. Not free: the truck will
+    # not get in in front of it (blocking that car is what lets it in).
+    speeding = dataclasses.replace(follower, accel_mps2=0.3)
+    assert closure(default, truck, speeding) is None
+    due["truck"] = None  # SUMO cannot tell: the old way
+    assert closure(default, truck, follower) is None
+    due["truck"] = 9.0  # further off than keep_right_move_s: 5 s ahead, 47.5 m left
+    assert closure(default, truck, follower) is None
+    due["truck"] = 0.0  # the wish shows: free if it is free now (62 m)
+    assert closure(default, truck, follower) == 0
+    nearer = car("hv_right", 360.36 - 5.0 - 51.0, 0, 17.87)  # 51 m: not even now
+    assert closure(default, truck, nearer) is None
 
 
 def test_the_right_lane_stays_closed_while_a_middle_lane_target_wants_to_move_there():

@@ -302,6 +302,25 @@ class Decider:
         keep_right_wish`` off, or when TraCI cannot tell."""
         return self.ctx.scenario.swarm.keep_right_wish and self._session_says("wants_right", target)
 
+    def _follower_gap(self, follower: VehicleState) -> float:
+        """The minimum gap [m] SUMO's lane-change check leaves in front of ``follower``: an
+        HV's own minGap, the CAVs' minimum gap."""
+        if follower.is_cav:
+            return self.ctx.scenario.cav.min_gap_m
+        return self.model_of(follower.vehicle_id).min_gap_m
+
+    def _keep_right_due_s(self, target: VehicleState) -> float | None:
+        """Seconds until ``target``'s keep-right wish shows, read from SUMO's lane-change
+        model (``SumoSession.keep_right_due_s``); None with ``[swarm] keep_right_due`` off or
+        where SUMO cannot tell."""
+        if not self.ctx.scenario.swarm.keep_right_due:
+            return None
+        ask = getattr(self.ctx.session, "keep_right_due_s", None)
+        try:
+            return None if ask is None else ask(target.vehicle_id)
+        except Exception:
+            return None
+
     def _right_lane_opens(self, target: VehicleState, states: States) -> bool:
         """Will the lane on ``target``'s right open for it within ``[swarm] keep_right_soon_s``
         (:func:`right_lane_opens_within`; HVs only: where the CAVs go is the plan's to say)?
@@ -317,13 +336,20 @@ class Decider:
         ) is not None  # fmt: skip
 
     def _right_lane_free(self, target: VehicleState, states: States) -> bool:
-        """Is the lane on ``target``'s right free for it to move into now
-        (:func:`right_lane_free`)?"""
+        """Is the lane on ``target``'s right free for it to move into (:func:`right_lane_free`)
+        by the time it will move: ``keep_right_move_s`` from now, or sooner where SUMO's
+        driver model says its wish will show sooner (:meth:`_keep_right_due_s`)?"""
         sc = self.ctx.scenario
+        move_s = sc.swarm.keep_right_move_s
+        due_s = self._keep_right_due_s(target)
+        if due_s is not None:
+            move_s = min(move_s, due_s)
+        # Timed by SUMO's build-up, the followers are judged as SUMO's check will see them.
+        follower_gap = None if due_s is None else self._follower_gap
         return right_lane_free(
-            target, states.values(), self.ctx.road, move_s=sc.swarm.keep_right_move_s,
+            target, states.values(), self.ctx.road, move_s=move_s,
             ahead_s=sc.swarm.keep_right_ahead_s, min_gap_m=sc.cav.min_gap_m,
-            secure_gap=self.secure_gap,
+            secure_gap=self.secure_gap, follower_gap=follower_gap,
         )  # fmt: skip
 
     # ------------------------------------------------------------------ passing in a lane

@@ -19,6 +19,7 @@ from types import ModuleType
 from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.routeframe import RouteFrame
+from sumo_swarm.core.swarming.decision import keep_right_due_s
 from sumo_swarm.errors import SimulationError
 
 log = logging.getLogger(__name__)
@@ -31,6 +32,8 @@ LC_MODE_DEFAULT = 0b011001010101
 # wanted, for the keep-right reason.
 LCA_RIGHT = 1 << 2
 LCA_KEEPRIGHT = 1 << 6
+# The rate of a keep-right build-up is taken between readings at most this far apart [s].
+KEEP_RIGHT_RATE_WINDOW_S = 1.0
 RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
 
 
@@ -171,6 +174,7 @@ class SumoSession:
         self._owned = True
         self._driver_types: dict[str, DriverModel] = {}
         self._keeps_right: dict[str, bool] = {}
+        self._keep_right_seen: dict[str, tuple[float, float]] = {}
         self._driver_models: dict[str, tuple[str, DriverModel]] = {}
 
     @classmethod
@@ -478,6 +482,31 @@ class SumoSession:
         except Exception:  # the vehicle left, or a TraCI without the call
             return False
         return state & LCA_RIGHT != 0 and state & LCA_KEEPRIGHT != 0
+
+    def keep_right_due_s(self, vid: str) -> float | None:
+        """Seconds until ``vid``'s keep-right wish shows (0: it shows), from the build-up of its
+        lane-change model (keepRightProbability, read through libsumo; see
+        :func:`~sumo_swarm.core.swarming.decision.keep_right_due_s`); None when SUMO cannot
+        tell (the vehicle left, a model without it, LC2013's whole-number reading: the swarm
+        runs with the sublane model, SL2015, which reads to 0.01)."""
+        vehicle = self.api.vehicle
+        try:
+            reading = vehicle.getParameter(vid, "laneChangeModel.keepRightProbability")
+            if "." not in reading:  # LC2013 rounds it to a whole number: too coarse to time
+                return None
+            probability = float(reading)
+            keep_right = float(vehicle.getParameter(vid, "laneChangeModel.lcKeepRight") or 1.0)
+            speed_gain = float(vehicle.getParameter(vid, "laneChangeModel.lcSpeedGain") or 1.0)
+        except Exception:  # the vehicle left, or a lane-change model without these
+            return None
+        before = self._keep_right_seen.get(vid)
+        if before is None or self.time_s - before[0] > KEEP_RIGHT_RATE_WINDOW_S:
+            self._keep_right_seen[vid] = (self.time_s, probability)
+            if before is not None and self.time_s - before[0] > 2.0 * KEEP_RIGHT_RATE_WINDOW_S:
+                before = None  # too old to say how fast it builds now
+        return keep_right_due_s(
+            probability, before, self.time_s, keep_right=keep_right, speed_gain=speed_gain
+        )
 
     def speed_limits(self, vid: str) -> tuple[float, float]:
         """(vType maxSpeed, speed allowed on its lane with its speedFactor) of a vehicle [m/s]."""

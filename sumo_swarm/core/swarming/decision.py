@@ -20,7 +20,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 from sumo_swarm.core.model import RoadSection, VehicleState
@@ -169,6 +169,39 @@ def only_catching_up(
     return True
 
 
+# SUMO's keep-right wish (LC2013 and SL2015) builds up over KEEP_RIGHT_TIME = 5 s at most: its
+# keepRightProbability grows by at most threshold / 5 per second, and the wish shows once it
+# passes the threshold (2 * lcKeepRight / lcSpeedGain, compared with probability * lcKeepRight).
+KEEP_RIGHT_BUILD_S = 5.0
+
+
+def keep_right_due_s(
+    probability: float,
+    before: tuple[float, float] | None,
+    t_s: float,
+    *,
+    keep_right: float,
+    speed_gain: float,
+) -> float:
+    """Seconds until a SUMO driver's keep-right wish shows, from its lane-change model's
+    keepRightProbability now (``probability``, read at ``t_s``; its sign differs between
+    LC2013 and SL2015, so only its size counts) and an earlier reading ``before`` = (time,
+    probability), or None. The rate is the one seen between the two readings (at least 0.2 s
+    apart), else the fastest the model builds it (over :data:`KEEP_RIGHT_BUILD_S`); inf when
+    it is not building up, or the driver does not keep right (``keep_right`` = lcKeepRight 0).
+    0 once it has shown."""
+    if keep_right <= 0.0:
+        return math.inf
+    needed = 2.0 / max(speed_gain, 1e-6)  # the threshold over lcKeepRight, in the reading's units
+    now = abs(probability)
+    if now >= needed:
+        return 0.0
+    rate = needed * keep_right / KEEP_RIGHT_BUILD_S
+    if before is not None and t_s - before[0] >= 0.2:
+        rate = (now - abs(before[1])) / (t_s - before[0])
+    return (needed - now) / rate if rate > 1e-9 else math.inf
+
+
 def right_lane_free(
     target: VehicleState,
     others: Iterable[VehicleState],
@@ -178,6 +211,7 @@ def right_lane_free(
     ahead_s: float,
     min_gap_m: float,
     secure_gap: Callable[[VehicleState, float], float],
+    follower_gap: Callable[[VehicleState], float] | None = None,
 ) -> bool:
     """Will the lane to the right of ``target`` stay free for it to move into within
     ``move_s`` [s] (the time a keep-right driver takes to decide and move over)? Nothing there
@@ -185,8 +219,13 @@ def right_lane_free(
     ``min_gap_m`` plus its ``secure_gap(follower, target speed)`` [m] behind it (SUMO lets a
     driver change lanes only in front of a follower at its secure gap); and nothing slower
     than it within ``ahead_s`` [s] at its speed ahead (moving over would gain it nothing).
-    False where there is no lane to its right."""
-    right = _right_lane(target, others, road, min_gap_m, secure_gap)
+    False where there is no lane to its right.
+
+    With ``follower_gap`` (a follower's own minimum gap [m], as SUMO's check takes it, in
+    place of ``min_gap_m``) a follower speeding up is judged as it will be when the target
+    moves: closing in faster by its acceleration for ``move_s``, its secure gap at its speed
+    then."""
+    right = _right_lane(target, others, road, min_gap_m, secure_gap, follower_gap, move_s)
     return right is not None and _clear_at(
         target, 0.0, right, move_s=move_s, ahead_s=ahead_s, min_gap_m=min_gap_m
     )
@@ -230,17 +269,28 @@ def _right_lane(
     road: RoadSection,
     min_gap_m: float,
     secure_gap: Callable[[VehicleState, float], float],
+    follower_gap: Callable[[VehicleState], float] | None = None,
+    move_s: float = 0.0,
 ) -> list[_RightVehicle] | None:
-    """The vehicles in the lane to the right of ``target`` (None: there is no such lane)."""
+    """The vehicles in the lane to the right of ``target`` (None: there is no such lane), the
+    gap each needs judged as :func:`right_lane_free` says."""
     lane = road.lane_of(target)
     if lane == 0:
         return None
     v = target.speed_mps
-    return [
-        (o.s_m, o.length_m, o.speed_mps, min_gap_m + secure_gap(o, v))
-        for o in others
-        if o.vehicle_id != target.vehicle_id and road.lane_of(o) == lane - 1
-    ]
+    right = []
+    for o in others:
+        if o.vehicle_id == target.vehicle_id or road.lane_of(o) != lane - 1:
+            continue
+        if follower_gap is None:
+            right.append((o.s_m, o.length_m, o.speed_mps, min_gap_m + secure_gap(o, v)))
+            continue
+        speeding_up = max(0.0, o.accel_mps2) * move_s  # [m/s] more when the target moves
+        then = replace(o, speed_mps=o.speed_mps + speeding_up)
+        closer = 0.5 * speeding_up * move_s  # [m] closed in by speeding up meanwhile
+        needed = follower_gap(o) + secure_gap(then, v) + closer
+        right.append((o.s_m, o.length_m, o.speed_mps, needed))
+    return right
 
 
 def _clear_at(
