@@ -393,36 +393,6 @@ def test_lateral_guard_uses_the_followers_own_model():
     assert refusal(centred, [car("h", 71.0, 2, 24.0)], dlat=0.05) is None
 
 
-def test_lateral_guard_judges_the_gap_the_hv_will_react_to():
-    # A fresh variant of seed 23 (3 m lanes, 0.03 s steps): a blocker at 14.008 m/s crossing
-    # into the right lane 34.408 m ahead of an HV at 18.191 m/s (IDM 0.73 m/s^2, 1.67 m/s^2,
-    # 1.2 s). Judged at that gap, the HV's reaction peaks just under b_safe (2 m/s^2) and the
-    # move went on; the HV reacted two steps later (the command acts in the next step, and
-    # SUMO's drivers see a neighbour's new lateral position a step after it moved), at
-    # 34.408 - 0.06 * 4.183 = 34.157 m, and braked at 2.04. Judged at that gap: held.
-    road = RoadSection((3.0, 3.0, 3.0))
-    idm = DriverModel(model="IDM", accel_mps2=0.73, decel_mps2=1.67, tau_s=1.2, min_gap_m=2.0,
-                      desired_speed_mps=18.96)  # fmt: skip
-    ego = car("cav0", 360.411, 1, 14.008, cav=True, lat=-1.064)
-    hv = car("hv_right", 360.411 - 5.0 - 34.408, 0, 18.191)
-    y = road.y_of(1, -1.064)
-    guard = dict(min_gap_m=5.0, width_m=1.8, model_of=lambda vid: idm, b_safe_mps2=2.0,
-                 step_s=0.03)  # fmt: skip
-    assert (
-        braking_needed(idm, 18.191, 14.008, 34.408, 0.03)
-        < 2.0
-        < braking_needed(idm, 18.191, 14.008, 34.157, 0.03)
-    )
-    assert lateral_refusal(ego, y, -0.037, [ego, hv], road, **guard) == "follower_brake"
-    now = GuardSettings(react_steps=0)
-    assert lateral_refusal(ego, y, -0.037, [ego, hv], road, settings=now, **guard) is None
-    # An HV no faster than the CAV closes nothing in two steps: judged as now.
-    slow = dataclasses.replace(hv, speed_mps=14.0)
-    assert lateral_refusal(ego, y, -0.037, [ego, slow], road, **guard) is None
-    with pytest.raises(ConfigError, match="react_steps"):
-        GuardSettings(react_steps=-1)
-
-
 def test_lateral_guard_sees_the_lanes_follower_behind_an_hv_leaning_towards_it():
     ego = car("c0", 100.0, 1, 17.5, cav=True, lat=1.0)  # moving left, about to cross
     # An HV of ego's own lane 15 m back, slower, leaning 0.5 m towards lane 2: it counts as

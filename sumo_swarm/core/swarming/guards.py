@@ -54,20 +54,11 @@ class GuardSettings:
     # A CAV waits for a swarm CAV still in the lane it enters (a yield, not a refusal) when that
     # CAV clears it by at least this much faster ahead or slower behind [m/s].
     clearing_mps: float = 0.5
-    # An HV follower is judged at the gap it will react to: this step's command acts in the
-    # next SUMO step (a StepListener), and SUMO's drivers see a neighbour's new lateral
-    # position one step after it has moved, so the HV reacts to the CAV two steps on, the gap
-    # closed by their speed difference meanwhile. Judged at the gap now, a blocker crossing
-    # into the lane of an HV 4.2 m/s faster was let in at 34.41 m (a peak of 2.00 m/s^2, at
-    # b_safe); the HV reacted to it at 34.16 m and braked at 2.04 (a fresh variant of seed
-    # 23). 0 = the gap now.
-    react_steps: int = 2
 
     def __post_init__(self) -> None:
         for name in ("gap_gain", "speed_gain", "gap_extra_m", "lane_probe_m", "match_gain",
                      "follower_range_m", "side_clearance_m", "follower_lat_gap_m",
-                     "feedforward_from_mps2", "lane_follower_reach_m", "clearing_mps",
-                     "react_steps"):  # fmt: skip
+                     "feedforward_from_mps2", "lane_follower_reach_m", "clearing_mps"):  # fmt: skip
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -314,8 +305,7 @@ def lateral_refusal(
         if behind is None:
             return None
         follower, gap = behind
-    ahead_s = settings.react_steps * step_s
-    entry = (ego, model_of, min_gap_m, b_safe_mps2, step_s, ego_accel_mps2, ego_final_mps, ahead_s)
+    entry = (ego, model_of, min_gap_m, b_safe_mps2, step_s, ego_accel_mps2, ego_final_mps)
     why = _follower_refusal(follower, gap, *entry)
     if why is not None:
         return why
@@ -341,12 +331,9 @@ def _follower_refusal(
     step_s: float,
     ego_accel_mps2: float,
     ego_final_mps: float | None,
-    ahead_s: float = 0.0,
 ) -> str | None:
-    """``"follower_gap"`` or ``"follower_brake"`` if the HV ``hv``, ``gap`` [m] behind ego
-    now and ``ahead_s`` [s] on (when it reacts), refuses ego's entry
-    (:func:`lateral_refusal`), else None."""
-    gap -= max(0.0, hv.speed_mps - ego.speed_mps) * ahead_s
+    """``"follower_gap"`` or ``"follower_brake"`` if the HV ``hv``, ``gap`` [m] behind ego,
+    refuses ego's entry (:func:`lateral_refusal`), else None."""
     if gap < min_gap_m:
         return "follower_gap"
     model = model_of(hv.vehicle_id)
