@@ -585,40 +585,10 @@ def test_a_truck_about_to_keep_right_is_passed_on_its_left_when_sumo_says_it_wil
     # stayed in the platoon's way until 17 s (19.45 m/s against cacc's 19.65). Read from SUMO,
     # its wish was 2 s away: the lane is closed to the plan, the swarm passes on its left and
     # the truck moves over as under cacc.
-    paper = (ROOT / "scenarios" / "paper.toml").as_posix()
-    sweep_file = tmp_path / "case.toml"
-    sweep_file.write_text(
-        f"""name = "keep-right-due"
-base = "{paper}"
-controllers = ["swarm"]
-seeds = [42]
-
-[fixed]
-"simulation.duration_s" = 80.0
-"evaluation.end_s" = 60.0
-
-[[cases]]
-"cav.count" = 9
-"scene.leader_front_m" = 300.0
-"scene.initial_speed_mps" = 14.97
-"scene.hv.hv_target.front_m" = 315.9
-"scene.hv.hv_target.length_m" = 5.9
-"scene.hv.hv_target.speed_mps" = 14.97
-"scene.hv.hv_target.desired_speed_mps" = 14.97
-"scene.hv.hv_left.front_m" = 255.0
-"scene.hv.hv_left.speed_mps" = 17.5
-"scene.hv.hv_left.desired_speed_mps" = 22.41
-"scene.hv.hv_right.front_m" = 240.0
-"scene.hv.hv_right.speed_mps" = 17.5
-"scene.hv.hv_right.desired_speed_mps" = 18.54
-"scene.upstream_gap_m" = 37.0
-"scene.upstream_per_lane" = 3
-"scene.upstream_speed_mps" = 14.97
-"hv.lane_changes" = true
-""",
-        encoding="utf-8",
-    )
-    scenario = load_sweep(sweep_file).runs[0].scenario()
+    scenario = _paper_variant(
+        tmp_path, cavs=9, truck=(315.9, 5.9, 14.97), left=22.41, right=18.54,
+        upstream=(37.0, 3),
+    )  # fmt: skip
     swarm = run_scenario(scenario, "swarm", tmp_path / "swarm", seed=42, progress=False)
     cacc = run_scenario(scenario, "cacc", tmp_path / "cacc", seed=42, progress=False)
     tr = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
@@ -638,3 +608,67 @@ seeds = [42]
     tr = pd.read_parquet(tmp_path / "old" / "trajectories.parquet")
     truck = tr[tr["vehicle"] == "hv_target"]
     assert truck[truck["lane"] != truck["lane"].iloc[0]]["time_s"].min() > 12.0
+
+
+def _paper_variant(tmp_path, *, cavs, truck, left, right, upstream, duration_s=80.0):
+    """A paper-scene variant as tools/make_variants.py draws them, HV lane changes on:
+    ``cavs`` CAVs, the truck's (front [m], length [m], speed [m/s]), the side HVs' desired
+    speeds [m/s], the upstream (gap [m], HVs per lane); run for ``duration_s``."""
+    front, length, speed = truck
+    gap, per_lane = upstream
+    paper = (ROOT / "scenarios" / "paper.toml").as_posix()
+    sweep_file = tmp_path / "case.toml"
+    sweep_file.write_text(
+        f"""name = "variant"
+base = "{paper}"
+controllers = ["swarm"]
+seeds = [42]
+
+[fixed]
+"simulation.duration_s" = {duration_s}
+"evaluation.end_s" = {min(duration_s, 60.0)}
+
+[[cases]]
+"cav.count" = {cavs}
+"scene.leader_front_m" = 300.0
+"scene.initial_speed_mps" = {speed}
+"scene.hv.hv_target.front_m" = {front}
+"scene.hv.hv_target.length_m" = {length}
+"scene.hv.hv_target.speed_mps" = {speed}
+"scene.hv.hv_target.desired_speed_mps" = {speed}
+"scene.hv.hv_left.front_m" = 255.0
+"scene.hv.hv_left.speed_mps" = 17.5
+"scene.hv.hv_left.desired_speed_mps" = {left}
+"scene.hv.hv_right.front_m" = 240.0
+"scene.hv.hv_right.speed_mps" = 17.5
+"scene.hv.hv_right.desired_speed_mps" = {right}
+"scene.upstream_gap_m" = {gap}
+"scene.upstream_per_lane" = {per_lane}
+"scene.upstream_speed_mps" = {speed}
+"hv.lane_changes" = true
+""",
+        encoding="utf-8",
+    )
+    return load_sweep(sweep_file).runs[0].scenario()
+
+
+def test_after_a_give_up_the_leader_passes_a_truck_about_to_keep_right_on_its_left(tmp_path):
+    # A fresh variant of seed 31 (scene 27): 2 CAVs behind a keep-right truck at 15.83 m/s in
+    # the middle lane, which moves right at 7 s under cacc. The plan keeps its right lane
+    # closed (it will be free for the truck when its wish shows) and finds no way past on the
+    # left: the swarm gives up 3 s in and the leader passes on its own. It passed in the lane
+    # the plan had kept free for the truck; now it keeps out of it as the plan does.
+    scenario = _paper_variant(
+        tmp_path, cavs=2, truck=(318.9, 8.9, 15.83), left=22.35, right=19.41,
+        upstream=(23.6, 3), duration_s=30.0,
+    )  # fmt: skip
+    swarm = run_scenario(scenario, "swarm", tmp_path / "swarm", seed=42, progress=False)
+    events = _events(tmp_path / "swarm")
+    ends = [e for e in events if e["event"] == "overtake_end"]
+    assert ends and ends[0]["reason"] == "no_way_past"
+    passes = [e for e in events if e["event"] == "passing_start"]
+    assert passes and all(e["lane"] == 2 for e in passes)  # on its left, never in lane 0
+    tr = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    truck = tr[tr["vehicle"] == "hv_target"]
+    assert truck[truck["lane"] != 1]["time_s"].min() < 9.0  # it moved over as under cacc
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0

@@ -135,7 +135,7 @@ class SwarmController:
             ctx, lanes=self.lanes, reformer=self.reformer, model_of=self.model_of,
             planner=self.planner_settings,
         )  # fmt: skip
-        self.reformer.lane_wanted_right = self.decider.lane_wanted_right
+        self.reformer.lane_wanted_right = self._lane_kept_free
         self.replanner = Replanner(
             ctx, manoeuvre, self.planner_settings, decider=self.decider, lanes=self.lanes,
             model_of=self.model_of, planlog=self.planlog, tracker_reset=self.tracker.reset,
@@ -287,6 +287,19 @@ class SwarmController:
                 # No way past together: the CAVs pass it one by one, as SUMO's drivers do,
                 # through the guards, and re-form the platoon ahead.
                 self.reformer.singly = (self.target_id, t_s + sc.swarm.pass_singly_s)
+
+    def _lane_kept_free(
+        self, vehicle: VehicleState, states: dict[str, VehicleState], t_s: float
+    ) -> int | None:
+        """The lane on the right of ``vehicle`` that a CAV passing on its own keeps out of: for
+        the last manoeuvre's target, the lane the plan keeps closed while that target may still
+        move there (:meth:`Decider.keep_right_closure`); for any other vehicle, the lane it is
+        about to move into (:meth:`Decider.lane_wanted_right`). A give-up 3 s into a
+        manoeuvre had the leader pass alone in the lane the plan had kept free for the truck.
+        """
+        if self.progress is not None and vehicle.vehicle_id == self.target_id:
+            return self.decider.keep_right_closure(t_s, self.progress.started_s, vehicle, states)
+        return self.decider.lane_wanted_right(vehicle, states, t_s)
 
     # ------------------------------------------------------------------ overtake
     def _count_manoeuvre(self, t_s: float, target_id: str) -> None:
