@@ -70,3 +70,36 @@ def test_bad_input_exits_2_with_one_line(tmp_path, capsys):
     args = [str(sweep), "--before", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]
     assert ab.main(args) == 2
     assert "not a batch folder" in capsys.readouterr().err
+
+
+def test_the_batch_runs_the_trees_package_from_the_tree(tmp_path, monkeypatch, capsys):
+    # "python -m" puts the working folder first on the path, before PYTHONPATH: run from
+    # another checkout, the batch ran that checkout's package and every scene came out the
+    # same. The batch runs from the tree, with the tree first on PYTHONPATH.
+    import subprocess
+
+    tree = tmp_path / "tree"
+    (tree / "sumo_swarm").mkdir(parents=True)
+    before = tmp_path / "before"
+    (before / "runs" / "cacc-s42-a").mkdir(parents=True)
+    sweep = tmp_path / "variants.toml"
+    sweep.write_text("", encoding="utf-8")
+    table = pd.DataFrame({"scene": [0], "all": ["pass"], "mean_speed_mps": [19.0]})
+    table.to_csv(before / "variants.csv", index=False)
+    calls = []
+
+    def run(cmd, **kwargs):
+        calls.append((cmd, kwargs))
+        return subprocess.CompletedProcess(cmd, 0)
+
+    monkeypatch.setattr(ab.subprocess, "run", run)
+    monkeypatch.setattr(ab, "_report", lambda name, folder, env: before / "variants.csv")
+    out = tmp_path / "after"
+    assert (
+        ab.main([str(sweep), "--before", str(before), "--out", str(out), "--tree", str(tree)]) == 0
+    )
+    cmd, kwargs = calls[0]
+    assert cmd[1:5] == ["-m", "sumo_swarm.cli", "batch", str(sweep.resolve())]
+    assert kwargs["cwd"] == tree.resolve()
+    assert kwargs["env"]["PYTHONPATH"].split(ab.os.pathsep)[0] == str(tree.resolve())
+    assert "0 scenes changed" in capsys.readouterr().out

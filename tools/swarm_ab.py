@@ -134,10 +134,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(args.tree.resolve()), env.get("PYTHONPATH", "")])
-    batch = [sys.executable, "-m", "sumo_swarm.cli", "batch", str(args.sweep),
-             "--out", str(args.out), "--workers", str(args.workers)]  # fmt: skip
+    batch = [sys.executable, "-m", "sumo_swarm.cli", "batch", str(args.sweep.resolve()),
+             "--out", str(args.out.resolve()), "--workers", str(args.workers)]  # fmt: skip
     print(f"{left_out} swarm runs to make in {args.out} with {args.tree}", flush=True)
-    done = subprocess.run(batch, env=env)
+    # Run from the tree: "python -m" puts the working folder first on the path, before
+    # PYTHONPATH (from another checkout its package would run instead).
+    done = subprocess.run(batch, env=env, cwd=args.tree.resolve())
     if done.returncode not in (0, 1):
         print(f"swarm_ab: the batch failed (exit {done.returncode})", file=sys.stderr)
         return 2
