@@ -81,12 +81,16 @@ def compare(before: pd.DataFrame, after: pd.DataFrame) -> tuple[dict[str, float]
     speed = both["mean_speed_mps_after"] - both["mean_speed_mps_before"]
     moved = speed.abs() > SPEED_TOLERANCE_MPS
     flipped = both[f"{verdict}_before"].astype(str) != both[f"{verdict}_after"].astype(str)
-    changed = both.loc[moved | flipped, ["scene"]].assign(
-        verdict_before=both.loc[moved | flipped, f"{verdict}_before"],
-        verdict_after=both.loc[moved | flipped, f"{verdict}_after"],
-        speed_before_mps=both.loc[moved | flipped, "mean_speed_mps_before"].round(3),
-        speed_after_mps=both.loc[moved | flipped, "mean_speed_mps_after"].round(3),
-        change_mps=speed[moved | flipped].round(3),
+    rows = both[moved | flipped]
+    changed = pd.DataFrame(
+        {
+            "scene": rows["scene"],
+            "verdict_before": rows[f"{verdict}_before"],
+            "verdict_after": rows[f"{verdict}_after"],
+            "speed_before_mps": rows["mean_speed_mps_before"].round(3),
+            "speed_after_mps": rows["mean_speed_mps_after"].round(3),
+            "change_mps": speed[moved | flipped].round(3),
+        }
     )
 
     def passing(table: pd.DataFrame) -> int:

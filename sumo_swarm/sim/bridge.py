@@ -175,6 +175,7 @@ class SumoSession:
         self._driver_types: dict[str, DriverModel] = {}
         self._keeps_right: dict[str, bool] = {}
         self._keep_right_seen: dict[str, tuple[float, float]] = {}
+        self._lc_params: dict[str, tuple[float, float]] = {}
         self._driver_models: dict[str, tuple[str, DriverModel]] = {}
 
     @classmethod
@@ -459,17 +460,31 @@ class SumoSession:
             return self._command(vid, vehicle.setLaneChangeMode, lane_change_mode)
         return True
 
+    def _keep_right_params(self, vid: str) -> tuple[float, float]:
+        """(lcKeepRight, lcSpeedGain) of ``vid``'s lane-change model, read once per vehicle
+        (0 and 1 where the model has no such parameter)."""
+        cached = self._lc_params.get(vid)
+        if cached is None:
+            cached = self._lc_params[vid] = (
+                self._lc_param(vid, "lcKeepRight", 0.0),
+                self._lc_param(vid, "lcSpeedGain", 1.0),
+            )
+        return cached
+
+    def _lc_param(self, vid: str, name: str, default: float) -> float:
+        """A lane-change model parameter of ``vid`` (``default`` where the model has none)."""
+        try:
+            return float(self.api.vehicle.getParameter(vid, f"laneChangeModel.{name}") or default)
+        except ValueError:  # a lane-change model without the parameter
+            return default
+
     def keeps_right(self, vid: str) -> bool:
         """Does ``vid``'s lane-change model keep right: its lcKeepRight above 0 and its
         lane-change mode allowing right-drive changes (bits 6-7)? Read once per vehicle."""
         cached = self._keeps_right.get(vid)
         if cached is None:
-            vehicle = self.api.vehicle
-            try:
-                eager = float(vehicle.getParameter(vid, "laneChangeModel.lcKeepRight") or 0.0)
-            except ValueError:  # a lane-change model without the parameter
-                eager = 0.0
-            cached = eager > 0.0 and (vehicle.getLaneChangeMode(vid) >> 6) & 3 != 0
+            eager = self._keep_right_params(vid)[0]
+            cached = eager > 0.0 and (self.api.vehicle.getLaneChangeMode(vid) >> 6) & 3 != 0
             self._keeps_right[vid] = cached
         return cached
 
@@ -489,14 +504,12 @@ class SumoSession:
         :func:`~sumo_swarm.core.swarming.decision.keep_right_due_s`); None when SUMO cannot
         tell (the vehicle left, a model without it, LC2013's whole-number reading: the swarm
         runs with the sublane model, SL2015, which reads to 0.01)."""
-        vehicle = self.api.vehicle
         try:
-            reading = vehicle.getParameter(vid, "laneChangeModel.keepRightProbability")
+            reading = self.api.vehicle.getParameter(vid, "laneChangeModel.keepRightProbability")
             if "." not in reading:  # LC2013 rounds it to a whole number: too coarse to time
                 return None
             probability = float(reading)
-            keep_right = float(vehicle.getParameter(vid, "laneChangeModel.lcKeepRight") or 1.0)
-            speed_gain = float(vehicle.getParameter(vid, "laneChangeModel.lcSpeedGain") or 1.0)
+            keep_right, speed_gain = self._keep_right_params(vid)
         except Exception:  # the vehicle left, or a lane-change model without these
             return None
         before = self._keep_right_seen.get(vid)

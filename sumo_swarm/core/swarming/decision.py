@@ -286,7 +286,7 @@ def _right_lane(
             right.append((o.s_m, o.length_m, o.speed_mps, min_gap_m + secure_gap(o, v)))
             continue
         speeding_up = max(0.0, o.accel_mps2) * move_s  # [m/s] more when the target moves
-        then = replace(o, speed_mps=o.speed_mps + speeding_up)
+        then = replace(o, speed_mps=o.speed_mps + speeding_up) if speeding_up > 0.0 else o
         closer = 0.5 * speeding_up * move_s  # [m] closed in by speeding up meanwhile
         needed = follower_gap(o) + secure_gap(then, v) + closer
         right.append((o.s_m, o.length_m, o.speed_mps, needed))
