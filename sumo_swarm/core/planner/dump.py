@@ -50,6 +50,7 @@ def problem_to_dict(problem: PlanningProblem) -> dict[str, Any]:
         "start_rows": [round(r, 6) for r in problem.start_rows],
         "stay_ok": _cells(problem.stay_ok),
         "stay_on": [_cells(cells) for cells in problem.stay_on],
+        "idle_holds": [_cells(cells) for cells in problem.idle_holds],
     }
 
 
@@ -94,6 +95,7 @@ def problem_from_dict(data: Mapping[str, Any]) -> PlanningProblem:
             start_rows=tuple(float(r) for r in data["start_rows"]),
             stay_ok=frozenset((int(r), int(c)) for r, c in data["stay_ok"]),
             stay_on=_cell_sets(data.get("stay_on", [])),
+            idle_holds=_cell_sets(data.get("idle_holds", [])),
         )
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise ConfigError(f"planning problem: bad or missing field ({exc!r})") from None

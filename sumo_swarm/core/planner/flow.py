@@ -383,6 +383,12 @@ def _add_delta_and_costs(model: FlowModel, reach: np.ndarray) -> None:
     # is impeded for sure, or (with a z variable) where delta is open.
     pays_regroup = (k_of >= 1) & ~impeded & (regroup > 0) & (node_delta != 1)
     node_cost = np.where(k_of >= 1, target, 0) + np.where(pays_regroup, regroup, 0)
+    if problem.idle_holds:  # w_lat per step in a cell of an idle hold, whatever delta
+        mask = np.zeros((n_steps, problem.n_rows, problem.n_cols), bool)
+        for k, cells in enumerate(problem.idle_holds):
+            for row, col in cells:
+                mask[k, row, col] = True
+        node_cost = node_cost + np.where((k_of >= 1) & mask[k_of, row_of, col_of], w_lat, 0)
 
     src, dst, move = model.edge_src, model.edge_dst, model.edge_move
     lateral = move >= 3

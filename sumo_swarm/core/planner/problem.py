@@ -121,6 +121,32 @@ class PlannerSettings:
         ``"auto"``: one step per CAV still to cut through behind the blocker.
     max_blockers
         How many front CAVs may be assigned as blockers (one per adjacent lane).
+    release_idle_holds
+        A hold is *idle* when no CAV still to pass the target, in a lane beside the HV's, is
+        more than ``idle_hold_rows`` ahead of that HV (:func:`hold_useful`): the space in
+        front of it is of no use to any of them, and they can only get past once it has gone
+        on. With ``True`` no blocker is assigned to such an HV, and a CAV in front of it in its
+        lane pays ``w_lat`` per step (:func:`idle_hold_cells`), as does a CAV in the first
+        ``idle_clear_rows`` rows of the regroup lane ahead of the target: a CAV already past
+        leaves the HV's lane and merges ahead of the target. ``False`` (default, the paper):
+        delta waives every lateral term while a CAV is impeded, so the CAVs already past sit in
+        the side lanes at the grid's speed and hold the HVs behind them whether or not that
+        makes space for anyone. Measured on 200 paper-scene variants (README "Variant sweep",
+        2026-12-04): ``True`` slows the upstream HVs 10-25 % less and the CAVs are as fast on
+        average, but more tails are left behind (2 of the 40 repository variants no longer
+        regroup, the stress sweep regroups 2 scenes fewer): a choice for impact studies that
+        weigh the other drivers' delay, not the default.
+    idle_hold_rows
+        How far [rows, continuous, centre to centre] a CAV still to pass, in a lane beside a
+        held HV's, must be ahead of that HV for the hold to count as making space for it. A
+        held HV slows to the grid's speed behind its blocker and falls back a little while the
+        CAVs beside it keep theirs: one row (15 m) is enough to cut in front of it; 1.5 rows
+        released a hold that was letting a CAV in (held-out variant, seed 47 scene 6).
+    idle_clear_rows
+        Rows of the regroup lane from the goal row that charge for an idle hold too: a CAV
+        that merged into the target's lane just ahead of it (the goal row) slowed the truck
+        from 13.4 to 12.8 m/s (IDM brakes for a car 25 m ahead at its own speed), and the CAVs
+        behind it fell back out of the grid (repository variant 17). 0: merge anywhere.
     num_workers
         CP-SAT search workers (keep 1 on a shared machine).
     network_work
@@ -169,6 +195,9 @@ class PlannerSettings:
     delta_mode: str = "swarm"
     block_steps: int | Literal["auto"] = 1
     max_blockers: int = 2
+    release_idle_holds: bool = False
+    idle_hold_rows: float = 1.0
+    idle_clear_rows: int = 2
     num_workers: int = 1
     network_work: int = 20_000
     network_only: bool = True
@@ -189,9 +218,23 @@ class PlannerSettings:
         if self.block_steps != "auto":
             _require_int("block_steps", self.block_steps, minimum=1)
         _require_int("max_blockers", self.max_blockers, minimum=0)
+        _require_int("idle_clear_rows", self.idle_clear_rows, minimum=0)
         _require_int("num_workers", self.num_workers, minimum=1)
         _require_int("network_work", self.network_work, minimum=0)
         _require_int("network_ref_cavs", self.network_ref_cavs, minimum=0)
+        rows = self.idle_hold_rows
+        if not (
+            isinstance(rows, int | float) and not isinstance(rows, bool)
+            and math.isfinite(rows) and rows >= 0
+        ):  # fmt: skip
+            raise ConfigError(
+                f"PlannerSettings.idle_hold_rows must be a number >= 0, got {self.idle_hold_rows!r}"
+            )
+        if not isinstance(self.release_idle_holds, bool):
+            raise ConfigError(
+                "PlannerSettings.release_idle_holds must be true or false, "
+                f"got {self.release_idle_holds!r}"
+            )
         if not isinstance(self.network_only, bool):
             raise ConfigError(
                 f"PlannerSettings.network_only must be true or false, got {self.network_only!r}"
@@ -309,6 +352,10 @@ class PlanningProblem:
     # (_clear_keeping), and within pass_limits. A car following the target closer than the cells'
     # margins (the CACC gap) may follow on instead of having to fall back.
     stay_on: tuple[frozenset[Cell], ...] = ()
+    # Per step (empty = none), the cells where a CAV pays ``w_lat`` per step whatever delta:
+    # in front of an HV it would hold for nothing, and in the target's lane just ahead of it
+    # while such a hold is to be left (:func:`idle_hold_cells`).
+    idle_holds: tuple[frozenset[Cell], ...] = ()
 
     def __post_init__(self) -> None:
         if self.entry_blocked and len(self.entry_blocked) != self.n_steps:
@@ -498,7 +545,8 @@ def evaluate_objective(problem: PlanningProblem, cells: Sequence[Sequence[Cell]]
 
     ``cells[i][k]`` is CAV ``i``'s cell at step ``k``. Terms: target cost at steps ``1..N-1``;
     ``2 w_lon`` per row moved; ``2 w_lat delta_k`` per column moved from step ``k`` to
-    ``k + 1``; ``(1 - delta_k) w_lat (l_index - col)^2`` at steps ``1..N-1``.
+    ``k + 1``; ``(1 - delta_k) w_lat (l_index - col)^2`` at steps ``1..N-1``; and ``w_lat``
+    per CAV per step ``1..N-1`` in a cell of ``idle_holds``, whatever delta.
     """
     weights = problem.weights
     total = 0.0
@@ -509,6 +557,8 @@ def evaluate_objective(problem: PlanningProblem, cells: Sequence[Sequence[Cell]]
             delta = swarm_delta if problem.delta_mode == "swarm" else row < problem.goal_rows[k]
             if k >= 1:
                 total += target_cost(problem, row, k)
+                if pays_idle_hold(problem, k, (row, col)):
+                    total += weights.w_lat
                 if not delta:
                     total += weights.w_lat * (problem.regroup_lane - col) ** 2
             if k + 1 < problem.n_steps:
@@ -517,6 +567,62 @@ def evaluate_objective(problem: PlanningProblem, cells: Sequence[Sequence[Cell]]
                 if delta:
                     total += 2 * weights.w_lat * abs(next_col - col)
     return total
+
+
+def pays_idle_hold(problem: PlanningProblem, k: int, cell: Cell) -> bool:
+    """Does a CAV in ``cell`` at step ``k`` pay for an idle hold (``w_lat``)?"""
+    return k < len(problem.idle_holds) and cell in problem.idle_holds[k]
+
+
+def hold_useful(
+    hv_row: float, hv_col: int, impeded: Iterable[tuple[float, int]], ahead_rows: float
+) -> bool:
+    """Can holding an HV whose centre is in (continuous) row ``hv_row`` of column ``hv_col``
+    make space for a CAV still to pass (``impeded``: their rows and columns)? Only for one in
+    a lane beside the HV's and more than ``ahead_rows`` ahead of it
+    (``PlannerSettings.idle_hold_rows``): a CAV level with the HV, or behind it, can only get
+    past once it has gone on; a CAV in the HV's own lane ahead of it is in front of it
+    already."""
+    return any(abs(col - hv_col) == 1 and row - hv_row > ahead_rows for row, col in impeded)
+
+
+def _impeded_at_start(problem: PlanningProblem) -> list[tuple[float, int]]:
+    """Rows (continuous) and columns of the CAVs still to pass the target at step 0."""
+    return [
+        (pos, col) for pos, (row, col) in zip(problem.start_rows, problem.start_cells, strict=True)
+        if row < problem.goal_rows[0]
+    ]  # fmt: skip
+
+
+def idle_hold_cells(
+    problem: PlanningProblem, ahead_rows: float, clear_rows: int
+) -> tuple[frozenset[Cell], ...]:
+    """Per step ``k >= 1``, the cells that charge ``w_lat`` per step for an idle hold (see
+    ``PlannerSettings.release_idle_holds``): in the lane of an HV that no CAV still to pass is
+    far enough ahead of at step 0 (:func:`hold_useful`), the rows ahead of that HV's predicted
+    row and at or past the goal row; and, where there is such an HV, the first ``clear_rows``
+    rows of the regroup lane from the goal row, so that a CAV leaving the hold merges that far
+    ahead of the target (a human driver slows behind a car close ahead even at its own speed,
+    IDM's gap term, and the CAVs behind the target with it)."""
+    impeded = _impeded_at_start(problem)
+    if not impeded or not problem.hv_tracks:
+        return ()
+    out: list[set[Cell]] = [set() for _ in range(problem.n_steps)]
+    for col, track in problem.hv_tracks:
+        if col in (problem.regroup_lane, problem.target_col) or not 0 <= col < problem.n_cols:
+            continue
+        if hold_useful(track[0], col, impeded, ahead_rows):
+            continue
+        for k in range(1, problem.n_steps):
+            first = max(problem.goal_rows[k], math.floor(track[k]) + 1, 0)
+            out[k].update((row, col) for row in range(first, problem.n_rows))
+    if not any(out):
+        return ()
+    lane = problem.regroup_lane
+    for k in range(1, problem.n_steps):
+        goal = problem.goal_rows[k]
+        out[k].update((row, lane) for row in range(goal, min(goal + clear_rows, problem.n_rows)))
+    return tuple(frozenset(cells) for cells in out)
 
 
 def _goal_row(
@@ -744,6 +850,9 @@ def build_problem(
         stay_on=_stay_on(problem, grid, cavs, all_hvs, final_predictor, now_s, times,
                          grid_settings, front_margin),
     )  # fmt: skip
+    if settings.release_idle_holds:
+        idle = idle_hold_cells(problem, settings.idle_hold_rows, settings.idle_clear_rows)
+        problem = replace(problem, idle_holds=idle)
     return problem.with_blockers(blockers)
 
 
@@ -925,6 +1034,15 @@ def assign_blockers(
     start_cells = set(cells)
     blockers: list[Blocker] = []
     used: set[int] = set()
+    impeded = _impeded_at_start(problem) if problem.start_rows else []
+
+    def idle(hv: VehicleState) -> bool:
+        """Would holding ``hv`` make space for no CAV (``release_idle_holds``)?"""
+        if not settings.release_idle_holds or not problem.start_rows:
+            return False
+        row = (hv.centre_s_m - grid.origin_at(now_s)) / grid.cell_length_m - 0.5
+        col = hv_columns(grid, hv, grid_settings)[0]
+        return not hold_useful(row, col, impeded, settings.idle_hold_rows)
 
     def to_cut_through(row: int) -> int:
         """CAVs in the regroup lane, behind ``row`` and not past the target yet."""
@@ -958,7 +1076,7 @@ def assign_blockers(
             if not behind or to_cut_through(row) == 0:
                 continue
             hv = max(behind, key=lambda h: h.s_m)
-            if not budget_left(hv.vehicle_id):
+            if not budget_left(hv.vehicle_id) or idle(hv):
                 break
             blocker = Blocker(i, problem.cav_ids[i], hv.vehicle_id, cells[i],
                               hold_for(hv.vehicle_id, row))  # fmt: skip
@@ -977,6 +1095,9 @@ def assign_blockers(
                 continue
             if col not in frontmost or hv.s_m > frontmost[col].s_m:
                 frontmost[col] = hv
+    # A lane whose frontmost HV would be held for nothing is not blocked: a blocker in front
+    # of an HV behind it would hold that one too.
+    frontmost = {col: hv for col, hv in frontmost.items() if not idle(hv)}
     # Frontmost HV first; on a tie the left lane first (the paper's leader blocks left).
     order = sorted(frontmost.items(), key=lambda item: (-item[1].s_m, -item[0]))
     candidates = [i for i in range(min(settings.max_blockers, problem.n_cavs)) if i not in used]
