@@ -120,6 +120,7 @@ def test_idle_hold_settings_are_checked():
         PlannerSettings(idle_hold_rows=-1.0)
     with pytest.raises(ConfigError, match="idle_clear_rows"):
         PlannerSettings(idle_clear_rows=-1)
+    assert PlannerSettings(release_idle_holds="stranded").release_idle_holds == "stranded"
     with pytest.raises(ConfigError, match="release_idle_holds"):
         PlannerSettings(release_idle_holds="yes")
 
@@ -173,7 +174,10 @@ STRANDED = {
 }
 
 
-def test_released_holds_let_the_stranded_platoon_through_and_slow_the_traffic_less(tmp_path):
+@pytest.mark.parametrize("release", [True, "stranded"])
+def test_released_holds_let_the_stranded_platoon_through_and_slow_the_traffic_less(
+    tmp_path, release
+):
     import copy
     from pathlib import Path
 
@@ -182,12 +186,12 @@ def test_released_holds_let_the_stranded_platoon_through_and_slow_the_traffic_le
 
     paper = Path(__file__).resolve().parent.parent / "scenarios" / "paper.toml"
     runs = {}
-    for release in (False, True):
+    for mode in (False, release):
         overrides = copy.deepcopy(STRANDED)
-        overrides["planner"] = {"release_idle_holds": release}
+        overrides["planner"] = {"release_idle_holds": mode}
         scenario = load_scenario(paper, overrides=overrides)
-        runs[release] = run_scenario(scenario, "swarm", tmp_path / str(release), seed=42,
-                                     progress=False)  # fmt: skip
+        runs[mode] = run_scenario(scenario, "swarm", tmp_path / str(mode), seed=42,
+                                  progress=False)  # fmt: skip
     cacc = run_scenario(load_scenario(paper, overrides=copy.deepcopy(STRANDED)), "cacc",
                         tmp_path / "cacc", seed=42, progress=False)  # fmt: skip
 
@@ -195,7 +199,7 @@ def test_released_holds_let_the_stranded_platoon_through_and_slow_the_traffic_le
         rows = [r["speed_reduction_pct"] for r in summary["upstream"]]
         return sum(rows) / len(rows)
 
-    held, released = runs[False], runs[True]
+    held, released = runs[False], runs[release]
     stranded = [json.loads(line) for line in (tmp_path / "False" / "events.jsonl").open()]
     assert any(e.get("reason") == "cavs_stranded" for e in stranded)
     assert released["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]

@@ -343,12 +343,16 @@ class Replanner:
             if math.isfinite(own_interval):
                 tries.append((own, own_interval))
         obstacles = self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0)
+        stranded = False
+        if self.plan is not None and self.plan.ok:
+            in_force = dict(zip(self.plan.cav_ids, self.plan.cells, strict=True))
+            stranded = bool(stranded_cavs(in_force, cavs_behind(target, cavs, sc.cav.min_gap_m)))
         for n, (speed, speed_interval) in enumerate(tries):
             outcome = self.manoeuvre.plan(
                 t_s, reason, states, platoon, target_id, ctx.road,
                 obstacles=obstacles, model_of=self.model_of, grid_speed_mps=speed, cap_mps=cap,
                 interval_s=speed_interval, step_s=ctx.dt_s, block_budget=budget,
-                previous=previous, closed_lane=closed,
+                previous=previous, closed_lane=closed, stranded=stranded,
             )  # fmt: skip
             if n:
                 outcome.record["grid_speed_rule"] = "target"

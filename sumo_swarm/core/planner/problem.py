@@ -128,14 +128,18 @@ class PlannerSettings:
         on. With ``True`` no blocker is assigned to such an HV, and a CAV in front of it in its
         lane pays ``w_lat`` per step (:func:`idle_hold_cells`), as does a CAV in the first
         ``idle_clear_rows`` rows of the regroup lane ahead of the target: a CAV already past
-        leaves the HV's lane and merges ahead of the target. ``False`` (default, the paper):
-        delta waives every lateral term while a CAV is impeded, so the CAVs already past sit in
-        the side lanes at the grid's speed and hold the HVs behind them whether or not that
-        makes space for anyone. Measured on 200 paper-scene variants (README "Variant sweep",
-        2026-12-04): ``True`` slows the upstream HVs 10-25 % less and the CAVs are as fast on
-        average, but more tails are left behind (2 of the 40 repository variants no longer
-        regroup, the stress sweep regroups 2 scenes fewer): a choice for impact studies that
-        weigh the other drivers' delay, not the default.
+        leaves the HV's lane and merges ahead of the target. ``"stranded"``: the same, but only
+        in a replan made while the plan in force keeps a CAV behind the target in its cell to
+        its end (a stall that otherwise ends in a ``cavs_stranded`` give-up). ``False``
+        (default, the paper): delta waives every lateral term while a CAV is impeded, so the
+        CAVs already past sit in the side lanes at the grid's speed and hold the HVs behind
+        them whether or not that makes space for anyone. Measured on 150 paper-scene variants,
+        the stress sweep and the users' roads (README "Variant sweep", 2026-12-04): ``True``
+        slows the upstream HVs 10-25 % less with the CAVs as fast, but 2 of the 40 repository
+        variants and 2 stress scenes lose their regroup; ``"stranded"`` changes few runs and
+        passes one held-out and one stress scene more, but one repository variant no longer
+        regroups before the road ends and the users' CAV-flow road is 2.2 m/s slower over
+        SUMO's seeds 1-3. Neither is the default.
     idle_hold_rows
         How far [rows, continuous, centre to centre] a CAV still to pass, in a lane beside a
         held HV's, must be ahead of that HV for the hold to count as making space for it. A
@@ -195,7 +199,7 @@ class PlannerSettings:
     delta_mode: str = "swarm"
     block_steps: int | Literal["auto"] = 1
     max_blockers: int = 2
-    release_idle_holds: bool = False
+    release_idle_holds: bool | Literal["stranded"] = False
     idle_hold_rows: float = 1.0
     idle_clear_rows: int = 2
     num_workers: int = 1
@@ -230,9 +234,9 @@ class PlannerSettings:
             raise ConfigError(
                 f"PlannerSettings.idle_hold_rows must be a number >= 0, got {self.idle_hold_rows!r}"
             )
-        if not isinstance(self.release_idle_holds, bool):
+        if not isinstance(self.release_idle_holds, bool) and self.release_idle_holds != "stranded":
             raise ConfigError(
-                "PlannerSettings.release_idle_holds must be true or false, "
+                'PlannerSettings.release_idle_holds must be true, false or "stranded", '
                 f"got {self.release_idle_holds!r}"
             )
         if not isinstance(self.network_only, bool):
@@ -850,7 +854,7 @@ def build_problem(
         stay_on=_stay_on(problem, grid, cavs, all_hvs, final_predictor, now_s, times,
                          grid_settings, front_margin),
     )  # fmt: skip
-    if settings.release_idle_holds:
+    if settings.release_idle_holds is True:
         idle = idle_hold_cells(problem, settings.idle_hold_rows, settings.idle_clear_rows)
         problem = replace(problem, idle_holds=idle)
     return problem.with_blockers(blockers)
@@ -1038,7 +1042,7 @@ def assign_blockers(
 
     def idle(hv: VehicleState) -> bool:
         """Would holding ``hv`` make space for no CAV (``release_idle_holds``)?"""
-        if not settings.release_idle_holds or not problem.start_rows:
+        if settings.release_idle_holds is not True or not problem.start_rows:
             return False
         row = (hv.centre_s_m - grid.origin_at(now_s)) / grid.cell_length_m - 0.5
         col = hv_columns(grid, hv, grid_settings)[0]

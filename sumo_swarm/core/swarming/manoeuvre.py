@@ -203,16 +203,23 @@ class ManoeuvrePlanner:
         previous: tuple[Plan, MovingGrid] | None = None,
         relax_to: str = "guard",
         closed_lane: int | None = None,
+        stranded: bool = False,
     ) -> PlanOutcome:
         """Plan the manoeuvre past ``target_id`` (margins relaxed up to ``relax_to`` while
         infeasible). ``closed_lane``: a lane whose cells beside and behind the target the plan
-        may not enter (:func:`close_beside`; the lane a target that keeps right may move into)."""
+        may not enter (:func:`close_beside`; the lane a target that keeps right may move into).
+        ``stranded``: the plan in force keeps a CAV behind the target in its cell to its end
+        (``[planner] release_idle_holds = "stranded"`` releases idle holds only then)."""
         st = self.settings
         target = states[target_id]
         cavs = [states[v] for v in platoon]
         hvs = [s for v, s in states.items() if not s.is_cav and v != target_id]
         hvs += list(obstacles)
-        settings = replace(st.planner, behaving_interval_s=interval_s)
+        release = st.planner.release_idle_holds
+        settings = replace(
+            st.planner, behaving_interval_s=interval_s,
+            release_idle_holds=stranded if release == "stranded" else release,
+        )  # fmt: skip
         horizon_s = interval_s * settings.n_steps
         models = {h.vehicle_id: model_of(h.vehicle_id) for h in [*hvs, target] if
                   not h.vehicle_id.startswith(LANE_END_PREFIX)}  # fmt: skip
