@@ -608,8 +608,10 @@ def idle_hold_cells(
     rows of the regroup lane from the goal row, so that a CAV leaving the hold merges that far
     ahead of the target (a human driver slows behind a car close ahead even at its own speed,
     IDM's gap term, and the CAVs behind the target with it)."""
+    if not problem.start_rows or not problem.hv_tracks:
+        return ()
     impeded = _impeded_at_start(problem)
-    if not impeded or not problem.hv_tracks:
+    if not impeded:
         return ()
     out: list[set[Cell]] = [set() for _ in range(problem.n_steps)]
     for col, track in problem.hv_tracks:
