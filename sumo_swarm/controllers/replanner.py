@@ -343,8 +343,8 @@ class Replanner:
             if math.isfinite(own_interval):
                 tries.append((own, own_interval))
         obstacles = self._lane_ends(cavs[-1].rear_s_m, target.s_m + 400.0)
-        stranded = False
-        if self.plan is not None and self.plan.ok:
+        stranded = False  # asked only by [planner] release_idle_holds = "stranded"
+        if sc.planner.release_idle_holds == "stranded" and self.plan is not None and self.plan.ok:
             in_force = dict(zip(self.plan.cav_ids, self.plan.cells, strict=True))
             stranded = bool(stranded_cavs(in_force, cavs_behind(target, cavs, sc.cav.min_gap_m)))
         for n, (speed, speed_interval) in enumerate(tries):

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sumo_swarm.core.grid import Cell
-from sumo_swarm.core.planner.problem import MOVES, PlanningProblem, move_masks
+from sumo_swarm.core.planner.problem import MOVES, PlanningProblem, cell_mask, move_masks
 
 # Moves in the order the edges of a node are numbered: stay, row up, row down, column up/down.
 
@@ -384,10 +384,7 @@ def _add_delta_and_costs(model: FlowModel, reach: np.ndarray) -> None:
     pays_regroup = (k_of >= 1) & ~impeded & (regroup > 0) & (node_delta != 1)
     node_cost = np.where(k_of >= 1, target, 0) + np.where(pays_regroup, regroup, 0)
     if problem.idle_holds:  # w_lat per step in a cell of an idle hold, whatever delta
-        mask = np.zeros((n_steps, problem.n_rows, problem.n_cols), bool)
-        for k, cells in enumerate(problem.idle_holds):
-            for row, col in cells:
-                mask[k, row, col] = True
+        mask = cell_mask(problem.idle_holds, (n_steps, problem.n_rows, problem.n_cols))
         node_cost = node_cost + np.where((k_of >= 1) & mask[k_of, row_of, col_of], w_lat, 0)
 
     src, dst, move = model.edge_src, model.edge_dst, model.edge_move

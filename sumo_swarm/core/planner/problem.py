@@ -21,6 +21,7 @@ from typing import Literal
 
 import numpy as np
 
+from sumo_swarm.checks import require_number
 from sumo_swarm.core.grid import (
     Cell,
     ConstantSpeedPredictor,
@@ -226,14 +227,7 @@ class PlannerSettings:
         _require_int("num_workers", self.num_workers, minimum=1)
         _require_int("network_work", self.network_work, minimum=0)
         _require_int("network_ref_cavs", self.network_ref_cavs, minimum=0)
-        rows = self.idle_hold_rows
-        if not (
-            isinstance(rows, int | float) and not isinstance(rows, bool)
-            and math.isfinite(rows) and rows >= 0
-        ):  # fmt: skip
-            raise ConfigError(
-                f"PlannerSettings.idle_hold_rows must be a number >= 0, got {self.idle_hold_rows!r}"
-            )
+        require_number("PlannerSettings.idle_hold_rows", self.idle_hold_rows, ge=0.0)
         if not isinstance(self.release_idle_holds, bool) and self.release_idle_holds != "stranded":
             raise ConfigError(
                 'PlannerSettings.release_idle_holds must be true, false or "stranded", '
@@ -469,9 +463,8 @@ LANE_END_PREFIX = "lane_end:"  # ids of the standing obstacles that stand for la
 MOVES = ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))
 
 
-def _cell_mask(
-    cells_per_step: Sequence[frozenset[Cell]], shape: tuple[int, int, int]
-) -> np.ndarray:
+def cell_mask(cells_per_step: Sequence[frozenset[Cell]], shape: tuple[int, int, int]) -> np.ndarray:
+    """``[k, row, col]``: is the cell in ``cells_per_step[k]``? (cells off ``shape`` dropped)."""
     mask = np.zeros(shape, dtype=bool)
     for k, cells in enumerate(cells_per_step):
         for row, col in cells:
@@ -488,8 +481,8 @@ def move_masks(problem: PlanningProblem) -> np.ndarray:
     """
     n_steps, n_rows, n_cols = problem.n_steps, problem.n_rows, problem.n_cols
     shape = (n_steps, n_rows, n_cols)
-    hard = _cell_mask(problem.blocked, shape)
-    entry = _cell_mask(problem.entry_blocked, shape) if problem.entry_blocked else None
+    hard = cell_mask(problem.blocked, shape)
+    entry = cell_mask(problem.entry_blocked, shape) if problem.entry_blocked else None
     rows = np.arange(n_rows)[:, None]
     limits = problem.pass_limits if problem.hv_tracks else None
     out = np.zeros((len(MOVES), *shape), dtype=bool)
