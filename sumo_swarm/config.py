@@ -76,6 +76,23 @@ class EvaluationSettings:
 
 
 @dataclass(frozen=True)
+class OutputSettings:
+    """SUMO's own outputs that a run asks for, and the network measures read from them
+    (summary.json's ``network`` block, :mod:`sumo_swarm.sim.network`)."""
+
+    # tripinfo with the emissions device, SSM conflicts (TTC) and edge data: what traffic
+    # studies expect. They watch, they do not drive (a run's vehicles move the same with or
+    # without them) and cost about a third more SUMO time; false: none of them.
+    network: bool = True
+    edge_data_period_s: float = 60.0  # the edge data's aggregation interval [s]
+    ttc_threshold_s: float = 1.5  # a conflict is an encounter with a TTC below this [s]
+    ssm_range_m: float = 50.0  # how far the SSM device looks for encounters (SUMO's default) [m]
+
+    def __post_init__(self) -> None:
+        check_positive(self, "edge_data_period_s", "ttc_threshold_s", "ssm_range_m")
+
+
+@dataclass(frozen=True)
 class CavSettings:
     """The CAVs and the swarm's set points (paper IV-C)."""
 
@@ -709,6 +726,7 @@ class Scenario:
     path: Path
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
     evaluation: EvaluationSettings = field(default_factory=EvaluationSettings)
+    outputs: OutputSettings = field(default_factory=OutputSettings)
     cav: CavSettings = field(default_factory=CavSettings)
     hv: IdmSettings = field(default_factory=IdmSettings)
     scene: SceneSettings = field(default_factory=SceneSettings)

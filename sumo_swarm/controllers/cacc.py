@@ -130,4 +130,10 @@ class CaccController:
         command_cacc(ctx, present)
 
     def summary(self) -> dict[str, Any]:
-        return {} if self.ctx is None else {"speeds": self.ctx.speeds_block()}
+        if self.ctx is None:
+            return {}
+        formed = int(bool(self.ctx.cav_ids))  # one platoon: every CAV of the run
+        return {
+            "speeds": self.ctx.speeds_block(),
+            "swarms": {"platoons_formed": formed, "max_concurrent": formed},
+        }

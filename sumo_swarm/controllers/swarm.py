@@ -88,6 +88,7 @@ class SwarmController:
         self.t_done_s: float | None = None
         self.targets: list[str] = []  # the target of each manoeuvre, in order
         self.aborts: Counter[str] = Counter()
+        self.completions = 0  # manoeuvres that got every CAV past their target
         self.regroup_lane_used: int | None = None
         self.regroup_edge: str | None = None
         self.progress: Progress | None = None
@@ -337,6 +338,7 @@ class SwarmController:
         self.decider.watch.candidate_id = self.decider.watch.since_s = None
         if completed and self.t_done_s is None:
             self.t_done_s = t_s
+        self.completions += completed
         if completed and reason == "completed" and self.regroup_lane_used is not None:
             self.reformer.prefer = (self.regroup_lane_used, self.regroup_edge)
         if not completed and abort:
@@ -407,10 +409,22 @@ class SwarmController:
         self.reformer.move_to = None
         if completed and self.t_done_s is None:
             self.t_done_s = t_s
+        self.completions += completed
         self.ctx.event("overtake_end", target=self.target_id, completed=completed,
                        reason=reason, how="lane")  # fmt: skip
 
     # ------------------------------------------------------------------ outputs
+    def _swarms_block(self) -> dict[str, int]:
+        """summary.json's ``swarms`` counts: one swarm, every CAV of the run."""
+        formed = int(self.ctx is not None and bool(self.ctx.cav_ids))
+        return {
+            "platoons_formed": formed,
+            "max_concurrent": formed,
+            "overtakes_started": len(self.targets),
+            "overtakes_completed": self.completions,
+            "overtakes_aborted": sum(self.aborts.values()),
+        }
+
     def close(self) -> None:
         """Close plans.jsonl (the run is over or the swarm was detached)."""
         if getattr(self, "planlog", None) is not None:  # never attached: nothing to close
@@ -456,6 +470,7 @@ class SwarmController:
                 "blocked_hv_min_accel_mps2": self.blocks.strongest(),
                 "blocked_hvs": sorted(self.blocks.min_accel),
             },
+            "swarms": self._swarms_block(),
             "planner": self.stats.block(),
             "speeds": speeds,
             "lat_error_rms_m": lateral_rms(follower.lat_errors),

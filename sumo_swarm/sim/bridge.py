@@ -159,6 +159,8 @@ class SumoSession:
         self.released: set[str] = set()  # CAVs handed back to SUMO (they left the swarm)
         self._lane_widths: dict[tuple[str, int], float] = {}
         self.types: dict[str, str] = {}
+        self.vehicle_classes: dict[str, str] = {}  # SUMO's vClass of each vehicle's type
+        self._type_classes: dict[str, str] = {}
         self.states: dict[str, VehicleState] = {}
         self.positions: dict[str, tuple[float, float]] = {}
         self.edges: dict[str, str] = {}
@@ -301,6 +303,10 @@ class SumoSession:
         api.vehicle.subscribe(vid, self._vars)
         type_id = api.vehicle.getTypeID(vid)
         self.types[vid] = type_id
+        vclass = self._type_classes.get(type_id)
+        if vclass is None:
+            vclass = self._type_classes[type_id] = api.vehicletype.getVehicleClass(type_id)
+        self.vehicle_classes[vid] = vclass
         self.lengths[vid] = api.vehicle.getLength(vid)
         self.widths[vid] = api.vehicle.getWidth(vid)
         is_cav = self._is_cav(vid, type_id)

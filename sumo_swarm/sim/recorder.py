@@ -11,7 +11,9 @@ any time; :meth:`RunRecorder.finish` closes the controller and writes ``trajecto
 from __future__ import annotations
 
 import json
+import logging
 import time
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -21,6 +23,8 @@ import pandas as pd
 from sumo_swarm.controllers.base import Controller, close_controller
 from sumo_swarm.files import write_json_atomic, write_parquet_atomic
 from sumo_swarm.sim.summary import build_summary
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from sumo_swarm.config import Scenario
@@ -125,7 +129,7 @@ class RunRecorder:
         wall = (self._wall_end or time.perf_counter()) - self._wall0
         cpu = (self._cpu_end or time.process_time()) - self._cpu0
         sumo = self.sumo_s if self.sumo_s is not None else max(wall - self.controller_s, 0.0)
-        simulated = self.session.time_s - self._t0_s if self._t0_s is not None else 0.0
+        simulated = self.timing_simulated_s()
         return {
             "wall_s": wall,
             "sumo_s": sumo,
@@ -174,9 +178,15 @@ class RunRecorder:
         scenario: Scenario,
         events: list[dict[str, Any]],
         controller_summary: dict[str, Any] | None = None,
+        network_files: Mapping[str, Path] | None = None,
     ) -> dict[str, Any]:
         """End the run: close the controller, write trajectories.parquet, events.jsonl and
-        summary.json into ``out``; return the summary. The run's wall time ends here."""
+        summary.json into ``out``; return the summary. The run's wall time ends here.
+
+        ``network_files``: SUMO's outputs of a finished simulation
+        (:func:`~sumo_swarm.sim.network.network_options`), read into the ``network`` block and
+        the network tables once everything else is written; if they cannot be read, the block
+        is None, ``network_error`` says why, and the rest of the run stays."""
         self._wall_end = self._wall_end or time.perf_counter()
         self._cpu_end = self._cpu_end or time.process_time()
         self.close_controller()
@@ -185,4 +195,37 @@ class RunRecorder:
         write_events(out / "events.jsonl", events)
         summary = self.summary(scenario, df, controller_summary)
         write_json_atomic(out / "summary.json", summary)
+        if network_files is not None:
+            self._add_network(out, scenario, df, summary, network_files)
+            write_json_atomic(out / "summary.json", summary)
         return summary
+
+    def _add_network(
+        self,
+        out: Path,
+        scenario: Scenario,
+        df: pd.DataFrame,
+        summary: dict[str, Any],
+        files: Mapping[str, Path],
+    ) -> None:
+        from sumo_swarm.sim import metrics, network
+
+        s = self.session
+        try:
+            tables = network.read_network(files, s.kinds, s.vehicle_classes)
+            network.write_network_tables(out, tables)
+            events = len(metrics.hard_brake_events(df)) if len(df) else 0
+            summary["network"] = network.network_block(
+                tables,
+                hard_brake_events=events,
+                duration_s=self.timing_simulated_s(),
+                ttc_threshold_s=scenario.outputs.ttc_threshold_s,
+            )
+        except Exception as exc:  # a damaged output costs the block, never the run
+            log.warning("network measures not read: %s", exc)
+            summary["network"] = None
+            summary["network_error"] = f"{type(exc).__name__}: {exc}"
+
+    def timing_simulated_s(self) -> float:
+        """Simulated time since recording began [s]."""
+        return self.session.time_s - self._t0_s if self._t0_s is not None else 0.0

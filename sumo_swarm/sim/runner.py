@@ -18,6 +18,7 @@ from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError, SimulationError
 from sumo_swarm.sim.bridge import SumoSession, is_of_type, sumo_binary
 from sumo_swarm.sim.gui import attach_plan_drawer
+from sumo_swarm.sim.network import network_options
 from sumo_swarm.sim.recorder import RunRecorder
 from sumo_swarm.sim.scene import (
     CAV_TYPE,
@@ -72,7 +73,8 @@ def run_scenario(
     if seed is not None:
         scenario = replace(scenario, simulation=replace(scenario.simulation, seed=seed))
     cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo")
-    args = ["-c", str(cfg), *sumo_options(scenario), *_fcd_args(out, fcd)]
+    net_args, net_files = _network_args(scenario, out / "sumo")
+    args = ["-c", str(cfg), *sumo_options(scenario), *_fcd_args(out, fcd), *net_args]
     sim = scenario.simulation
     session = SumoSession(
         args,
@@ -89,6 +91,7 @@ def run_scenario(
         scene,
         max_steps=round(sim.duration_s / sim.step_length_s),
         progress=progress,
+        network_files=net_files,
     )
 
 
@@ -138,7 +141,8 @@ def run_sumocfg(
     forced = ["--collision.mingap-factor", "0", "--collision.action", "warn"]
     if seed is not None:
         forced += ["--seed", str(seed)]
-    args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true"]
+    net_args, net_files = _network_args(settings, out / "sumo", options, cfg.parent)
+    args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true", *net_args]
     # The record of what ran, in SUMO's own words: the user's inputs by absolute path and every
     # option, so sumo-gui -c sumo/scenario.sumocfg shows the same scene.
     save_sumo_configuration(cfg, args, out / "sumo" / "scenario.sumocfg")
@@ -168,6 +172,7 @@ def run_sumocfg(
         progress=progress,
         on_start=check_types,
         require_cavs=cav_type,
+        network_files=net_files,
     )
 
 
@@ -235,6 +240,18 @@ def save_sumo_configuration(cfg: Path, args: list[str], path: Path) -> None:
         raise ConfigError(f"{cfg}: SUMO refuses the configuration: {reason}")
 
 
+def _network_args(
+    scenario: Scenario,
+    folder: Path,
+    given: dict[str, str] | None = None,
+    given_dir: Path | None = None,
+) -> tuple[list[str], dict[str, Path] | None]:
+    """The SUMO options for the network measures (``[outputs] network``) and their files."""
+    if not scenario.outputs.network:
+        return [], None
+    return network_options(folder, scenario.outputs, given, given_dir)
+
+
 def _fcd_args(out: Path, fcd: bool) -> list[str]:
     if not fcd:
         return []
@@ -253,6 +270,7 @@ def _drive(
     progress: bool | None,
     on_start=None,
     require_cavs: str | None = None,
+    network_files: dict[str, Path] | None = None,
 ) -> dict[str, Any]:
     """Step SUMO, record, call the controller after every step, then write every output.
 
@@ -297,7 +315,7 @@ def _drive(
         finally:
             bar.close()
             recorder.close_controller()
-    summary = recorder.finish(out, scenario, ctx.events)
+    summary = recorder.finish(out, scenario, ctx.events, network_files=network_files)
     if failure is not None:
         raise SimulationError(f"{failure} (outputs so far kept in {out})")
     if require_cavs is not None and not session.cav_ids:

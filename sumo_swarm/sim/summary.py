@@ -138,6 +138,22 @@ def _first_time_holding(flags: pd.Series) -> float | None:
     return float(flags.index[start])
 
 
+SWARM_KEYS = (
+    "platoons_formed",
+    "max_concurrent",
+    "overtakes_started",
+    "overtakes_completed",
+    "overtakes_aborted",
+)
+
+
+def swarms_block(own: dict[str, Any] | None) -> dict[str, int]:
+    """summary.json's ``swarms`` block: the controller's counts, 0 for any it does not keep (a
+    controller without platoons: none formed, no overtakes)."""
+    own = own or {}
+    return {k: int(own.get(k, 0)) for k in SWARM_KEYS}
+
+
 def build_summary(
     *,
     scenario: Scenario,
@@ -242,6 +258,9 @@ def build_summary(
             "teleports": int(session.teleports),
             "min_ttc_s": finite_or_none(metrics.min_ttc_s(df, w)),
         },
+        "swarms": swarms_block(controller_summary.get("swarms")),
+        # From SUMO's own outputs, filled once the simulation has ended (RunRecorder.finish).
+        "network": None,
         "upstream": upstream,
         "planner": planner,
         # Extra (not in the contract): MPC solve time per CAV per solve, swarm only.

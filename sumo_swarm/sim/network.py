@@ -1,0 +1,324 @@
+"""Network measures from SUMO's own outputs: what a traffic-impact study reads from a run.
+
+A run asks SUMO for three outputs (:func:`network_options`, ``[outputs]`` in the scenario):
+
+- ``tripinfo.xml``: one trip per vehicle, with the emissions device's CO2 and fuel, written also
+  for vehicles still driving when the run ends (their trip so far);
+- ``ssm.xml``: the SSM device's conflicts, every encounter whose time to collision fell below
+  ``ttc_threshold_s``;
+- ``edgedata.xml``: flow, speed and density of every edge per ``edge_data_period_s``.
+
+After the run, :func:`read_network` turns them into three tables (``network_trips.parquet``,
+``network_conflicts.parquet``, ``network_edges.parquet``) and :func:`network_block` into
+summary.json's ``network`` block. Vehicle classes: ``cav`` for the swarm's vehicle type, then
+SUMO's vClass of the vehicle's type grouped as :data:`CLASS_OF_VCLASS` says, ``hv`` for the rest.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+from xml.sax.saxutils import quoteattr
+
+import pandas as pd
+
+from sumo_swarm.files import write_parquet_atomic
+
+if TYPE_CHECKING:
+    from sumo_swarm.config import OutputSettings
+
+TRIPINFO = "tripinfo.xml"
+SSM = "ssm.xml"
+EDGE_DATA = "edgedata.xml"
+ADDITIONAL = "network.add.xml"
+EDGE_DATA_ID = "sumo-swarm"
+
+# SUMO vClasses reported as their own class; every other HV is "hv".
+CLASS_OF_VCLASS = {"truck": "truck", "trailer": "truck", "bus": "bus", "coach": "bus"}
+
+TRIP_COLUMNS = (
+    "vehicle",
+    "vtype",
+    "vehicle_class",
+    "depart_s",
+    "arrival_s",  # NaN: still driving when the run ended
+    "finished",
+    "duration_s",
+    "route_length_m",  # the distance driven (so far, for an unfinished trip)
+    "time_loss_s",  # SUMO's timeLoss: the time lost to driving below the desired speed
+    "waiting_time_s",
+    "co2_mg",
+    "fuel_mg",
+)
+CONFLICT_COLUMNS = ("ego", "foe", "begin_s", "end_s", "min_ttc_s", "min_ttc_time_s")
+EDGE_COLUMNS = (
+    "begin_s",
+    "end_s",
+    "edge",
+    "sampled_s",  # vehicle-seconds spent on the edge in the interval
+    "speed_mps",
+    "density_veh_per_km",
+    "lane_density_veh_per_km",
+    "flow_veh_per_h",
+    "entered",
+    "left",
+    "distance_m",
+)
+
+
+@dataclass(frozen=True)
+class NetworkTables:
+    trips: pd.DataFrame
+    conflicts: pd.DataFrame | None  # None: no SSM output to read
+    edges: pd.DataFrame | None  # None: no edge data to read
+
+
+def vehicle_class(kind: str, vclass: str | None) -> str:
+    """``cav`` for a CAV; otherwise the class of SUMO's ``vclass`` (:data:`CLASS_OF_VCLASS`)."""
+    if kind == "cav":
+        return "cav"
+    return CLASS_OF_VCLASS.get(vclass or "", "hv")
+
+
+# --------------------------------------------------------------------------- asking SUMO
+
+
+def network_options(
+    folder: Path,
+    settings: OutputSettings,
+    given: Mapping[str, str] | None = None,
+    given_dir: Path | None = None,
+) -> tuple[list[str], dict[str, Path]]:
+    """SUMO options that write the network outputs into ``folder``, and where each will be.
+
+    ``given``: options a user's configuration already sets (relative to ``given_dir``). An
+    output the user asks for stays theirs and is read from their file (with the unfinished
+    trips and the emissions added unless they set those too); the edge-data definition is
+    added to their additional files, not put in their place. Returns
+    ``(options, {"tripinfo" | "ssm" | "edgedata": path})``.
+    """
+    given = dict(given or {})
+    base = given_dir or Path(".")
+    folder.mkdir(parents=True, exist_ok=True)
+    folder = folder.resolve()  # SUMO reads paths in an additional file from that file's folder
+    opts: list[str] = []
+    files: dict[str, Path] = {}
+    if "tripinfo-output" in given:
+        files["tripinfo"] = base / given["tripinfo-output"]
+    else:
+        files["tripinfo"] = folder / TRIPINFO
+        opts += ["--tripinfo-output", str(files["tripinfo"])]
+    # Trips still under way at the end count (their delay so far): added to a user's own
+    # tripinfo output too, as are the emissions, unless their configuration says otherwise.
+    if "tripinfo-output.write-unfinished" not in given:
+        opts += ["--tripinfo-output.write-unfinished", "true"]
+    if "device.emissions.probability" not in given:
+        opts += ["--device.emissions.probability", "1"]
+    ssm_set = any(k.startswith("device.ssm.") for k in given)
+    if ssm_set:
+        if "device.ssm.file" in given:
+            files["ssm"] = base / given["device.ssm.file"]
+    else:
+        files["ssm"] = folder / SSM
+        # One option and its value a line: the formatter would split each pair over two lines.
+        opts += [
+            "--device.ssm.probability", "1",
+            "--device.ssm.measures", "TTC",
+            "--device.ssm.thresholds", f"{settings.ttc_threshold_s}",
+            "--device.ssm.range", f"{settings.ssm_range_m}",
+            "--device.ssm.trajectories", "false",
+            "--device.ssm.file", str(files["ssm"]),
+        ]  # fmt: skip
+    files["edgedata"] = folder / EDGE_DATA
+    additional = folder / ADDITIONAL
+    period = quoteattr(f"{settings.edge_data_period_s}")
+    additional.write_text(
+        f"<additional>\n    <edgeData id={quoteattr(EDGE_DATA_ID)} period={period}"
+        f" file={quoteattr(str(files['edgedata']))}/>\n</additional>\n",
+        encoding="utf-8",
+    )
+    theirs = [
+        str((base / name.strip()).resolve())
+        for name in given.get("additional-files", "").split(",")
+        if name.strip()
+    ]
+    opts += ["--additional-files", ",".join([*theirs, str(additional)])]
+    return opts, files
+
+
+# --------------------------------------------------------------------------- reading SUMO
+
+
+def _float(value: Any, default: float = math.nan) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return default
+
+
+def read_trips(path: Path, kinds: Mapping[str, str], vclasses: Mapping[str, str]) -> pd.DataFrame:
+    """SUMO's tripinfo output as a table (:data:`TRIP_COLUMNS`); ``kinds`` and ``vclasses``
+    (vehicle -> ``cav``/``hv``, SUMO vClass) give each trip its class."""
+    import sumolib.xml
+
+    rows = []
+    for trip in sumolib.xml.parse(str(path), "tripinfo"):
+        vid = trip.id
+        arrival = _float(trip.arrival)
+        emissions = trip.getChild("emissions")[0] if trip.hasChild("emissions") else None
+        rows.append(
+            (
+                vid,
+                trip.vType,
+                vehicle_class(kinds.get(vid, "hv"), vclasses.get(vid)),
+                _float(trip.depart),
+                arrival if arrival >= 0.0 else math.nan,
+                arrival >= 0.0,
+                _float(trip.duration),
+                _float(trip.routeLength),
+                _float(trip.timeLoss),
+                _float(trip.waitingTime),
+                _float(emissions.CO2_abs) if emissions is not None else math.nan,
+                _float(emissions.fuel_abs) if emissions is not None else math.nan,
+            )
+        )
+    return pd.DataFrame(rows, columns=list(TRIP_COLUMNS))
+
+
+def read_conflicts(path: Path) -> pd.DataFrame:
+    """The SSM device's conflicts (:data:`CONFLICT_COLUMNS`); an encounter without a TTC value
+    (SUMO writes NA) has ``min_ttc_s`` NaN."""
+    import sumolib.xml
+
+    rows = []
+    for c in sumolib.xml.parse(str(path), "conflict"):
+        ttc = c.getChild("minTTC")[0] if c.hasChild("minTTC") else None
+        rows.append(
+            (
+                c.ego,
+                c.foe,
+                _float(c.begin),
+                _float(c.end),
+                _float(ttc.value) if ttc is not None else math.nan,
+                _float(ttc.time) if ttc is not None else math.nan,
+            )
+        )
+    return pd.DataFrame(rows, columns=list(CONFLICT_COLUMNS))
+
+
+def read_edge_data(path: Path) -> pd.DataFrame:
+    """SUMO's edge data (:data:`EDGE_COLUMNS`); an edge no vehicle used in an interval is not
+    written by SUMO, and its speed is NaN where SUMO leaves it out."""
+    import sumolib.xml
+
+    rows = []
+    for interval in sumolib.xml.parse(str(path), "interval"):
+        begin, end = _float(interval.begin), _float(interval.end)
+        for e in interval.getChild("edge") if interval.hasChild("edge") else ():
+            rows.append(
+                (
+                    begin,
+                    end,
+                    e.id,
+                    _float(e.sampledSeconds, 0.0),
+                    _float(e.getAttributeSecure("speed")),
+                    _float(e.getAttributeSecure("density")),
+                    _float(e.getAttributeSecure("laneDensity")),
+                    _float(e.getAttributeSecure("flow")),
+                    int(_float(e.getAttributeSecure("entered"), 0.0)),
+                    int(_float(e.getAttributeSecure("left"), 0.0)),
+                    _float(e.getAttributeSecure("distance"), 0.0),
+                )
+            )
+    return pd.DataFrame(rows, columns=list(EDGE_COLUMNS))
+
+
+def read_network(
+    files: Mapping[str, Path], kinds: Mapping[str, str], vclasses: Mapping[str, str]
+) -> NetworkTables:
+    """The three tables from the files :func:`network_options` named (a missing SSM or edge
+    data file gives None; a missing tripinfo an empty table)."""
+    trip_file = files.get("tripinfo")
+    if trip_file is not None and trip_file.is_file():
+        trips = read_trips(trip_file, kinds, vclasses)
+    else:
+        trips = pd.DataFrame(columns=list(TRIP_COLUMNS))
+    ssm = files.get("ssm")
+    conflicts = read_conflicts(ssm) if ssm is not None and ssm.is_file() else None
+    edge_file = files.get("edgedata")
+    edges = read_edge_data(edge_file) if edge_file is not None and edge_file.is_file() else None
+    return NetworkTables(trips, conflicts, edges)
+
+
+def write_network_tables(out: Path, tables: NetworkTables) -> None:
+    """``network_trips.parquet``, ``network_conflicts.parquet``, ``network_edges.parquet``."""
+    write_parquet_atomic(out / "network_trips.parquet", tables.trips)
+    if tables.conflicts is not None:
+        write_parquet_atomic(out / "network_conflicts.parquet", tables.conflicts)
+    if tables.edges is not None:
+        write_parquet_atomic(out / "network_edges.parquet", tables.edges)
+
+
+# --------------------------------------------------------------------------- measures
+
+
+def _none_if_nan(x: float) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def network_block(
+    tables: NetworkTables,
+    *,
+    hard_brake_events: int,
+    duration_s: float,
+    ttc_threshold_s: float,
+) -> dict[str, Any]:
+    """summary.json's ``network`` block.
+
+    - ``vehicles``: vehicles that departed (a trip each, finished or not);
+    - ``travel_time_s``: mean trip duration per class, over the trips that finished (None for
+      a class none of whose trips finished);
+    - ``delay_s``: mean SUMO timeLoss per class over every trip, so far for unfinished ones;
+    - ``throughput_vph``: trips finished per hour of the run (``duration_s``);
+    - ``hard_brakes_per_1000_vkm``: ``hard_brake_events`` (episodes, any vehicle) per thousand
+      vehicle-kilometres driven (None when nobody drove);
+    - ``ttc_below_1_5s_events``: SSM conflicts with a minimum TTC below ``ttc_threshold_s``
+      (None without SSM output);
+    - ``co2_g_per_km``, ``fuel_g_per_km``: emitted / driven per class (mg per m = g per km);
+    - extras: ``vehicle_km``, ``trips_finished``, ``vehicles_per_class``.
+    """
+    trips = tables.trips
+    by_class = trips.groupby("vehicle_class", sort=True)
+    finished = trips[trips["finished"].astype(bool)]
+    travel = finished.groupby("vehicle_class", sort=True)["duration_s"].mean()
+    distance_m = by_class["route_length_m"].sum()
+
+    def per_class(values: pd.Series) -> dict[str, float | None]:
+        return {str(k): _none_if_nan(v) for k, v in values.items()}
+
+    def per_km(column: str) -> dict[str, float | None]:
+        mass = by_class[column].sum(min_count=1)
+        return {str(k): _none_if_nan(mass[k] / d) if d > 0 else None for k, d in distance_m.items()}
+
+    vkm = float(trips["route_length_m"].sum()) / 1000.0 if len(trips) else 0.0
+    conflicts = tables.conflicts
+    ttc_events = None
+    if conflicts is not None:
+        ttc_events = int((conflicts["min_ttc_s"] < ttc_threshold_s).sum())
+    hours = duration_s / 3600.0
+    return {
+        "vehicles": len(trips),
+        "travel_time_s": {str(k): _none_if_nan(travel.get(k, math.nan)) for k in distance_m.index},
+        "delay_s": per_class(by_class["time_loss_s"].mean()),
+        "throughput_vph": float(len(finished) / hours) if hours > 0 else None,
+        "hard_brakes_per_1000_vkm": (float(hard_brake_events / vkm * 1000.0) if vkm > 0 else None),
+        "ttc_below_1_5s_events": ttc_events,
+        "co2_g_per_km": per_km("co2_mg"),
+        "fuel_g_per_km": per_km("fuel_mg"),
+        "vehicle_km": vkm,
+        "trips_finished": len(finished),
+        "vehicles_per_class": {str(k): int(v) for k, v in by_class.size().items()},
+    }

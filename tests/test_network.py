@@ -1,0 +1,284 @@
+"""Network measures from SUMO's own outputs (sim/network.py): the parsers and the measures on
+hand-written SUMO files with known answers, the options on a user's configuration, and real
+runs, where the outputs must not change how anyone drives."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from sumo_swarm.config import OutputSettings, load_scenario
+from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.network import (
+    ADDITIONAL,
+    EDGE_COLUMNS,
+    NetworkTables,
+    network_block,
+    network_options,
+    read_conflicts,
+    read_edge_data,
+    read_network,
+    read_trips,
+    vehicle_class,
+)
+from sumo_swarm.sim.runner import read_sumocfg_options, run_scenario, run_sumocfg
+from sumo_swarm.sim.userroads import write_road
+
+TRIPINFO = """<?xml version="1.0" encoding="UTF-8"?>
+<tripinfos>
+    <tripinfo id="cav0" depart="0.00" arrival="100.00" duration="100.00" routeLength="2000.00"
+              waitingTime="0.00" timeLoss="10.00" vType="cav@cav0">
+        <emissions CO2_abs="300000.00" fuel_abs="100000.00"/>
+    </tripinfo>
+    <tripinfo id="car1" depart="10.00" arrival="130.00" duration="120.00" routeLength="2000.00"
+              waitingTime="1.00" timeLoss="30.00" vType="car">
+        <emissions CO2_abs="280000.00" fuel_abs="90000.00"/>
+    </tripinfo>
+    <tripinfo id="car2" depart="20.00" arrival="-1.00" duration="160.00" routeLength="1000.00"
+              waitingTime="0.00" timeLoss="50.00" vType="car">
+        <emissions CO2_abs="120000.00" fuel_abs="40000.00"/>
+    </tripinfo>
+    <tripinfo id="lorry" depart="0.00" arrival="-1.00" duration="180.00" routeLength="1000.00"
+              waitingTime="0.00" timeLoss="5.00" vType="truck">
+        <emissions CO2_abs="700000.00" fuel_abs="220000.00"/>
+    </tripinfo>
+</tripinfos>
+"""
+
+SSM = """<?xml version="1.0" encoding="UTF-8"?>
+<SSMLog>
+    <conflict begin="3.10" end="5.20" ego="car1" foe="cav0">
+        <minTTC time="4.00" position="10.0,0.0" type="2" value="0.90" speed="20.0"/>
+    </conflict>
+    <conflict begin="8.00" end="9.00" ego="car2" foe="car1">
+        <minTTC time="8.50" position="10.0,0.0" type="2" value="1.40" speed="20.0"/>
+    </conflict>
+    <conflict begin="9.00" end="9.50" ego="lorry" foe="car2">
+        <minTTC time="NA" position="NA" type="NA" value="NA" speed="NA"/>
+    </conflict>
+</SSMLog>
+"""
+
+EDGE_DATA = """<?xml version="1.0" encoding="UTF-8"?>
+<meandata>
+    <interval begin="0.00" end="60.00" id="sumo-swarm">
+        <edge id="hwy" sampledSeconds="600.00" density="10.00" laneDensity="3.33" speed="25.00"
+              entered="12" left="4" flow="720.00" distance="15000.00"/>
+        <edge id="ramp" sampledSeconds="0.50" entered="1" left="0"/>
+    </interval>
+    <interval begin="60.00" end="120.00" id="sumo-swarm">
+        <edge id="hwy" sampledSeconds="300.00" density="5.00" laneDensity="1.67" speed="30.00"
+              entered="3" left="9" flow="540.00" distance="9000.00"/>
+    </interval>
+</meandata>
+"""
+
+KINDS = {"cav0": "cav", "car1": "hv", "car2": "hv", "lorry": "hv"}
+VCLASSES = {"cav0": "passenger", "car1": "passenger", "car2": "passenger", "lorry": "truck"}
+
+
+@pytest.fixture
+def sumo_files(tmp_path) -> dict[str, Path]:
+    files = {"tripinfo": TRIPINFO, "ssm": SSM, "edgedata": EDGE_DATA}
+    out = {}
+    for name, text in files.items():
+        out[name] = tmp_path / f"{name}.xml"
+        out[name].write_text(text, encoding="utf-8")
+    return out
+
+
+def test_vehicle_classes():
+    assert vehicle_class("cav", "truck") == "cav"
+    assert vehicle_class("hv", "truck") == vehicle_class("hv", "trailer") == "truck"
+    assert vehicle_class("hv", "coach") == "bus"
+    assert vehicle_class("hv", "passenger") == vehicle_class("hv", None) == "hv"
+
+
+def test_trips_are_read_with_their_class_and_emissions(sumo_files):
+    trips = read_trips(sumo_files["tripinfo"], KINDS, VCLASSES).set_index("vehicle")
+    assert list(trips["vehicle_class"]) == ["cav", "hv", "hv", "truck"]
+    assert list(trips["finished"]) == [True, True, False, False]
+    assert trips.loc["car1", "arrival_s"] == 130.0 and math.isnan(trips.loc["car2", "arrival_s"])
+    assert trips.loc["lorry", "co2_mg"] == 700000.0 and trips.loc["cav0", "fuel_mg"] == 100000.0
+    assert trips.loc["car1", "time_loss_s"] == 30.0
+
+
+def test_conflicts_and_edge_data_are_read(sumo_files):
+    conflicts = read_conflicts(sumo_files["ssm"])
+    assert list(conflicts["ego"]) == ["car1", "car2", "lorry"]
+    assert conflicts["min_ttc_s"].iloc[:2].tolist() == [0.9, 1.4]
+    assert math.isnan(conflicts["min_ttc_s"].iloc[2])  # SUMO's NA
+    edges = read_edge_data(sumo_files["edgedata"])
+    assert list(edges.columns) == list(EDGE_COLUMNS)
+    assert len(edges) == 3
+    first = edges.iloc[0]
+    assert (first["edge"], first["speed_mps"], first["flow_veh_per_h"]) == ("hwy", 25.0, 720.0)
+    ramp = edges[edges["edge"] == "ramp"].iloc[0]
+    assert math.isnan(ramp["speed_mps"]) and ramp["entered"] == 1  # SUMO left the speed out
+
+
+def test_network_block_from_hand_made_trips(sumo_files):
+    tables = read_network(sumo_files, KINDS, VCLASSES)
+    block = network_block(tables, hard_brake_events=3, duration_s=180.0, ttc_threshold_s=1.5)
+    assert block["vehicles"] == 4 and block["trips_finished"] == 2
+    # travel time over finished trips only: none of the truck's
+    assert block["travel_time_s"] == {"cav": 100.0, "hv": 120.0, "truck": None}
+    # delay over every trip, so far for unfinished ones
+    assert block["delay_s"] == {"cav": 10.0, "hv": 40.0, "truck": 5.0}
+    assert block["throughput_vph"] == pytest.approx(2 / (180.0 / 3600.0))  # 40 veh/h
+    assert block["vehicle_km"] == pytest.approx(6.0)
+    assert block["hard_brakes_per_1000_vkm"] == pytest.approx(3 / 6.0 * 1000.0)
+    assert block["ttc_below_1_5s_events"] == 2  # 0.9 and 1.4; NA is no TTC
+    # mg per m is g per km: 300 g over 2 km; HVs 400 g over 3 km; the truck 700 g over 1 km
+    assert block["co2_g_per_km"] == pytest.approx({"cav": 150.0, "hv": 400 / 3, "truck": 700.0})
+    assert block["fuel_g_per_km"]["truck"] == pytest.approx(220.0)
+    assert block["vehicles_per_class"] == {"cav": 1, "hv": 2, "truck": 1}
+    stricter = network_block(tables, hard_brake_events=0, duration_s=180.0, ttc_threshold_s=1.0)
+    assert stricter["ttc_below_1_5s_events"] == 1
+
+
+def test_network_block_of_nothing():
+    empty = read_network({}, {}, {})
+    block = network_block(empty, hard_brake_events=0, duration_s=0.0, ttc_threshold_s=1.5)
+    assert block["vehicles"] == 0 and block["travel_time_s"] == {}
+    assert block["throughput_vph"] is None and block["hard_brakes_per_1000_vkm"] is None
+    assert block["ttc_below_1_5s_events"] is None  # no SSM output read
+    no_ssm = NetworkTables(empty.trips, conflicts=None, edges=None)
+    assert (
+        network_block(no_ssm, hard_brake_events=0, duration_s=60.0, ttc_threshold_s=1.5)[
+            "throughput_vph"
+        ]
+        == 0.0
+    )
+
+
+def test_options_ask_for_every_output(tmp_path):
+    settings = OutputSettings(edge_data_period_s=30.0, ttc_threshold_s=2.0)
+    opts, files = network_options(tmp_path / "sumo", settings)
+    pairs = dict(zip(opts[::2], opts[1::2], strict=True))
+    assert pairs["--tripinfo-output"] == str(files["tripinfo"])
+    assert pairs["--tripinfo-output.write-unfinished"] == "true"
+    assert pairs["--device.emissions.probability"] == "1"
+    assert pairs["--device.ssm.thresholds"] == "2.0" and pairs["--device.ssm.measures"] == "TTC"
+    assert pairs["--device.ssm.file"] == str(files["ssm"])
+    additional = tmp_path / "sumo" / ADDITIONAL
+    assert pairs["--additional-files"] == str(additional.resolve())
+    text = additional.read_text()
+    assert 'period="30.0"' in text and str(files["edgedata"]) in text
+    assert files["edgedata"].is_absolute()  # SUMO reads it from the additional file's folder
+
+
+def test_options_keep_what_the_user_asked_for(tmp_path):
+    given = {
+        "tripinfo-output": "out/trips.xml",
+        "tripinfo-output.write-unfinished": "false",
+        "device.ssm.probability": "0.5",
+        "device.ssm.file": "conflicts.xml",
+        "device.emissions.probability": "0.2",
+        "additional-files": "detectors.add.xml, more.add.xml",
+    }
+    opts, files = network_options(tmp_path / "sumo", OutputSettings(), given, tmp_path / "cfg")
+    assert files["tripinfo"] == tmp_path / "cfg" / "out" / "trips.xml"
+    assert files["ssm"] == tmp_path / "cfg" / "conflicts.xml"
+    assert not any(o.startswith(("--tripinfo", "--device.")) for o in opts)
+    pairs = dict(zip(opts[::2], opts[1::2], strict=True))
+    theirs = [str((tmp_path / "cfg" / n).resolve()) for n in ("detectors.add.xml", "more.add.xml")]
+    assert pairs["--additional-files"].split(",") == [
+        *theirs,
+        str((tmp_path / "sumo" / ADDITIONAL).resolve()),
+    ]
+    # SSM set up by the user without a file of theirs to read: no conflicts to count
+    _, files = network_options(tmp_path / "s2", OutputSettings(), {"device.ssm.probability": "1"})
+    assert "ssm" not in files
+
+
+@pytest.mark.parametrize(
+    "key, value", [("edge_data_period_s", 0.0), ("ttc_threshold_s", -1.0), ("ssm_range_m", 0.0)]
+)
+def test_impossible_output_settings_are_config_errors(key, value):
+    with pytest.raises(ConfigError, match=key):
+        OutputSettings(**{key: value})
+
+
+# --------------------------------------------------------------------------- with SUMO
+
+
+def _without_network(scenario):
+    return replace(scenario, outputs=replace(scenario.outputs, network=False))
+
+
+@pytest.mark.sumo
+def test_a_scenario_run_measures_the_network_without_changing_it(tmp_path, paper_path):
+    sc = load_scenario(paper_path)
+    sc = replace(sc, simulation=replace(sc.simulation, duration_s=25.0))
+    on = run_scenario(sc, "swarm", tmp_path / "on", progress=False)
+    off = run_scenario(_without_network(sc), "swarm", tmp_path / "off", progress=False)
+    assert off["network"] is None and not (tmp_path / "off" / "network_trips.parquet").exists()
+    pd.testing.assert_frame_equal(
+        pd.read_parquet(tmp_path / "on" / "trajectories.parquet"),
+        pd.read_parquet(tmp_path / "off" / "trajectories.parquet"),
+    )
+    net = on["network"]
+    df = pd.read_parquet(tmp_path / "on" / "trajectories.parquet")
+    assert net["vehicles"] == df["vehicle"].nunique()
+    assert net["vehicles_per_class"]["cav"] == on["cav"]["count"] == 6
+    trips = pd.read_parquet(tmp_path / "on" / "network_trips.parquet").set_index("vehicle")
+    # SUMO's distance driven is the distance our trajectories saw, every vehicle
+    s = df.groupby("vehicle", observed=True)["s_m"]
+    driven = (s.last() - s.first()).reindex(trips.index)
+    first_step_m = df.groupby("vehicle", observed=True)["speed_mps"].first() * 0.03
+    assert (trips["route_length_m"] - driven).abs().max() < first_step_m.max() + 0.5
+    assert net["co2_g_per_km"]["cav"] > 0 and net["delay_s"]["hv"] >= 0.0
+    assert net["hard_brakes_per_1000_vkm"] == 0.0  # no hard brake in the paper's scene
+    conflicts = pd.read_parquet(tmp_path / "on" / "network_conflicts.parquet")
+    assert net["ttc_below_1_5s_events"] == int((conflicts["min_ttc_s"] < 1.5).sum())
+    edges = pd.read_parquet(tmp_path / "on" / "network_edges.parquet")
+    assert set(edges["edge"]) == {"hwy"} and edges["speed_mps"].between(10, 30).all()
+    assert on["swarms"]["platoons_formed"] == 1 and on["swarms"]["overtakes_started"] >= 1
+    assert json.loads((tmp_path / "on" / "summary.json").read_text())["network"] == net
+
+
+@pytest.mark.sumo
+def test_a_users_road_keeps_the_users_outputs_and_drives_the_same(tmp_path):
+    """A road of SUMO's defaults (random dawdling, speed deviation: the random numbers matter)
+    with the user's own tripinfo output and detector file: theirs are written where they asked
+    and read, ours are added, and nobody drives differently for it."""
+    cfg = write_road("motorway-ramps", tmp_path / "road", end_s=40.0)
+    (tmp_path / "road" / "loops.add.xml").write_text(
+        '<additional>\n    <inductionLoop id="loop0" lane="mid_1" pos="100" period="10" '
+        'file="loops.xml"/>\n</additional>\n',
+        encoding="utf-8",
+    )
+    text = cfg.read_text().replace(
+        "  </input>",
+        '    <additional-files value="loops.add.xml"/>\n  </input>\n'
+        '  <output>\n    <tripinfo-output value="mytrips.xml"/>\n  </output>',
+    )
+    cfg.write_text(text, encoding="utf-8")
+    assert read_sumocfg_options(cfg)["tripinfo-output"] == "mytrips.xml"
+    quiet = {"progress": False, "notify": lambda m: None}
+    on = run_sumocfg(cfg, "cav", "swarm", tmp_path / "on", **quiet)
+    assert (tmp_path / "road" / "mytrips.xml").is_file()  # theirs, where they asked
+    assert (tmp_path / "road" / "loops.xml").is_file()  # their detectors still run
+    assert not (tmp_path / "on" / "sumo" / "tripinfo.xml").exists()
+    assert 'arrival="-1.00"' in (tmp_path / "road" / "mytrips.xml").read_text()  # unfinished
+    assert (tmp_path / "on" / "sumo" / "ssm.xml").is_file()
+    net = on["network"]
+    assert set(net["vehicles_per_class"]) == {"cav", "hv", "truck"}
+    assert net["vehicles_per_class"]["truck"] == 1
+    trips = pd.read_parquet(tmp_path / "on" / "network_trips.parquet")
+    assert len(trips) == net["vehicles"] > 20
+
+    settings = tmp_path / "quiet.toml"
+    settings.write_text("[outputs]\nnetwork = false\n", encoding="utf-8")
+    off = run_sumocfg(cfg, "cav", "swarm", tmp_path / "off", config=settings, **quiet)
+    assert off["network"] is None
+    pd.testing.assert_frame_equal(
+        pd.read_parquet(tmp_path / "on" / "trajectories.parquet"),
+        pd.read_parquet(tmp_path / "off" / "trajectories.parquet"),
+    )
