@@ -205,6 +205,9 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
         "upstream.hv_influenced",
         "timing.wall_s",
         "run.peak_rss_mb",
+        "network.delay_s.cav",
+        "network.co2_g_per_km.hv",
+        "swarms.overtakes_started",
     ):
         assert column in df.columns, column
     swarm = df[df["controller"] == "swarm"]
@@ -227,9 +230,17 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
         "runs.csv",
         "mobility_vs_scene_initial_speed_mps.png",
         "upstream_vs_scene_initial_speed_mps.png",
+        "network.csv",
+        "network_vs_scene_initial_speed_mps.png",
         "safety.png",
     ):
         assert (impact / name).is_file(), name
+    # the network table: per value and controller, the mean over its runs of each class's delay
+    network = pd.read_csv(impact / "network.csv")
+    row = network[(network["controller"] == "swarm") & (network["value"] == 16.0)].iloc[0]
+    runs_16 = df[(df["controller"] == "swarm") & (df["scene.initial_speed_mps"] == 16.0)]
+    assert row["network.delay_s.hv"] == pytest.approx(runs_16["network.delay_s.hv"].mean())
+    assert "## Network, from SUMO's outputs" in (impact / "impact.md").read_text()
     mobility = pd.read_csv(impact / "mobility.csv")
     cacc = mobility[mobility["controller"] == "cacc"]
     assert cacc["gain.mean_speed_pct"].tolist() == pytest.approx([0.0, 0.0])

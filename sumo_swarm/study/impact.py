@@ -11,10 +11,14 @@
   run of the same parameters and seed, then averaged;
 * ``upstream.csv``: per value and controller, the upstream influence: HVs influenced, the
   first follower's speed reduction (means over runs), the smallest gap and headway (minimum);
+* ``network.csv``: per value and controller, the ``network`` block's measures from SUMO's own
+  outputs (throughput, hard brakes per 1000 vehicle-km, TTC conflicts, and travel time, delay
+  and CO2 per km for each vehicle class), means over runs, when the runs have that block;
 * ``safety.csv``: per controller, collisions, hard brakes, teleports (sums), the smallest TTC
   and CAV gap;
 * ``impact.md`` (the same tables) and the plots ``mobility_vs_<param>.png``,
-  ``upstream_vs_<param>.png`` (one per swept parameter) and ``safety.png``.
+  ``upstream_vs_<param>.png``, ``network_vs_<param>.png`` (one per swept parameter) and
+  ``safety.png``.
 
 Means are over the runs of a group (seeds, and the other parameters' values).
 """
@@ -62,6 +66,31 @@ SAFETY = (
     ("safety.min_ttc_s", "min", "smallest TTC [s]", False),
     ("cav.gap_min_m", "min", "smallest CAV gap [m]", False),
 )
+
+# The network block's measures (from SUMO's own outputs): per class where the block has classes,
+# found in the batch's columns (network.delay_s.cav, network.delay_s.truck, ...).
+NETWORK_SCALARS = (
+    ("network.throughput_vph", "mean", "throughput [veh/h]", False),
+    ("network.hard_brakes_per_1000_vkm", "mean", "hard brakes per 1000 veh-km", True),
+    ("network.ttc_below_1_5s_events", "mean", "TTC < 1.5 s conflicts", False),
+)
+NETWORK_PER_CLASS = (
+    ("network.travel_time_s", "travel time {} [s]", False),
+    ("network.delay_s", "delay {} [s]", True),
+    ("network.co2_g_per_km", "CO2 {} [g/km]", True),
+)
+
+
+def network_measures(columns) -> tuple:
+    """The impact measures of the ``network`` block found among ``columns``: its scalars, then
+    each per-class measure for every class present (means over runs)."""
+    present = set(columns)
+    measures = [m for m in NETWORK_SCALARS if m[0] in present]
+    for prefix, heading, plotted in NETWORK_PER_CLASS:
+        for column in sorted(c for c in present if c.startswith(prefix + ".")):
+            cls = column.removeprefix(prefix + ".")
+            measures.append((column, "mean", heading.format(cls), plotted))
+    return tuple(measures)
 
 
 # --------------------------------------------------------------------------- tables
@@ -256,14 +285,18 @@ def impact(
     ok = df[df["status"] == "ok"]
     runs = with_gains(ok, parameters, reference)
     keep = [*parameters, "controller", "seed", "run_id"]
-    keep += [m[0] for m in (*MOBILITY, *UPSTREAM, *SAFETY) if m[0] in runs.columns]
+    net = network_measures(runs.columns)
+    keep += [m[0] for m in (*MOBILITY, *UPSTREAM, *SAFETY, *net) if m[0] in runs.columns]
     runs = runs[list(dict.fromkeys(keep))]
     mobility = by_parameter(runs, parameters, MOBILITY)
     upstream = by_parameter(runs, parameters, UPSTREAM)
+    network = by_parameter(runs, parameters, net) if net else pd.DataFrame()
     safety = safety_table(df)
     runs.to_csv(out / "runs.csv", index=False)
     mobility.to_csv(out / "mobility.csv", index=False)
     upstream.to_csv(out / "upstream.csv", index=False)
+    if net:
+        network.to_csv(out / "network.csv", index=False)
     safety.to_csv(out / "safety.csv", index=False)
 
     has_reference = (runs["controller"] == reference).any()
@@ -284,10 +317,15 @@ def impact(
         _line_panels(
             upstream[upstream["parameter"] == p], p, UPSTREAM, out / f"upstream_vs_{slug}.png"
         )
-    for title, table, measures, stem in (
+        if net:
+            _line_panels(network[network["parameter"] == p], p, net, out / f"network_vs_{slug}.png")
+    sections = [
         ("Mobility", mobility, MOBILITY, "mobility"),
         ("Upstream influence", upstream, UPSTREAM, "upstream"),
-    ):
+    ]
+    if net:
+        sections.append(("Network, from SUMO's outputs", network, net, "network"))
+    for title, table, measures, stem in sections:
         lines += ["", f"## {title}", ""]
         if table.empty:
             lines += ["No successful run.", ""]
