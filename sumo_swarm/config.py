@@ -87,9 +87,20 @@ class OutputSettings:
     edge_data_period_s: float = 60.0  # the edge data's aggregation interval [s]
     ttc_threshold_s: float = 1.5  # a conflict is an encounter with a TTC below this [s]
     ssm_range_m: float = 50.0  # how far the SSM device looks for encounters (SUMO's default) [m]
+    # The space-time speed field along the route, from the trajectories: cell length [m] and
+    # period [s] (network_speed_field.parquet; sumo-swarm impact draws it per controller).
+    speed_field_cell_m: float = 100.0
+    speed_field_period_s: float = 10.0
 
     def __post_init__(self) -> None:
-        check_positive(self, "edge_data_period_s", "ttc_threshold_s", "ssm_range_m")
+        check_positive(
+            self,
+            "edge_data_period_s",
+            "ttc_threshold_s",
+            "ssm_range_m",
+            "speed_field_cell_m",
+            "speed_field_period_s",
+        )
 
 
 @dataclass(frozen=True)

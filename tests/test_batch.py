@@ -232,6 +232,8 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
         "upstream_vs_scene_initial_speed_mps.png",
         "network.csv",
         "network_vs_scene_initial_speed_mps.png",
+        "speed_field.csv",
+        "speed_field.png",
         "safety.png",
     ):
         assert (impact / name).is_file(), name
@@ -241,6 +243,9 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
     runs_16 = df[(df["controller"] == "swarm") & (df["scene.initial_speed_mps"] == 16.0)]
     assert row["network.delay_s.hv"] == pytest.approx(runs_16["network.delay_s.hv"].mean())
     assert "## Network, from SUMO's outputs" in (impact / "impact.md").read_text()
+    fields = pd.read_csv(impact / "speed_field.csv")
+    assert set(fields["controller"]) == {"cacc", "swarm"}
+    assert fields["speed_mps"].between(5.0, 30.0).all()
     mobility = pd.read_csv(impact / "mobility.csv")
     cacc = mobility[mobility["controller"] == "cacc"]
     assert cacc["gain.mean_speed_pct"].tolist() == pytest.approx([0.0, 0.0])

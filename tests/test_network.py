@@ -18,12 +18,14 @@ from sumo_swarm.sim.network import (
     ADDITIONAL,
     EDGE_COLUMNS,
     NetworkTables,
+    mean_speed_field,
     network_block,
     network_options,
     read_conflicts,
     read_edge_data,
     read_network,
     read_trips,
+    speed_field,
     vehicle_class,
 )
 from sumo_swarm.sim.runner import read_sumocfg_options, run_scenario, run_sumocfg
@@ -282,3 +284,36 @@ def test_a_users_road_keeps_the_users_outputs_and_drives_the_same(tmp_path):
         pd.read_parquet(tmp_path / "on" / "trajectories.parquet"),
         pd.read_parquet(tmp_path / "off" / "trajectories.parquet"),
     )
+
+
+def test_speed_field_is_distance_over_time_per_cell():
+    # two vehicles sampled every 1 s: one at 10 m/s from s = 0, one at 30 m/s from s = 150
+    rows = []
+    for t in range(20):
+        rows.append({"time_s": float(t), "vehicle": "a", "edge": "hwy", "s_m": 10.0 * t,
+                     "speed_mps": 10.0})  # fmt: skip
+        rows.append({"time_s": float(t), "vehicle": "b", "edge": "hwy", "s_m": 150.0 + 30.0 * t,
+                     "speed_mps": 30.0})  # fmt: skip
+    rows.append({"time_s": 3.0, "vehicle": "r", "edge": "ramp", "s_m": 5.0, "speed_mps": 0.0})
+    df = pd.DataFrame(rows)
+    field = speed_field(df, ["hwy"], cell_m=100.0, period_s=10.0).set_index(["t_s", "s_m"])
+    # 0-10 s: a covers 0-90 m (cell 0), b 150-420 m (cells 100 to 400); the ramp car is off it
+    assert field.loc[(0.0, 0.0), "speed_mps"] == 10.0 and field.loc[(0.0, 0.0), "samples"] == 10
+    assert field.loc[(0.0, 100.0), "speed_mps"] == 30.0
+    # 10-20 s: a and b share no cell until b is gone; a is in cell 100 alone
+    assert field.loc[(10.0, 100.0), "speed_mps"] == 10.0
+    # every edge counted, the stopped ramp car joins a's cell: 100 m over 11 samples
+    everyone = speed_field(df, [], 100.0, 10.0).set_index(["t_s", "s_m"])
+    assert everyone.loc[(0.0, 0.0), "speed_mps"] == pytest.approx(100.0 / 11)
+    both = mean_speed_field([field.reset_index(), field.reset_index()])
+    assert both["speed_mps"].tolist() == field["speed_mps"].tolist()
+    assert both["samples"].tolist() == (2 * field["samples"]).tolist()
+
+
+def test_mean_speed_field_weights_by_samples():
+    one = pd.DataFrame({"t_s": [0.0], "s_m": [0.0], "speed_mps": [10.0], "samples": [30]})
+    two = pd.DataFrame({"t_s": [0.0], "s_m": [0.0], "speed_mps": [30.0], "samples": [10]})
+    merged = mean_speed_field([one, two])
+    # 300 + 300 m over 40 samples of time: 15 m/s, not the plain mean of 20
+    assert merged["speed_mps"].tolist() == [15.0] and merged["samples"].tolist() == [40]
+    assert mean_speed_field([]).empty

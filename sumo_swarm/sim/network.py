@@ -10,19 +10,22 @@ A run asks SUMO for three outputs (:func:`network_options`, ``[outputs]`` in the
 
 After the run, :func:`read_network` turns them into three tables (``network_trips.parquet``,
 ``network_conflicts.parquet``, ``network_edges.parquet``) and :func:`network_block` into
-summary.json's ``network`` block. Vehicle classes: ``cav`` for the swarm's vehicle type, then
-SUMO's vClass of the vehicle's type grouped as :data:`CLASS_OF_VCLASS` says, ``hv`` for the rest.
+summary.json's ``network`` block; :func:`speed_field` makes the space-time speed field of the
+route from the run's trajectories (``network_speed_field.parquet``). Vehicle classes: ``cav``
+for the swarm's vehicle type, then SUMO's vClass of the vehicle's type grouped as
+:data:`CLASS_OF_VCLASS` says, ``hv`` for the rest.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import quoteattr
 
+import numpy as np
 import pandas as pd
 
 from sumo_swarm.files import write_parquet_atomic
@@ -35,6 +38,7 @@ SSM = "ssm.xml"
 EDGE_DATA = "edgedata.xml"
 ADDITIONAL = "network.add.xml"
 EDGE_DATA_ID = "sumo-swarm"
+SPEED_FIELD_FILE = "network_speed_field.parquet"
 
 # SUMO vClasses reported as their own class; every other HV is "hv".
 CLASS_OF_VCLASS = {"truck": "truck", "trailer": "truck", "bus": "bus", "coach": "bus"}
@@ -322,3 +326,48 @@ def network_block(
         "trips_finished": len(finished),
         "vehicles_per_class": {str(k): int(v) for k, v in by_class.size().items()},
     }
+
+
+SPEED_FIELD_COLUMNS = ("t_s", "s_m", "speed_mps", "samples")
+
+
+def speed_field(
+    df: pd.DataFrame,
+    route_edges: Iterable[str] = (),
+    cell_m: float = 100.0,
+    period_s: float = 10.0,
+) -> pd.DataFrame:
+    """The space-time speed field along the route: the space-mean speed [m/s] of each cell of
+    ``cell_m`` of route by ``period_s``, total distance over total time (Edie's definition; a
+    trajectory table samples every vehicle every step, so it is the mean of the samples).
+
+    Only vehicles on ``route_edges`` count (all, when empty): the route coordinate ``s_m`` of a
+    vehicle on a ramp beside the route is not a place on it. Columns
+    :data:`SPEED_FIELD_COLUMNS`: each cell's start in time and along the route, its speed and
+    how many samples it holds (the weight for averaging fields of several runs)."""
+    if route_edges and not df.empty:
+        df = df[df["edge"].astype(str).isin(set(route_edges))]
+    if df.empty:
+        return pd.DataFrame(columns=list(SPEED_FIELD_COLUMNS))
+    cells = pd.DataFrame(
+        {
+            "t_s": np.floor(df["time_s"].to_numpy(dtype=float) / period_s) * period_s,
+            "s_m": np.floor(df["s_m"].to_numpy(dtype=float) / cell_m) * cell_m,
+            "speed_mps": df["speed_mps"].to_numpy(dtype=float),
+        }
+    )
+    field = cells.groupby(["t_s", "s_m"], sort=True)["speed_mps"].agg(["mean", "size"])
+    return field.reset_index().rename(columns={"mean": "speed_mps", "size": "samples"})
+
+
+def mean_speed_field(fields: Iterable[pd.DataFrame]) -> pd.DataFrame:
+    """Several runs' speed fields in one: each cell's speed weighted by its samples (so still
+    total distance over total time); columns :data:`SPEED_FIELD_COLUMNS`."""
+    frames = [f for f in fields if not f.empty]
+    if not frames:
+        return pd.DataFrame(columns=list(SPEED_FIELD_COLUMNS))
+    all_cells = pd.concat(frames, ignore_index=True)
+    all_cells["weighted"] = all_cells["speed_mps"] * all_cells["samples"]
+    sums = all_cells.groupby(["t_s", "s_m"], sort=True)[["weighted", "samples"]].sum()
+    sums["speed_mps"] = sums["weighted"] / sums["samples"]
+    return sums.reset_index()[list(SPEED_FIELD_COLUMNS)]

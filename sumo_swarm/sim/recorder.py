@@ -214,6 +214,11 @@ class RunRecorder:
         try:
             tables = network.read_network(files, s.kinds, s.vehicle_classes)
             network.write_network_tables(out, tables)
+            o = scenario.outputs
+            field = network.speed_field(
+                df, s.route_edges, o.speed_field_cell_m, o.speed_field_period_s
+            )
+            write_parquet_atomic(out / network.SPEED_FIELD_FILE, field)
             events = len(metrics.hard_brake_events(df)) if len(df) else 0
             summary["network"] = network.network_block(
                 tables,

@@ -14,6 +14,9 @@
 * ``network.csv``: per value and controller, the ``network`` block's measures from SUMO's own
   outputs (throughput, hard brakes per 1000 vehicle-km, TTC conflicts, and travel time, delay
   and CO2 per km for each vehicle class), means over runs, when the runs have that block;
+* ``speed_field.csv`` and ``speed_field.png``: per controller, the space-time speed field along
+  the route of all its runs in one (each run's ``network_speed_field.parquet``), heatmaps side by
+  side on one colour scale;
 * ``safety.csv``: per controller, collisions, hard brakes, teleports (sums), the smallest TTC
   and CAV gap;
 * ``impact.md`` (the same tables) and the plots ``mobility_vs_<param>.png``,
@@ -37,6 +40,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.network import SPEED_FIELD_FILE, mean_speed_field
 
 REFERENCE = "cacc"
 ALL = "(all)"  # the parameter name of the one group of a sweep that varies nothing
@@ -268,6 +272,47 @@ def _safety_plot(table: pd.DataFrame, path: Path) -> None:
     fig.savefig(path, dpi=120)
 
 
+def speed_fields(batch_dir: Path, runs: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """Per controller, the space-time speed field of its runs in one (each run's
+    ``network_speed_field.parquet``, weighted by samples: :func:`mean_speed_field`); a
+    controller without any is left out."""
+    fields = {}
+    for controller, group in runs.groupby("controller", sort=True):
+        paths = [batch_dir / "runs" / str(r) / SPEED_FIELD_FILE for r in group["run_id"]]
+        field = mean_speed_field(pd.read_parquet(p) for p in paths if p.is_file())
+        if not field.empty:
+            fields[str(controller)] = field
+    return fields
+
+
+def _cell_edges(values: np.ndarray) -> np.ndarray:
+    """The edges of cells that start at ``values`` (sorted, evenly spaced but for gaps)."""
+    step = float(np.min(np.diff(values))) if len(values) > 1 else 1.0
+    return np.append(values, values[-1] + step)
+
+
+def _speed_field_plot(fields: dict[str, pd.DataFrame], path: Path) -> None:
+    if not fields:
+        return
+    speeds = np.concatenate([f["speed_mps"].to_numpy(dtype=float) for f in fields.values()])
+    low, high = float(np.nanmin(speeds)), float(np.nanmax(speeds))
+    fig = Figure(figsize=(1.0 + 4.0 * len(fields), 3.8), layout="constrained")
+    axes = fig.subplots(1, len(fields), squeeze=False, sharey=True)[0]
+    mesh = None
+    for ax, (controller, field) in zip(axes, fields.items(), strict=True):
+        grid = field.pivot_table(index="s_m", columns="t_s", values="speed_mps")
+        t, s_m = grid.columns.to_numpy(dtype=float), grid.index.to_numpy(dtype=float)
+        values = np.ma.masked_invalid(grid.to_numpy(dtype=float))
+        mesh = ax.pcolormesh(
+            _cell_edges(t), _cell_edges(s_m), values, cmap="RdYlGn", vmin=low, vmax=high
+        )
+        ax.set_title(controller)
+        ax.set_xlabel("time [s]")
+    axes[0].set_ylabel("position along the route [m]")
+    fig.colorbar(mesh, ax=list(axes), label="space-mean speed [m/s]")
+    fig.savefig(path, dpi=120)
+
+
 # --------------------------------------------------------------------------- entry point
 
 
@@ -335,6 +380,19 @@ def impact(
             png = out / f"{stem}_vs_{_slug(p)}.png"
             if png.is_file():
                 lines += [f"![{title} vs {p}]({png.name})", ""]
+    fields = speed_fields(Path(batch_dir), runs)
+    if fields:
+        pd.concat([f.assign(controller=c) for c, f in fields.items()], ignore_index=True).to_csv(
+            out / "speed_field.csv", index=False
+        )
+        _speed_field_plot(fields, out / "speed_field.png")
+        lines += ["", "## Space-time speed", ""]
+        lines += [
+            "The speed along the route over time, each controller's runs in one (every cell's "
+            "space-mean speed, total distance over total time), on one colour scale.",
+            "",
+            "![Space-time speed per controller](speed_field.png)",
+        ]
     _safety_plot(safety, out / "safety.png")
     lines += ["", "## Safety", "", markdown_table(_headings(safety, SAFETY)), ""]
     if (out / "safety.png").is_file():
