@@ -377,6 +377,7 @@ def cav_gap_stats(
     *,
     kind: str = CAV,
     max_gap_m: float | None = None,
+    gap_table: pd.DataFrame | None = None,
 ) -> dict[str, float | int | None]:
     """Following distance of the CAVs (the paper's Fig. 10 measure).
 
@@ -387,9 +388,10 @@ def cav_gap_stats(
     Returns ``gap_mean_m`` (mean of the samples) [m], ``gap_min_m`` (smallest sample) [m],
     the smallest behind a CAV (``gap_min_cav_m``: the swarm's own spacing) and behind an HV
     (``gap_min_hv_m``: HVs may cut in closer than the swarm would ever go) [m], and
-    ``samples``; the gaps are None when there is no sample.
+    ``samples``; the gaps are None when there is no sample. ``gap_table``: :func:`gaps` of
+    the window, when the caller has it already (it is the costly part).
     """
-    g = gaps(_select(df, window))
+    g = gaps(_select(df, window)) if gap_table is None else gap_table
     g = g[(g["kind"] == kind) & g["gap_m"].notna()]
     if max_gap_m is not None:
         g = g[g["gap_m"] <= max_gap_m]
@@ -407,14 +409,20 @@ def cav_gap_stats(
     }
 
 
-def min_ttc_s(df: pd.DataFrame, window: EvaluationWindow | None = None) -> float | None:
+def min_ttc_s(
+    df: pd.DataFrame,
+    window: EvaluationWindow | None = None,
+    gap_table: pd.DataFrame | None = None,
+) -> float | None:
     """Smallest time to collision [s] over all follower/leader pairs and steps in the window.
 
     Time to collision is ``max(gap_m, 0) / (v_follower - v_leader)`` for a follower and its
     leader in the same lane (see :func:`gaps`), counted only while the follower closes in faster
     than ``CLOSING_MPS``. Vehicles of any kind. None when no pair ever closes in.
+    ``gap_table``: :func:`gaps` of the window, when the caller has it already.
     """
-    ttc = gaps(_select(df, window))["ttc_s"].to_numpy(dtype=float)
+    g = gaps(_select(df, window)) if gap_table is None else gap_table
+    ttc = g["ttc_s"].to_numpy(dtype=float)
     ttc = ttc[np.isfinite(ttc)]
     return finite_or_none(ttc.min()) if ttc.size else None
 

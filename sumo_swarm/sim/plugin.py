@@ -124,8 +124,8 @@ class SwarmHandle:
 
     def _settings_now(self) -> Scenario:
         """The settings with the evaluation window over what was recorded and SUMO's step."""
-        times = self.recorder.columns["time_s"]
-        start, end = (times[0], times[-1]) if times else (0.0, 0.0)
+        first, last = self.recorder.first_time_s, self.recorder.last_time_s
+        start, end = (first, last) if first is not None else (0.0, 0.0)
         end = max(end, start + EMPTY_WINDOW_S)
         evaluation = replace(self.settings.evaluation, start_s=start, end_s=end)
         step = replace(self.settings.simulation, step_length_s=self.session.step_length_s)

@@ -168,7 +168,8 @@ def build_summary(
     ev = scenario.evaluation
     w = EvaluationWindow(ev.start_s, ev.end_s)
     speed = metrics.cav_speed_stats(df, w)
-    gap = metrics.cav_gap_stats(df, w)
+    pairs = metrics.gaps(metrics.window(df, w))  # every follower and leader, once
+    gap = metrics.cav_gap_stats(df, w, gap_table=pairs)
     cav_ids = scene.cav_ids
     target = scene.target_id
     own = controller_summary.get("overtake", {})
@@ -256,7 +257,7 @@ def build_summary(
             "hard_brakes_cav": metrics.hard_brakes(df[df["kind"] == "cav"]) if len(df) else 0,
             "hard_brakes_hv": metrics.hard_brakes(df[df["kind"] == "hv"]) if len(df) else 0,
             "teleports": int(session.teleports),
-            "min_ttc_s": finite_or_none(metrics.min_ttc_s(df, w)),
+            "min_ttc_s": finite_or_none(metrics.min_ttc_s(df, w, gap_table=pairs)),
         },
         "swarms": swarms_block(controller_summary.get("swarms")),
         # From SUMO's own outputs, filled once the simulation has ended (RunRecorder.finish).
