@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -236,6 +237,21 @@ def test_gaps_keep_the_index_and_row_order_of_the_input():
     assert g.loc[10, "gap_m"] == pytest.approx(15.0)  # t=0: 30 - 5 - 10
     assert g.loc[20, "gap_m"] == pytest.approx(15.0)  # t=1: 40 - 5 - 20
     assert pd.isna(g.loc[30, "leader"])
+
+
+def test_gaps_of_a_long_table_are_paired_in_slices_of_whole_steps(monkeypatch):
+    rows = []
+    for t in range(12):  # steps in shuffled order, three vehicles, a lane change at t = 6
+        for vid, lane, s in (("a", 0, 10.0), ("b", 0 if t < 6 else 1, 25.0), ("c", 1, 45.0)):
+            rows.append((float((t * 5) % 12), vid, "hv", lane, s + t, 10.0 + t % 3))
+    df = table(rows)
+    df.index = np.arange(len(df))[::-1] * 10  # a descending, non-default index
+    whole = metrics.gaps(df)
+    monkeypatch.setattr(metrics, "GAPS_SLICE_ROWS", 7)  # two steps a slice
+    sliced = metrics.gaps(df)
+    pd.testing.assert_frame_equal(sliced, whole)
+    assert list(sliced.index) == list(df.index)
+    assert row_of(sliced, 0, "a")["leader"] == "b" and pd.isna(row_of(sliced, 6, "a")["leader"])
 
 
 def test_a_lane_change_changes_the_leader():

@@ -237,6 +237,11 @@ def _finite_column(df: pd.DataFrame, column: str) -> np.ndarray | None:
     return df[column].to_numpy(dtype=float) if column in df.columns else None
 
 
+# Rows of a trajectory table paired at once by :func:`gaps` (whole steps each time): the
+# pairing's temporaries take about 500 bytes a row, so a long run is paired in slices.
+GAPS_SLICE_ROWS = 200_000
+
+
 def gaps(df: pd.DataFrame) -> pd.DataFrame:
     """Leader, gap, headway and time to collision of every vehicle at every step.
 
@@ -272,6 +277,28 @@ def gaps(df: pd.DataFrame) -> pd.DataFrame:
         faster than ``CLOSING_MPS``, else ``inf``; NaN without a leader).
     """
     _require(df, ["time_s", "vehicle", "kind", "lane", "s_m", "speed_mps", "length_m"])
+    if len(df) <= GAPS_SLICE_ROWS:
+        return _gaps(df)
+    # Steps are independent: pair whole steps a slice at a time, then put the rows back in order.
+    t = df["time_s"].to_numpy(dtype=float)
+    times = np.unique(t)
+    per_slice = max(1, int(len(times) * GAPS_SLICE_ROWS / len(df)))
+    parts, where = [], []
+    for lo in range(0, len(times), per_slice):
+        hi = lo + per_slice
+        keep = t >= times[lo]
+        if hi < len(times):
+            keep &= t < times[hi]
+        rows = np.flatnonzero(keep)
+        parts.append(_gaps(df.iloc[rows]))
+        where.append(rows)
+    out = pd.concat(parts)
+    order = np.argsort(np.concatenate(where), kind="stable")
+    return out.iloc[order]
+
+
+def _gaps(df: pd.DataFrame) -> pd.DataFrame:
+    """:func:`gaps` of a table small enough to pair at once."""
     n = len(df)
     edge = (
         pd.factorize(df["edge"].astype(str), sort=True)[0]
@@ -450,8 +477,9 @@ def hard_brake_events(
         ``vehicle, kind, start_s, end_s`` (first and last hard-braking sample [s]),
         ``min_accel_mps2`` (the strongest deceleration, negative) and ``samples``.
     """
-    _require(df, ["time_s", "vehicle", "kind", "accel_mps2"])
-    d = _select(df, window).sort_values(["vehicle", "time_s"], kind="mergesort")
+    columns = ["time_s", "vehicle", "kind", "accel_mps2"]
+    _require(df, columns)
+    d = _select(df, window)[columns].sort_values(["vehicle", "time_s"], kind="mergesort")
     hard = (d["accel_mps2"] < -(threshold_mps2 + ACCEL_TOLERANCE_MPS2)).to_numpy()
     vehicle = d["vehicle"].to_numpy(dtype=object)
     new_vehicle = np.ones(len(d), dtype=bool)

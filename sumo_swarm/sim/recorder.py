@@ -181,12 +181,16 @@ class RunRecorder:
 
     def frame(self) -> pd.DataFrame:
         """The trajectory table recorded so far (the contract's trajectories.parquet)."""
+        return self._table().copy()
+
+    def _table(self) -> pd.DataFrame:
+        """The recorded table itself (not a copy: for reading only)."""
         self._pack()
         if not self._chunks:
             return _typed(pd.DataFrame(self.columns))
         if len(self._chunks) > 1:  # one table; the category columns on one sorted vocabulary
             self._chunks = [_concat(self._chunks)]
-        return self._chunks[0].copy()
+        return self._chunks[0]
 
     def timing(self) -> dict[str, float | None]:
         """summary.json's ``timing`` block: wall, SUMO and controller time [s], the process
@@ -255,7 +259,7 @@ class RunRecorder:
         self._wall_end = self._wall_end or time.perf_counter()
         self._cpu_end = self._cpu_end or time.process_time()
         self.close_controller()
-        df = self.frame()
+        df = self._table()  # the run is over: read, never changed, so no copy
         write_parquet_atomic(out / "trajectories.parquet", df)
         write_events(out / "events.jsonl", events)
         summary = self.summary(scenario, df, controller_summary)
