@@ -91,6 +91,16 @@ class OutputSettings:
     # period [s] (network_speed_field.parquet; sumo-swarm impact draws it per controller).
     speed_field_cell_m: float = 100.0
     speed_field_period_s: float = 10.0
+    # Which rows trajectories.parquet gets: "all" vehicles at every step, or "cavs": the CAVs
+    # and every vehicle within neighbour_range_m of one (straight-line distance), what the
+    # summary's CAV, overtake and upstream measures look at; a network of thousands of
+    # vehicles then records a few hundred. Hard brakes are counted for every vehicle either way;
+    # the smallest TTC (safety.min_ttc_s) is that of the vehicles recorded.
+    trajectories: Literal["all", "cavs"] = "all"
+    neighbour_range_m: float = 200.0
+    # Steps recorded: from record_from_s to record_to_s [s] of simulated time (None: the end).
+    record_from_s: float = 0.0
+    record_to_s: float | None = None
 
     def __post_init__(self) -> None:
         check_positive(
@@ -100,7 +110,14 @@ class OutputSettings:
             "ssm_range_m",
             "speed_field_cell_m",
             "speed_field_period_s",
+            "neighbour_range_m",
         )
+        check_non_negative(self, "record_from_s")
+        if self.record_to_s is not None and self.record_to_s <= self.record_from_s:
+            raise ConfigError(
+                f"record_to_s ({self.record_to_s}) must be after record_from_s "
+                f"({self.record_from_s})"
+            )
 
 
 @dataclass(frozen=True)

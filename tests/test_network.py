@@ -317,3 +317,73 @@ def test_mean_speed_field_weights_by_samples():
     # 300 + 300 m over 40 samples of time: 15 m/s, not the plain mean of 20
     assert merged["speed_mps"].tolist() == [15.0] and merged["samples"].tolist() == [40]
     assert mean_speed_field([]).empty
+
+
+# --------------------------------------------------------------------------- what is recorded
+
+
+def test_hard_brakes_counted_step_by_step_as_on_the_whole_table():
+    from sumo_swarm.sim.metrics import HardBrakeCounter, hard_brake_events
+
+    # a brakes hard at 1-2 and again at 4; b at 2, is gone at 3 and still brakes at 4 (one
+    # episode, as in the table); c never; d (a CAV) at 0
+    steps = {
+        0: {"a": -1.0, "b": -1.0, "c": -1.0, "d": -4.5},
+        1: {"a": -4.2, "b": -1.0, "c": -3.0, "d": -1.0},
+        2: {"a": -5.0, "b": -4.5, "c": -4.0},
+        3: {"a": -1.0, "c": -4.0 - 1e-7},
+        4: {"a": -4.1, "b": -6.0, "c": 0.0},
+    }
+    kinds = {"d": "cav"}
+    counter = HardBrakeCounter()
+    rows = []
+    for t, accels in steps.items():
+        counter.update(accels, kinds)
+        rows += [(float(t), v, kinds.get(v, "hv"), a) for v, a in accels.items()]
+    df = pd.DataFrame(rows, columns=["time_s", "vehicle", "kind", "accel_mps2"])
+    events = hard_brake_events(df)
+    assert counter.episodes == len(events) == 4  # a twice, b once, d once; c's -4.0 is not
+    assert sorted(counter.vehicles) == sorted(events["vehicle"].unique()) == ["a", "b", "d"]
+    assert (counter.count(), counter.count("cav"), counter.count("hv")) == (3, 1, 2)
+
+
+def test_near_cavs_keeps_the_cavs_and_their_neighbours():
+    from sumo_swarm.core.model import VehicleState
+    from sumo_swarm.sim.recorder import _near_cavs
+
+    pos = {"cav0": (0.0, 0.0), "cav1": (1000.0, 0.0), "near": (150.0, 100.0),
+           "far": (500.0, 0.0), "ramp": (1000.0, 199.0)}  # fmt: skip
+    states = {v: VehicleState(v, 0.0, 0, 0.0, 20.0, 5.0) for v in pos}
+    kinds = {"cav0": "cav", "cav1": "cav"}
+    assert set(_near_cavs(states, pos, kinds, 200.0)) == {"cav0", "cav1", "near", "ramp"}
+    assert set(_near_cavs(states, pos, kinds, 100.0)) == {"cav0", "cav1"}
+    assert _near_cavs(states, pos, {}, 200.0) == {}
+
+
+@pytest.mark.sumo
+def test_recording_only_the_cavs_surroundings_keeps_every_cav_measure(tmp_path):
+    cfg = write_road("3-lane-1800", tmp_path / "road", end_s=40.0)
+    quiet = {"progress": False, "notify": lambda m: None}
+    runs = {}
+    for name, extra in (("all", ""), ("cavs", 'trajectories = "cavs"\nneighbour_range_m = 150.0'),
+                        ("late", "record_from_s = 20.0\nrecord_to_s = 30.0")):  # fmt: skip
+        settings = tmp_path / f"{name}.toml"
+        settings.write_text(f"[outputs]\nnetwork = false\n{extra}\n", encoding="utf-8")
+        summary = run_sumocfg(cfg, "cav", "swarm", tmp_path / name, config=settings, **quiet)
+        runs[name] = (summary, pd.read_parquet(tmp_path / name / "trajectories.parquet"))
+    (s_all, all_rows), (s_cavs, cav_rows), (s_late, late_rows) = runs.values()
+    assert len(cav_rows) < 0.6 * len(all_rows)
+    cav = all_rows[all_rows["kind"] == "cav"].reset_index(drop=True)
+    pd.testing.assert_frame_equal(
+        cav_rows[cav_rows["kind"] == "cav"].reset_index(drop=True), cav, check_categorical=False
+    )
+    for block in ("cav", "overtake"):
+        assert s_cavs[block] == s_all[block], block
+    # hard brakes, collisions, teleports of everyone; the smallest TTC of those recorded only
+    safety = {k: v for k, v in s_all["safety"].items() if k != "min_ttc_s"}
+    assert {k: s_cavs["safety"][k] for k in safety} == safety
+    assert s_all["safety"]["hard_brakes_hv"] > 0  # SUMO's own drivers brake hard on this road
+    assert late_rows["time_s"].between(20.0 - 1e-6, 30.0 + 1e-6).all()
+    assert late_rows["time_s"].min() == pytest.approx(20.0)
+    # hard brakes of the whole run, recorded or not
+    assert {k: s_late["safety"][k] for k in safety} == safety

@@ -507,6 +507,36 @@ def hard_brake_events(
     ]
 
 
+class HardBrakeCounter:
+    """Hard brakes counted step by step, of every vehicle, whatever a run records.
+
+    The same test and the same episodes as :func:`hard_brake_events` on a table of every
+    vehicle at every step: a sample brakes hard below ``-(threshold_mps2 +
+    ACCEL_TOLERANCE_MPS2)``, an episode is a run of a vehicle's consecutive samples that do.
+    """
+
+    def __init__(self, threshold_mps2: float = HARD_BRAKE_MPS2) -> None:
+        self.limit_mps2 = -(threshold_mps2 + ACCEL_TOLERANCE_MPS2)
+        self.episodes = 0
+        self.vehicles: dict[str, str] = {}  # every vehicle that ever braked hard -> its kind
+        self._last_hard: set[str] = set()  # vehicles whose latest sample braked hard
+
+    def update(self, accels: Mapping[str, float], kinds: Mapping[str, str]) -> None:
+        """One step: ``accels`` every vehicle's acceleration [m/s^2] at it."""
+        limit = self.limit_mps2
+        hard = {v for v, a in accels.items() if a < limit}
+        starts = hard - self._last_hard
+        self.episodes += len(starts)
+        for v in starts:
+            self.vehicles.setdefault(v, kinds.get(v, "hv"))
+        # a vehicle absent this step keeps its latest sample's state (as in a table)
+        self._last_hard = {v for v in self._last_hard if v not in accels} | hard
+
+    def count(self, kind: str | None = None) -> int:
+        """Vehicles (of ``kind``, or any) that ever braked hard (:func:`hard_brakes`)."""
+        return sum(1 for k in self.vehicles.values() if kind is None or k == kind)
+
+
 def hard_brakes(
     df: pd.DataFrame,
     threshold_mps2: float = HARD_BRAKE_MPS2,

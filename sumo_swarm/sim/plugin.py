@@ -67,7 +67,11 @@ class SwarmHandle:
         )
         self.out_dir = out_dir
         self.recorder = RunRecorder(
-            self.session, controller, controller.name, LiveScene(self.session, controller)
+            self.session,
+            controller,
+            controller.name,
+            LiveScene(self.session, controller),
+            settings.outputs,
         )
         self._attached = False
         self._controller_attached = False

@@ -277,7 +277,7 @@ def _drive(
     Whatever happens during the run, the trajectories and events gathered so far are written
     and the summary is built from them; a SUMO failure is raised after that.
     """
-    recorder = RunRecorder(session, controller, controller_name, scene)
+    recorder = RunRecorder(session, controller, controller_name, scene, scenario.outputs)
     recorder.sumo_s = 0.0
     failure: str | None = None
     with session:

@@ -163,8 +163,12 @@ def build_summary(
     session: SumoSession,
     controller_summary: dict[str, Any],
     timing: dict[str, Any],
+    hard_brakes: metrics.HardBrakeCounter | None = None,
 ) -> dict[str, Any]:
-    """Assemble every key of the contract's summary.json (None where a key does not apply)."""
+    """Assemble every key of the contract's summary.json (None where a key does not apply).
+
+    ``hard_brakes``: counted during the run, of every vehicle whether recorded or not; without
+    it they are counted on ``df``."""
     ev = scenario.evaluation
     w = EvaluationWindow(ev.start_s, ev.end_s)
     speed = metrics.cav_speed_stats(df, w)
@@ -227,6 +231,11 @@ def build_summary(
         "statuses",
         "fallbacks",
     )
+    if hard_brakes is not None:
+        brakes = (hard_brakes.count(), hard_brakes.count("cav"), hard_brakes.count("hv"))
+    else:
+        by_kind = [df[df["kind"] == k] if len(df) else df for k in ("cav", "hv")]
+        brakes = (metrics.hard_brakes(df), *(metrics.hard_brakes(d) for d in by_kind))
     planner = {k: None for k in planner_keys}
     planner.update(controller_summary.get("planner", {}))
     return {
@@ -252,10 +261,10 @@ def build_summary(
         "overtake": overtake,
         "safety": {
             "collisions": len(collisions),
-            "hard_brakes": metrics.hard_brakes(df),
+            "hard_brakes": brakes[0],
             # Extra (not in the contract): the same count split by kind.
-            "hard_brakes_cav": metrics.hard_brakes(df[df["kind"] == "cav"]) if len(df) else 0,
-            "hard_brakes_hv": metrics.hard_brakes(df[df["kind"] == "hv"]) if len(df) else 0,
+            "hard_brakes_cav": brakes[1],
+            "hard_brakes_hv": brakes[2],
             "teleports": int(session.teleports),
             "min_ttc_s": finite_or_none(metrics.min_ttc_s(df, w, gap_table=pairs)),
         },
