@@ -285,7 +285,9 @@ def network_block(
     - ``vehicles``: vehicles that departed (a trip each, finished or not);
     - ``travel_time_s``: mean trip duration per class, over the trips that finished (None for
       a class none of whose trips finished);
-    - ``delay_s``: mean SUMO timeLoss per class over every trip, so far for unfinished ones;
+    - ``delay_s``: mean SUMO timeLoss per class over every trip, so far for unfinished ones
+      (time lost against the vehicle's own desired speed: it compares runs whose vehicles of
+      the class share a vType);
     - ``throughput_vph``: trips finished per hour of the run (``duration_s``);
     - ``hard_brakes_per_1000_vkm``: ``hard_brake_events`` (episodes, any vehicle) per thousand
       vehicle-kilometres driven (None when nobody drove);
