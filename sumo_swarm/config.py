@@ -92,10 +92,10 @@ class OutputSettings:
     speed_field_cell_m: float = 100.0
     speed_field_period_s: float = 10.0
     # Which rows trajectories.parquet gets: "all" vehicles at every step, or "cavs": the CAVs
-    # and every vehicle within neighbour_range_m of one (straight-line distance), what the
-    # summary's CAV, overtake and upstream measures look at; a network of thousands of
-    # vehicles then records a few hundred. Hard brakes are counted for every vehicle either way;
-    # the smallest TTC (safety.min_ttc_s) is that of the vehicles recorded.
+    # and every vehicle within neighbour_range_m of one (straight-line distance), enough for
+    # the summary's cav and overtake blocks; a network of thousands of vehicles then records a
+    # few hundred. Hard brakes are counted for every vehicle either way; the upstream block,
+    # the smallest TTC (safety.min_ttc_s) and the speed field see the recorded vehicles only.
     trajectories: Literal["all", "cavs"] = "all"
     neighbour_range_m: float = 200.0
     # Steps recorded: from record_from_s to record_to_s [s] of simulated time (None: the end).

@@ -245,6 +245,7 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
     assert "## Network, from SUMO's outputs" in (impact / "impact.md").read_text()
     fields = pd.read_csv(impact / "speed_field.csv")
     assert set(fields["controller"]) == {"cacc", "swarm"}
+    assert set(fields["value"]) == {16.0, 17.5}  # a field per swept value
     assert fields["speed_mps"].between(5.0, 30.0).all()
     mobility = pd.read_csv(impact / "mobility.csv")
     cacc = mobility[mobility["controller"] == "cacc"]

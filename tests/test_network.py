@@ -46,9 +46,11 @@ TRIPINFO = """<?xml version="1.0" encoding="UTF-8"?>
         <emissions CO2_abs="120000.00" fuel_abs="40000.00"/>
     </tripinfo>
     <tripinfo id="lorry" depart="0.00" arrival="-1.00" duration="180.00" routeLength="1000.00"
-              waitingTime="0.00" timeLoss="5.00" vType="truck">
+              waitingTime="0.00" timeLoss="5.00" vType="truck" departDelay="2.00">
         <emissions CO2_abs="700000.00" fuel_abs="220000.00"/>
     </tripinfo>
+    <tripinfo id="late" depart="-1" departDelay="30.00" arrival="-1.00" duration="0.00"
+              routeLength="0.00" waitingTime="0.00" timeLoss="0.00" vType="car" vaporized="end"/>
 </tripinfos>
 """
 
@@ -80,8 +82,13 @@ EDGE_DATA = """<?xml version="1.0" encoding="UTF-8"?>
 </meandata>
 """
 
-KINDS = {"cav0": "cav", "car1": "hv", "car2": "hv", "lorry": "hv"}
-VCLASSES = {"cav0": "passenger", "car1": "passenger", "car2": "passenger", "lorry": "truck"}
+VCLASSES = {"cav": "passenger", "car": "passenger", "truck": "truck"}
+
+
+def classify(vid: str, vtype: str) -> str:
+    """As a run classifies: the CAV type (or SUMO's copy of it for one vehicle), then vClass."""
+    kind = "cav" if vtype.split("@")[0] == "cav" else "hv"
+    return vehicle_class(kind, VCLASSES.get(vtype.split("@")[0]))
 
 
 @pytest.fixture
@@ -102,9 +109,12 @@ def test_vehicle_classes():
 
 
 def test_trips_are_read_with_their_class_and_emissions(sumo_files):
-    trips = read_trips(sumo_files["tripinfo"], KINDS, VCLASSES).set_index("vehicle")
-    assert list(trips["vehicle_class"]) == ["cav", "hv", "hv", "truck"]
-    assert list(trips["finished"]) == [True, True, False, False]
+    trips = read_trips(sumo_files["tripinfo"], classify).set_index("vehicle")
+    assert list(trips["vehicle_class"]) == ["cav", "hv", "hv", "truck", "hv"]
+    assert list(trips["finished"]) == [True, True, False, False, False]
+    assert list(trips["departed"]) == [True, True, True, True, False]  # "late" never entered
+    assert math.isnan(trips.loc["late", "depart_s"]) and trips.loc["late", "depart_delay_s"] == 30
+    assert math.isnan(trips.loc["late", "co2_mg"])  # no emissions of a car that never drove
     assert trips.loc["car1", "arrival_s"] == 130.0 and math.isnan(trips.loc["car2", "arrival_s"])
     assert trips.loc["lorry", "co2_mg"] == 700000.0 and trips.loc["cav0", "fuel_mg"] == 100000.0
     assert trips.loc["car1", "time_loss_s"] == 30.0
@@ -125,13 +135,16 @@ def test_conflicts_and_edge_data_are_read(sumo_files):
 
 
 def test_network_block_from_hand_made_trips(sumo_files):
-    tables = read_network(sumo_files, KINDS, VCLASSES)
+    tables = read_network(sumo_files, classify)
     block = network_block(tables, hard_brake_events=3, duration_s=180.0, ttc_threshold_s=1.5)
     assert block["vehicles"] == 4 and block["trips_finished"] == 2
+    assert block["vehicles_not_departed"] == 1
     # travel time over finished trips only: none of the truck's
     assert block["travel_time_s"] == {"cav": 100.0, "hv": 120.0, "truck": None}
-    # delay over every trip, so far for unfinished ones
-    assert block["delay_s"] == {"cav": 10.0, "hv": 40.0, "truck": 5.0}
+    # delay: timeLoss plus insertion delay, every vehicle due to depart, so far for unfinished
+    # ones: HVs (30 + 50 + 30 waiting at the entry) / 3, the truck 5 + 2
+    assert block["delay_s"] == {"cav": 10.0, "hv": pytest.approx(110 / 3), "truck": 7.0}
+    assert block["depart_delay_s"] == {"cav": 0.0, "hv": 10.0, "truck": 2.0}
     assert block["throughput_vph"] == pytest.approx(2 / (180.0 / 3600.0))  # 40 veh/h
     assert block["vehicle_km"] == pytest.approx(6.0)
     assert block["hard_brakes_per_1000_vkm"] == pytest.approx(3 / 6.0 * 1000.0)
@@ -144,8 +157,23 @@ def test_network_block_from_hand_made_trips(sumo_files):
     assert stricter["ttc_below_1_5s_events"] == 1
 
 
-def test_network_block_of_nothing():
-    empty = read_network({}, {}, {})
+def test_outputs_sumo_did_not_write_are_errors_not_zeros(sumo_files, tmp_path):
+    with pytest.raises(FileNotFoundError, match="tripinfo"):
+        read_network({}, classify)
+    missing = {**sumo_files, "ssm": tmp_path / "nowhere.xml"}
+    with pytest.raises(FileNotFoundError, match="ssm"):
+        read_network(missing, classify)
+    cut = tmp_path / "cut.xml"  # a run that died while SUMO wrote
+    cut.write_text(TRIPINFO[: len(TRIPINFO) // 2], encoding="utf-8")
+    with pytest.raises(Exception):  # noqa: B017 - the XML parser's own error
+        read_network({**sumo_files, "tripinfo": cut}, classify)
+    without = read_network({"tripinfo": sumo_files["tripinfo"]}, classify)
+    assert without.conflicts is None and without.edges is None  # not asked for: no table
+
+
+def test_network_block_of_nothing(tmp_path):
+    (tmp_path / "none.xml").write_text("<tripinfos/>\n", encoding="utf-8")
+    empty = NetworkTables(read_trips(tmp_path / "none.xml", classify), conflicts=None, edges=None)
     block = network_block(empty, hard_brake_events=0, duration_s=0.0, ttc_threshold_s=1.5)
     assert block["vehicles"] == 0 and block["travel_time_s"] == {}
     assert block["throughput_vph"] is None and block["hard_brakes_per_1000_vkm"] is None
@@ -165,6 +193,7 @@ def test_options_ask_for_every_output(tmp_path):
     pairs = dict(zip(opts[::2], opts[1::2], strict=True))
     assert pairs["--tripinfo-output"] == str(files["tripinfo"])
     assert pairs["--tripinfo-output.write-unfinished"] == "true"
+    assert pairs["--tripinfo-output.write-undeparted"] == "true"
     assert pairs["--device.emissions.probability"] == "1"
     assert pairs["--device.ssm.thresholds"] == "2.0" and pairs["--device.ssm.measures"] == "TTC"
     assert pairs["--device.ssm.file"] == str(files["ssm"])
@@ -179,6 +208,8 @@ def test_options_keep_what_the_user_asked_for(tmp_path):
     given = {
         "tripinfo-output": "out/trips.xml",
         "tripinfo-output.write-unfinished": "false",
+        "tripinfo-output.write-undeparted": "false",
+        "device.ssm.measures": "DRAC TTC",
         "device.ssm.probability": "0.5",
         "device.ssm.file": "conflicts.xml",
         "device.emissions.probability": "0.2",
@@ -194,9 +225,24 @@ def test_options_keep_what_the_user_asked_for(tmp_path):
         *theirs,
         str((tmp_path / "sumo" / ADDITIONAL).resolve()),
     ]
-    # SSM set up by the user without a file of theirs to read: no conflicts to count
+    # SSM set up by the user without a file of theirs to read, or without TTC (SUMO's default
+    # measures have none): no conflicts to count
     _, files = network_options(tmp_path / "s2", OutputSettings(), {"device.ssm.probability": "1"})
     assert "ssm" not in files
+    no_ttc = {"device.ssm.probability": "1", "device.ssm.file": "c.xml"}
+    assert "ssm" not in network_options(tmp_path / "s3", OutputSettings(), no_ttc)[1]
+
+
+def test_options_follow_the_users_output_prefix(tmp_path):
+    given = {"output-prefix": "run1_", "tripinfo-output": "trips.xml"}
+    _, files = network_options(tmp_path / "sumo", OutputSettings(), given, tmp_path)
+    assert files["tripinfo"] == tmp_path / "run1_trips.xml"
+    assert files["ssm"].name == "run1_ssm.xml" and files["edgedata"].name == "run1_edgedata.xml"
+
+
+def test_a_folder_with_a_comma_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match="comma"):
+        network_options(tmp_path / "a,b", OutputSettings())
 
 
 @pytest.mark.parametrize(
@@ -387,3 +433,67 @@ def test_recording_only_the_cavs_surroundings_keeps_every_cav_measure(tmp_path):
     assert late_rows["time_s"].min() == pytest.approx(20.0)
     # hard brakes of the whole run, recorded or not
     assert {k: s_late["safety"][k] for k in safety} == safety
+
+
+@pytest.mark.sumo
+def test_a_users_short_option_names_prefix_and_queue_at_the_entry(tmp_path):
+    """SUMO's synonyms (<additional>, <tripinfo>), an output prefix, and an on-ramp whose
+    demand cannot all enter: the user's detectors still run, their prefixed tripinfo is read,
+    and the vehicles still waiting at the end count in the delay."""
+    cfg = write_road("motorway-ramps", tmp_path / "road", end_s=20.0)
+    routes = tmp_path / "road" / "routes.rou.xml"
+    text = routes.read_text()
+    assert 'id="ramp"' in text
+    routes.write_text(text.replace('vehsPerHour="600"', 'vehsPerHour="20000"', 1), encoding="utf-8")
+    (tmp_path / "road" / "loops.add.xml").write_text(
+        '<additional>\n    <inductionLoop id="loop0" lane="mid_1" pos="50" period="10" '
+        'file="loops.xml"/>\n</additional>\n',
+        encoding="utf-8",
+    )
+    cfg.write_text(
+        cfg.read_text().replace(
+            "  </input>",
+            '    <additional value="loops.add.xml"/>\n  </input>\n  <output>\n'
+            '    <tripinfo value="mytrips.xml"/>\n    <output-prefix value="u_"/>\n  </output>',
+        ),
+        encoding="utf-8",
+    )
+    summary = run_sumocfg(
+        cfg, "cav", "sumo-lc", tmp_path / "run", progress=False, notify=lambda m: None
+    )
+    assert (tmp_path / "road" / "u_loops.xml").is_file()  # their detectors, their prefix
+    assert (tmp_path / "road" / "u_mytrips.xml").is_file()
+    assert "network_error" not in summary
+    net = summary["network"]
+    assert net["vehicles_per_class"]["cav"] == 5 and net["vehicles"] > 20
+    assert net["vehicles_not_departed"] > 5  # the ramp's queue
+    trips = pd.read_parquet(tmp_path / "run" / "network_trips.parquet")
+    waiting = trips[~trips["departed"]]
+    assert len(waiting) == net["vehicles_not_departed"]
+    assert (waiting["depart_delay_s"] > 0).all() and waiting["vehicle"].str.startswith("ramp").all()
+    hv = trips[trips["vehicle_class"] == "hv"]
+    assert net["delay_s"]["hv"] == pytest.approx((hv["time_loss_s"] + hv["depart_delay_s"]).mean())
+
+
+@pytest.mark.sumo
+def test_network_outputs_that_cannot_be_read_cost_the_block_not_the_run(
+    tmp_path, paper_path, monkeypatch
+):
+    import sumo_swarm.sim.network as network
+
+    sc = load_scenario(paper_path)
+    sc = replace(sc, simulation=replace(sc.simulation, duration_s=5.0))
+    run_scenario(sc, "cacc", tmp_path / "run", progress=False)
+    assert (tmp_path / "run" / "network_trips.parquet").is_file()
+
+    def broken(path, classify):
+        raise ValueError("damaged")
+
+    monkeypatch.setattr(network, "read_trips", broken)
+    summary = run_scenario(sc, "cacc", tmp_path / "run", progress=False)  # the same folder
+    assert summary["network"] is None and summary["network_error"] == "ValueError: damaged"
+    written = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert written["network_error"] == "ValueError: damaged" and written["cav"]["count"] == 6
+    assert len(pd.read_parquet(tmp_path / "run" / "trajectories.parquet")) > 0
+    # nothing of the earlier run's network tables is left beside a block that says none
+    assert not list((tmp_path / "run").glob("network_*.parquet"))

@@ -48,12 +48,15 @@ MODES = ("sumo", "sumo + outputs", "sumo-cacc", "sumo-cacc + outputs")
 
 def timed(cmd: list[str]) -> tuple[float, float]:
     """Run ``cmd``; its wall time [s] and peak resident memory [MB]. Raises if it fails."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise RuntimeError(f"{' '.join(cmd[:4])} ... failed: {proc.stderr.read().decode()[-400:]}")
+    with tempfile.TemporaryFile() as err:  # a file, not a pipe: a chatty run never blocks
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        if os.waitstatus_to_exitcode(status) != 0:
+            err.seek(0)
+            tail = err.read().decode(errors="replace")[-400:]
+            raise RuntimeError(f"{' '.join(cmd[:4])} ... failed: {tail}")
     return wall, usage.ru_maxrss / 1024.0  # Linux gives kB
 
 

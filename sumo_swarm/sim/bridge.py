@@ -268,9 +268,25 @@ class SumoSession:
         if self._open and self._owned:
             self._open = False
             try:
+                self._read_type_classes()
+            except Exception as exc:  # SUMO failed: the types stay as the run saw them
+                log.debug("reading vTypes at the end: %s", exc)
+            try:
                 self.api.close()
             except Exception as exc:  # already gone: nothing left to release
                 log.debug("closing SUMO: %s", exc)
+
+    def _read_type_classes(self) -> None:
+        """Every vType's vClass while SUMO still runs (for vehicles that never departed)."""
+        for type_id in self.api.vehicletype.getIDList():
+            if type_id not in self._type_classes:
+                self._type_classes[type_id] = self.api.vehicletype.getVehicleClass(type_id)
+
+    def classify(self, vid: str, type_id: str) -> tuple[str, str | None]:
+        """``(kind, vClass)`` of vehicle ``vid`` of vType ``type_id``: as registered when it
+        departed, or from its type for one that never did (``kind`` "cav" or "hv")."""
+        kind = self.kinds.get(vid) or ("cav" if self._is_cav(vid, type_id) else "hv")
+        return kind, self.vehicle_classes.get(vid) or self._type_classes.get(type_id)
 
     # ------------------------------------------------------------------ stepping
     def step(self) -> None:

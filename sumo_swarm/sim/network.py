@@ -19,7 +19,7 @@ for the swarm's vehicle type, then SUMO's vClass of the vehicle's type grouped a
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -28,6 +28,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 import pandas as pd
 
+from sumo_swarm.errors import ConfigError
 from sumo_swarm.files import write_parquet_atomic
 
 if TYPE_CHECKING:
@@ -47,7 +48,9 @@ TRIP_COLUMNS = (
     "vehicle",
     "vtype",
     "vehicle_class",
+    "departed",  # False: still waiting to enter the network when the run ended
     "depart_s",
+    "depart_delay_s",  # SUMO's departDelay: from the planned to the actual departure (so far)
     "arrival_s",  # NaN: still driving when the run ended
     "finished",
     "duration_s",
@@ -98,35 +101,48 @@ def network_options(
 ) -> tuple[list[str], dict[str, Path]]:
     """SUMO options that write the network outputs into ``folder``, and where each will be.
 
-    ``given``: options a user's configuration already sets (relative to ``given_dir``). An
-    output the user asks for stays theirs and is read from their file (with the unfinished
-    trips and the emissions added unless they set those too); the edge-data definition is
-    added to their additional files, not put in their place. Returns
-    ``(options, {"tripinfo" | "ssm" | "edgedata": path})``.
+    ``given``: options a user's configuration already sets, by SUMO's full names (a
+    configuration saved by SUMO itself: ``<additional>`` and ``<tripinfo>`` are synonyms SUMO
+    accepts), paths relative to ``given_dir``. An output the user asks for stays theirs and is
+    read from their file (with the unfinished and undeparted trips and the emissions added
+    unless they set those too); the edge-data definition is added to their additional files,
+    not put in their place; their ``output-prefix`` names every file, ours too. Returns
+    ``(options, {"tripinfo" | "ssm" | "edgedata": path})``; no "ssm" when the user set up the
+    SSM device without a file of theirs or without TTC. ConfigError for a folder whose path
+    holds a comma (SUMO splits its lists of files on commas).
     """
     given = dict(given or {})
     base = given_dir or Path(".")
     folder.mkdir(parents=True, exist_ok=True)
     folder = folder.resolve()  # SUMO reads paths in an additional file from that file's folder
+    if "," in str(folder):
+        raise ConfigError(f"{folder}: SUMO cannot be given a path with a comma in it")
+    prefix = given.get("output-prefix", "")
+
+    def written(path: Path) -> Path:  # where SUMO writes an output named ``path``
+        return path.with_name(prefix + path.name)
+
     opts: list[str] = []
     files: dict[str, Path] = {}
     if "tripinfo-output" in given:
-        files["tripinfo"] = base / given["tripinfo-output"]
+        files["tripinfo"] = written(base / given["tripinfo-output"])
     else:
-        files["tripinfo"] = folder / TRIPINFO
-        opts += ["--tripinfo-output", str(files["tripinfo"])]
-    # Trips still under way at the end count (their delay so far): added to a user's own
-    # tripinfo output too, as are the emissions, unless their configuration says otherwise.
-    if "tripinfo-output.write-unfinished" not in given:
-        opts += ["--tripinfo-output.write-unfinished", "true"]
+        opts += ["--tripinfo-output", str(folder / TRIPINFO)]
+        files["tripinfo"] = written(folder / TRIPINFO)
+    # Trips still under way at the end count (their delay so far), and so do vehicles still
+    # waiting to enter (their insertion delay): added to a user's own tripinfo output too, as
+    # are the emissions, unless their configuration says otherwise.
+    for option in ("tripinfo-output.write-unfinished", "tripinfo-output.write-undeparted"):
+        if option not in given:
+            opts += [f"--{option}", "true"]
     if "device.emissions.probability" not in given:
         opts += ["--device.emissions.probability", "1"]
-    ssm_set = any(k.startswith("device.ssm.") for k in given)
-    if ssm_set:
-        if "device.ssm.file" in given:
-            files["ssm"] = base / given["device.ssm.file"]
+    if any(k.startswith("device.ssm.") for k in given):
+        measures = given.get("device.ssm.measures", "")  # SUMO's default: no TTC
+        if "device.ssm.file" in given and "TTC" in measures.replace(",", " ").split():
+            files["ssm"] = written(base / given["device.ssm.file"])
     else:
-        files["ssm"] = folder / SSM
+        files["ssm"] = written(folder / SSM)
         # One option and its value a line: the formatter would split each pair over two lines.
         opts += [
             "--device.ssm.probability", "1",
@@ -134,14 +150,14 @@ def network_options(
             "--device.ssm.thresholds", f"{settings.ttc_threshold_s}",
             "--device.ssm.range", f"{settings.ssm_range_m}",
             "--device.ssm.trajectories", "false",
-            "--device.ssm.file", str(files["ssm"]),
+            "--device.ssm.file", str(folder / SSM),
         ]  # fmt: skip
-    files["edgedata"] = folder / EDGE_DATA
+    files["edgedata"] = written(folder / EDGE_DATA)
     additional = folder / ADDITIONAL
     period = quoteattr(f"{settings.edge_data_period_s}")
     additional.write_text(
         f"<additional>\n    <edgeData id={quoteattr(EDGE_DATA_ID)} period={period}"
-        f" file={quoteattr(str(files['edgedata']))}/>\n</additional>\n",
+        f" file={quoteattr(str(folder / EDGE_DATA))}/>\n</additional>\n",
         encoding="utf-8",
     )
     theirs = [
@@ -163,22 +179,29 @@ def _float(value: Any, default: float = math.nan) -> float:
         return default
 
 
-def read_trips(path: Path, kinds: Mapping[str, str], vclasses: Mapping[str, str]) -> pd.DataFrame:
-    """SUMO's tripinfo output as a table (:data:`TRIP_COLUMNS`); ``kinds`` and ``vclasses``
-    (vehicle -> ``cav``/``hv``, SUMO vClass) give each trip its class."""
+Classify = Callable[[str, str], str]  # (vehicle, vType) -> vehicle class
+
+
+def read_trips(path: Path, classify: Classify) -> pd.DataFrame:
+    """SUMO's tripinfo output as a table (:data:`TRIP_COLUMNS`); ``classify(vehicle, vtype)``
+    gives each trip its class. A vehicle that never entered the network (SUMO's undeparted
+    trip: ``depart="-1"``) has ``departed`` False and its insertion delay so far."""
     import sumolib.xml
 
     rows = []
     for trip in sumolib.xml.parse(str(path), "tripinfo"):
         vid = trip.id
+        depart = _float(trip.depart)
         arrival = _float(trip.arrival)
         emissions = trip.getChild("emissions")[0] if trip.hasChild("emissions") else None
         rows.append(
             (
                 vid,
                 trip.vType,
-                vehicle_class(kinds.get(vid, "hv"), vclasses.get(vid)),
-                _float(trip.depart),
+                classify(vid, trip.vType),
+                depart >= 0.0,
+                depart if depart >= 0.0 else math.nan,
+                _float(trip.getAttributeSecure("departDelay"), 0.0),
                 arrival if arrival >= 0.0 else math.nan,
                 arrival >= 0.0,
                 _float(trip.duration),
@@ -240,21 +263,21 @@ def read_edge_data(path: Path) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(EDGE_COLUMNS))
 
 
-def read_network(
-    files: Mapping[str, Path], kinds: Mapping[str, str], vclasses: Mapping[str, str]
-) -> NetworkTables:
-    """The three tables from the files :func:`network_options` named (a missing SSM or edge
-    data file gives None; a missing tripinfo an empty table)."""
-    trip_file = files.get("tripinfo")
-    if trip_file is not None and trip_file.is_file():
-        trips = read_trips(trip_file, kinds, vclasses)
-    else:
-        trips = pd.DataFrame(columns=list(TRIP_COLUMNS))
-    ssm = files.get("ssm")
-    conflicts = read_conflicts(ssm) if ssm is not None and ssm.is_file() else None
-    edge_file = files.get("edgedata")
-    edges = read_edge_data(edge_file) if edge_file is not None and edge_file.is_file() else None
+def read_network(files: Mapping[str, Path], classify: Classify) -> NetworkTables:
+    """The three tables from the files :func:`network_options` named: no "ssm" or "edgedata"
+    gives None for that table; a file named but not written (or not readable) is an error
+    (FileNotFoundError, or the XML parser's), never an empty table."""
+    trips = read_trips(_written(files, "tripinfo"), classify)
+    conflicts = read_conflicts(_written(files, "ssm")) if "ssm" in files else None
+    edges = read_edge_data(_written(files, "edgedata")) if "edgedata" in files else None
     return NetworkTables(trips, conflicts, edges)
+
+
+def _written(files: Mapping[str, Path], name: str) -> Path:
+    path = files.get(name)
+    if path is None or not path.is_file():
+        raise FileNotFoundError(f"SUMO wrote no {name} output at {path}")
+    return path
 
 
 def write_network_tables(out: Path, tables: NetworkTables) -> None:
@@ -282,21 +305,25 @@ def network_block(
 ) -> dict[str, Any]:
     """summary.json's ``network`` block.
 
-    - ``vehicles``: vehicles that departed (a trip each, finished or not);
+    - ``vehicles``: vehicles that entered the network (a trip each, finished or not);
     - ``travel_time_s``: mean trip duration per class, over the trips that finished (None for
       a class none of whose trips finished);
-    - ``delay_s``: mean SUMO timeLoss per class over every trip, so far for unfinished ones
-      (time lost against the vehicle's own desired speed: it compares runs whose vehicles of
-      the class share a vType);
+    - ``delay_s``: mean per class of SUMO's timeLoss plus its departDelay, over every vehicle
+      due to depart, so far for those still driving or still waiting to enter: a queue back
+      to the entry counts. timeLoss is against the vehicle's own desired speed, so this
+      compares runs whose vehicles of the class share a vType;
     - ``throughput_vph``: trips finished per hour of the run (``duration_s``);
     - ``hard_brakes_per_1000_vkm``: ``hard_brake_events`` (episodes, any vehicle) per thousand
       vehicle-kilometres driven (None when nobody drove);
     - ``ttc_below_1_5s_events``: SSM conflicts with a minimum TTC below ``ttc_threshold_s``
       (None without SSM output);
     - ``co2_g_per_km``, ``fuel_g_per_km``: emitted / driven per class (mg per m = g per km);
-    - extras: ``vehicle_km``, ``trips_finished``, ``vehicles_per_class``.
+    - extras: ``vehicle_km``, ``trips_finished``, ``vehicles_per_class`` (entered),
+      ``vehicles_not_departed`` (still waiting at the end), ``depart_delay_s`` per class.
     """
-    trips = tables.trips
+    every = tables.trips
+    departed = every["departed"].astype(bool)
+    trips = every[departed]  # vehicles that entered the network
     by_class = trips.groupby("vehicle_class", sort=True)
     finished = trips[trips["finished"].astype(bool)]
     travel = finished.groupby("vehicle_class", sort=True)["duration_s"].mean()
@@ -315,10 +342,11 @@ def network_block(
     if conflicts is not None:
         ttc_events = int((conflicts["min_ttc_s"] < ttc_threshold_s).sum())
     hours = duration_s / 3600.0
+    delay = (every["time_loss_s"] + every["depart_delay_s"]).groupby(every["vehicle_class"])
     return {
         "vehicles": len(trips),
         "travel_time_s": {str(k): _none_if_nan(travel.get(k, math.nan)) for k in distance_m.index},
-        "delay_s": per_class(by_class["time_loss_s"].mean()),
+        "delay_s": per_class(delay.mean()),
         "throughput_vph": float(len(finished) / hours) if hours > 0 else None,
         "hard_brakes_per_1000_vkm": (float(hard_brake_events / vkm * 1000.0) if vkm > 0 else None),
         "ttc_below_1_5s_events": ttc_events,
@@ -327,6 +355,8 @@ def network_block(
         "vehicle_km": vkm,
         "trips_finished": len(finished),
         "vehicles_per_class": {str(k): int(v) for k, v in by_class.size().items()},
+        "vehicles_not_departed": int((~departed).sum()),
+        "depart_delay_s": per_class(every.groupby("vehicle_class")["depart_delay_s"].mean()),
     }
 
 

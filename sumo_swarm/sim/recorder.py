@@ -295,6 +295,8 @@ class RunRecorder:
         self._wall_end = self._wall_end or time.perf_counter()
         self._cpu_end = self._cpu_end or time.process_time()
         self.close_controller()
+        for stale in out.glob("network_*.parquet"):  # an earlier run's, in the same folder
+            stale.unlink()
         df = self._table()  # the run is over: read, never changed, so no copy
         write_parquet_atomic(out / "trajectories.parquet", df)
         write_events(out / "events.jsonl", events)
@@ -317,7 +319,9 @@ class RunRecorder:
 
         s = self.session
         try:
-            tables = network.read_network(files, s.kinds, s.vehicle_classes)
+            tables = network.read_network(
+                files, lambda vid, vtype: network.vehicle_class(*s.classify(vid, vtype))
+            )
             network.write_network_tables(out, tables)
             o = scenario.outputs
             field = network.speed_field(

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import logging
+import os
 import subprocess
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -115,7 +117,7 @@ def run_sumocfg(
     vehicle left or at the configuration's end, and after ``max_duration_s`` at the latest.
     """
     cfg = Path(sumocfg)
-    options = read_sumocfg_options(cfg)
+    options = normalized_sumocfg_options(cfg)
     check_sumocfg_inputs(cfg, options)
     step = sumocfg_time_s(cfg, options, "step-length", 1.0)
     begin = sumocfg_time_s(cfg, options, "begin", 0.0)
@@ -141,7 +143,7 @@ def run_sumocfg(
     forced = ["--collision.mingap-factor", "0", "--collision.action", "warn"]
     if seed is not None:
         forced += ["--seed", str(seed)]
-    net_args, net_files = _network_args(settings, out / "sumo", options, cfg.parent)
+    net_args, net_files = _network_args(settings, out / "sumo", options)
     args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true", *net_args]
     # The record of what ran, in SUMO's own words: the user's inputs by absolute path and every
     # option, so sumo-gui -c sumo/scenario.sumocfg shows the same scene.
@@ -192,6 +194,26 @@ def read_sumocfg_options(path: Path) -> dict[str, str]:
 # Options of a SUMO configuration that name input files (comma-separated lists), relative to
 # the configuration's folder.
 SUMOCFG_INPUTS = ("net-file", "route-files", "additional-files")
+# Options that name files sumo-swarm reads or adds to: made absolute by
+# normalized_sumocfg_options.
+SUMOCFG_PATHS = (*SUMOCFG_INPUTS, "tripinfo-output", "device.ssm.file")
+
+
+def normalized_sumocfg_options(cfg: Path) -> dict[str, str]:
+    """The options of a SUMO configuration as SUMO itself reads them: by their full names
+    (SUMO also accepts ``<additional>``, ``<tripinfo>``, ``<net>``, ...), the files of
+    :data:`SUMOCFG_PATHS` by absolute path. SUMO writes the configuration out
+    (``--save-configuration``); ConfigError if SUMO refuses it."""
+    read_sumocfg_options(cfg)  # the file itself first, by our parser: missing, malformed, unsafe
+    with tempfile.TemporaryDirectory() as tmp:
+        saved = Path(tmp) / "user.sumocfg"
+        save_sumo_configuration(cfg, ["-c", str(cfg.resolve())], saved)
+        options = read_sumocfg_options(saved)
+        for name in SUMOCFG_PATHS:
+            if name in options:
+                paths = [p.strip() for p in options[name].split(",") if p.strip()]
+                options[name] = ",".join(os.path.abspath(Path(tmp) / p) for p in paths)
+    return options
 
 
 def check_sumocfg_inputs(cfg: Path, options: dict[str, str]) -> None:

@@ -15,8 +15,9 @@
   outputs (throughput, hard brakes per 1000 vehicle-km, TTC conflicts, and travel time, delay
   and CO2 per km for each vehicle class), means over runs, when the runs have that block;
 * ``speed_field.csv`` and ``speed_field.png``: per controller, the space-time speed field along
-  the route of all its runs in one (each run's ``network_speed_field.parquet``), heatmaps side by
-  side on one colour scale;
+  the route (each run's ``network_speed_field.parquet``, weighted by samples), a row per value
+  of the first swept parameter (all runs in one when it has more than ``SPEED_FIELD_ROWS``
+  values or nothing is swept), heatmaps on one colour scale;
 * ``safety.csv``: per controller, collisions, hard brakes, teleports (sums), the smallest TTC
   and CAV gap;
 * ``impact.md`` (the same tables) and the plots ``mobility_vs_<param>.png``,
@@ -272,16 +273,27 @@ def _safety_plot(table: pd.DataFrame, path: Path) -> None:
     fig.savefig(path, dpi=120)
 
 
-def speed_fields(batch_dir: Path, runs: pd.DataFrame) -> dict[str, pd.DataFrame]:
-    """Per controller, the space-time speed field of its runs in one (each run's
-    ``network_speed_field.parquet``, weighted by samples: :func:`mean_speed_field`); a
-    controller without any is left out."""
+# Rows of the speed-field figure at most: one per value of the first swept parameter; a sweep
+# of more values is drawn as one row, all its runs in one.
+SPEED_FIELD_ROWS = 6
+
+
+def speed_fields(
+    batch_dir: Path, runs: pd.DataFrame, parameter: str | None = None
+) -> dict[tuple[str, str], pd.DataFrame]:
+    """The space-time speed field of each controller's runs in one (each run's
+    ``network_speed_field.parquet``, weighted by samples: :func:`mean_speed_field`), per
+    value of ``parameter`` when given (else every run in one: value ``ALL``). Keys
+    ``(value, controller)``; a group without any field is left out."""
+    by = [parameter, "controller"] if parameter else ["controller"]
     fields = {}
-    for controller, group in runs.groupby("controller", sort=True):
+    for key, group in runs.groupby(by, sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        value, controller = (str(key[0]), str(key[1])) if parameter else (ALL, str(key[0]))
         paths = [batch_dir / "runs" / str(r) / SPEED_FIELD_FILE for r in group["run_id"]]
         field = mean_speed_field(pd.read_parquet(p) for p in paths if p.is_file())
         if not field.empty:
-            fields[str(controller)] = field
+            fields[(value, controller)] = field
     return fields
 
 
@@ -291,25 +303,39 @@ def _cell_edges(values: np.ndarray) -> np.ndarray:
     return np.append(values, values[-1] + step)
 
 
-def _speed_field_plot(fields: dict[str, pd.DataFrame], path: Path) -> None:
+def _speed_field_plot(
+    fields: dict[tuple[str, str], pd.DataFrame], parameter: str | None, path: Path
+) -> None:
     if not fields:
         return
+    values = list(dict.fromkeys(v for v, _ in fields))
+    controllers = sorted({c for _, c in fields})
     speeds = np.concatenate([f["speed_mps"].to_numpy(dtype=float) for f in fields.values()])
     low, high = float(np.nanmin(speeds)), float(np.nanmax(speeds))
-    fig = Figure(figsize=(1.0 + 4.0 * len(fields), 3.8), layout="constrained")
-    axes = fig.subplots(1, len(fields), squeeze=False, sharey=True)[0]
+    fig = Figure(
+        figsize=(1.0 + 4.0 * len(controllers), 0.6 + 3.2 * len(values)), layout="constrained"
+    )
+    axes = fig.subplots(len(values), len(controllers), squeeze=False, sharex=True, sharey=True)
     mesh = None
-    for ax, (controller, field) in zip(axes, fields.items(), strict=True):
-        grid = field.pivot_table(index="s_m", columns="t_s", values="speed_mps")
-        t, s_m = grid.columns.to_numpy(dtype=float), grid.index.to_numpy(dtype=float)
-        values = np.ma.masked_invalid(grid.to_numpy(dtype=float))
-        mesh = ax.pcolormesh(
-            _cell_edges(t), _cell_edges(s_m), values, cmap="RdYlGn", vmin=low, vmax=high
-        )
-        ax.set_title(controller)
+    for i, value in enumerate(values):
+        for j, controller in enumerate(controllers):
+            ax = axes[i][j]
+            field = fields.get((value, controller))
+            title = controller if value == ALL else f"{controller}, {parameter} = {value}"
+            ax.set_title(title, fontsize="small")
+            if field is None:
+                continue
+            grid = field.pivot_table(index="s_m", columns="t_s", values="speed_mps")
+            t, s_m = grid.columns.to_numpy(dtype=float), grid.index.to_numpy(dtype=float)
+            mesh = ax.pcolormesh(
+                _cell_edges(t), _cell_edges(s_m), np.ma.masked_invalid(grid.to_numpy(float)),
+                cmap="RdYlGn", vmin=low, vmax=high,
+            )  # fmt: skip
+    for ax in axes[-1]:
         ax.set_xlabel("time [s]")
-    axes[0].set_ylabel("position along the route [m]")
-    fig.colorbar(mesh, ax=list(axes), label="space-mean speed [m/s]")
+    for row in axes:
+        row[0].set_ylabel("position along the route [m]")
+    fig.colorbar(mesh, ax=axes.ravel().tolist(), label="space-mean speed [m/s]")
     fig.savefig(path, dpi=120)
 
 
@@ -380,16 +406,19 @@ def impact(
             png = out / f"{stem}_vs_{_slug(p)}.png"
             if png.is_file():
                 lines += [f"![{title} vs {p}]({png.name})", ""]
-    fields = speed_fields(Path(batch_dir), runs)
+    swept = list(swept_parameters(runs, parameters))
+    by = swept[0] if swept and runs[swept[0]].nunique() <= SPEED_FIELD_ROWS else None
+    fields = speed_fields(Path(batch_dir), runs, by)
     if fields:
-        pd.concat([f.assign(controller=c) for c, f in fields.items()], ignore_index=True).to_csv(
-            out / "speed_field.csv", index=False
-        )
-        _speed_field_plot(fields, out / "speed_field.png")
+        pd.concat(
+            [f.assign(value=v, controller=c) for (v, c), f in fields.items()], ignore_index=True
+        ).to_csv(out / "speed_field.csv", index=False)
+        _speed_field_plot(fields, by, out / "speed_field.png")
+        per = f"for each value of `{by}`" if by else "all its runs in one"
         lines += ["", "## Space-time speed", ""]
         lines += [
-            "The speed along the route over time, each controller's runs in one (every cell's "
-            "space-mean speed, total distance over total time), on one colour scale.",
+            f"The speed along the route over time: each controller's runs {per} (every "
+            "cell's space-mean speed, total distance over total time), on one colour scale.",
             "",
             "![Space-time speed per controller](speed_field.png)",
         ]
