@@ -279,8 +279,14 @@ class SumoSession:
     def _read_type_classes(self) -> None:
         """Every vType's vClass while SUMO still runs (for vehicles that never departed)."""
         for type_id in self.api.vehicletype.getIDList():
-            if type_id not in self._type_classes:
-                self._type_classes[type_id] = self.api.vehicletype.getVehicleClass(type_id)
+            self._type_class(type_id)
+
+    def _type_class(self, type_id: str) -> str:
+        """SUMO's vClass of vType ``type_id``, read once."""
+        vclass = self._type_classes.get(type_id)
+        if vclass is None:
+            vclass = self._type_classes[type_id] = self.api.vehicletype.getVehicleClass(type_id)
+        return vclass
 
     def classify(self, vid: str, type_id: str) -> tuple[str, str | None]:
         """``(kind, vClass)`` of vehicle ``vid`` of vType ``type_id``: as registered when it
@@ -319,10 +325,7 @@ class SumoSession:
         api.vehicle.subscribe(vid, self._vars)
         type_id = api.vehicle.getTypeID(vid)
         self.types[vid] = type_id
-        vclass = self._type_classes.get(type_id)
-        if vclass is None:
-            vclass = self._type_classes[type_id] = api.vehicletype.getVehicleClass(type_id)
-        self.vehicle_classes[vid] = vclass
+        self.vehicle_classes[vid] = self._type_class(type_id)
         self.lengths[vid] = api.vehicle.getLength(vid)
         self.widths[vid] = api.vehicle.getWidth(vid)
         is_cav = self._is_cav(vid, type_id)

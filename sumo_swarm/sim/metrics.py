@@ -564,6 +564,7 @@ def upstream_impact(
     undisturbed: Mapping[str, float] | None = None,
     behind_of: str = "rear",
     exclude: Iterable[str] = (),
+    gap_table: pd.DataFrame | None = None,
 ) -> list[dict[str, object]]:
     """Speed and following distance of the vehicles upstream of the swarm (paper's Fig. 12).
 
@@ -590,6 +591,9 @@ def upstream_impact(
     * ``min_gap_m`` / ``min_headway_s``: its smallest gap [m] and time headway [s] to the
       vehicle ahead in its lane, any kind (see :func:`gaps`); None if nobody was ever ahead
       (or, for the headway, if it never moved).
+
+    ``gap_table``: :func:`gaps` of a table holding every row of the window (the same index),
+    when the caller has it already; its rows of the window are used.
 
     Returns
     -------
@@ -631,7 +635,10 @@ def upstream_impact(
         return []
 
     in_window = _select(df, window if window is not None else EvaluationWindow(t_ref, None))
-    followed = gaps(in_window)
+    if gap_table is None:
+        followed = gaps(in_window)
+    else:  # the pairing is step by step: the window's rows of a larger table are the same
+        followed = gap_table[gap_table.index.isin(in_window.index)]
     ids = behind["vehicle"].to_numpy()
     speeds = in_window[in_window["vehicle"].isin(ids)].groupby("vehicle")["speed_mps"].min()
     mine = followed[followed["vehicle"].isin(ids) & followed["gap_m"].notna()]

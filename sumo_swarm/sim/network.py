@@ -28,6 +28,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 import pandas as pd
 
+from sumo_swarm.checks import finite_or_none
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.files import write_parquet_atomic
 
@@ -179,6 +180,11 @@ def _float(value: Any, default: float = math.nan) -> float:
         return default
 
 
+def _first_child(node: Any, name: str) -> Any | None:
+    """The first child element ``name`` of a sumolib element, or None."""
+    return node.getChild(name)[0] if node.hasChild(name) else None
+
+
 Classify = Callable[[str, str], str]  # (vehicle, vType) -> vehicle class
 
 
@@ -193,7 +199,7 @@ def read_trips(path: Path, classify: Classify) -> pd.DataFrame:
         vid = trip.id
         depart = _float(trip.depart)
         arrival = _float(trip.arrival)
-        emissions = trip.getChild("emissions")[0] if trip.hasChild("emissions") else None
+        emissions = _first_child(trip, "emissions")
         rows.append(
             (
                 vid,
@@ -222,7 +228,7 @@ def read_conflicts(path: Path) -> pd.DataFrame:
 
     rows = []
     for c in sumolib.xml.parse(str(path), "conflict"):
-        ttc = c.getChild("minTTC")[0] if c.hasChild("minTTC") else None
+        ttc = _first_child(c, "minTTC")
         rows.append(
             (
                 c.ego,
@@ -292,10 +298,6 @@ def write_network_tables(out: Path, tables: NetworkTables) -> None:
 # --------------------------------------------------------------------------- measures
 
 
-def _none_if_nan(x: float) -> float | None:
-    return None if x is None or not math.isfinite(x) else float(x)
-
-
 def network_block(
     tables: NetworkTables,
     *,
@@ -330,11 +332,13 @@ def network_block(
     distance_m = by_class["route_length_m"].sum()
 
     def per_class(values: pd.Series) -> dict[str, float | None]:
-        return {str(k): _none_if_nan(v) for k, v in values.items()}
+        return {str(k): finite_or_none(v) for k, v in values.items()}
 
     def per_km(column: str) -> dict[str, float | None]:
         mass = by_class[column].sum(min_count=1)
-        return {str(k): _none_if_nan(mass[k] / d) if d > 0 else None for k, d in distance_m.items()}
+        return {
+            str(k): finite_or_none(mass[k] / d) if d > 0 else None for k, d in distance_m.items()
+        }
 
     vkm = float(trips["route_length_m"].sum()) / 1000.0 if len(trips) else 0.0
     conflicts = tables.conflicts
@@ -345,7 +349,7 @@ def network_block(
     delay = (every["time_loss_s"] + every["depart_delay_s"]).groupby(every["vehicle_class"])
     return {
         "vehicles": len(trips),
-        "travel_time_s": {str(k): _none_if_nan(travel.get(k, math.nan)) for k in distance_m.index},
+        "travel_time_s": {str(k): finite_or_none(travel.get(k)) for k in distance_m.index},
         "delay_s": per_class(delay.mean()),
         "throughput_vph": float(len(finished) / hours) if hours > 0 else None,
         "hard_brakes_per_1000_vkm": (float(hard_brake_events / vkm * 1000.0) if vkm > 0 else None),

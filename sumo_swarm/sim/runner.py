@@ -263,15 +263,13 @@ def save_sumo_configuration(cfg: Path, args: list[str], path: Path) -> None:
 
 
 def _network_args(
-    scenario: Scenario,
-    folder: Path,
-    given: dict[str, str] | None = None,
-    given_dir: Path | None = None,
+    scenario: Scenario, folder: Path, given: dict[str, str] | None = None
 ) -> tuple[list[str], dict[str, Path] | None]:
-    """The SUMO options for the network measures (``[outputs] network``) and their files."""
+    """The SUMO options for the network measures (``[outputs] network``) and their files;
+    ``given``: the user's options, paths absolute (:func:`normalized_sumocfg_options`)."""
     if not scenario.outputs.network:
         return [], None
-    return network_options(folder, scenario.outputs, given, given_dir)
+    return network_options(folder, scenario.outputs, given)
 
 
 def _fcd_args(out: Path, fcd: bool) -> list[str]:

@@ -218,6 +218,8 @@ def build_summary(
         window=EvaluationWindow(ref_time, ev.end_s),
         behind_of="front",
         exclude=[target] if target else [],
+        # the pairs of the evaluation window hold this window's rows when it starts inside it
+        gap_table=pairs if ref_time >= ev.start_s else None,
     )
     collisions = {tuple(sorted((c.collider, c.victim))) for c in session.collisions}
     planner_keys = (
