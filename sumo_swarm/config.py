@@ -747,6 +747,48 @@ class HvModelSettings:
 
 
 @dataclass(frozen=True)
+class PlatoonSettings:
+    """How CAVs group into platoons, each a swarm that decides and overtakes on its own
+    (:mod:`sumo_swarm.controllers.fleet`).
+
+    ``grouping = "many"``: CAVs that meet in a lane form a platoon: a CAV joins a platoon whose
+    CAV it follows (or leads) in its lane within ``join_gap_m`` (bumper to bumper); two platoons
+    that meet so merge; none grows beyond ``max_size`` CAVs. A cruising platoon whose CAVs are
+    strung out with a gap beyond ``split_gap_m`` between two of them (along the road, any lane)
+    splits there. Only CAVs heading for the same destination (their routes' last edge) group,
+    and only where they drive on the session's route frame, in a lane that goes on for
+    ``exit_reach_s`` at their speed (at least ``exit_reach_min_m``), with their own exit no
+    nearer: a CAV approaching its exit, on a ramp or in an acceleration lane is driven by SUMO's
+    lane changing (its route's changes) under CACC (speed) until it may join.
+    Membership is reviewed every ``review_every_s``; a platoon in the middle of an overtake
+    keeps its CAVs (but loses one that approaches its exit).
+
+    ``grouping = "one"``: every CAV of the run is one swarm (the paper's scene; the behaviour
+    before many swarms).
+    """
+
+    grouping: Literal["many", "one"] = "many"
+    join_gap_m: float = 60.0
+    max_size: int = 8
+    split_gap_m: float = 150.0
+    review_every_s: float = 1.0
+    exit_reach_s: float = 25.0
+    exit_reach_min_m: float = 600.0
+
+    def __post_init__(self) -> None:
+        check_positive(
+            self, "join_gap_m", "split_gap_m", "review_every_s", "exit_reach_s",
+            "exit_reach_min_m",
+        )  # fmt: skip
+        if self.max_size < 1:
+            raise ConfigError(f"max_size must be >= 1 CAV, got {self.max_size}")
+        if self.split_gap_m < self.join_gap_m:
+            raise ConfigError(
+                f"split_gap_m ({self.split_gap_m}) must be >= join_gap_m ({self.join_gap_m})"
+            )
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A whole scenario file."""
 
@@ -766,6 +808,7 @@ class Scenario:
     planner: PlannerSettings = field(default_factory=PlannerSettings)
     cacc: CaccSettings = field(default_factory=CaccSettings)
     swarm: SwarmSettings = field(default_factory=SwarmSettings)
+    platoons: PlatoonSettings = field(default_factory=PlatoonSettings)
     hvmodel: HvModelSettings = field(default_factory=HvModelSettings)
     guards: GuardSettings = field(default_factory=GuardSettings)
     longitudinal: LongitudinalSettings = field(default_factory=LongitudinalSettings)
