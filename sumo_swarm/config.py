@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import math
 import tomllib
 import types
@@ -788,6 +789,155 @@ class PlatoonSettings:
             )
 
 
+# Plain road a corridor keeps before its first ramp lane, between ramp lanes and after the last
+# [m]: room for netconvert's junctions and for vehicles inserted upstream to settle.
+CORRIDOR_MIN_PIECE_M = 100.0
+
+
+def corridor_ramp_lanes(
+    length_m: float,
+    on_ramp_positions_m: tuple[float, ...],
+    off_ramp_positions_m: tuple[float, ...],
+    accel_lane_m: float,
+    decel_lane_m: float,
+) -> list[tuple[float, float, Literal["acc", "dec"], int]]:
+    """``(start_m, end_m, kind, ramp number)`` of every ramp lane of a corridor, in driving
+    order: an on-ramp's acceleration lane begins at its position, an off-ramp's deceleration
+    lane ends at its. ConfigError naming the keys unless positions increase and every ramp lane
+    lies on the road with :data:`CORRIDOR_MIN_PIECE_M` of plain road before, between and after.
+    """
+    for key, places in (
+        ("on_ramp_positions_m", on_ramp_positions_m),
+        ("off_ramp_positions_m", off_ramp_positions_m),
+    ):
+        if any(b <= a for a, b in itertools.pairwise(places)):
+            raise ConfigError(f"{key}: positions must increase, got {list(places)}")
+    lanes: list[tuple[float, float, Literal["acc", "dec"], int]] = [
+        (x, x + accel_lane_m, "acc", i) for i, x in enumerate(on_ramp_positions_m)
+    ]
+    lanes += [(x - decel_lane_m, x, "dec", j) for j, x in enumerate(off_ramp_positions_m)]
+    lanes.sort()
+
+    def name(kind: str | None, number: int) -> str:
+        if kind is None:
+            return "the upstream end"
+        ramp = "on" if kind == "acc" else "off"
+        return f"the ramp lane of {ramp}_ramp_positions_m[{number}]"
+
+    at, before = 0.0, name(None, 0)
+    for start, end, kind, number in [*lanes, (length_m, length_m, None, -1)]:
+        if start - at < CORRIDOR_MIN_PIECE_M - 1e-9:
+            after = name(kind, number) if kind else "the downstream end"
+            raise ConfigError(
+                f"on_ramp_positions_m / off_ramp_positions_m: {start - at:g} m of plain road "
+                f"between {before} and {after}; ramp lanes (accel_lane_m {accel_lane_m:g}, "
+                f"decel_lane_m {decel_lane_m:g}) need at least {CORRIDOR_MIN_PIECE_M:g} m "
+                f"before, between and after them on the road of length_m {length_m:g}"
+            )
+        at, before = end, name(kind, number)
+    return lanes
+
+
+@dataclass(frozen=True)
+class CorridorSettings:
+    """A motorway corridor scenario (``[corridor]``): the road, built by netconvert
+    (:class:`sumo_swarm.sim.netbuild.CorridorSpec`, whose docstring lists the edge ids), and its
+    traffic, written as ``<flow>``s (:mod:`sumo_swarm.sim.scene`). Without ``[corridor]`` a
+    scenario is the paper's placed scene on ``simulation.network``.
+
+    The traffic: ``main_demand_vph_per_lane`` enters at the upstream end and each on-ramp adds
+    its ``on_ramp_demands_vph``; ``cav_share`` and ``truck_share`` of every demand are CAVs and
+    trucks, the rest cars. Cars are SUMO's default passenger vType (Krauss, sigma 0.5, tau 1 s,
+    a new user's traffic) with SUMO's default speed spread (``speed_dev``); ``[hv]`` (the paper's
+    IDM drivers) is not used for them. Every vehicle departs in the best lane at the highest safe
+    speed. Times: flows run from 0 to ``simulation.duration_s``; the road starts empty (about
+    ``length_m`` / 30 m/s to fill), so a study measures after a warm-up (``[evaluation]
+    start_s``; the window is the whole run unless ``[evaluation]`` sets it).
+    """
+
+    # The road. Positions are metres from the upstream end along the main road.
+    length_m: float = 6000.0
+    lanes: int = 3  # through lanes (the swarm needs 2 or more)
+    speed_limit_mps: float = 33.33  # 120 km/h, a common European motorway limit
+    lane_width_m: float = 3.5  # the usual motorway lane (RAA, AASHTO ~3.6 m); SUMO's default 3.2
+    # Where each on-ramp joins, i.e. its acceleration lane begins (the merge nose), in order.
+    on_ramp_positions_m: tuple[float, ...] = ()
+    # veh/h entering from each on-ramp (one per on-ramp position).
+    on_ramp_demands_vph: tuple[float, ...] = ()
+    # Where each off-ramp leaves, i.e. its deceleration lane ends (the diverge nose), in order.
+    off_ramp_positions_m: tuple[float, ...] = ()
+    # Share (0..1) of the traffic passing on the main road just upstream of each off-ramp that
+    # leaves there (a turning ratio: it applies to the main demand and to earlier on-ramps'
+    # traffic alike; traffic entering downstream of an off-ramp cannot take it).
+    off_ramp_shares: tuple[float, ...] = ()
+    # Parallel-type ramp lanes: 250 m is the usual acceleration lane of German (RAA, E1) and
+    # similar guidelines; the deceleration lane is taken as long. Ramps are one lane.
+    accel_lane_m: float = 250.0
+    decel_lane_m: float = 250.0
+    ramp_length_m: float = 300.0  # each ramp's own edge, off the main road
+    ramp_speed_limit_mps: float = 22.22  # 80 km/h on the ramps
+    # The traffic.
+    main_demand_vph_per_lane: float = 1500.0  # at the upstream end [veh/h per through lane]
+    cav_share: float = 0.2  # of every demand (main and ramps); CAVs are cars
+    truck_share: float = 0.15  # of every demand; the usual heavy-vehicle share of a motorway
+    # Trucks are semi-trailers (SUMO's vClass "trailer": 16.5 m, accel 1 m/s^2). Their desired
+    # speed is truck_desired_speed_mps times SUMO's speed factor (mean 1, spread speed_dev: about
+    # 20.7-25 m/s), capped at truck_max_speed_mps: the EU's 80 km/h truck limit as trucks drive
+    # it (about 83 km/h) and the 90 km/h speed limiter (EU directive 92/6/EEC).
+    truck_desired_speed_mps: float = 23.0
+    truck_max_speed_mps: float = 25.0
+    # SUMO's speed-factor spread (its default 0.1) of cars and trucks; the run's
+    # --default.speeddev 0 would otherwise take it away. CAVs keep one speed (their vType).
+    speed_dev: float = 0.1
+    # Departures: "poisson" (exponential headways: random arrivals, as traffic counts show) or
+    # "uniform" (evenly spaced vehicles of each flow).
+    arrivals: Literal["poisson", "uniform"] = "poisson"
+
+    def __post_init__(self) -> None:
+        check_positive(
+            self, "length_m", "speed_limit_mps", "lane_width_m", "accel_lane_m", "decel_lane_m",
+            "ramp_length_m", "ramp_speed_limit_mps", "truck_desired_speed_mps",
+            "truck_max_speed_mps",
+        )  # fmt: skip
+        check_non_negative(self, "main_demand_vph_per_lane", "speed_dev")
+        check_fields(self, "lanes", ge=2, integer=True)
+        for key in ("cav_share", "truck_share"):
+            check_fields(self, key, ge=0.0, le=1.0)
+        if self.cav_share + self.truck_share > 1.0 + 1e-9:
+            raise ConfigError(
+                f"cav_share ({self.cav_share}) + truck_share ({self.truck_share}) must be <= 1"
+            )
+        if self.truck_max_speed_mps < self.truck_desired_speed_mps:
+            raise ConfigError(
+                f"truck_max_speed_mps ({self.truck_max_speed_mps}) must be >= "
+                f"truck_desired_speed_mps ({self.truck_desired_speed_mps})"
+            )
+        pairs = (
+            ("on_ramp_positions_m", "on_ramp_demands_vph"),
+            ("off_ramp_positions_m", "off_ramp_shares"),
+        )
+        for where, what in pairs:
+            if len(getattr(self, where)) != len(getattr(self, what)):
+                raise ConfigError(
+                    f"{what} needs one value per entry of {where}: got "
+                    f"{len(getattr(self, what))} for {len(getattr(self, where))}"
+                )
+        for i, demand in enumerate(self.on_ramp_demands_vph):
+            require_number(f"on_ramp_demands_vph[{i}]", demand, ge=0.0)
+        for i, share in enumerate(self.off_ramp_shares):
+            require_number(f"off_ramp_shares[{i}]", share, ge=0.0, le=1.0)
+        for i, x in enumerate((*self.on_ramp_positions_m, *self.off_ramp_positions_m)):
+            n_on = len(self.on_ramp_positions_m)
+            key = f"on_ramp_positions_m[{i}]" if i < n_on else f"off_ramp_positions_m[{i - n_on}]"
+            require_number(key, x, gt=0.0)
+        if self.main_demand_vph_per_lane + sum(self.on_ramp_demands_vph) <= 0.0:
+            raise ConfigError("main_demand_vph_per_lane and on_ramp_demands_vph are all 0")
+        corridor_ramp_lanes(
+            self.length_m, self.on_ramp_positions_m, self.off_ramp_positions_m,
+            self.accel_lane_m, self.decel_lane_m,
+        )  # fmt: skip
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A whole scenario file."""
@@ -813,6 +963,9 @@ class Scenario:
     guards: GuardSettings = field(default_factory=GuardSettings)
     longitudinal: LongitudinalSettings = field(default_factory=LongitudinalSettings)
     lateral: LateralSettings = field(default_factory=LateralSettings)
+    # [corridor]: a motorway corridor with ramps and a demand (CorridorSettings) instead of the
+    # paper's placed scene on simulation.network; None: no corridor.
+    corridor: CorridorSettings | None = None
 
     def __post_init__(self) -> None:
         # One source for each physical quantity: the cell length comes from [cell], the CAV
@@ -837,8 +990,18 @@ class Scenario:
         return self.cell.resolve(self.cav)
 
 
+def union_members(tp: Any) -> tuple[Any, ...]:
+    """The alternatives of a type hint: ``(A, B)`` for ``A | B`` or ``Optional``; ``(tp,)``."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return typing.get_args(tp)
+    return (tp,)
+
+
+# Each section's settings class (an optional section, such as [corridor], by its class).
 SECTIONS = {
-    name: tp for name, tp in typing.get_type_hints(Scenario).items() if name not in ("name", "path")
+    name: next(a for a in union_members(tp) if a is not type(None))
+    for name, tp in typing.get_type_hints(Scenario).items()
+    if name not in ("name", "path")
 }
 
 
@@ -857,13 +1020,6 @@ DERIVED_KEYS = {
 
 def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
-
-
-def union_members(tp: Any) -> tuple[Any, ...]:
-    """The alternatives of a type hint: ``(A, B)`` for ``A | B`` or ``Optional``; ``(tp,)``."""
-    if typing.get_origin(tp) in (typing.Union, types.UnionType):
-        return typing.get_args(tp)
-    return (tp,)
 
 
 def nested_dataclass(tp: Any) -> tuple[Literal["table", "items"], type] | None:
@@ -1000,6 +1156,8 @@ def load_scenario(
                 if key in data.get(section, {}):
                     raise ConfigError(f"{section}.{key} is not set here: it comes from {source}")
         sections = {key: _convert(value, SECTIONS[key], key) for key, value in data.items()}
+        if "corridor" in sections:
+            sections.update(_corridor_sections(data, sections))
         scenario = Scenario(name=name, path=path.resolve(), **sections)
         # A settings file for a user's sumocfg or attach() runs at SUMO's step, not this file's
         # (unless the file names one): the behaving interval is not checked against it.
@@ -1007,13 +1165,36 @@ def load_scenario(
         _check_consistency(scenario, step_given=step_given)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    if require_network:
+    if require_network and scenario.corridor is None:  # a corridor builds its network
         if not scenario.network_path.is_file():
             raise ConfigError(
                 f"{path}: simulation.network: file not found: {scenario.network_path}"
             )
         _check_network(scenario, path)
     return scenario
+
+
+# What a corridor scenario does not use: its network is built and its vehicles flow in.
+CORRIDOR_UNUSED = {
+    "simulation.network": "the corridor's network is built from [corridor]",
+    "simulation.route_edges": "the route frame is the corridor's main road",
+    "scene": "the corridor's vehicles enter as flows",
+}
+
+
+def _corridor_sections(data: dict[str, Any], sections: dict[str, Any]) -> dict[str, Any]:
+    """The sections a corridor changes: ``[evaluation]`` over the whole run unless the file
+    sets its end. ConfigError for a key a corridor does not use (nothing silently ignored)."""
+    for key, why in CORRIDOR_UNUSED.items():
+        section, _, name = key.partition(".")
+        if section in data and (not name or name in data[section]):
+            raise ConfigError(f"{key} is not used with [corridor]: {why}")
+    changed: dict[str, Any] = {}
+    if "end_s" not in data.get("evaluation", {}):
+        duration = sections.get("simulation", SimulationSettings()).duration_s
+        evaluation = sections.get("evaluation", EvaluationSettings())
+        changed["evaluation"] = dataclasses.replace(evaluation, end_s=duration)
+    return changed
 
 
 def _check_network(sc: Scenario, path: Path) -> None:

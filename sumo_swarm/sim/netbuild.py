@@ -3,16 +3,21 @@
 Used by the tests, the stress sweep and users who want a quick test bed: straight or curved,
 2 to 5 lanes, one or several edges, optionally a lane drop (the rightmost lanes end: netconvert
 keeps the lanes on the left going); and a
-straight motorway with an on-ramp (acceleration lane) and an off-ramp (deceleration lane).
+straight motorway with an on-ramp (acceleration lane) and an off-ramp (deceleration lane); and
+a motorway corridor of any length with any number of on- and off-ramps (the corridor scenarios,
+``[corridor]`` in a scenario file).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
+from sumo_swarm.config import corridor_ramp_lanes
 from sumo_swarm.errors import ConfigError
 
 
@@ -161,49 +166,102 @@ def build_motorway(spec: MotorwaySpec, folder: Path, name: str = "motorway") -> 
     """Write the plain XML of ``spec`` into ``folder`` and netconvert it to ``name.net.xml``;
     return the network path. Lanes are given explicitly (connection file) so that the
     acceleration lane ends and the deceleration lane leads only to the off-ramp."""
-    folder.mkdir(parents=True, exist_ok=True)
-    n = spec.through_lanes
     x1 = spec.upstream_m
     x2 = x1 + spec.accel_lane_m
     x3 = x2 + spec.weave_m
     x4 = x3 + spec.decel_lane_m
-    x5 = x4 + spec.downstream_m
+    pieces = (
+        Piece("up", 0.0, x1), Piece("acc", x1, x2, "acc", ramp="on"), Piece("mid", x2, x3),
+        Piece("dec", x3, x4, "dec", ramp="off"), Piece("down", x4, x4 + spec.downstream_m),
+    )  # fmt: skip
+    road = RampedRoad(
+        pieces, spec.through_lanes, spec.lane_width_m, spec.speed_mps, spec.ramp_m,
+        spec.ramp_speed_mps,
+    )  # fmt: skip
+    return build_ramped_road(road, folder, name)
+
+
+@dataclass(frozen=True)
+class Piece:
+    """One edge of a straight main road, from ``start_m`` to ``end_m`` along it [m].
+
+    ``aux``: None (the through lanes only), ``"acc"`` (an acceleration lane: the on-ramp
+    ``ramp`` joins at ``start_m`` as an extra rightmost lane that ends with the piece) or
+    ``"dec"`` (a deceleration lane: an extra rightmost lane that begins with the piece and leads
+    only to the off-ramp ``ramp``, which leaves at ``end_m``).
+    """
+
+    id: str
+    start_m: float
+    end_m: float
+    aux: Literal["acc", "dec"] | None = None
+    ramp: str | None = None
+
+
+@dataclass(frozen=True)
+class RampedRoad:
+    """A straight main road of ``pieces`` (in driving order, each starting where the one before
+    ends) with ``lanes``
+    through lanes ``lane_width_m`` wide at the limit ``speed_mps``; every ramp is one lane,
+    ``ramp_m`` long, at the limit ``ramp_speed_mps``."""
+
+    pieces: tuple[Piece, ...]
+    lanes: int
+    lane_width_m: float
+    speed_mps: float
+    ramp_m: float
+    ramp_speed_mps: float
+
+
+def build_ramped_road(road: RampedRoad, folder: Path, name: str) -> Path:
+    """Write the plain XML of ``road`` into ``folder`` and netconvert it to ``name.net.xml``;
+    return the network path. Nodes: ``n0``... along the main road, ``r0``... at the ramps' far
+    ends in driving order. Lanes are connected explicitly (a connection file): acceleration
+    lanes end, deceleration lanes lead only to their off-ramp, through lanes keep their order."""
+    folder.mkdir(parents=True, exist_ok=True)
+    n = road.lanes
+    pieces = road.pieces
     # The ramps leave at a 1:10 slope on the right (negative y when driving along +x).
-    ramp_dx = spec.ramp_m * math.cos(math.atan(0.1))
-    ramp_dy = -spec.ramp_m * math.sin(math.atan(0.1))
-    points = {
-        "n0": (0.0, 0.0), "n1": (x1, 0.0), "n2": (x2, 0.0), "n3": (x3, 0.0), "n4": (x4, 0.0),
-        "n5": (x5, 0.0), "r0": (x1 - ramp_dx, ramp_dy), "r1": (x4 + ramp_dx, ramp_dy),
-    }  # fmt: skip
+    ramp_dx = road.ramp_m * math.cos(math.atan(0.1))
+    ramp_dy = -road.ramp_m * math.sin(math.atan(0.1))
+    points = {f"n{k}": (p.start_m, 0.0) for k, p in enumerate(pieces)}
+    points[f"n{len(pieces)}"] = (pieces[-1].end_m, 0.0)
+    # id, from, to, lanes, speed limit, priority (the main road has right of way over the ramps)
+    edge_rows = [
+        (p.id, f"n{k}", f"n{k + 1}", n + (p.aux is not None), road.speed_mps, 3)
+        for k, p in enumerate(pieces)
+    ]
+    links = []  # (from edge, from lane, to edge, to lane)
+    ramped = [(k, p) for k, p in enumerate(pieces) if p.aux is not None]
+    for r, (k, p) in enumerate(ramped):
+        far = f"r{r}"
+        if p.aux == "acc":
+            points[far] = (p.start_m - ramp_dx, ramp_dy)
+            edge_rows.append((p.ramp, far, f"n{k}", 1, road.ramp_speed_mps, 1))
+            links.append((p.ramp, 0, p.id, 0))
+        else:
+            points[far] = (p.end_m + ramp_dx, ramp_dy)
+            edge_rows.append((p.ramp, f"n{k + 1}", far, 1, road.ramp_speed_mps, 1))
+            links.append((p.id, 0, p.ramp, 0))
+    for a, b in itertools.pairwise(pieces):
+        first_from = int(a.aux is not None)  # an auxiliary lane is lane 0: through lanes from 1
+        first_to = int(b.aux is not None)
+        links += [(a.id, first_from + i, b.id, first_to + i) for i in range(n)]
+        if b.aux == "dec":  # the rightmost through lane also feeds the deceleration lane
+            links.append((a.id, first_from, b.id, 0))
     nodes = ['<?xml version="1.0" encoding="UTF-8"?>', "<nodes>"]
     nodes += [
         f'    <node id="{node}" x="{x:.3f}" y="{y:.3f}" type="priority"/>'
         for node, (x, y) in points.items()
     ]
     nodes.append("</nodes>")
-    # id, from, to, lanes, speed limit, priority (the motorway has right of way over the ramps)
-    edge_rows = [
-        ("up", "n0", "n1", n, spec.speed_mps, 3),
-        ("acc", "n1", "n2", n + 1, spec.speed_mps, 3),
-        ("mid", "n2", "n3", n, spec.speed_mps, 3),
-        ("dec", "n3", "n4", n + 1, spec.speed_mps, 3),
-        ("down", "n4", "n5", n, spec.speed_mps, 3),
-        ("on", "r0", "n1", 1, spec.ramp_speed_mps, 1),
-        ("off", "n4", "r1", 1, spec.ramp_speed_mps, 1),
-    ]
     edges = ['<?xml version="1.0" encoding="UTF-8"?>', "<edges>"]
     edges += [
         f'    <edge id="{edge}" from="{a}" to="{b}" priority="{prio}" numLanes="{lanes}" '
-        f'speed="{speed}" width="{spec.lane_width_m}"/>'
+        f'speed="{speed}" width="{road.lane_width_m}"/>'
         for edge, a, b, lanes, speed, prio in edge_rows
     ]
     edges.append("</edges>")
-    # (from edge, from lane, to edge, to lane)
-    links = [("on", 0, "acc", 0)]
-    links += [("up", i, "acc", i + 1) for i in range(n)]
-    links += [("acc", i + 1, "mid", i) for i in range(n)]  # acc lane 0 ends: no link
-    links += [("mid", 0, "dec", 0)] + [("mid", i, "dec", i + 1) for i in range(n)]
-    links += [("dec", 0, "off", 0)] + [("dec", i + 1, "down", i) for i in range(n)]
     connections = ['<?xml version="1.0" encoding="UTF-8"?>', "<connections>"]
     connections += [
         f'    <connection from="{a}" to="{b}" fromLane="{la}" toLane="{lb}"/>'
@@ -211,3 +269,88 @@ def build_motorway(spec: MotorwaySpec, folder: Path, name: str = "motorway") -> 
     ]
     connections.append("</connections>")
     return _netconvert(folder, name, nodes, edges, connections)
+
+
+@dataclass(frozen=True)
+class CorridorSpec:
+    """A straight motorway corridor ``length_m`` long with ``lanes`` through lanes and ramps.
+
+    ``on_ramp_positions_m``: where each on-ramp joins the main road, i.e. where its acceleration
+    lane (``accel_lane_m``) begins; ``off_ramp_positions_m``: where each off-ramp leaves, i.e.
+    where its deceleration lane (``decel_lane_m``) ends; both in metres from the upstream end,
+    increasing. Every ramp lane lies on the road with at least
+    :data:`~sumo_swarm.config.CORRIDOR_MIN_PIECE_M` of plain road before, between and after
+    them (:func:`~sumo_swarm.config.corridor_ramp_lanes`, the check of ``[corridor]``).
+
+    Edge ids: the main road's pieces in driving order (:meth:`through_edges`, the main through
+    route) are ``acc{i}`` (the acceleration lane of on-ramp ``i``, an extra rightmost lane that
+    ends with the edge), ``dec{j}`` (the deceleration lane of off-ramp ``j``, an extra
+    rightmost lane that leads only to the ramp) and ``m0``, ``m1``, ... (the plain road before,
+    between and after them); the ramps are ``on{i}`` and ``off{j}``, ``ramp_m`` long at
+    ``ramp_speed_mps``. Ramps are numbered from upstream. Lanes are ``lane_width_m`` wide; the
+    limit is ``speed_mps``.
+    """
+
+    length_m: float = 6000.0
+    lanes: int = 3
+    on_ramp_positions_m: tuple[float, ...] = ()
+    off_ramp_positions_m: tuple[float, ...] = ()
+    accel_lane_m: float = 250.0
+    decel_lane_m: float = 250.0
+    ramp_m: float = 300.0
+    lane_width_m: float = 3.5
+    speed_mps: float = 33.33
+    ramp_speed_mps: float = 22.22
+
+    def __post_init__(self) -> None:
+        if self.lanes < 1:
+            raise ConfigError(f"lanes must be >= 1, got {self.lanes}")
+        sizes = (
+            self.length_m, self.accel_lane_m, self.decel_lane_m, self.ramp_m,
+            self.lane_width_m, self.speed_mps, self.ramp_speed_mps,
+        )  # fmt: skip
+        if any(not v > 0 for v in sizes):
+            raise ConfigError("the lengths, lane width and speed limits of a corridor must be > 0")
+        self.pieces()  # the ramp lanes fit on the road
+
+    def pieces(self) -> tuple[Piece, ...]:
+        """The main road's edges in driving order; ConfigError if the ramp lanes do not fit."""
+        ramp_lanes = corridor_ramp_lanes(
+            self.length_m, self.on_ramp_positions_m, self.off_ramp_positions_m,
+            self.accel_lane_m, self.decel_lane_m,
+        )  # fmt: skip
+        pieces: list[Piece] = []
+        at = 0.0
+        for k, (start, end, kind, number) in enumerate(ramp_lanes):
+            ramp = f"on{number}" if kind == "acc" else f"off{number}"
+            pieces.append(Piece(f"m{k}", at, start))
+            pieces.append(Piece(f"{kind}{number}", start, end, kind, ramp=ramp))
+            at = end
+        pieces.append(Piece(f"m{len(ramp_lanes)}", at, self.length_m))
+        return tuple(pieces)
+
+    def through_edges(self) -> tuple[str, ...]:
+        """The main through route: every piece of the main road, upstream end to downstream."""
+        return tuple(p.id for p in self.pieces())
+
+    def route(self, on_ramp: int | None, off_ramp: int | None) -> tuple[str, ...] | None:
+        """The edges from on-ramp ``on_ramp`` (None: the upstream end) to off-ramp ``off_ramp``
+        (None: the downstream end); None if that off-ramp lies upstream of that on-ramp."""
+        through = list(self.through_edges())
+        first = 0 if on_ramp is None else through.index(f"acc{on_ramp}")
+        last = len(through) - 1 if off_ramp is None else through.index(f"dec{off_ramp}")
+        if last < first:
+            return None
+        head = [] if on_ramp is None else [f"on{on_ramp}"]
+        tail = [] if off_ramp is None else [f"off{off_ramp}"]
+        return (*head, *through[first : last + 1], *tail)
+
+
+def build_corridor(spec: CorridorSpec, folder: Path, name: str = "corridor") -> Path:
+    """Write the plain XML of ``spec`` into ``folder`` and netconvert it to ``name.net.xml``;
+    return the network path (edge ids: :class:`CorridorSpec`)."""
+    road = RampedRoad(
+        spec.pieces(), spec.lanes, spec.lane_width_m, spec.speed_mps, spec.ramp_m,
+        spec.ramp_speed_mps,
+    )  # fmt: skip
+    return build_ramped_road(road, folder, name)
