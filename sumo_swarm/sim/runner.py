@@ -26,6 +26,7 @@ from sumo_swarm.sim.scene import (
     CAV_TYPE,
     LiveScene,
     default_settings,
+    route_edges,
     sumo_options,
     write_sumo_inputs,
 )
@@ -80,10 +81,12 @@ def run_scenario(
     sim = scenario.simulation
     session = SumoSession(
         args,
-        route_edges=sim.route_edges,
+        route_edges=route_edges(scenario),
         is_cav=lambda vid, type_id: is_of_type(type_id, CAV_TYPE),
         gui=gui,
     )
+    if scene is None:  # a corridor: the CAVs are those SUMO inserts, as on a user's sumocfg
+        scene = LiveScene(session, controller)
     return _drive(
         session,
         scenario,

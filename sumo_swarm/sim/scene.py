@@ -1,7 +1,9 @@
-"""Turn a :class:`~sumo_swarm.config.Scenario` into SUMO input: vehicle types, routes, a sumocfg.
+"""Turn a :class:`~sumo_swarm.config.Scenario` into SUMO input: vehicle types, routes, a sumocfg
+(and, for a corridor, its network).
 
-Pure file generation (no SUMO import). The same traffic is written for every controller; only
-the CAVs' vehicle type differs, so that the baselines are judged on the same scene and seed.
+File generation (no SUMO import; a corridor's network is built by SUMO's netconvert). The same
+traffic is written for every controller; only the CAVs' vehicle type differs, so that the
+baselines are judged on the same scene and seed.
 """
 
 from __future__ import annotations
@@ -10,7 +12,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from sumo_swarm.config import Scenario, load_scenario, read_toml
+from sumo_swarm.config import CorridorSettings, Scenario, load_scenario, read_toml
+from sumo_swarm.sim.netbuild import CorridorSpec, build_corridor
 
 ROUTE_ID = "main"
 CAV_TYPE = "cav"
@@ -230,19 +233,134 @@ def sumo_options(sc: Scenario) -> list[str]:
     ]  # fmt: skip
 
 
-def write_sumo_inputs(sc: Scenario, controller: str, folder: Path) -> tuple[Path, Scene]:
-    """Write ``routes.rou.xml`` and ``scenario.sumocfg`` into ``folder``; return the sumocfg."""
+def corridor_spec(corridor: CorridorSettings) -> CorridorSpec:
+    """The road of a ``[corridor]`` section, for :func:`~sumo_swarm.sim.netbuild.build_corridor`."""
+    c = corridor
+    return CorridorSpec(
+        length_m=c.length_m, lanes=c.lanes, on_ramp_positions_m=c.on_ramp_positions_m,
+        off_ramp_positions_m=c.off_ramp_positions_m, accel_lane_m=c.accel_lane_m,
+        decel_lane_m=c.decel_lane_m, ramp_m=c.ramp_length_m, lane_width_m=c.lane_width_m,
+        speed_mps=c.speed_limit_mps, ramp_speed_mps=c.ramp_speed_limit_mps,
+    )  # fmt: skip
+
+
+def route_edges(sc: Scenario) -> tuple[str, ...]:
+    """The run's route frame (``s_m`` runs along it): a corridor's main road, else
+    ``simulation.route_edges``."""
+    if sc.corridor is not None:
+        return corridor_spec(sc.corridor).through_edges()
+    return sc.simulation.route_edges
+
+
+# The corridor's vehicle classes: vType id -> the share of a demand it takes.
+CAR_TYPE = "car"
+TRUCK_TYPE = "truck"
+
+
+@dataclass(frozen=True)
+class CorridorFlow:
+    """One ``<flow>`` of a corridor: ``rate_vph`` vehicles of vType ``type_id`` per hour on
+    ``route`` from ``origin`` to ``destination`` (``main`` / ``end``, or a ramp's edge id)."""
+
+    origin: str
+    destination: str
+    type_id: str
+    route: tuple[str, ...]
+    rate_vph: float
+
+    @property
+    def id(self) -> str:
+        return f"{self.origin}_{self.destination}_{self.type_id}"
+
+
+def corridor_flows(corridor: CorridorSettings) -> list[CorridorFlow]:
+    """Every origin-destination-class flow of a corridor with a positive rate.
+
+    Origins: the upstream end (``main``: ``lanes * main_demand_vph_per_lane``) and each on-ramp;
+    destinations: each off-ramp downstream of the origin, which takes its share of what passes
+    it, and the downstream end (``end``), which takes the rest. Each flow is split by class:
+    ``cav_share``, ``truck_share``, and cars the rest."""
+    c = corridor
+    spec = corridor_spec(c)
+    classes = (
+        (CAR_TYPE, 1.0 - c.cav_share - c.truck_share),
+        (TRUCK_TYPE, c.truck_share),
+        (CAV_TYPE, c.cav_share),
+    )
+    origins = [(None, "main", c.lanes * c.main_demand_vph_per_lane)]
+    origins += [(i, f"on{i}", d) for i, d in enumerate(c.on_ramp_demands_vph)]
+    flows = []
+    for on_ramp, origin, demand in origins:
+        staying = 1.0  # the share of this origin's traffic still on the main road
+        splits = []
+        for j, share in enumerate(c.off_ramp_shares):
+            route = spec.route(on_ramp, j)
+            if route is not None:
+                splits.append((f"off{j}", route, staying * share))
+                staying *= 1.0 - share
+        splits.append(("end", spec.route(on_ramp, None), staying))
+        for destination, route, split in splits:
+            for type_id, share in classes:
+                rate = demand * split * share
+                if rate > 0.0:
+                    flows.append(CorridorFlow(origin, destination, type_id, route, rate))
+    return flows
+
+
+def corridor_routes_xml(sc: Scenario, controller: str) -> str:
+    """The corridor's routes file: the three vTypes (the CAVs' per ``controller``, cars, trucks),
+    a route per origin and destination, and the flows of :func:`corridor_flows`."""
+    c = sc.corridor
+    end = sc.simulation.duration_s
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', "<routes>"]
+    lines.append("    " + cav_vtype_xml(sc, controller))
+    # Cars: SUMO's default passenger vType, its speed spread written out (the run's
+    # --default.speeddev 0 is for the paper's scenes). Trucks: see CorridorSettings.
+    lines.append(f'    <vType id="{CAR_TYPE}" vClass="passenger" speedDev="{c.speed_dev}"/>')
+    lines.append(
+        f'    <vType id="{TRUCK_TYPE}" vClass="trailer" desiredMaxSpeed="'
+        f'{c.truck_desired_speed_mps}" maxSpeed="{c.truck_max_speed_mps}" '
+        f'speedDev="{c.speed_dev}" color="160,80,0"/>'
+    )
+    flows = corridor_flows(c)
+    routes = {(f.origin, f.destination): f.route for f in flows}
+    for (origin, destination), edges in routes.items():
+        lines.append(f'    <route id="{origin}_{destination}" edges="{" ".join(edges)}"/>')
+    for f in flows:
+        rate = (
+            f'period="exp({f.rate_vph / 3600.0:.9g})"'
+            if c.arrivals == "poisson"
+            else f'vehsPerHour="{f.rate_vph:.6g}"'
+        )
+        lines.append(
+            f'    <flow id="{f.id}" type="{f.type_id}" route="{f.origin}_{f.destination}" '
+            f'begin="0" end="{end:g}" {rate} departLane="best" departSpeed="max"/>'
+        )
+    lines.append("</routes>")
+    return "\n".join(lines) + "\n"
+
+
+def write_sumo_inputs(sc: Scenario, controller: str, folder: Path) -> tuple[Path, Scene | None]:
+    """Write ``routes.rou.xml`` and ``scenario.sumocfg`` into ``folder``; return the sumocfg
+    and the placed scene. A corridor (``[corridor]``) also gets its network built there
+    (``corridor.net.xml``); it has no placed scene (None): its CAVs are those SUMO inserts."""
     folder.mkdir(parents=True, exist_ok=True)
-    scene = build_scene(sc)
     routes = folder / "routes.rou.xml"
-    routes.write_text(routes_xml(sc, scene, controller), encoding="utf-8")
+    if sc.corridor is not None:
+        scene = None
+        net = build_corridor(corridor_spec(sc.corridor), folder)
+        routes.write_text(corridor_routes_xml(sc, controller), encoding="utf-8")
+    else:
+        scene = build_scene(sc)
+        net = sc.network_path
+        routes.write_text(routes_xml(sc, scene, controller), encoding="utf-8")
     cfg = folder / "scenario.sumocfg"
     opts = sumo_options(sc)
     pairs = [(opts[i].removeprefix("--"), opts[i + 1]) for i in range(0, len(opts), 2)]
     body = "\n".join(f"        <{k} value={quoteattr(v)}/>" for k, v in pairs)
     cfg.write_text(
         '<?xml version="1.0" encoding="UTF-8"?>\n<configuration>\n    <input>\n'
-        f"        <net-file value={quoteattr(str(sc.network_path))}/>\n"
+        f"        <net-file value={quoteattr(str(net))}/>\n"
         f'        <route-files value="{routes.name}"/>\n    </input>\n'
         f"    <processing>\n{body}\n    </processing>\n</configuration>\n",
         encoding="utf-8",
