@@ -756,11 +756,11 @@ class PlatoonSettings:
     CAV it follows (or leads) in its lane within ``join_gap_m`` (bumper to bumper); two platoons
     that meet so merge; none grows beyond ``max_size`` CAVs. A cruising platoon whose CAVs are
     strung out with a gap beyond ``split_gap_m`` between two of them (along the road, any lane)
-    splits there. Only CAVs heading for the same destination (their routes' last edge) group,
-    and only where they drive on the session's route frame, in a lane that goes on for
-    ``exit_reach_s`` at their speed (at least ``exit_reach_min_m``), with their own exit no
-    nearer: a CAV approaching its exit, on a ramp or in an acceleration lane is driven by SUMO's
-    lane changing (its route's changes) under CACC (speed) until it may join.
+    splits there. CAVs group only where they drive on the session's route frame, in a lane
+    that goes on for ``exit_reach_s`` at their speed (at least ``exit_reach_min_m``), with
+    their own exit no nearer; a CAV whose exit comes that near leaves its platoon (its route's
+    lane changes are SUMO's, its speed our CACC's), as one on a ramp or in an acceleration lane
+    stays out of them until it may join.
     Membership is reviewed every ``review_every_s``; a platoon in the middle of an overtake
     keeps its CAVs (but loses one that approaches its exit).
 
@@ -770,17 +770,23 @@ class PlatoonSettings:
 
     grouping: Literal["many", "one"] = "many"
     join_gap_m: float = 60.0
-    max_size: int = 8
+    # 12: the largest platoon of the paper's scene family (2-12 CAVs, scenarios/variants.toml)
+    # stays one swarm, as before many swarms
+    max_size: int = 12
     split_gap_m: float = 150.0
     review_every_s: float = 1.0
     exit_reach_s: float = 25.0
     exit_reach_min_m: float = 600.0
+    # A swarm starts an overtake only where no other swarm's manoeuvre (its CAVs, its target,
+    # its grid) is within this distance [m]: two swarms' grids never overlap.
+    manoeuvre_clearance_m: float = 100.0
 
     def __post_init__(self) -> None:
         check_positive(
             self, "join_gap_m", "split_gap_m", "review_every_s", "exit_reach_s",
             "exit_reach_min_m",
         )  # fmt: skip
+        require_number("manoeuvre_clearance_m", self.manoeuvre_clearance_m, ge=0.0)
         if self.max_size < 1:
             raise ConfigError(f"max_size must be >= 1 CAV, got {self.max_size}")
         if self.split_gap_m < self.join_gap_m:

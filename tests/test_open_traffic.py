@@ -343,7 +343,13 @@ def test_cavs_cut_off_by_a_slow_vehicle_pass_it_and_rejoin(tmp_path):
         'departSpeed="12"/>',
     ]
     routes.write_text(text.replace("</routes>", "\n".join(cars) + "\n</routes>"), encoding="utf-8")
-    swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
+    # One swarm of the three CAVs (the cut-off pair passes one by one); with many swarms
+    # (the default) the pair is a swarm of its own that overtakes the slow car as well.
+    one = tmp_path / "one.toml"
+    one.write_text('[platoons]\ngrouping = "one"\n', encoding="utf-8")
+    swarm = run_sumocfg(
+        cfg, "cav", "swarm", tmp_path / "swarm", config=one, progress=False, notify=print
+    )
     cacc = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False, notify=print)
     events = _events(tmp_path / "swarm")
     assert {e["vehicle"] for e in events if e["event"] == "passing_start"} == {"c1", "c2"}
@@ -351,6 +357,13 @@ def test_cavs_cut_off_by_a_slow_vehicle_pass_it_and_rejoin(tmp_path):
         "c1",
         "c2",
     }
+    many = run_sumocfg(cfg, "cav", "swarm", tmp_path / "many", progress=False, notify=print)
+    assert many["swarms"]["swarms"] == 2 and many["swarms"]["overtakes_completed"] >= 1
+    last = pd.read_parquet(tmp_path / "many" / "trajectories.parquet")
+    last = last[last["time_s"] == last["time_s"].max()].set_index("vehicle")
+    assert (last.loc[["c1", "c2"], "s_m"] > last.loc["slow", "s_m"]).all()
+    assert many["safety"]["collisions"] == 0 and many["safety"]["hard_brakes_cav"] == 0
+    assert many["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
     df = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
     last = df[df["time_s"] == df["time_s"].max()].set_index("vehicle")
     assert len(set(last.loc[["c0", "c1", "c2"], "lane"])) == 1

@@ -19,9 +19,11 @@ def make_controller(name: str) -> Controller:
 
         return SumoModelController(name, lane_changes=name == "sumo-lc")
     if name == "swarm":
+        # Many swarms, as [platoons] groups the CAVs (grouping = "one": the whole run's CAVs).
+        from sumo_swarm.controllers.fleet import Fleet
         from sumo_swarm.controllers.swarm import SwarmController
 
-        return SwarmController()
+        return Fleet(SwarmController, name="swarm")
     raise ConfigError(f"unknown controller '{name}' (known: {', '.join(CONTROLLERS)})")
 
 

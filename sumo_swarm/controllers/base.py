@@ -53,6 +53,12 @@ class RunContext:
     out_dir: Any = None  # pathlib.Path of the run's output folder, or None
     events: list[dict[str, Any]] = field(default_factory=list)
     world_speed_mps: float | None = None  # the last speed taken from the world ([cav] speeds)
+    # Many swarms (controllers.fleet): this swarm's number, the other swarms' CAVs' planned
+    # front positions s(t), and whether a manoeuvre may start on a stretch of road
+    # (``may_start(t_s, s_from_m, s_to_m, target_id)``; None: anywhere).
+    platoon_id: int | None = None
+    planned_paths: dict[str, Callable[[float], float]] | None = None
+    may_start: Callable[[float, float, float, str], bool] | None = None
 
     @property
     def dt_s(self) -> float:
@@ -60,6 +66,8 @@ class RunContext:
 
     def event(self, kind: str, **data: Any) -> None:
         """Record a notable event (fallbacks, vanished vehicles, ...) for the run's outputs."""
+        if self.platoon_id is not None:
+            data = {"platoon": self.platoon_id, **data}
         self.events.append({"time_s": self.session.time_s, "event": kind, **data})
 
     def configure_cav(self, vid: str, lane_change_mode: int = LC_MODE_CONTROLLED) -> None:

@@ -125,6 +125,12 @@ class Decider:
             min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
             accelerating_mps2=sw.accelerating_mps2,
         )  # fmt: skip
+        # Never another swarm's CAV (many swarms: each sees the others' CAVs as vehicles): a
+        # platoon behind one merges with it, or waits for it to overtake.
+        if candidate is not None and getattr(ctx.session, "kinds", {}).get(
+            candidate.vehicle_id
+        ) == "cav":  # fmt: skip
+            candidate = None
         # Not in a lane that ends within reach plus two 3 s intervals at the cruise (an
         # acceleration lane, a lane drop): everyone leaves that lane anyway.
         reach = sw.detect_range_m + 2.0 * 3.0 * ctx.scenario.cav.cruising_speed_mps

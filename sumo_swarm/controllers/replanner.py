@@ -353,6 +353,7 @@ class Replanner:
                 obstacles=obstacles, model_of=self.model_of, grid_speed_mps=speed, cap_mps=cap,
                 interval_s=speed_interval, step_s=ctx.dt_s, block_budget=budget,
                 previous=previous, closed_lane=closed, stranded=stranded,
+                known_paths=getattr(ctx, "planned_paths", None),
             )  # fmt: skip
             if n:
                 outcome.record["grid_speed_rule"] = "target"

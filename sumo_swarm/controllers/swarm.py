@@ -76,6 +76,7 @@ class SwarmController:
 
     def __init__(self, planner: CellPlanner | None = None, tracker: Tracker | None = None) -> None:
         """``planner`` and ``tracker`` replace the ones built from the scenario."""
+        self._planlog_override = None
         self.ctx: RunContext | None = None
         self._planner_override = planner
         self._tracker_override = tracker
@@ -125,7 +126,7 @@ class SwarmController:
             1, round(sc.swarm.control_interval_s / ctx.dt_s)
         )
         self.tracker = self._tracker_override or Tracker(sc.longitudinal, sc.lateral, steps)
-        self.planlog = PlanLog(ctx.out_dir)
+        self.planlog = self._planlog_override or PlanLog(ctx.out_dir)
         self.routes = RouteWatch()
         self.lanes = LaneView(ctx)
         self.reformer = Reformer(
@@ -145,6 +146,66 @@ class SwarmController:
         self.follower = PlanFollower(ctx, self.tracker, self.lanes, self.model_of)
         self.cruiser = Cruiser(ctx, self.reformer, self.decider, self.lanes, self.tracker)
         self.drawer = None  # a sumo-gui plan drawer, set by the session's side (sim.gui)
+
+    def use_planlog(self, planlog) -> None:
+        """Write plans to ``planlog`` (a log shared by many swarms) instead of a file of its own;
+        call before :meth:`attach`."""
+        self._planlog_override = planlog
+
+    # ------------------------------------------------------------------ many swarms
+    def idle(self) -> bool:
+        """Cruising with no manoeuvre of its own under way (no overtake, lane pass, passing one
+        by one or wait ahead of a slow vehicle): its CAVs may change (controllers.fleet)."""
+        reformer = getattr(self, "reformer", None)
+        busy = reformer is not None and (reformer.singly is not None or reformer.waiting)
+        return self.mode is Mode.CRUISE and self.lane_pass is None and not busy
+
+    def forget(self, vid: str) -> None:
+        """CAV ``vid`` left this swarm (controllers.fleet): set its modes again if it returns."""
+        self.configured.discard(vid)
+        routes = getattr(self, "routes", None)
+        if routes is not None:
+            routes.left.discard(vid)
+
+    def planned_paths(self) -> dict[str, Any]:
+        """Each CAV's planned front position ``s(t)`` [m] while a plan is in force (for the
+        other swarms' predictions); empty otherwise."""
+        if self.mode is not Mode.OVERTAKE or self.replanner is None:
+            return {}
+        states = self.ctx.session.states
+        return {
+            vid: _front_path(ref.s_at, 0.5 * states[vid].length_m)
+            for vid, ref in (self.replanner.references or {}).items()
+            if vid in states
+        }
+
+    def manoeuvre_region(self, t_s: float) -> tuple[float, float] | None:
+        """The stretch of road [m] this swarm's manoeuvre takes now: its CAVs, its target and
+        its grid; None while it cruises."""
+        if self.idle() or self.ctx is None:
+            return None
+        states = self.ctx.session.states
+        ids = [v for v in self.ctx.cav_ids if v in states]
+        target = self.target_id if self.lane_pass is None else self.lane_pass.target_id
+        if target in states:
+            ids.append(target)
+        if not ids:
+            return None
+        lo = min(states[v].rear_s_m for v in ids)
+        hi = max(states[v].s_m for v in ids)
+        grid = None if self.replanner is None else self.replanner.grid
+        if grid is not None and self.mode is Mode.OVERTAKE:
+            origin = grid.origin_at(t_s)
+            lo, hi = min(lo, origin), max(hi, origin + grid.n_rows * grid.cell_length_m)
+        return lo, hi
+
+    def swarms_counts(self) -> dict[str, int]:
+        """This swarm's overtakes: started, completed, given up."""
+        return {
+            "overtakes_started": len(self.targets),
+            "overtakes_completed": self.completions,
+            "overtakes_aborted": sum(self.aborts.values()),
+        }
 
     @property
     def planner(self) -> CellPlanner:
@@ -240,10 +301,21 @@ class SwarmController:
             target = self.decider.decide(t_s, states, platoon)
             lane = None if target is None else self.decider.lane_beats_plan(target, states, platoon)
             if lane is not None:
-                self._start_lane_pass(t_s, target, lane, platoon)
+                if self._may_start(t_s, target, platoon):
+                    self._start_lane_pass(t_s, target, lane, platoon)
                 target = None
-        if target is not None:
+        if target is not None and self._may_start(t_s, target, platoon):
             self._start_overtake(t_s, target)
+
+    def _may_start(self, t_s: float, target: VehicleState, platoon: list[str]) -> bool:
+        """Whether no other swarm's manoeuvre takes the road from this platoon's last CAV to
+        ``target`` (``ctx.may_start``, set by controllers.fleet; always, for one swarm)."""
+        may_start = getattr(self.ctx, "may_start", None)
+        if may_start is None:
+            return True
+        states = self.ctx.session.states
+        rear = min(states[v].rear_s_m for v in platoon)
+        return may_start(t_s, rear, target.s_m, target.vehicle_id)
 
     def _overtake_step(self, t_s: float, states, platoon: list[str]) -> None:
         """End the manoeuvre (done, the target no longer blocking, given up), or plan again."""
@@ -417,13 +489,7 @@ class SwarmController:
     def _swarms_block(self) -> dict[str, int]:
         """summary.json's ``swarms`` counts: one swarm, every CAV of the run."""
         formed = int(self.ctx is not None and bool(self.ctx.cav_ids))
-        return {
-            "platoons_formed": formed,
-            "max_concurrent": formed,
-            "overtakes_started": len(self.targets),
-            "overtakes_completed": self.completions,
-            "overtakes_aborted": sum(self.aborts.values()),
-        }
+        return {"platoons_formed": formed, "max_concurrent": formed, **self.swarms_counts()}
 
     def close(self) -> None:
         """Close plans.jsonl (the run is over or the swarm was detached)."""
@@ -476,3 +542,8 @@ class SwarmController:
             "lat_error_rms_m": lateral_rms(follower.lat_errors),
             "mpc": summarise_ms(mpc_ms, prefix="solve_ms_per_cav_"),
         }
+
+
+def _front_path(centre_at, half_length_m: float):
+    """The front position ``s(t)`` [m] of a CAV whose centre follows ``centre_at``."""
+    return lambda t_s: centre_at(t_s) + half_length_m

@@ -463,6 +463,11 @@ class SumoSession:
         except Exception:  # vanished: nothing to hand back
             pass
 
+    def reclaim(self, vid: str) -> None:
+        """``vid``, released before, is a swarm's CAV again (a platoon took it in: its
+        controller sets its modes); :attr:`states` shows it as a CAV from the next read."""
+        self.released.discard(vid)
+
     def set_speed(self, vid: str, speed_mps: float) -> None:
         self._command(vid, self.api.vehicle.setSpeed, max(0.0, speed_mps))
 

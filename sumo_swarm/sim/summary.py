@@ -151,7 +151,8 @@ def swarms_block(own: dict[str, Any] | None) -> dict[str, int]:
     """summary.json's ``swarms`` block: the controller's counts, 0 for any it does not keep (a
     controller without platoons: none formed, no overtakes)."""
     own = own or {}
-    return {k: int(own.get(k, 0)) for k in SWARM_KEYS}
+    extra = {k: int(v) for k, v in own.items() if k not in SWARM_KEYS and isinstance(v, int)}
+    return {**{k: int(own.get(k, 0)) for k in SWARM_KEYS}, **extra}
 
 
 def build_summary(

@@ -204,12 +204,15 @@ class ManoeuvrePlanner:
         relax_to: str = "guard",
         closed_lane: int | None = None,
         stranded: bool = False,
+        known_paths: Mapping[str, Callable[[float], float]] | None = None,
     ) -> PlanOutcome:
         """Plan the manoeuvre past ``target_id`` (margins relaxed up to ``relax_to`` while
         infeasible). ``closed_lane``: a lane whose cells beside and behind the target the plan
         may not enter (:func:`close_beside`; the lane a target that keeps right may move into).
         ``stranded``: the plan in force keeps a CAV behind the target in its cell to its end
-        (``[planner] release_idle_holds = "stranded"`` releases idle holds only then)."""
+        (``[planner] release_idle_holds = "stranded"`` releases idle holds only then).
+        ``known_paths``: vehicles whose front position ``s(t)`` [m] is known (another swarm's
+        CAVs, from that swarm's plan): predicted on it, not by a car-following model."""
         st = self.settings
         target = states[target_id]
         cavs = [states[v] for v in platoon]
@@ -236,8 +239,9 @@ class ManoeuvrePlanner:
         }  # fmt: skip
         if st.predictor == "car-following":
             predictor = CarFollowingPredictor(
-                everyone, models, road, t_s, horizon_s, st.prediction_dt_s
-            )
+                everyone, models, road, t_s, horizon_s, st.prediction_dt_s,
+                leaders_override=known_paths,
+            )  # fmt: skip
         else:
             predictor = None
         outcome = PlanOutcome(None, None, None, record, predictor=predictor)
@@ -257,8 +261,9 @@ class ManoeuvrePlanner:
                 blocked_predictor = None
                 if predictor is not None:
                     blocked_predictor = self._blocked_predictor(
-                        everyone, models, road, t_s, horizon_s, grid, cavs, cap_mps, interval_s
-                    )
+                        everyone, models, road, t_s, horizon_s, grid, cavs, cap_mps, interval_s,
+                        known_paths,
+                    )  # fmt: skip
                 problem = build_problem(
                     grid, cavs, hvs, target, t_s, settings, gs, predictor,
                     front_margin=front_margin, blocked_predictor=blocked_predictor,
@@ -381,6 +386,7 @@ class ManoeuvrePlanner:
         cavs: Sequence[VehicleState],
         cap_mps: float,
         interval_s: float,
+        known_paths: Mapping[str, Callable[[float], float]] | None = None,
     ) -> Callable[[Sequence[Blocker]], CarFollowingPredictor]:
         st = self.settings
         half = 0.5 * st.grid.cav_length_m
@@ -388,7 +394,7 @@ class ManoeuvrePlanner:
 
         def predictor(blockers: Sequence[Blocker]) -> CarFollowingPredictor:
             moved = {}
-            overrides = {}
+            overrides = dict(known_paths or {})
             for b in blockers:
                 row, col = b.cell
                 cav = cav_by_id[b.cav_id]

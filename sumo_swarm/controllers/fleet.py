@@ -1,0 +1,622 @@
+"""Many swarms in one simulation: CAVs that meet in a lane form a platoon, each platoon a swarm.
+
+A :class:`Fleet` stands where one controller stood (the run loop and the plugin API call it
+after every SUMO step). It groups the CAVs into platoons (``[platoons]``, see
+:class:`~sumo_swarm.config.PlatoonSettings`) and gives every platoon a controller of its own,
+made by ``make`` (a :class:`~sumo_swarm.controllers.swarm.SwarmController`, or the CACC
+baseline): each decides, overtakes and regroups on its own.
+
+- **Each swarm sees only its own CAVs as CAVs.** Its session is a :class:`PlatoonSession`: the
+  CAVs of other platoons, and CAVs in no platoon, are vehicles like the human-driven ones (the
+  planner keeps their cells free, the guards judge a lane change in front of them by their
+  driver model, none is ever assumed to cooperate). A CAV of another swarm that follows a plan
+  is predicted from that plan (``RunContext.planned_paths``), not from a car-following model.
+- **Two manoeuvres never share the road.** A swarm starts an overtake only where no other
+  swarm's manoeuvre is under way within ``[platoons] manoeuvre_clearance_m`` of its leader and
+  target (``RunContext.may_start``): the cell grids of two swarms never overlap, so they never
+  plan into the same cell.
+- **CAVs in no platoon** (on a ramp, in an acceleration lane, approaching their exit, or off
+  the route frame) drive as SUMO drives them: SUMO's lane changes for their route, and, once
+  they have been in a platoon, our CACC for the speed (handed over at the platoon's short gap,
+  SUMO's own car-following would brake hard to open its gap; :class:`RouteWatch` does the
+  same for a CAV that leaves a platoon for its exit).
+
+Membership is reviewed every ``review_every_s``: platoons that meet merge, a free CAV joins the
+platoon it meets, a platoon strung out beyond ``split_gap_m`` or grown beyond ``max_size``
+splits. Only platoons that cruise change (a platoon in an overtake keeps its CAVs), except
+that a CAV approaching its exit, leaving the route frame or gone leaves at once.
+
+A CAV alone is a swarm of one: it overtakes slow vehicles the swarm's way. The summary's
+``swarms`` block counts as platoons only groups that had two CAVs or more.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from sumo_swarm.config import PlatoonSettings
+from sumo_swarm.controllers.base import Controller, RunContext, close_controller
+from sumo_swarm.controllers.cacc import command_cacc
+from sumo_swarm.core.model import VehicleState
+from sumo_swarm.core.neighbours import ordered_platoon
+from sumo_swarm.core.swarming.planlog import PlanLog
+
+__all__ = ["Fleet", "PlatoonSession", "in_lane_neighbours", "strung_out"]
+
+log = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------- pure parts
+
+
+@dataclass(frozen=True)
+class Placed:
+    """Where a vehicle is, for grouping: its lane in one numbering along the route frame."""
+
+    vehicle_id: str
+    s_m: float  # front bumper along the route frame [m]
+    length_m: float
+    lane: int  # lane index in the frame's common numbering (across lane drops and ramps)
+
+
+def in_lane_neighbours(vehicles: Iterable[Placed]) -> list[tuple[str, str, float]]:
+    """Every pair of vehicles directly behind one another in a lane, as ``(rear, front, gap)``
+    with the bumper-to-bumper gap [m]; nothing drives between them in that lane."""
+    by_lane: dict[int, list[Placed]] = {}
+    for v in vehicles:
+        by_lane.setdefault(v.lane, []).append(v)
+    pairs = []
+    for lane in by_lane.values():
+        lane.sort(key=lambda v: v.s_m)
+        for rear, front in itertools.pairwise(lane):
+            pairs.append((rear.vehicle_id, front.vehicle_id, front.s_m - front.length_m - rear.s_m))
+    return pairs
+
+
+def strung_out(
+    members: list[str], states: Mapping[str, VehicleState], split_gap_m: float, max_size: int
+) -> list[list[str]]:
+    """``members`` (any order) cut into platoons, front first: a cut where two CAVs next to each
+    other along the road (any lane) are more than ``split_gap_m`` apart, and after every
+    ``max_size`` CAVs."""
+    ordered = ordered_platoon(states, members)
+    parts: list[list[str]] = []
+    for vid in ordered:
+        if parts:
+            last = states[parts[-1][-1]]
+            gap = last.rear_s_m - states[vid].s_m
+            if gap <= split_gap_m and len(parts[-1]) < max_size:
+                parts[-1].append(vid)
+                continue
+        parts.append([vid])
+    return parts
+
+
+# --------------------------------------------------------------------------- the views
+
+
+class PlatoonSession:
+    """A platoon's view of the SUMO session: the session itself, except that in
+    :attr:`states` only the platoon's own CAVs are CAVs (``is_cav``); every other CAV is a
+    vehicle like the human-driven ones."""
+
+    def __init__(self, session: Any, fleet: Fleet, members: frozenset[str]) -> None:
+        self._session = session
+        self._fleet = fleet
+        self.members = members
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._session, name)
+
+    @property
+    def states(self) -> dict[str, VehicleState]:
+        return self._fleet.view(self._session.states, self.members)
+
+    def states_in_lanes_of(self, vid: str) -> dict[str, VehicleState]:
+        return self._fleet.view(self._session.states_in_lanes_of(vid), self.members)
+
+
+@dataclass
+class Platoon:
+    """One platoon and the controller that drives it."""
+
+    id: int
+    controller: Controller
+    ctx: RunContext
+    session: PlatoonSession
+    members: list[str]
+    formed_s: float
+    counted: bool = False  # has had two CAVs or more (a platoon in the summary's count)
+
+    def set_members(self, members: list[str], states: Mapping[str, VehicleState]) -> None:
+        self.members = ordered_platoon(states, members) + [v for v in members if v not in states]
+        self.ctx.cav_ids = tuple(self.members)
+        self.session.members = frozenset(self.members)
+
+    @property
+    def idle(self) -> bool:
+        """Cruising, no manoeuvre of its own under way: its CAVs may change."""
+        idle = getattr(self.controller, "idle", None)
+        return True if idle is None else bool(idle())
+
+
+@dataclass
+class FleetCounts:
+    """What the platoons came to over the run (the summary's ``swarms`` block)."""
+
+    formed: int = 0
+    max_concurrent: int = 0
+    swarms: int = 0  # every swarm, lone CAVs included
+    joins: int = 0
+    merges: int = 0
+    splits: int = 0
+    started: int = 0  # the overtakes of swarms that ended (the live ones are added)
+    completed: int = 0
+    aborted: int = 0
+    # (swarm, target) of overtakes held back by another swarm's manoeuvre nearby
+    deferred_for: set[tuple[int | None, str]] = field(default_factory=set)
+    blocked_min: dict[str, float] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- the fleet
+
+
+class Fleet:
+    """Many platoons, each driven by its own controller from ``make``; see the module."""
+
+    def __init__(self, make: Callable[[], Controller], name: str | None = None) -> None:
+        self._make = make
+        self.name = name or getattr(make(), "name", "fleet")
+        self.ctx: RunContext | None = None
+        self.settings: PlatoonSettings | None = None
+        self.platoons: list[Platoon] = []
+        self.counts = FleetCounts()
+        self.planlog = None  # one plans.jsonl for every swarm (the swarm controller's)
+        self.drawer = None  # a sumo-gui plan drawer (sim.gui), given to the first swarm
+        self._next_id = 0
+        self._reviewed_s = -math.inf
+        self._first: Platoon | None = None  # whose overtake block the summary shows
+        self._first_summary: dict[str, Any] | None = None  # ... kept when it ended
+        self._view_key: tuple[float, int] | None = None
+        self._as_vehicles: dict[str, VehicleState] = {}
+        self._views: dict[frozenset[str], dict[str, VehicleState]] = {}
+        self._handed: set[str] = set()  # CAVs once in a platoon, now free: CACC for the speed
+        self._off_frame: set[str] = set()  # ... that left the route frame: SUMO drives them
+        self._single: Controller | None = None  # grouping = "one"
+        self._parted: set[str] = set()  # CAVs whose exit came near: no platoon again
+
+    # ------------------------------------------------------------------ set-up
+    def attach(self, ctx: RunContext) -> None:
+        self.ctx = ctx
+        self.settings = ctx.scenario.platoons
+        if self.settings.grouping == "one":
+            self._single = self._make()
+            self._single.attach(ctx)
+            self.planlog = getattr(self._single, "planlog", None)
+            return
+        self._open_planlog()
+
+    def _open_planlog(self) -> None:
+        """One plans.jsonl for every swarm, if the swarms plan (they take ``use_planlog``)."""
+        if hasattr(self._make(), "use_planlog"):
+            self.planlog = PlanLog(self.ctx.out_dir)
+
+    def __getattr__(self, name: str) -> Any:
+        """What a single swarm offers (``mode``, ``plan``, ``target_id``, ...): the first
+        swarm's, as the summary's overtake block."""
+        if name.startswith("_") or name in ("ctx", "settings", "platoons"):
+            raise AttributeError(name)
+        inner = self._single if self._single is not None else self._lead_controller()
+        if inner is None:
+            raise AttributeError(name)
+        return getattr(inner, name)
+
+    def _lead_controller(self) -> Controller | None:
+        lead = self._first or (self.platoons[0] if self.platoons else None)
+        return None if lead is None else lead.controller
+
+    # ------------------------------------------------------------------ the step
+    def control(self, t_s: float) -> None:
+        if self._single is not None:
+            self._single.control(t_s)
+            return
+        session = self.ctx.session
+        states = session.states
+        new = any(vid in states and self._platoon_of(vid) is None for vid in session.departed)
+        if new or t_s - self._reviewed_s >= self.settings.review_every_s - 1e-9:
+            self._reviewed_s = t_s
+            try:
+                self._review(t_s, states)
+            except Exception as exc:  # never let the grouping crash the user's simulation
+                log.exception("reviewing the platoons failed at t = %.2f s", t_s)
+                self.ctx.event("controller_error", message=f"{type(exc).__name__}: {exc}")
+        self._share_plans(t_s)
+        for platoon in list(self.platoons):
+            platoon.controller.control(t_s)
+        self._drive_free(states)
+
+    # ------------------------------------------------------------------ views
+    def view(
+        self, states: dict[str, VehicleState], members: frozenset[str]
+    ) -> dict[str, VehicleState]:
+        """``states`` with every CAV not in ``members`` as a vehicle like the human-driven
+        ones; ``states`` itself when there is no such CAV. Built once per step and platoon."""
+        key = (self.ctx.session.time_s, id(states))
+        if key != self._view_key:
+            self._view_key = key
+            self._views = {}
+            self._as_vehicles = {
+                vid: replace(st, is_cav=False) for vid, st in states.items() if st.is_cav
+            }
+        if all(vid in members for vid in self._as_vehicles):
+            return states
+        view = self._views.get(members)
+        if view is None:
+            view = dict(states)
+            view.update((v, st) for v, st in self._as_vehicles.items() if v not in members)
+            self._views[members] = view
+        return view
+
+    def _share_plans(self, t_s: float) -> None:
+        """Tell every swarm where the other swarms' CAVs are planned to be, and where their
+        manoeuvres are under way."""
+        paths: dict[str, Callable[[float], float]] = {}
+        busy: list[tuple[int, float, float]] = []
+        for platoon in self.platoons:
+            controller = platoon.controller
+            own = getattr(controller, "planned_paths", None)
+            if own is not None:
+                paths.update(own())
+            region = getattr(controller, "manoeuvre_region", None)
+            if region is not None:
+                extent = region(t_s)
+                if extent is not None:
+                    busy.append((platoon.id, *extent))
+        clearance = self.settings.manoeuvre_clearance_m
+        for platoon in self.platoons:
+            ctx = platoon.ctx
+            ctx.planned_paths = {v: f for v, f in paths.items() if v not in platoon.session.members}
+            others = [(lo - clearance, hi + clearance) for pid, lo, hi in busy if pid != platoon.id]
+            ctx.may_start = _clear_of(others, self.counts, ctx) if others else None
+
+    # ------------------------------------------------------------------ membership
+    def _platoon_of(self, vid: str) -> Platoon | None:
+        for platoon in self.platoons:
+            if vid in platoon.session.members:
+                return platoon
+        return None
+
+    def _review(self, t_s: float, states: Mapping[str, VehicleState]) -> None:
+        session = self.ctx.session
+        st = self.settings
+        cavs = [vid for vid in session.cav_ids if vid in states]
+        self._parted &= set(cavs)
+        where = {vid: self._where(vid, states) for vid in cavs}
+        # may stay in a platoon: on the frame, its exit not near (a lane that ends ahead is
+        # the swarm's to leave); may join one: also in a lane that goes on
+        stays = {vid for vid, w in where.items() if w is not None and w[1] is None}
+        eligible = {vid for vid in stays if where[vid][2]}
+        # Leaving at once, whatever the platoon does: gone, off the frame, or near the exit.
+        for platoon in list(self.platoons):
+            left = getattr(getattr(platoon.controller, "routes", None), "left", set())
+            keep = [
+                v for v in platoon.members
+                if v in states and v not in left and (v in stays or _on_junction(session, v))
+            ]  # fmt: skip
+            for vid in platoon.members:
+                if vid not in keep:
+                    self._free(platoon, vid)
+                    reason = where.get(vid)[1] if where.get(vid) is not None else None
+                    if vid in states and reason is not None and vid not in left:
+                        platoon.ctx.event("cav_leaves", vehicle=vid, reason=reason)
+            if len(keep) != len(platoon.members):
+                self._set(platoon, keep, states)
+        # Idle platoons strung out, or too long, split.
+        for platoon in list(self.platoons):
+            if platoon.idle and len(platoon.members) > 1:
+                parts = strung_out(platoon.members, states, st.split_gap_m, st.max_size)
+                if len(parts) > 1:
+                    self._set(platoon, parts[0], states)
+                    for part in parts[1:]:
+                        self._new(t_s, part, states)
+                        self.counts.splits += 1
+                    self.ctx.event("platoon_split", platoon=platoon.id, parts=parts)
+        # Meeting in a lane: joins and merges, nearest first.
+        placed = [p for p in (self._placed(v, states) for v in states) if p is not None]
+        for rear, front, gap in sorted(in_lane_neighbours(placed), key=lambda p: p[2]):
+            if gap <= st.join_gap_m and rear in eligible and front in eligible:
+                self._meet(t_s, rear, front, states)
+        # Every other eligible CAV drives as a swarm of one.
+        for vid in cavs:
+            if vid in eligible and self._platoon_of(vid) is None:
+                self._new(t_s, [vid], states)
+        self._retire_empty()
+        live = sum(1 for p in self.platoons if len(p.members) > 1)
+        self.counts.max_concurrent = max(self.counts.max_concurrent, live)
+
+    def _meet(self, t_s: float, rear: str, front: str, states) -> None:
+        """CAV ``rear`` drives right behind CAV ``front`` in a lane: one platoon, if both
+        platoons cruise and the sum fits."""
+        a, b = self._platoon_of(front), self._platoon_of(rear)
+        if a is not None and a is b:
+            return
+        size = (len(a.members) if a else 1) + (len(b.members) if b else 1)
+        if size > self.settings.max_size:
+            return
+        if (a is not None and not a.idle) or (b is not None and not b.idle):
+            return
+        if a is None and b is None:
+            self._new(t_s, [front, rear], states)
+        elif b is None:
+            self._set(a, [*a.members, rear], states)
+            self.counts.joins += 1
+        elif a is None:
+            self._set(b, [front, *b.members], states)
+            self.counts.joins += 1
+        else:  # the platoon ahead takes the one behind
+            members = [*a.members, *b.members]
+            self._set(b, [], states)
+            self._set(a, members, states)
+            self.counts.merges += 1
+            self.ctx.event("platoon_merge", platoon=a.id, merged=b.id, cavs=a.members)
+
+    def _where(self, vid: str, states) -> tuple[str, str | None, bool] | None:
+        """``(its route's last edge, why it may not be in a platoon, may join one)`` of CAV ``vid``
+        (None: it may be; ``route_parts``: its exit is near; ``off_route``: off the route
+        frame); None if unknown."""
+        session = self.ctx.session
+        route = session.route_of(vid)
+        if route is None:
+            return None
+        edges, index = route
+        st = self.settings
+        edge = session.edges.get(vid)
+        frame = session.frame
+        if edge is not None and edge.startswith(":"):
+            return None  # on a junction, its position is not on its route's edge: ask later
+        if edge is None or edge not in frame.edge_offset_m:
+            return edges[-1], "off_route", False
+        speed = states[vid].speed_mps
+        reach = max(st.exit_reach_min_m, st.exit_reach_s * speed)
+        parting = session.distance_to_parting_m(vid, edges, index, frozenset(frame.route_edges))
+        if vid in self._parted or (parting is not None and parting <= reach):
+            self._parted.add(vid)  # for good: it heads for its exit
+            return edges[-1], "route_parts", False
+        s = states[vid].s_m
+        ending = session.lanes_ending(edge, s, s + reach)
+        # Where every lane ends, the road (the frame's route) ends: no lane to leave for.
+        ends_at: dict[float, int] = {}
+        for _, end in ending:
+            ends_at[end] = ends_at.get(end, 0) + 1
+        n_lanes = frame.lane_count(edge)
+        lane = states[vid].lane
+        return edges[-1], None, all(i != lane or ends_at[end] >= n_lanes for i, end in ending)
+
+    def _placed(self, vid: str, states) -> Placed | None:
+        session = self.ctx.session
+        edge = session.edges.get(vid)
+        frame = session.frame
+        offset = frame.lane_offset.get(edge) if edge is not None else None
+        if offset is None:
+            return None
+        st = states[vid]
+        return Placed(vid, st.s_m, st.length_m, st.lane + offset)
+
+    # ------------------------------------------------------------------ platoons
+    def _new(self, t_s: float, members: list[str], states) -> Platoon:
+        session = PlatoonSession(self.ctx.session, self, frozenset())
+        ctx = RunContext(
+            session, self.ctx.scenario, (), self.ctx.road, out_dir=None, events=self.ctx.events
+        )
+        ctx.platoon_id = self._next_id
+        controller = self._make()
+        if self.planlog is not None and hasattr(controller, "use_planlog"):
+            controller.use_planlog(_Tagged(self.planlog, self._next_id))
+        platoon = Platoon(self._next_id, controller, ctx, session, [], t_s)
+        self._next_id += 1
+        self.counts.swarms += 1
+        for vid in members:
+            self._claim(vid)
+        platoon.set_members(members, states)
+        controller.attach(ctx)
+        if self.drawer is not None and not any(p.controller is not None for p in self.platoons):
+            controller.drawer = self.drawer
+        self.platoons.append(platoon)
+        self._count(platoon)
+        return platoon
+
+    def _set(self, platoon: Platoon, members: list[str], states) -> None:
+        for vid in members:
+            if vid not in platoon.session.members:
+                self._claim(vid)
+        platoon.set_members(members, states)
+        self._count(platoon)
+
+    def _count(self, platoon: Platoon) -> None:
+        if len(platoon.members) > 1 and not platoon.counted:
+            platoon.counted = True
+            self.counts.formed += 1
+            self.ctx.event("platoon_formed", platoon=platoon.id, cavs=list(platoon.members))
+
+    def _claim(self, vid: str) -> None:
+        """``vid`` joins a platoon: the controllers' modes are set again (by the platoon)."""
+        self._handed.discard(vid)
+        self._off_frame.discard(vid)
+        reclaim = getattr(self.ctx.session, "reclaim", None)
+        if reclaim is not None:
+            reclaim(vid)
+        for platoon in self.platoons:
+            if vid in platoon.session.members:  # moving from another platoon
+                _forget(platoon.controller, vid)
+
+    def _free(self, platoon: Platoon, vid: str) -> None:
+        """``vid`` leaves ``platoon``: SUMO changes its lanes, our CACC keeps its speed."""
+        _forget(platoon.controller, vid)
+        session = self.ctx.session
+        if vid in session.states:
+            try:
+                session.release(vid)
+                self._handed.add(vid)
+            except Exception as exc:
+                log.debug("releasing %s: %s", vid, exc)
+
+    def _retire_empty(self) -> None:
+        for platoon in [p for p in self.platoons if not p.members]:
+            self._retire(platoon)
+
+    def _retire(self, platoon: Platoon) -> None:
+        counts = self.counts
+        block = _swarms_of(platoon.controller)
+        counts.started += block.get("overtakes_started", 0)
+        counts.completed += block.get("overtakes_completed", 0)
+        counts.aborted += block.get("overtakes_aborted", 0)
+        _merge_min(counts.blocked_min, _blocked_of(platoon.controller))
+        if platoon is self._first:
+            self._first_summary = platoon.controller.summary()
+        close_controller(platoon.controller)
+        self.platoons.remove(platoon)
+
+    def _drive_free(self, states: Mapping[str, VehicleState]) -> None:
+        """CAVs once in a platoon and now in none follow by CACC while on the route frame."""
+        session = self.ctx.session
+        follow = []
+        for vid in list(self._handed):
+            if vid not in states:
+                self._handed.discard(vid)
+            elif session.edges.get(vid) in session.frame.edge_offset_m:
+                follow.append(vid)
+            elif vid not in self._off_frame and not _on_junction(session, vid):
+                self._off_frame.add(vid)  # off the frame: SUMO's car-following drives it
+                session.release_speed(vid)
+        if follow:
+            road = session.road_at(follow[0]) or self.ctx.road
+            command_cacc(replace(self.ctx, road=road), follow)
+
+    # ------------------------------------------------------------------ outputs
+    def _note_first(self) -> None:
+        if self._first is None:
+            for platoon in self.platoons:
+                if getattr(platoon.controller, "t_start_s", None) is not None:
+                    self._first = platoon
+                    break
+
+    def swarms_block(self) -> dict[str, int]:
+        counts = self.counts
+        live = [_swarms_of(p.controller) for p in self.platoons]
+        return {
+            "platoons_formed": counts.formed,
+            "max_concurrent": counts.max_concurrent,
+            "overtakes_started": counts.started + sum(b.get("overtakes_started", 0) for b in live),
+            "overtakes_completed": counts.completed
+            + sum(b.get("overtakes_completed", 0) for b in live),
+            "overtakes_aborted": counts.aborted + sum(b.get("overtakes_aborted", 0) for b in live),
+            "swarms": counts.swarms,
+            "joins": counts.joins,
+            "merges": counts.merges,
+            "splits": counts.splits,
+            "overtakes_deferred": len(counts.deferred_for),
+            "platoons_now": sum(1 for p in self.platoons if len(p.members) > 1),
+        }
+
+    def summary(self) -> dict[str, Any]:
+        if self._single is not None:
+            return self._single.summary()
+        self._note_first()
+        if self._first is not None and self._first in self.platoons:
+            out = dict(self._first.controller.summary())
+        elif self._first_summary is not None:
+            out = dict(self._first_summary)
+        elif self.platoons:
+            out = dict(self.platoons[0].controller.summary())
+        else:
+            out = dict(self._make().summary())
+        out["swarms"] = self.swarms_block()
+        overtake = out.get("overtake")
+        if isinstance(overtake, dict):
+            strongest = dict(self.counts.blocked_min)
+            for platoon in self.platoons:
+                _merge_min(strongest, _blocked_of(platoon.controller))
+            overtake = dict(overtake)
+            overtake["blocked_hv_min_accel_mps2"] = min(strongest.values(), default=None)
+            overtake["blocked_hvs"] = sorted(strongest)
+            out["overtake"] = overtake
+        if self.ctx is not None and "speeds" not in out:
+            out["speeds"] = self.ctx.speeds_block()
+        return out
+
+    def close(self) -> None:
+        if self._single is not None:
+            close_controller(self._single)
+            return
+        for platoon in self.platoons:
+            close_controller(platoon.controller)
+        if self.planlog is not None:
+            self.planlog.close()
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _clear_of(regions: list[tuple[float, float]], counts: FleetCounts, ctx: RunContext):
+    """``may_start(t_s, s_from_m, s_to_m, target_id)``: False while ``[s_from_m, s_to_m]``
+    overlaps one of ``regions`` (counted once per swarm and target)."""
+
+    def may_start(t_s: float, s_from_m: float, s_to_m: float, target_id: str) -> bool:
+        if any(s_from_m <= hi and lo <= s_to_m for lo, hi in regions):
+            key = (ctx.platoon_id, target_id)
+            if key not in counts.deferred_for:
+                counts.deferred_for.add(key)
+                ctx.event("overtake_deferred", target=target_id, reason="other_swarm")
+            return False
+        return True
+
+    return may_start
+
+
+def _on_junction(session: Any, vid: str) -> bool:
+    edge = session.edges.get(vid)
+    return edge is not None and edge.startswith(":")
+
+
+def _forget(controller: Controller, vid: str) -> None:
+    forget = getattr(controller, "forget", None)
+    if forget is not None:
+        forget(vid)
+
+
+def _swarms_of(controller: Controller) -> dict[str, int]:
+    block = getattr(controller, "swarms_counts", None)
+    return block() if block is not None else {}
+
+
+def _blocked_of(controller: Controller) -> dict[str, float]:
+    blocks = getattr(controller, "blocks", None)
+    return dict(getattr(blocks, "min_accel", {}) or {})
+
+
+def _merge_min(into: dict[str, float], other: Mapping[str, float]) -> None:
+    for key, value in other.items():
+        into[key] = min(value, into.get(key, value))
+
+
+class _Tagged:
+    """A plan log shared by every swarm; each record says whose plan it is (``platoon``)."""
+
+    def __init__(self, log_: Any, platoon: int) -> None:
+        self._log = log_
+        self._platoon = platoon
+        self.listeners = log_.listeners
+        self.count = 0
+
+    def write(self, record: dict[str, Any]) -> None:
+        self.count += 1
+        record["platoon"] = self._platoon
+        self._log.write(record)
+
+    def close(self) -> None:  # the fleet closes the shared log
+        pass

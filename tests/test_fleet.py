@@ -1,0 +1,232 @@
+"""Many swarms in one simulation (controllers.fleet): the grouping on hand-made cases, and real
+SUMO runs: a user's flow with CAVs inside a vTypeDistribution forms several swarms; two
+platoons that meet merge; two swarms that overtake near each other never plan into the same
+space."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from sumo_swarm.config import PlatoonSettings
+from sumo_swarm.controllers.fleet import (
+    Fleet,
+    Placed,
+    in_lane_neighbours,
+    strung_out,
+)
+from sumo_swarm.core.model import VehicleState
+from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
+from sumo_swarm.sim.runner import run_sumocfg
+
+# --------------------------------------------------------------------------- pure parts
+
+
+def test_in_lane_neighbours_pairs_only_vehicles_directly_behind_one_another():
+    cars = [
+        Placed("a", 100.0, 5.0, 1),
+        Placed("b", 80.0, 5.0, 1),  # 15 m behind a
+        Placed("c", 40.0, 5.0, 1),  # 35 m behind b
+        Placed("d", 90.0, 5.0, 0),  # another lane: nobody's neighbour
+    ]
+    pairs = sorted(in_lane_neighbours(cars))
+    assert pairs == [("b", "a", 15.0), ("c", "b", 35.0)]
+
+
+def _state(vid: str, s: float, lane: int = 1, cav: bool = True) -> VehicleState:
+    return VehicleState(vid, s, lane, 0.0, 20.0, 5.0, is_cav=cav)
+
+
+def test_strung_out_cuts_at_long_gaps_and_at_the_largest_size():
+    states = {v: _state(v, s) for v, s in [("a", 500), ("b", 485), ("c", 470), ("d", 300)]}
+    # d is 165 m behind c's rear bumper: beyond 150 m
+    assert strung_out(["d", "b", "a", "c"], states, 150.0, 8) == [["a", "b", "c"], ["d"]]
+    assert strung_out(["d", "b", "a", "c"], states, 200.0, 8) == [["a", "b", "c", "d"]]
+    assert strung_out(["d", "b", "a", "c"], states, 200.0, 3) == [["a", "b", "c"], ["d"]]
+
+
+def test_each_swarm_sees_the_other_swarms_cavs_as_vehicles():
+    class Session:
+        time_s = 1.0
+
+    class Ctx:
+        session = Session()
+
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = Ctx()
+    states = {"a": _state("a", 100), "b": _state("b", 80), "h": _state("h", 60, cav=False)}
+    view = fleet.view(states, frozenset({"a"}))
+    assert view["a"].is_cav and not view["b"].is_cav and not view["h"].is_cav
+    assert view["b"].s_m == 80 and states["b"].is_cav  # the session's states untouched
+    assert fleet.view(states, frozenset({"a", "b"})) is states  # nobody foreign: no copy
+
+
+@pytest.mark.parametrize(
+    "key, value, fragment",
+    [
+        ("max_size", 0, "max_size"),
+        ("join_gap_m", -1.0, "join_gap_m"),
+        ("split_gap_m", 10.0, "split_gap_m"),
+    ],
+)
+def test_platoon_settings_refuse_impossible_values(key, value, fragment):
+    with pytest.raises(ConfigError, match=fragment):
+        PlatoonSettings(**{key: value})
+
+
+# --------------------------------------------------------------------------- SUMO runs
+
+
+def _config(folder: Path, spec: HighwaySpec, routes: str, end_s: float) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    build_highway(spec, folder, "road")
+    (folder / "user.rou.xml").write_text(routes, encoding="utf-8")
+    cfg = folder / "user.sumocfg"
+    cfg.write_text(
+        "<configuration>\n"
+        '  <input><net-file value="road.net.xml"/><route-files value="user.rou.xml"/></input>\n'
+        f'  <time><begin value="0"/><end value="{end_s:g}"/>'
+        '<step-length value="0.1"/></time>\n'
+        "</configuration>\n",
+        encoding="utf-8",
+    )
+    return cfg
+
+
+MIXED_FLOW = """<routes>
+  <vTypeDistribution id="traffic">
+    <vType id="car" probability="0.7"/>
+    <vType id="cav" sigma="0" color="0,160,255" probability="0.25"/>
+    <vType id="truck" vClass="truck" maxSpeed="22" probability="0.05"/>
+  </vTypeDistribution>
+  <route id="r" edges="e0 e1"/>
+  <flow id="f" type="traffic" route="r" begin="0" end="150" vehsPerHour="3000"
+        departLane="best" departSpeed="max"/>
+  <vehicle id="slow" type="truck" route="r" depart="0" departLane="0" departPos="200"
+           departSpeed="15"/>
+</routes>
+"""
+
+
+@pytest.mark.sumo
+def test_a_users_flow_with_cavs_in_a_type_distribution_forms_several_swarms(tmp_path):
+    cfg = _config(tmp_path / "net", HighwaySpec(length_m=3000, lanes=3, edges=2), MIXED_FLOW, 200)
+    swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
+    cacc = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False, notify=print)
+    blocks = swarm["swarms"]
+    assert blocks["platoons_formed"] >= 2 and blocks["swarms"] > blocks["platoons_formed"]
+    assert blocks["merges"] + blocks["joins"] >= 1
+    assert swarm["safety"]["collisions"] == 0
+    assert swarm["safety"]["hard_brakes_cav"] == 0
+    # Did it help, and harm nobody: CAVs faster than as a plain CACC platoon, the other
+    # vehicles braked hard no more often than among the plain platoons.
+    assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
+    assert swarm["safety"]["hard_brakes_hv"] <= cacc["safety"]["hard_brakes_hv"] + 10
+    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    starts = [e for e in events if e["event"] == "overtake_start"]
+    assert len({e["platoon"] for e in starts}) >= 2  # several swarms decided on their own
+    plans = [json.loads(line) for line in (tmp_path / "swarm" / "plans.jsonl").open()]
+    assert plans and all("platoon" in p for p in plans)
+
+
+def _cavs(ids, lane, first_pos, speed):
+    return "\n".join(
+        f'  <vehicle id="{vid}" type="cav" route="r" depart="0" departLane="{lane}" '
+        f'departPos="{first_pos - 15 * i:g}" departSpeed="{speed:g}"/>'
+        for i, vid in enumerate(ids)
+    )
+
+
+MERGE = f"""<routes>
+  <vType id="cav" sigma="0" maxSpeed="30"/>
+  <vType id="truck" vClass="truck" maxSpeed="15"/>
+  <route id="r" edges="e0"/>
+  <vehicle id="slow" type="truck" route="r" depart="0" departLane="0" departPos="420"
+           departSpeed="15"/>
+{_cavs(["a0", "a1", "a2"], 0, 400, 15)}
+{_cavs(["b0", "b1", "b2"], 0, 160, 25)}
+</routes>
+"""
+
+
+@pytest.mark.sumo
+def test_two_platoons_that_meet_in_a_lane_merge(tmp_path):
+    # One lane: the front platoon stays behind the slow truck, the one behind catches up.
+    cfg = _config(tmp_path / "net", HighwaySpec(length_m=3000, lanes=1), MERGE, 60)
+    out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
+    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    formed = [e for e in events if e["event"] == "platoon_formed"]
+    merges = [e for e in events if e["event"] == "platoon_merge"]
+    # a0-a2 and b0-b2 start apart: two platoons (each formed by its first two CAVs)
+    assert len(formed) == 2
+    assert sorted(sorted(e["cavs"]) for e in formed) == [["a0", "a1"], ["b0", "b1"]]
+    assert len(merges) == 1 and set(merges[0]["cavs"]) == {"a0", "a1", "a2", "b0", "b1", "b2"}
+    assert out["swarms"]["merges"] == 1 and out["swarms"]["platoons_now"] == 1
+    assert out["safety"]["collisions"] == 0 and out["safety"]["hard_brakes"] == 0
+
+
+NEAR = f"""<routes>
+  <vType id="car"/>
+  <vType id="cav" sigma="0" maxSpeed="30"/>
+  <vType id="truck" vClass="truck" maxSpeed="16"/>
+  <route id="r" edges="e0 e1"/>
+  <vehicle id="t1" type="truck" route="r" depart="0" departLane="0" departPos="660"
+           departSpeed="16"/>
+  <vehicle id="t2" type="truck" route="r" depart="0" departLane="0" departPos="360"
+           departSpeed="16"/>
+{_cavs(["a0", "a1", "a2"], 0, 640, 16)}
+{_cavs(["b0", "b1", "b2"], 0, 340, 16)}
+  <flow id="f" type="car" route="r" begin="0" end="90" vehsPerHour="2400" departLane="best"
+        departSpeed="max"/>
+</routes>
+"""
+
+
+def _footprints(plan: dict) -> list[tuple[float, float, float, float, int]]:
+    """Each planned cell of ``plan`` as (t_from, t_to, s_from, s_to, lane)."""
+    grid = plan["grid"]
+    dt = plan["behaving_interval_s"]
+    out = []
+    for cells in plan["cells"].values():
+        for k, (row, col) in enumerate(cells):
+            t = grid["t0_s"] + k * dt
+            s = grid["origin_s_m"] + grid["speed_mps"] * (t - grid["t0_s"])
+            s += row * grid["cell_length_m"]
+            out.append((t, t + dt, s, s + grid["cell_length_m"], col))
+    return out
+
+
+@pytest.mark.sumo
+def test_two_swarms_overtaking_near_each_other_never_plan_into_the_same_space(tmp_path):
+    cfg = _config(tmp_path / "net", HighwaySpec(length_m=4000, lanes=3, edges=2), NEAR, 90)
+    # Through the cells every time (no passing in a free lane as a unit): plans to compare.
+    settings = tmp_path / "swarm.toml"
+    settings.write_text("[swarm]\nlane_pass = false\n", encoding="utf-8")
+    out = run_sumocfg(
+        cfg, "cav", "swarm", tmp_path / "swarm", config=settings, progress=False, notify=print
+    )
+    assert out["safety"]["collisions"] == 0 and out["safety"]["hard_brakes_cav"] == 0
+    # Both platoons got past their trucks
+    df = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    last = df[df["time_s"] == df["time_s"].max()].set_index("vehicle")["s_m"]
+    assert all(last[c] > last["t1"] for c in ("a0", "a1", "a2"))
+    assert all(last[c] > last["t2"] for c in ("b0", "b1", "b2"))
+    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    targets = {e["platoon"]: e["target"] for e in events if e["event"] == "overtake_start"}
+    assert len(targets) >= 2
+    plans = [json.loads(line) for line in (tmp_path / "swarm" / "plans.jsonl").open()]
+    plans = [p for p in plans if p.get("cells")]
+    assert len({p["platoon"] for p in plans}) >= 2
+    # No cell of one swarm's plan overlaps a cell of another swarm's plan at the same time.
+    for i, a in enumerate(plans):
+        for b in plans[i + 1 :]:
+            if a["platoon"] == b["platoon"]:
+                continue
+            for ta0, ta1, sa0, sa1, la in _footprints(a):
+                for tb0, tb1, sb0, sb1, lb in _footprints(b):
+                    overlap = la == lb and ta0 < tb1 and tb0 < ta1 and sa0 < sb1 and sb0 < sa1
+                    assert not overlap, (a["platoon"], b["platoon"], ta0, sa0, la)
