@@ -184,6 +184,7 @@ class Fleet:
         self._first_summary: dict[str, Any] | None = None  # ... kept when it ended
         self._view_key: tuple[float, int] | None = None
         self._as_vehicles: dict[str, VehicleState] = {}
+        self._relabelled: dict[str, tuple[VehicleState, VehicleState]] = {}
         self._views: dict[frozenset[str], dict[str, VehicleState]] = {}
         self._handed: set[str] = set()  # CAVs once in a platoon, now free: CACC for the speed
         self._off_frame: set[str] = set()  # ... that left the route frame: SUMO drives them
@@ -251,7 +252,7 @@ class Fleet:
             self._view_key = key
             self._views = {}
             self._as_vehicles = {
-                vid: replace(st, is_cav=False) for vid, st in states.items() if st.is_cav
+                vid: self._as_vehicle(st) for vid, st in states.items() if st.is_cav
             }
         if all(vid in members for vid in self._as_vehicles):
             return states
@@ -261,6 +262,18 @@ class Fleet:
             view.update((v, st) for v, st in self._as_vehicles.items() if v not in members)
             self._views[members] = view
         return view
+
+    def _as_vehicle(self, st: VehicleState) -> VehicleState:
+        """``st`` as a vehicle like the human-driven ones, made once per state read."""
+        cached = self._relabelled.get(st.vehicle_id)
+        if cached is not None and cached[0] is st:
+            return cached[1]
+        other = VehicleState(
+            st.vehicle_id, st.s_m, st.lane, st.lat_m, st.speed_mps, st.length_m,
+            st.accel_mps2, False, st.width_m,
+        )  # fmt: skip
+        self._relabelled[st.vehicle_id] = (st, other)
+        return other
 
     def _share_plans(self, t_s: float) -> None:
         """Tell every swarm where the other swarms' CAVs are planned to be, and where their
@@ -296,6 +309,7 @@ class Fleet:
         st = self.settings
         cavs = [vid for vid in session.cav_ids if vid in states]
         self._parted &= set(cavs)
+        self._relabelled = {v: pair for v, pair in self._relabelled.items() if v in states}
         where = {vid: self._where(vid, states) for vid in cavs}
         # may stay in a platoon: on the frame, its exit not near (a lane that ends ahead is
         # the swarm's to leave); may join one: also in a lane that goes on
