@@ -240,7 +240,7 @@ def _tripinfo(run: Path) -> pd.DataFrame:
 def runs(tmp_path_factory) -> dict[str, tuple[dict, Path]]:
     sc = load_scenario(CORRIDOR, overrides={"simulation": {"duration_s": END_S}, "corridor": SHORT})
     out = {}
-    for controller in ("cacc", "sumo-lc"):
+    for controller in ("cacc", "sumo-lc", "swarm"):
         folder = tmp_path_factory.mktemp(controller)
         out[controller] = (run_scenario(sc, controller, folder, progress=False), folder)
     return out
@@ -256,7 +256,18 @@ CACC_EXIT = pytest.mark.xfail(
 
 
 @pytest.mark.sumo
-@pytest.mark.parametrize("controller", [pytest.param("cacc", marks=CACC_EXIT), "sumo-lc"])
+@pytest.mark.parametrize(
+    "controller",
+    [
+        pytest.param("cacc", marks=CACC_EXIT),
+        "sumo-lc",
+        # the swarm hands an exiting CAV to SUMO's lane changing under the same CACC speed:
+        # one strands at the diverge (0 collisions). Handing SUMO the speed as well exited
+        # every CAV here but braked CAVs at -4.5 m/s^2 in tests/test_open_traffic.py's exit
+        # case; handing it over only once stranded (below 5 m/s) collided here.
+        pytest.param("swarm", marks=pytest.mark.xfail(strict=True, reason="exit strands")),
+    ],
+)
 def test_cavs_merge_and_exit_without_a_collision(runs, controller):
     summary, folder = runs[controller]
     assert summary["safety"]["collisions"] == 0 and summary["safety"]["teleports"] == 0

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 from typing import Any
 
-from sumo_swarm.controllers.base import LC_MODE_CONTROLLED, RunContext
+from sumo_swarm.controllers.base import LC_MODE_STRATEGIC, RunContext
 
 
 class SumoModelController:
     """CAVs driven by SUMO itself.
 
-    ``sumo-cacc``: SUMO's ``carFollowModel="CACC"`` with lane changes off.
+    ``sumo-cacc``: SUMO's ``carFollowModel="CACC"`` making only the lane changes its route
+    needs (SUMO's strategic ones, as ``cacc``): with every lane change off, on a corridor its
+    on-ramp CAVs stood at the ends of the acceleration lanes and its exiting CAVs missed the
+    off-ramp (at 300 s of scenarios/corridor.toml, all 23 on-ramp CAVs stood, 2 of 14 exited).
     ``sumo-lc``: ordinary SUMO vehicles with SUMO's own (sublane) lane changing: each CAV
     overtakes on its own, the "disengage and change lanes one by one" strategy.
     """
@@ -30,7 +33,7 @@ class SumoModelController:
         ctx = self.ctx
         for vid in ctx.cav_ids:
             if vid in ctx.session.states and vid not in self._configured:
-                ctx.session.set_modes(vid, None, LC_MODE_CONTROLLED)
+                ctx.session.set_modes(vid, None, LC_MODE_STRATEGIC)
                 self._configured.add(vid)
 
     def summary(self) -> dict[str, Any]:
