@@ -59,10 +59,12 @@ def test_each_swarm_sees_the_other_swarms_cavs_as_vehicles():
     fleet = Fleet(lambda: None, name="x")
     fleet.ctx = Ctx()
     states = {"a": _state("a", 100), "b": _state("b", 80), "h": _state("h", 60, cav=False)}
-    view = fleet.view(states, frozenset({"a"}))
+    Session.states = states
+    view = fleet.view(frozenset({"a"}))
     assert view["a"].is_cav and not view["b"].is_cav and not view["h"].is_cav
     assert view["b"].s_m == 80 and states["b"].is_cav  # the session's states untouched
-    assert fleet.view(states, frozenset({"a", "b"})) is states  # nobody foreign: no copy
+    assert fleet.relabel(states, frozenset({"a", "b"})) is states  # nobody foreign: no copy
+    assert fleet.view(frozenset({"a"})) is view  # once per step and platoon
 
 
 @pytest.mark.parametrize(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -53,11 +53,11 @@ class RunContext:
     out_dir: Any = None  # pathlib.Path of the run's output folder, or None
     events: list[dict[str, Any]] = field(default_factory=list)
     world_speed_mps: float | None = None  # the last speed taken from the world ([cav] speeds)
-    # Many swarms (controllers.fleet): this swarm's number, the other swarms' CAVs' planned
-    # front positions s(t), and whether a manoeuvre may start on a stretch of road
-    # (``may_start(t_s, s_from_m, s_to_m, target_id)``; None: anywhere).
+    # Many swarms (controllers.fleet): this swarm's number; ``planned_paths()``, the other
+    # swarms' CAVs' planned front positions s(t); ``may_start(t_s, s_from_m, s_to_m,
+    # target_id)``, whether a manoeuvre may start on that stretch of road (None: anywhere).
     platoon_id: int | None = None
-    planned_paths: dict[str, Callable[[float], float]] | None = None
+    planned_paths: Callable[[], Mapping[str, Callable[[float], float]]] | None = None
     may_start: Callable[[float, float, float, str], bool] | None = None
 
     @property

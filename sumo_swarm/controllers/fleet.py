@@ -10,10 +10,12 @@ baseline): each decides, overtakes and regroups on its own.
   CAVs of other platoons, and CAVs in no platoon, are vehicles like the human-driven ones (the
   planner keeps their cells free, the guards judge a lane change in front of them by their
   driver model, none is ever assumed to cooperate). A CAV of another swarm that follows a plan
-  is predicted from that plan (``RunContext.planned_paths``), not from a car-following model.
+  is predicted from that plan (``RunContext.planned_paths``, asked for when a swarm plans), not
+  from a car-following model.
 - **Two manoeuvres never share the road.** A swarm starts an overtake only where no other
-  swarm's manoeuvre is under way within ``[platoons] manoeuvre_clearance_m`` of its leader and
-  target (``RunContext.may_start``): the cell grids of two swarms never overlap, so they never
+  swarm's manoeuvre is under way within ``[platoons] manoeuvre_clearance_m`` of its last CAV
+  and target (``RunContext.may_start``, asked for when it decides, so a swarm that started
+  earlier in the same step counts): the cell grids of two swarms never overlap, so they never
   plan into the same cell.
 - **CAVs in no platoon** (on a ramp, in an acceleration lane, approaching their exit, or off
   the route frame) drive as SUMO drives them: SUMO's lane changes for their route, and, once
@@ -32,6 +34,7 @@ A CAV alone is a swarm of one: it overtakes slow vehicles the swarm's way. The s
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import math
@@ -115,10 +118,13 @@ class PlatoonSession:
 
     @property
     def states(self) -> dict[str, VehicleState]:
-        return self._fleet.view(self._session.states, self.members)
+        return self._fleet.view(self.members)
 
     def states_in_lanes_of(self, vid: str) -> dict[str, VehicleState]:
-        return self._fleet.view(self._session.states_in_lanes_of(vid), self.members)
+        table = self._session.states_in_lanes_of(vid)
+        if table is self._session.states:  # no lane numbering to shift
+            return self._fleet.view(self.members)
+        return self._fleet.relabel(table, self.members)
 
 
 @dataclass
@@ -130,7 +136,6 @@ class Platoon:
     ctx: RunContext
     session: PlatoonSession
     members: list[str]
-    formed_s: float
     counted: bool = False  # has had two CAVs or more (a platoon in the summary's count)
 
     def set_members(self, members: list[str], states: Mapping[str, VehicleState]) -> None:
@@ -171,7 +176,8 @@ class Fleet:
 
     def __init__(self, make: Callable[[], Controller], name: str | None = None) -> None:
         self._make = make
-        self.name = name or getattr(make(), "name", "fleet")
+        self._kind = make()  # never attached: what the platoons' controllers offer
+        self.name = name or getattr(self._kind, "name", "fleet")
         self.ctx: RunContext | None = None
         self.settings: PlatoonSettings | None = None
         self.platoons: list[Platoon] = []
@@ -182,8 +188,7 @@ class Fleet:
         self._reviewed_s = -math.inf
         self._first: Platoon | None = None  # whose overtake block the summary shows
         self._first_summary: dict[str, Any] | None = None  # ... kept when it ended
-        self._view_key: tuple[float, int] | None = None
-        self._as_vehicles: dict[str, VehicleState] = {}
+        self._view_source: dict[str, VehicleState] | None = None  # the table _views are of
         self._relabelled: dict[str, tuple[VehicleState, VehicleState]] = {}
         self._views: dict[frozenset[str], dict[str, VehicleState]] = {}
         self._handed: set[str] = set()  # CAVs once in a platoon, now free: CACC for the speed
@@ -204,7 +209,7 @@ class Fleet:
 
     def _open_planlog(self) -> None:
         """One plans.jsonl for every swarm, if the swarms plan (they take ``use_planlog``)."""
-        if hasattr(self._make(), "use_planlog"):
+        if hasattr(self._kind, "use_planlog"):
             self.planlog = PlanLog(self.ctx.out_dir)
 
     def __getattr__(self, name: str) -> Any:
@@ -218,6 +223,7 @@ class Fleet:
         return getattr(inner, name)
 
     def _lead_controller(self) -> Controller | None:
+        self._note_first()
         lead = self._first or (self.platoons[0] if self.platoons else None)
         return None if lead is None else lead.controller
 
@@ -236,31 +242,34 @@ class Fleet:
             except Exception as exc:  # never let the grouping crash the user's simulation
                 log.exception("reviewing the platoons failed at t = %.2f s", t_s)
                 self.ctx.event("controller_error", message=f"{type(exc).__name__}: {exc}")
-        self._share_plans(t_s)
         for platoon in list(self.platoons):
             platoon.controller.control(t_s)
         self._drive_free(states)
 
     # ------------------------------------------------------------------ views
-    def view(
+    def view(self, members: frozenset[str]) -> dict[str, VehicleState]:
+        """The session's states as the platoon of ``members`` sees them (:meth:`relabel`),
+        built once per step and platoon."""
+        states = self.ctx.session.states
+        if states is not self._view_source:  # a new step (held: no later table reuses its id)
+            self._view_source = states
+            self._views = {}
+        view = self._views.get(members)
+        if view is None:
+            view = self._views[members] = self.relabel(states, members)
+        return view
+
+    def relabel(
         self, states: dict[str, VehicleState], members: frozenset[str]
     ) -> dict[str, VehicleState]:
         """``states`` with every CAV not in ``members`` as a vehicle like the human-driven
-        ones; ``states`` itself when there is no such CAV. Built once per step and platoon."""
-        key = (self.ctx.session.time_s, id(states))
-        if key != self._view_key:
-            self._view_key = key
-            self._views = {}
-            self._as_vehicles = {
-                vid: self._as_vehicle(st) for vid, st in states.items() if st.is_cav
-            }
-        if all(vid in members for vid in self._as_vehicles):
+        ones; ``states`` itself when there is no such CAV."""
+        foreign = [st for st in states.values() if st.is_cav and st.vehicle_id not in members]
+        if not foreign:
             return states
-        view = self._views.get(members)
-        if view is None:
-            view = dict(states)
-            view.update((v, st) for v, st in self._as_vehicles.items() if v not in members)
-            self._views[members] = view
+        view = dict(states)
+        for st in foreign:
+            view[st.vehicle_id] = self._as_vehicle(st)
         return view
 
     def _as_vehicle(self, st: VehicleState) -> VehicleState:
@@ -275,27 +284,38 @@ class Fleet:
         self._relabelled[st.vehicle_id] = (st, other)
         return other
 
-    def _share_plans(self, t_s: float) -> None:
-        """Tell every swarm where the other swarms' CAVs are planned to be, and where their
-        manoeuvres are under way."""
+    # ------------------------------------------------------------------ other swarms
+    def _paths_for(self, platoon: Platoon) -> dict[str, Callable[[float], float]]:
+        """The planned front positions ``s(t)`` of the other swarms' CAVs that follow a plan
+        (``RunContext.planned_paths`` of ``platoon``)."""
         paths: dict[str, Callable[[float], float]] = {}
-        busy: list[tuple[int, float, float]] = []
-        for platoon in self.platoons:
-            controller = platoon.controller
-            own = getattr(controller, "planned_paths", None)
-            if own is not None:
+        for other in self.platoons:
+            own = getattr(other.controller, "planned_paths", None)
+            if other is not platoon and own is not None:
                 paths.update(own())
-            region = getattr(controller, "manoeuvre_region", None)
-            if region is not None:
-                extent = region(t_s)
-                if extent is not None:
-                    busy.append((platoon.id, *extent))
+        return paths
+
+    def _may_start(
+        self, platoon: Platoon, t_s: float, s_from_m: float, s_to_m: float, target_id: str
+    ) -> bool:
+        """Whether ``platoon`` may start a manoeuvre on ``[s_from_m, s_to_m]``: no other swarm's
+        manoeuvre within ``manoeuvre_clearance_m`` (``RunContext.may_start``). A start held
+        back is counted, and an ``overtake_deferred`` event written, once per swarm and
+        target."""
         clearance = self.settings.manoeuvre_clearance_m
-        for platoon in self.platoons:
-            ctx = platoon.ctx
-            ctx.planned_paths = {v: f for v, f in paths.items() if v not in platoon.session.members}
-            others = [(lo - clearance, hi + clearance) for pid, lo, hi in busy if pid != platoon.id]
-            ctx.may_start = _clear_of(others, self.counts, ctx) if others else None
+        for other in self.platoons:
+            region = getattr(other.controller, "manoeuvre_region", None)
+            extent = None if other is platoon or region is None else region(t_s)
+            if extent is None:
+                continue
+            lo, hi = extent
+            if s_from_m <= hi + clearance and lo - clearance <= s_to_m:
+                key = (platoon.id, target_id)
+                if key not in self.counts.deferred_for:
+                    self.counts.deferred_for.add(key)
+                    platoon.ctx.event("overtake_deferred", target=target_id, reason="other_swarm")
+                return False
+        return True
 
     # ------------------------------------------------------------------ membership
     def _platoon_of(self, vid: str) -> Platoon | None:
@@ -310,7 +330,8 @@ class Fleet:
         cavs = [vid for vid in session.cav_ids if vid in states]
         self._parted &= set(cavs)
         self._relabelled = {v: pair for v, pair in self._relabelled.items() if v in states}
-        where = {vid: self._where(vid, states) for vid in cavs}
+        frame_edges = frozenset(session.frame.route_edges)
+        where = {vid: self._where(vid, states, frame_edges) for vid in cavs}
         # may stay in a platoon: on the frame, its exit not near (a lane that ends ahead is
         # the swarm's to leave); may join one: also in a lane that goes on
         stays = {vid for vid, w in where.items() if w is not None and w[1] is None}
@@ -325,7 +346,7 @@ class Fleet:
             for vid in platoon.members:
                 if vid not in keep:
                     self._free(platoon, vid)
-                    reason = where.get(vid)[1] if where.get(vid) is not None else None
+                    reason = (where.get(vid) or (None, None))[1]
                     if vid in states and reason is not None and vid not in left:
                         platoon.ctx.event("cav_leaves", vehicle=vid, reason=reason)
             if len(keep) != len(platoon.members):
@@ -379,7 +400,9 @@ class Fleet:
             self.counts.merges += 1
             self.ctx.event("platoon_merge", platoon=a.id, merged=b.id, cavs=a.members)
 
-    def _where(self, vid: str, states) -> tuple[str, str | None, bool] | None:
+    def _where(
+        self, vid: str, states, frame_edges: frozenset[str]
+    ) -> tuple[str, str | None, bool] | None:
         """``(its route's last edge, why it may not be in a platoon, may join one)`` of CAV ``vid``
         (None: it may be; ``route_parts``: its exit is near; ``off_route``: off the route
         frame); None if unknown."""
@@ -397,7 +420,7 @@ class Fleet:
             return edges[-1], "off_route", False
         speed = states[vid].speed_mps
         reach = max(st.exit_reach_min_m, st.exit_reach_s * speed)
-        parting = session.distance_to_parting_m(vid, edges, index, frozenset(frame.route_edges))
+        parting = session.distance_to_parting_m(vid, edges, index, frame_edges)
         if vid in self._parted or (parting is not None and parting <= reach):
             self._parted.add(vid)  # for good: it heads for its exit
             return edges[-1], "route_parts", False
@@ -431,7 +454,9 @@ class Fleet:
         controller = self._make()
         if self.planlog is not None and hasattr(controller, "use_planlog"):
             controller.use_planlog(_Tagged(self.planlog, self._next_id))
-        platoon = Platoon(self._next_id, controller, ctx, session, [], t_s)
+        platoon = Platoon(self._next_id, controller, ctx, session, [])
+        ctx.planned_paths = functools.partial(self._paths_for, platoon)
+        ctx.may_start = functools.partial(self._may_start, platoon)
         self._next_id += 1
         self.counts.swarms += 1
         for vid in members:
@@ -548,7 +573,7 @@ class Fleet:
         elif self.platoons:
             out = dict(self.platoons[0].controller.summary())
         else:
-            out = dict(self._make().summary())
+            out = dict(self._kind.summary())
         out["swarms"] = self.swarms_block()
         overtake = out.get("overtake")
         if isinstance(overtake, dict):
@@ -574,22 +599,6 @@ class Fleet:
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def _clear_of(regions: list[tuple[float, float]], counts: FleetCounts, ctx: RunContext):
-    """``may_start(t_s, s_from_m, s_to_m, target_id)``: False while ``[s_from_m, s_to_m]``
-    overlaps one of ``regions`` (counted once per swarm and target)."""
-
-    def may_start(t_s: float, s_from_m: float, s_to_m: float, target_id: str) -> bool:
-        if any(s_from_m <= hi and lo <= s_to_m for lo, hi in regions):
-            key = (ctx.platoon_id, target_id)
-            if key not in counts.deferred_for:
-                counts.deferred_for.add(key)
-                ctx.event("overtake_deferred", target=target_id, reason="other_swarm")
-            return False
-        return True
-
-    return may_start
 
 
 def _on_junction(session: Any, vid: str) -> bool:
@@ -625,10 +634,8 @@ class _Tagged:
         self._log = log_
         self._platoon = platoon
         self.listeners = log_.listeners
-        self.count = 0
 
     def write(self, record: dict[str, Any]) -> None:
-        self.count += 1
         record["platoon"] = self._platoon
         self._log.write(record)
 

@@ -347,13 +347,15 @@ class Replanner:
         if sc.planner.release_idle_holds == "stranded" and self.plan is not None and self.plan.ok:
             in_force = dict(zip(self.plan.cav_ids, self.plan.cells, strict=True))
             stranded = bool(stranded_cavs(in_force, cavs_behind(target, cavs, sc.cav.min_gap_m)))
+        others = getattr(ctx, "planned_paths", None)  # other swarms' plans (many swarms)
+        known = others() if others is not None else None
         for n, (speed, speed_interval) in enumerate(tries):
             outcome = self.manoeuvre.plan(
                 t_s, reason, states, platoon, target_id, ctx.road,
                 obstacles=obstacles, model_of=self.model_of, grid_speed_mps=speed, cap_mps=cap,
                 interval_s=speed_interval, step_s=ctx.dt_s, block_budget=budget,
                 previous=previous, closed_lane=closed, stranded=stranded,
-                known_paths=getattr(ctx, "planned_paths", None),
+                known_paths=known,
             )  # fmt: skip
             if n:
                 outcome.record["grid_speed_rule"] = "target"
