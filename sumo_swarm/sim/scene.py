@@ -252,7 +252,7 @@ def route_edges(sc: Scenario) -> tuple[str, ...]:
     return sc.simulation.route_edges
 
 
-# The corridor's vehicle classes: vType id -> the share of a demand it takes.
+# The vType ids of a corridor's cars and trucks (its CAVs': CAV_TYPE).
 CAR_TYPE = "car"
 TRUCK_TYPE = "truck"
 
