@@ -533,6 +533,10 @@ class Fleet:
                 self._off_frame.add(vid)  # off the frame: SUMO's car-following drives it
                 session.release_speed(vid)
         if follow:
+            # At SUMO's desired speed for them where they drive ([cav] speeds = "world"), as the
+            # swarms: the fleet's own settings kept the config's 20 m/s, and a CAV leaving for
+            # its exit drove at 20 m/s on a 33 m/s motorway.
+            self.ctx.follow_world_speeds(follow)
             road = session.road_at(follow[0]) or self.ctx.road
             command_cacc(replace(self.ctx, road=road), follow)
 
