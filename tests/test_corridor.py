@@ -6,6 +6,7 @@ off-ramp) without a collision."""
 from __future__ import annotations
 
 import math
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pandas as pd
@@ -24,6 +25,7 @@ from sumo_swarm.sim.scene import (
     corridor_routes_xml,
     corridor_spec,
     route_edges,
+    write_sumo_inputs,
 )
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -161,6 +163,15 @@ def test_a_corridor_without_ramps_is_one_edge(tmp_path):
 
 
 # --------------------------------------------------------------------------- the flows
+
+
+def test_a_relative_output_folder_names_a_network_sumo_can_open(tmp_path, monkeypatch):
+    # SUMO reads a config's paths relative to the config: `run ... --out out` once wrote
+    # "out/sumo/corridor.net.xml" into out/sumo/scenario.sumocfg, which SUMO could not open.
+    monkeypatch.chdir(tmp_path)
+    cfg, _ = write_sumo_inputs(load_scenario(CORRIDOR), "sumo-lc", Path("out") / "sumo")
+    net = ET.parse(cfg).find("input/net-file").get("value")
+    assert (cfg.parent / net).is_file()
 
 
 def test_flows_split_every_demand_by_destination_and_class():

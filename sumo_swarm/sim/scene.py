@@ -355,12 +355,15 @@ def write_sumo_inputs(sc: Scenario, controller: str, folder: Path) -> tuple[Path
         net = sc.network_path
         routes.write_text(routes_xml(sc, scene, controller), encoding="utf-8")
     cfg = folder / "scenario.sumocfg"
+    # SUMO reads the config's paths relative to the config: a network built into the folder is
+    # named by its file name (a relative --out gave "out/sumo/out/sumo/corridor.net.xml").
+    net_value = net.name if net.parent.resolve() == folder.resolve() else str(Path(net).resolve())
     opts = sumo_options(sc)
     pairs = [(opts[i].removeprefix("--"), opts[i + 1]) for i in range(0, len(opts), 2)]
     body = "\n".join(f"        <{k} value={quoteattr(v)}/>" for k, v in pairs)
     cfg.write_text(
         '<?xml version="1.0" encoding="UTF-8"?>\n<configuration>\n    <input>\n'
-        f"        <net-file value={quoteattr(str(net))}/>\n"
+        f"        <net-file value={quoteattr(net_value)}/>\n"
         f'        <route-files value="{routes.name}"/>\n    </input>\n'
         f"    <processing>\n{body}\n    </processing>\n</configuration>\n",
         encoding="utf-8",
