@@ -217,6 +217,27 @@ def test_reaction_step_is_model_accel_bit_for_bit(step_s):
         assert got == model_accel(m, v, v_lead, gap, step_s), (m, v, v_lead, gap)
 
 
+@pytest.mark.parametrize("step_s", [0.03, 0.1, 0.2, 0.5, 1.0])
+@pytest.mark.parametrize("model", sorted(hvmodel.KRAUSS_MODELS))
+def test_krauss_reaction_step_is_model_accel_bit_for_bit(model, step_s):
+    # The same for Krauss (_Krauss.accel, written out in one function): worst-case dawdling,
+    # emergency braking (a gap inside minGap, a leader far slower), stops and free road.
+    rng = random.Random(12)
+    for _ in range(3000):
+        m = DriverModel(
+            model, rng.uniform(0.5, 3.0), rng.uniform(1.0, 5.0), rng.choice([9.0, 4.5, 7.0]),
+            rng.choice([1.0, rng.uniform(0.2, 2.0)]), rng.uniform(1.0, 3.0),
+            desired_speed_mps=rng.choice([rng.uniform(5.0, 40.0), 0.0]),
+            sigma=rng.choice([0.0, 0.5, 1.0]),
+        )  # fmt: skip
+        v = rng.choice([0.0, rng.uniform(-1.0, 40.0)])
+        v_lead = rng.choice([0.0, rng.uniform(0.0, 40.0)])
+        gap = rng.choice([0.0, m.min_gap_m, rng.uniform(-5.0, 200.0), 1e6])
+        got = hvmodel._accel_of(m, step_s)(v, v_lead, gap)
+        assert type(hvmodel._accel_of(m, step_s).__self__) is hvmodel._Krauss
+        assert got == model_accel(m, v, v_lead, gap, step_s), (m, v, v_lead, gap)
+
+
 # ---------------------------------------------------------------------- predictor
 def _state(vid, s, v, lane=0, lat=0.0, is_cav=False, length=5.0):
     return VehicleState(vid, s, lane, lat, v, length, 0.0, is_cav)

@@ -267,12 +267,76 @@ def model_accel(
     return (v_next - v) / step_s
 
 
+class _Krauss:
+    """SUMO's Krauss of one driver over steps of ``step_s``, worst-case dawdling, leader's
+    deceleration taken as the driver's own: :func:`model_accel` written out in one function
+    (the same operations in the same order, so the same numbers bit for bit). A simulated
+    reaction (:func:`_reaction_peak`) evaluates it at each of its steps; through the general
+    functions, their calls were most of a dense corridor's planning time."""
+
+    __slots__ = ("m", "step_s")
+
+    def __init__(self, m: DriverModel, step_s: float) -> None:
+        self.m = m
+        self.step_s = step_s
+
+    def accel(self, v_mps: float, v_lead: float, gap_m: float) -> float:
+        m, step = self.m, self.step_s
+        v = v_mps if v_mps > 0.0 else 0.0  # max(0.0, v_mps)
+        b = m.decel_mps2
+        emergency = m.emergency_decel_mps2
+        # krauss_follow_speed(m, v, v_lead, gap_m, step), leader braking at b
+        g = gap_m - m.min_gap_m
+        if g >= 0.0:
+            reduction = b * step  # brake_gap_euler(v_lead, b, step)
+            steps = int(v_lead / reduction)
+            lead_brake = step * (steps * v_lead - reduction * steps * (steps + 1) / 2.0)
+            # _safe_stop_speed_euler(g + lead_brake, b, tau, step)
+            gs = g + lead_brake - _EPS
+            if gs < 0.0:
+                x = 0.0
+            else:
+                bs = b * step
+                t = m.tau_s
+                root = math.sqrt(step * step + 4.0 * (step * (2.0 * gs / bs - t) + t * t))
+                n = math.floor(0.5 - (t - root / 2.0) / step)
+                h = 0.5 * n * (n - 1) * bs * step + n * bs * t
+                x = n * bs + (gs - h) / (n * step + t)
+        else:
+            x = max(0.0, v - emergency * step)
+        if b != emergency:
+            orig_decel = (v - x) / step
+            if orig_decel > b + _EPS:
+                safe = _EMERGENCY_AMPLIFIER * _emergency_decel(m, g, v, v_lead, b)
+                safe = min(max(safe, b), orig_decel)
+                x = max(0.0, v - safe * step)
+        v_safe = min(x, v + m.accel_mps2 * step)
+        # _finalize(m, v, v_safe, step, b)
+        lowest = v - emergency * step
+        lowest = lowest if lowest > 0.0 else 0.0
+        lowest = lowest if lowest > v_safe else v_safe
+        braked = v - b * step
+        braked = braked if braked > 0.0 else 0.0
+        v_min = lowest if lowest < braked else braked
+        v_max = v + m.accel_mps2 * step
+        desired = 0.0 if m.desired_speed_mps < 0.0 else m.desired_speed_mps
+        v_max = desired if desired < v_max else v_max
+        v_max = v_safe if v_safe < v_max else v_max
+        v_max = v_max if v_max > v_min else v_min
+        slow = max(0.0, m.sigma) * 1.0 * min(m.accel_mps2, v_max) * step
+        slowed = v_max - slow
+        v_next = max(v_min, slowed if slowed > 0.0 else 0.0)
+        return (v_next - v) / step
+
+
 def _accel_of(m: DriverModel, step_s: float) -> Callable[[float, float, float], float]:
     """``model_accel(m, v, v_lead, gap, step_s)`` as a function of ``(v, v_lead, gap)``; an
-    IDM driver's with its constants worked out once (the same numbers, bit for bit)."""
-    if m.model not in IDM_MODELS:
-        return lambda v, v_lead, gap: model_accel(m, v, v_lead, gap, step_s)
-    return _Idm(m, step_s).accel
+    IDM or Krauss driver's written out once (the same numbers, bit for bit)."""
+    if m.model in IDM_MODELS:
+        return _Idm(m, step_s).accel
+    if m.model in KRAUSS_MODELS:
+        return _Krauss(m, step_s).accel
+    return lambda v, v_lead, gap: model_accel(m, v, v_lead, gap, step_s)
 
 
 def braking_needed(
@@ -677,11 +741,16 @@ class CarFollowingPredictor:
         added to ``hv``'s position (lane kept). An id not simulated: constant speed."""
         j = self._column.get(hv.vehicle_id)
         if j is None or hv.vehicle_id not in self._simulated_set:
-            return dataclasses.replace(hv, s_m=hv.s_m + hv.speed_mps * (t_s - now_s))
-        ds = self._s_at(j, t_s) - self._s_at(j, now_s)
-        v = self._v_at(j, t_s)
-        acc = (v - self._v_at(j, t_s - self.dt_s)) / self.dt_s
-        return dataclasses.replace(hv, s_m=hv.s_m + ds, speed_mps=v, accel_mps2=acc)
+            s, v, acc = hv.s_m + hv.speed_mps * (t_s - now_s), hv.speed_mps, hv.accel_mps2
+        else:
+            s = hv.s_m + (self._s_at(j, t_s) - self._s_at(j, now_s))
+            v = self._v_at(j, t_s)
+            acc = (v - self._v_at(j, t_s - self.dt_s)) / self.dt_s
+        # built directly (dataclasses.replace costs more than the prediction: a plan asks for
+        # every HV at every step of its horizon)
+        return VehicleState(
+            hv.vehicle_id, s, hv.lane, hv.lat_m, v, hv.length_m, acc, hv.is_cav, hv.width_m
+        )
 
     def error_against(self, actual: Mapping[str, VehicleState], t_s: float) -> dict[str, float]:
         """Position error [m] of each simulated HV at ``t_s``: predicted minus ``actual``."""

@@ -162,6 +162,9 @@ class SumoSession:
         self.vehicle_classes: dict[str, str] = {}  # SUMO's vClass of each vehicle's type
         self._type_classes: dict[str, str] = {}
         self.states: dict[str, VehicleState] = {}
+        # states_in_lanes_of's tables of this step, per reference edge (of the table held)
+        self._lane_views_of: dict[str, VehicleState] | None = None
+        self._lane_views: dict[str, dict[str, VehicleState]] = {}
         self.positions: dict[str, tuple[float, float]] = {}
         self.edges: dict[str, str] = {}
         self.collisions: list[Collision] = []
@@ -244,6 +247,16 @@ class SumoSession:
         if edge is None or not frame.lane_shifts_m:  # every edge numbers its lanes alike
             return self.states
         reference = frame.route_edge(edge)
+        # One table per reference edge and step, whoever asks (many swarms share an edge).
+        if self._lane_views_of is not self.states:
+            self._lane_views_of, self._lane_views = self.states, {}
+        out = self._lane_views.get(reference)
+        if out is None:
+            out = self._lane_views[reference] = self._in_lanes_of(reference)
+        return out
+
+    def _in_lanes_of(self, reference: str) -> dict[str, VehicleState]:
+        frame = self.frame
         n_lanes = frame.lane_count(reference)
         edges = self.edges
         out = {}
@@ -256,7 +269,10 @@ class SumoSession:
             if lane is None or lane == state.lane or not 0 <= lane < n_lanes:
                 out[other] = state
             else:
-                out[other] = dataclasses.replace(state, lane=lane)
+                out[other] = VehicleState(
+                    state.vehicle_id, state.s_m, lane, state.lat_m, state.speed_mps,
+                    state.length_m, state.accel_mps2, state.is_cav, state.width_m,
+                )  # fmt: skip
         return out
 
     def lanes_ending(self, edge: str, s_from_m: float, s_to_m: float) -> list[tuple[int, float]]:

@@ -106,7 +106,7 @@ MAX_MARGIN_M = 150.0
 MARGIN_TOL_M = 0.1  # margins are searched to this [m]
 
 
-@functools.lru_cache(maxsize=8192)
+@functools.lru_cache(maxsize=65536)
 def _entry_gap(model: DriverModel, v_q: int, v_lead_q: int, b: float, step_s: float) -> float:
     v, v_lead = v_q * SPEED_QUANTUM_MPS, v_lead_q * SPEED_QUANTUM_MPS
     # A driver above its desired speed slows down on a free road too: only the braking the
@@ -126,9 +126,11 @@ def _entry_gap(model: DriverModel, v_q: int, v_lead_q: int, b: float, step_s: fl
 DESIRED_SPEED_QUANTUM_MPS = 0.5
 
 
+@functools.lru_cache(maxsize=4096)
 def canonical_model(model: DriverModel) -> DriverModel:
     """``model`` with its desired speed rounded down and no speedFactor: one cache entry per
-    vType and desired-speed class, not per vehicle."""
+    vType and desired-speed class, not per vehicle (itself cached: a plan asks it for every HV
+    at every step of its horizon)."""
     q = DESIRED_SPEED_QUANTUM_MPS
     v0 = math.floor(model.desired_speed_mps / q + 1e-9) * q
     if v0 == model.desired_speed_mps and model.speed_factor == 1.0:
@@ -150,7 +152,7 @@ def entry_gap(
     )
 
 
-@functools.lru_cache(maxsize=8192)
+@functools.lru_cache(maxsize=65536)
 def _block_gap(
     model: DriverModel, v_q: int, v_enter_q: int, v_final_q: int, decel: float, b: float,
     step_s: float,
