@@ -17,13 +17,15 @@ import time
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from sumo_swarm.cli import main
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.network import EDGES_FILE
 from sumo_swarm.study.batch import find_case, load_sweep, run_batch
-from sumo_swarm.study.impact import markdown_table
+from sumo_swarm.study.impact import flow_density, markdown_table
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = (ROOT / "scenarios" / "paper.toml").as_posix()
@@ -166,6 +168,36 @@ def test_runs_are_the_product_with_stable_ids(sweep_file):
     assert sweep.runs[0].run_id.startswith("cacc-s1-4-16-16-")
 
 
+def test_flow_density_points_are_per_lane(tmp_path):
+    # Two hand-made runs' edge data: a 3-lane edge at 60 veh/km (20 per lane) carrying
+    # 3600 veh/h is 1200 veh/h per lane; an interval nobody drove (density 0) is no point.
+    edges = pd.DataFrame({
+        "begin_s": [0.0, 60.0, 0.0], "end_s": [60.0, 120.0, 60.0], "edge": ["a", "a", "ramp"],
+        "sampled_s": [1.0, 0.0, 1.0], "speed_mps": [16.7, np.nan, 20.0],
+        "density_veh_per_km": [60.0, 0.0, 10.0], "lane_density_veh_per_km": [20.0, 0.0, 10.0],
+        "flow_veh_per_h": [3600.0, np.nan, 720.0], "entered": [1, 0, 1], "left": [1, 0, 1],
+        "distance_m": [1.0, 0.0, 1.0],
+    })  # fmt: skip
+    for run_id in ("r1", "r2"):
+        (tmp_path / "runs" / run_id).mkdir(parents=True)
+        edges.to_parquet(tmp_path / "runs" / run_id / EDGES_FILE)
+    runs = pd.DataFrame(
+        {
+            "run_id": ["r1", "r2", "r3"],
+            "controller": ["swarm", "cacc", "cacc"],
+            "p": [0.1, 0.2, 0.2],
+        }
+    )
+    points = flow_density(tmp_path, runs, "p")  # r3 has no edge data: no points
+    assert len(points) == 4
+    assert points["flow_veh_per_h_lane"].tolist() == pytest.approx([1200.0, 720.0] * 2)
+    assert points["density_veh_per_km_lane"].tolist() == pytest.approx([20.0, 10.0] * 2)
+    assert points.groupby("controller")["value"].first().to_dict() == {
+        "cacc": "0.2", "swarm": "0.1",
+    }  # fmt: skip
+    assert flow_density(tmp_path, runs.iloc[2:], None).empty
+
+
 def test_repeated_case_is_refused(sweep_file):
     path = sweep_file('[[cases]]\n"cav.count" = 4\n[[cases]]\n"cav.count" = 4.0\n')
     with pytest.raises(ConfigError, match="repeat"):
@@ -234,9 +266,14 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
         "network_vs_scene_initial_speed_mps.png",
         "speed_field.csv",
         "speed_field.png",
+        "flow_density.csv",
+        "flow_density.png",
         "safety.png",
     ):
         assert (impact / name).is_file(), name
+    points = pd.read_csv(impact / "flow_density.csv")
+    assert set(points["controller"]) == {"cacc", "swarm"} and set(points["value"]) == {16.0, 17.5}
+    assert (points["flow_veh_per_h_lane"] > 0).all()
     # the network table: per value and controller, the mean over its runs of each class's delay
     network = pd.read_csv(impact / "network.csv")
     row = network[(network["controller"] == "swarm") & (network["value"] == 16.0)].iloc[0]

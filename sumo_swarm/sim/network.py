@@ -41,6 +41,7 @@ EDGE_DATA = "edgedata.xml"
 ADDITIONAL = "network.add.xml"
 EDGE_DATA_ID = "sumo-swarm"
 SPEED_FIELD_FILE = "network_speed_field.parquet"
+EDGES_FILE = "network_edges.parquet"
 
 # SUMO vClasses reported as their own class; every other HV is "hv".
 CLASS_OF_VCLASS = {"truck": "truck", "trailer": "truck", "bus": "bus", "coach": "bus"}
@@ -292,7 +293,7 @@ def write_network_tables(out: Path, tables: NetworkTables) -> None:
     if tables.conflicts is not None:
         write_parquet_atomic(out / "network_conflicts.parquet", tables.conflicts)
     if tables.edges is not None:
-        write_parquet_atomic(out / "network_edges.parquet", tables.edges)
+        write_parquet_atomic(out / EDGES_FILE, tables.edges)
 
 
 # --------------------------------------------------------------------------- measures

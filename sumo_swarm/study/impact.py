@@ -18,6 +18,10 @@
   the route (each run's ``network_speed_field.parquet``, weighted by samples), a row per value
   of the first swept parameter (all runs in one when it has more than ``SPEED_FIELD_ROWS``
   values or nothing is swept), heatmaps on one colour scale;
+* ``flow_density.csv`` and ``flow_density.png``: every edge and interval of SUMO's edge data
+  (each run's ``network_edges.parquet``) as a point of flow against density per lane, a panel
+  per controller, coloured by the first swept parameter: the fundamental diagram each
+  controller's traffic drew;
 * ``safety.csv``: per controller, collisions, hard brakes, teleports (sums), the smallest TTC
   and CAV gap;
 * ``impact.md`` (the same tables) and the plots ``mobility_vs_<param>.png``,
@@ -41,7 +45,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.sim.network import SPEED_FIELD_FILE, mean_speed_field
+from sumo_swarm.sim.network import EDGES_FILE, SPEED_FIELD_FILE, mean_speed_field
 
 REFERENCE = "cacc"
 ALL = "(all)"  # the parameter name of the one group of a sweep that varies nothing
@@ -339,6 +343,60 @@ def _speed_field_plot(
     fig.savefig(path, dpi=120)
 
 
+def flow_density(batch_dir: Path, runs: pd.DataFrame, parameter: str | None = None) -> pd.DataFrame:
+    """Every edge and interval of each run's edge data (``network_edges.parquet``) with
+    vehicles on it: ``density_veh_per_km_lane`` and ``flow_veh_per_h_lane`` (the edge's flow
+    spread over its lanes, as its density is), with the run's controller, run id and, when
+    given, its value of ``parameter``. Empty when no run has edge data."""
+    frames = []
+    for row in runs.to_dict("records"):
+        path = batch_dir / "runs" / str(row["run_id"]) / EDGES_FILE
+        if not path.is_file():
+            continue
+        edges = pd.read_parquet(path)
+        edges = edges[(edges["density_veh_per_km"] > 0) & edges["flow_veh_per_h"].notna()]
+        lanes = edges["density_veh_per_km"] / edges["lane_density_veh_per_km"]
+        frames.append(
+            pd.DataFrame({
+                "run_id": row["run_id"],
+                "controller": row["controller"],
+                "value": str(row[parameter]) if parameter else ALL,
+                "edge": edges["edge"],
+                "begin_s": edges["begin_s"],
+                "density_veh_per_km_lane": edges["lane_density_veh_per_km"],
+                "flow_veh_per_h_lane": edges["flow_veh_per_h"] / lanes,
+                "speed_mps": edges["speed_mps"],
+            })
+        )  # fmt: skip
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def _flow_density_plot(points: pd.DataFrame, parameter: str | None, path: Path) -> None:
+    if points.empty:
+        return
+    controllers = sorted(points["controller"].unique())
+    values = sorted(points["value"].unique(), key=lambda v: (numeric(pd.Series([v]))[0], v))
+    colours = {v: f"C{i % 10}" for i, v in enumerate(values)}
+    fig = Figure(figsize=(1.0 + 3.6 * len(controllers), 3.6), layout="constrained")
+    axes = fig.subplots(1, len(controllers), squeeze=False, sharex=True, sharey=True)[0]
+    for ax, controller in zip(axes, controllers, strict=True):
+        mine = points[points["controller"] == controller]
+        for value in values:
+            group = mine[mine["value"] == value]
+            label = value if parameter is None else f"{parameter} = {value}"
+            ax.scatter(
+                group["density_veh_per_km_lane"], group["flow_veh_per_h_lane"], s=6,
+                alpha=0.5, color=colours[value], label=label if value != ALL else None,
+            )  # fmt: skip
+        ax.set_title(controller, fontsize="small")
+        ax.set_xlabel("density [veh/km/lane]")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("flow [veh/h/lane]")
+    if parameter is not None:
+        axes[-1].legend(fontsize="x-small", markerscale=2)
+    fig.savefig(path, dpi=120)
+
+
 # --------------------------------------------------------------------------- entry point
 
 
@@ -421,6 +479,19 @@ def impact(
             "cell's space-mean speed, total distance over total time), on one colour scale.",
             "",
             "![Space-time speed per controller](speed_field.png)",
+        ]
+    colour_by = swept[0] if swept else None
+    points = flow_density(Path(batch_dir), runs, colour_by)
+    if not points.empty:
+        points.to_csv(out / "flow_density.csv", index=False)
+        _flow_density_plot(points, colour_by, out / "flow_density.png")
+        lines += ["", "## Flow and density", ""]
+        lines += [
+            "Every edge and interval of SUMO's edge data as one point, flow against density "
+            "per lane, a panel per controller"
+            + (f", coloured by `{colour_by}`." if colour_by else "."),
+            "",
+            "![Flow against density per controller](flow_density.png)",
         ]
     _safety_plot(safety, out / "safety.png")
     lines += ["", "## Safety", "", markdown_table(_headings(safety, SAFETY)), ""]
