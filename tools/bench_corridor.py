@@ -1,0 +1,193 @@
+"""Benchmark: what a corridor run costs under the swarm, against sumo-cacc and plain SUMO.
+
+On ``scenarios/corridor.toml`` (6 km, 3 lanes, ramps, 1500 veh/h/lane, one flow per origin,
+destination and class), three ways of running the same traffic, each in its own process,
+alternated point by point so that each sees the same machine load:
+
+- ``sumo``: the sumo binary on the configuration ``sumo-swarm run`` writes for sumo-cacc
+  (``sumo/scenario.sumocfg``: the same network, flows, step, sublane model and collision
+  options), with the same network outputs (tripinfo with emissions, SSM, edge data);
+- ``sumo-cacc``: ``sumo-swarm run ... --controller sumo-cacc``: SUMO drives, the project reads,
+  records and summarises (the plumbing);
+- ``swarm``: ``sumo-swarm run ... --controller swarm``.
+
+Two axes: the simulated time (``--times``, at the scenario's CAV share) and the number of CAVs
+(``--shares`` of the demand, at ``--share-time`` simulated seconds). Prints and saves a table of
+process wall time and peak resident memory per point and mode (median, p95 and max over
+``--repeats``), the ratios swarm / sumo-cacc and sumo-cacc / sumo run by run, each mode's peak
+memory against its shortest run's, and what the runs did (CAVs that entered, platoons formed,
+collisions).
+
+Usage: python tools/bench_corridor.py [--times 300,1200,3600] [--shares 0.1,0.2,0.4]
+                                      [--share-time 300] [--repeats 1]
+                                      [--out docs/bench/corridor]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from sumo_swarm.config import load_scenario
+from sumo_swarm.sim.bridge import sumo_binary
+from sumo_swarm.sim.network import network_options
+from sumo_swarm.sim.scene import write_sumo_inputs
+
+ROOT = Path(__file__).resolve().parent.parent
+CORRIDOR = ROOT / "scenarios" / "corridor.toml"
+MODES = ("sumo", "sumo-cacc", "swarm")
+
+
+def timed(cmd: list[str]) -> tuple[float, float]:
+    """Run ``cmd``; its wall time [s] and peak resident memory [MB]. Raises if it fails."""
+    import os
+
+    with tempfile.TemporaryFile() as err:  # a file, not a pipe: a chatty run never blocks
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        if os.waitstatus_to_exitcode(status) != 0:
+            err.seek(0)
+            tail = err.read().decode(errors="replace")[-400:]
+            raise RuntimeError(f"{' '.join(cmd[:5])} ... failed: {tail}")
+    return wall, usage.ru_maxrss / 1024.0  # Linux gives kB
+
+
+def scenario_file(folder: Path, duration_s: float, share: float) -> Path:
+    """corridor.toml with its duration and CAV share replaced (each key once, or an error)."""
+    text = CORRIDOR.read_text(encoding="utf-8")
+    for key, value in (("duration_s", duration_s), ("cav_share", share)):
+        text, n = re.subn(rf"(?m)^{key} = [0-9.]+", f"{key} = {value!r}", text)
+        if n != 1:
+            raise SystemExit(f"{CORRIDOR}: expected one '{key} = ' line, found {n}")
+    path = folder / f"corridor-{duration_s:g}s-{share:g}.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def command(mode: str, scenario: Path, work: Path) -> list[str]:
+    if mode == "sumo":
+        sc = load_scenario(scenario)
+        cfg, _ = write_sumo_inputs(sc, "sumo-cacc", work / "sumo")
+        outputs = network_options(work / "sumo", sc.outputs)[0]
+        return [sumo_binary(), "-c", str(cfg), *outputs]
+    return [sys.executable, "-m", "sumo_swarm", "run", str(scenario), "--controller", mode,
+            "--out", str(work)]  # fmt: skip
+
+
+def what_it_did(mode: str, work: Path) -> dict[str, float]:
+    if mode == "sumo":
+        return {}
+    summary = json.loads((work / "summary.json").read_text(encoding="utf-8"))
+    network = summary.get("network") or {}
+    swarms = summary.get("swarms") or {}
+    return {
+        "cavs": (network.get("vehicles_per_class") or {}).get("cav", np.nan),
+        "vehicles": network.get("vehicles", np.nan),
+        "platoons_formed": swarms.get("platoons_formed", np.nan),
+        "collisions": summary["safety"]["collisions"],
+        "cav_mean_speed_mps": summary["cav"]["mean_speed_mps"],
+    }
+
+
+def stats(values) -> dict[str, float]:
+    a = np.asarray(values, dtype=float)
+    return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": a.max()}
+
+
+def _floats(text: str) -> list[float]:
+    return [float(x) for x in text.split(",") if x.strip()]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--times", default="300,1200,3600", help="simulated seconds, comma list")
+    parser.add_argument("--shares", default="0.1,0.2,0.4", help="CAV shares, comma list")
+    parser.add_argument("--share-time", type=float, default=300.0)
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "corridor")
+    args = parser.parse_args(argv)
+    base_share = load_scenario(CORRIDOR).corridor.cav_share
+    points = [("time", t, base_share) for t in _floats(args.times)]
+    points += [("cavs", args.share_time, s) for s in _floats(args.shares)]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(args.repeats):
+            for axis, duration, share in points:
+                if axis == "cavs" and ("time", duration, share) in points:
+                    continue  # the same runs as a point of the time axis: measured there
+                scenario = scenario_file(Path(tmp), duration, share)
+                for mode in MODES:
+                    work = Path(tmp) / f"{i}-{duration:g}-{share:g}-{mode}"
+                    wall, rss = timed(command(mode, scenario, work))
+                    row = {"repeat": i, "duration_s": duration, "cav_share": share,
+                           "mode": mode, "wall_s": wall, "peak_rss_mb": rss,
+                           **what_it_did(mode, work)}  # fmt: skip
+                    rows.append(row)
+                    print(f"run {i} {duration:6g} s share {share:4g} {mode:10s} "
+                          f"wall {wall:8.2f} s  peak {rss:6.0f} MB", flush=True)  # fmt: skip
+    df = pd.DataFrame(rows)
+    keys = ["repeat", "duration_s", "cav_share"]
+    wide = df.pivot_table(index=keys, columns="mode", values=["wall_s", "peak_rss_mb"])
+    table = []
+    for (duration, share), sub in wide.groupby(level=["duration_s", "cav_share"]):
+        runs = df[(df["duration_s"] == duration) & (df["cav_share"] == share)]
+        did = runs[runs["mode"] == "swarm"]
+        cacc = runs[runs["mode"] == "sumo-cacc"]
+        head = {"simulated_s": duration, "cav_share": share,
+                "cavs": float(cacc["cavs"].median()),
+                "platoons_formed": float(did["platoons_formed"].median()),
+                "collisions_swarm": float(did["collisions"].max())}  # fmt: skip
+        for mode in MODES:
+            for measure, column in (("wall [s]", "wall_s"), ("peak memory [MB]", "peak_rss_mb")):
+                table.append({**head, "mode": mode, "measure": measure,
+                              **stats(sub[(column, mode)])})  # fmt: skip
+        wall = sub["wall_s"]
+        ratios = (
+            ("swarm", "wall / sumo-cacc's", wall["swarm"] / wall["sumo-cacc"]),
+            ("sumo-cacc", "wall / plain SUMO's", wall["sumo-cacc"] / wall["sumo"]),
+        )
+        for mode, measure, ratio in ratios:
+            table.append({**head, "mode": mode, "measure": measure, **stats(ratio)})
+    out = pd.DataFrame(table)
+    shortest = df["duration_s"].min()
+    growth = []
+    for mode in MODES:
+        mine = df[(df["mode"] == mode) & (df["cav_share"] == base_share)]
+        first = mine[mine["duration_s"] == shortest]["peak_rss_mb"].median()
+        for duration, sub in mine.groupby("duration_s"):
+            peak = sub["peak_rss_mb"].median()
+            growth.append({"mode": mode, "simulated_s": duration, "peak_memory_mb": peak,
+                           f"x the {shortest:g} s run's": peak / first})  # fmt: skip
+    growth = pd.DataFrame(growth)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    df.to_csv(args.out.with_suffix(".runs.csv"), index=False)
+    out.to_csv(args.out.with_suffix(".csv"), index=False)
+    command_line = (f"python tools/bench_corridor.py --times {args.times} --shares {args.shares} "
+                    f"--share-time {args.share_time:g} --repeats {args.repeats}")  # fmt: skip
+    md = (
+        f"Corridor cost (`scenarios/corridor.toml`), {args.repeats} repeat(s), modes alternated, "
+        f"one process each: `{command_line}`\n\n"
+        + out.to_markdown(index=False, floatfmt=".2f")
+        + "\n\nPeak memory against simulated time (CAV share "
+        + f"{base_share:g}):\n\n"
+        + growth.to_markdown(index=False, floatfmt=".2f")
+        + "\n"
+    )
+    args.out.with_suffix(".md").write_text(md, encoding="utf-8")
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
