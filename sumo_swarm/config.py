@@ -102,6 +102,12 @@ class OutputSettings:
     # Steps recorded: from record_from_s to record_to_s [s] of simulated time (None: the end).
     record_from_s: float = 0.0
     record_to_s: float | None = None
+    # Recorded rows held in memory [rows]; beyond it the trajectories go to trajectories.parquet
+    # chunk by chunk as they are recorded, and the summary is built from that file a slice of
+    # steps at a time (sim/streamed.py): the same numbers, and a run's memory stops growing
+    # with its length (an hour of the corridor is ~8 M rows, ~100 bytes each and as much
+    # again for the summary's pairs). 1 M rows: 5 minutes of the corridor stay in memory.
+    memory_rows: int = 1_000_000
 
     def __post_init__(self) -> None:
         check_positive(
@@ -114,6 +120,7 @@ class OutputSettings:
             "neighbour_range_m",
         )
         check_non_negative(self, "record_from_s")
+        check_fields(self, "memory_rows", ge=1, integer=True)
         if self.record_to_s is not None and self.record_to_s <= self.record_from_s:
             raise ConfigError(
                 f"record_to_s ({self.record_to_s}) must be after record_from_s "

@@ -3,6 +3,7 @@ record the same trajectories and finish the run with the same outputs."""
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import pandas as pd
@@ -107,3 +108,70 @@ def test_rows_packed_in_chunks_make_the_table_one_list_would(monkeypatch):
     assert list(whole["vehicle"].cat.categories) == sorted(whole["vehicle"].unique())
     assert whole["lane_pos_m"].isna().sum() == 39  # the CAV's, unknown
     assert set(whole.loc[whole["kind"] == "cav", "vehicle"]) == {f"v{j}" for j in range(5)}
+
+
+def test_rows_on_disk_read_back_as_the_table_in_memory(monkeypatch, tmp_path):
+    # Past outputs.memory_rows the chunks go to disk; frame() reads them back, the same table
+    # (each chunk with its own vehicle names, read back on one sorted vocabulary).
+    import sumo_swarm.sim.recorder as recorder
+    from sumo_swarm.config import OutputSettings
+
+    monkeypatch.setattr(recorder, "CHUNK_ROWS", 7)
+
+    def run(out_dir, memory_rows: int) -> recorder.RunRecorder:
+        road = _Road()
+        outputs = OutputSettings(memory_rows=memory_rows)
+        rec = recorder.RunRecorder(road, None, "none", None, outputs, out_dir=out_dir)
+        for k in range(1, 40):
+            road.advance(k)
+            rec.record()
+        return rec
+
+    held = run(None, 10)  # no folder: everything stays in memory
+    disk = run(tmp_path, 10)
+    assert not held.on_disk and disk.on_disk and disk._file.rows > 100
+    assert len(disk._chunks) <= 1  # at most the chunk that has not reached the file yet
+    pd.testing.assert_frame_equal(disk.frame(), held.frame())
+    slices = list(disk._slices())
+    assert [s.index[0] for s in slices[1:]] == list(itertools.accumulate(map(len, slices[:-1])))
+    assert all(s["time_s"].nunique() * 3 <= len(s) for s in slices)  # whole steps each
+    disk._pack()
+    disk._spill()
+    disk._file.close()
+    written = pd.read_parquet(tmp_path / "trajectories.parquet")
+    pd.testing.assert_frame_equal(written, held.frame(), check_categorical=False)
+    assert [p.name for p in tmp_path.iterdir()] == ["trajectories.parquet"]  # no parts left
+
+
+def test_a_run_on_disk_has_the_summary_of_the_run_in_memory(monkeypatch, tmp_path, paper_path):
+    # The paper's scene, the summary taken slice by slice from the file (sim/streamed.py)
+    # against the whole table in memory: the same numbers (timing aside), the overtake's
+    # times and regrouping, the upstream block and the speed field included.
+    import dataclasses
+
+    import sumo_swarm.sim.recorder as recorder
+    from sumo_swarm.config import load_scenario
+    from sumo_swarm.sim.runner import run_scenario
+
+    sc = load_scenario(paper_path)
+    sc = dataclasses.replace(sc, simulation=dataclasses.replace(sc.simulation, duration_s=50.0))
+    sc = dataclasses.replace(sc, evaluation=dataclasses.replace(sc.evaluation, end_s=50.0))
+    held = run_scenario(sc, "swarm", tmp_path / "held", progress=False)
+    monkeypatch.setattr(recorder, "CHUNK_ROWS", 600)
+    small = dataclasses.replace(sc, outputs=dataclasses.replace(sc.outputs, memory_rows=1000))
+    disk = run_scenario(small, "swarm", tmp_path / "disk", progress=False)
+    assert held["overtake"]["completed"] and len(held["upstream"]) > 5
+    timed = {"timing", "planner", "tracking"}  # wall and solve times differ run to run
+    assert {k: v for k, v in disk.items() if k not in timed} == {
+        k: v for k, v in held.items() if k not in timed
+    }
+    assert disk["planner"]["statuses"] == held["planner"]["statuses"]
+    for name in ("trajectories.parquet", "network_speed_field.parquet"):
+        pd.testing.assert_frame_equal(
+            pd.read_parquet(tmp_path / "disk" / name),
+            pd.read_parquet(tmp_path / "held" / name),
+            check_categorical=False,
+        )
+    rows = len(pd.read_parquet(tmp_path / "disk" / "trajectories.parquet"))
+    assert rows > 5 * 600  # many slices
+    assert sorted(p.name for p in (tmp_path / "disk").iterdir() if p.name.startswith(".")) == []

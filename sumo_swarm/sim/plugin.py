@@ -72,6 +72,7 @@ class SwarmHandle:
             controller.name,
             LiveScene(self.session, controller),
             settings.outputs,
+            out_dir=out_dir,
         )
         self._attached = False
         self._controller_attached = False

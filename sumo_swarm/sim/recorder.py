@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from itertools import repeat
 from pathlib import Path
@@ -27,6 +27,8 @@ from sumo_swarm.config import OutputSettings
 from sumo_swarm.controllers.base import Controller, close_controller
 from sumo_swarm.files import write_json_atomic, write_parquet_atomic
 from sumo_swarm.sim.metrics import HardBrakeCounter
+from sumo_swarm.sim.network import mean_speed_field, speed_field
+from sumo_swarm.sim.streamed import TrajectoryFile, streamed_measures
 from sumo_swarm.sim.summary import build_summary
 
 log = logging.getLogger(__name__)
@@ -65,6 +67,7 @@ EMPTY_WINDOW_S = 1e-3  # the evaluation window of a run with nothing to evaluate
 CHUNK_ROWS = 50_000
 CATEGORY_COLUMNS = ("kind", "vehicle", "edge")
 NAN = float("nan")
+TRAJECTORIES = "trajectories.parquet"
 
 
 def _typed(df: pd.DataFrame) -> pd.DataFrame:
@@ -129,6 +132,7 @@ class RunRecorder:
         controller_name: str,
         scene: Scene,
         outputs: OutputSettings | None = None,
+        out_dir: Path | None = None,
     ) -> None:
         self.session = session
         self.outputs = outputs or OutputSettings()  # which rows to record
@@ -150,6 +154,10 @@ class RunRecorder:
         self._last_time_s: float | None = None
         self._chunks: list[pd.DataFrame] = []  # rows packed so far, in order
         self._closed = False
+        # Beyond outputs.memory_rows the packed rows go to out_dir/trajectories.parquet as they
+        # come (sim/streamed.py); without out_dir they all stay in memory.
+        self._file = TrajectoryFile(out_dir / TRAJECTORIES) if out_dir is not None else None
+        self._held_rows = 0
 
     def record(self) -> None:
         """Append the session's vehicles as they are after the last step (one row each)."""
@@ -209,14 +217,43 @@ class RunRecorder:
         return self._last_time_s
 
     def _pack(self) -> None:
-        """Turn the rows gathered as Python lists into a typed table (a tenth of the memory)."""
+        """Turn the rows gathered as Python lists into a typed table (a tenth of the memory);
+        past ``outputs.memory_rows`` held, write the tables held to the trajectory file."""
         if self.columns["time_s"]:
-            self._chunks.append(_typed(pd.DataFrame(self.columns)))
+            chunk = _typed(pd.DataFrame(self.columns))
+            self._chunks.append(chunk)
+            self._held_rows += len(chunk)
             self.columns = {k: [] for k in RECORD_COLUMNS}
+        if self._file is not None and (self._file.open or self._held_rows > self.memory_rows):
+            self._spill()
+
+    @property
+    def memory_rows(self) -> int:
+        return self.outputs.memory_rows
+
+    def _spill(self) -> None:
+        for chunk in self._chunks:
+            self._file.append(chunk)
+        self._chunks, self._held_rows = [], 0
+
+    @property
+    def on_disk(self) -> bool:
+        """True once rows went to the trajectory file (the summary then reads them back)."""
+        return self._file is not None and self._file.rows > 0
 
     def frame(self) -> pd.DataFrame:
-        """The trajectory table recorded so far (the contract's trajectories.parquet)."""
+        """The trajectory table recorded so far (the contract's trajectories.parquet); for a
+        run whose rows went to disk, read back whole (as much memory as they take)."""
+        if self.on_disk:
+            self._pack()
+            return _concat(
+                [_typed(p.astype(dict.fromkeys(CATEGORY_COLUMNS, object))) for p in self._slices()]
+            )
         return self._table().copy()
+
+    def _slices(self):
+        """The recorded rows a slice of whole steps at a time (sim/streamed.py)."""
+        return self._file.slices(list(self._chunks))
 
     def _table(self) -> pd.DataFrame:
         """The recorded table itself (not a copy: for reading only)."""
@@ -251,25 +288,52 @@ class RunRecorder:
         """summary.json of what was recorded so far; the evaluation window ends with the data.
 
         ``controller_summary``: the controller's blocks, default its ``summary()``."""
-        df = self.frame() if df is None else df
-        if not df.empty:
+        return self._summary(scenario, df, controller_summary)[0]
+
+    def _summary(
+        self,
+        scenario: Scenario,
+        df: pd.DataFrame | None = None,
+        controller_summary: dict[str, Any] | None = None,
+        field_of: Any = None,
+    ) -> tuple[dict[str, Any], list[pd.DataFrame]]:
+        """:meth:`summary`, and, for a run on disk, the speed fields ``field_of`` made of each
+        slice while it was read (:func:`~sumo_swarm.sim.streamed.streamed_measures`)."""
+        streamed = df is None and self.on_disk
+        if not streamed:
+            df = self.frame() if df is None else df
+        last = self._last_time_s if streamed else (None if df.empty else float(df["time_s"].max()))
+        if last is not None:
             ev = scenario.evaluation
-            end = min(ev.end_s, float(df["time_s"].max()))
+            end = min(ev.end_s, last)
             # a run that ended before the window opened: an empty window just after its start
             end = max(end, ev.start_s + EMPTY_WINDOW_S)
             scenario = replace(scenario, evaluation=replace(ev, end_s=end))
-        return build_summary(
+        own = self.controller.summary() if controller_summary is None else controller_summary
+        measures, fields = None, []
+        if streamed:
+            self._pack()
+            overtake = own.get("overtake", {})
+            measures, fields = streamed_measures(
+                self._slices,
+                scenario,
+                self.scene.cav_ids,
+                overtake.get("target") or self.scene.target_id,
+                overtake.get("t_start_s"),
+                speed_field=field_of,
+            )
+        summary = build_summary(
             scenario=scenario,
             controller=self.controller_name,
             df=df,
             scene=self.scene,
             session=self.session,
-            controller_summary=(
-                self.controller.summary() if controller_summary is None else controller_summary
-            ),
+            controller_summary=own,
             timing=self.timing(),
             hard_brakes=self.hard_brakes,
+            measures=measures,
         )
+        return summary, fields
 
     def close_controller(self) -> None:
         """Let the controller release what it holds open (once)."""
@@ -297,13 +361,30 @@ class RunRecorder:
         self.close_controller()
         for stale in out.glob("network_*.parquet"):  # an earlier run's, in the same folder
             stale.unlink()
-        df = self._table()  # the run is over: read, never changed, so no copy
-        write_parquet_atomic(out / "trajectories.parquet", df)
+        self._pack()
+        if self.on_disk and Path(out).resolve() == self._file.path.parent.resolve():
+            self._spill()  # the last rows, then the file is in place
+            self._file.close()
+            df = None
+        else:  # in memory (or asked to finish elsewhere: the whole table, read back)
+            df = self.frame() if self.on_disk else self._table()  # read only: no copy
+            write_parquet_atomic(out / TRAJECTORIES, df)
         write_events(out / "events.jsonl", events)
-        summary = self.summary(scenario, df, controller_summary)
+        route = self.session.route_edges
+        o = scenario.outputs
+
+        def field_of(part: pd.DataFrame) -> pd.DataFrame:
+            return speed_field(part, route, o.speed_field_cell_m, o.speed_field_period_s)
+
+        wanted = field_of if network_files is not None else None
+        summary, fields = self._summary(scenario, df, controller_summary, wanted)
         write_json_atomic(out / "summary.json", summary)
         if network_files is not None:
-            self._add_network(out, scenario, df, summary, network_files)
+
+            def field() -> pd.DataFrame:
+                return mean_speed_field(fields) if df is None else field_of(df)
+
+            self._add_network(out, scenario, field, summary, network_files)
             write_json_atomic(out / "summary.json", summary)
         return summary
 
@@ -311,7 +392,7 @@ class RunRecorder:
         self,
         out: Path,
         scenario: Scenario,
-        df: pd.DataFrame,
+        field: Callable[[], pd.DataFrame],
         summary: dict[str, Any],
         files: Mapping[str, Path],
     ) -> None:
@@ -323,11 +404,7 @@ class RunRecorder:
                 files, lambda vid, vtype: network.vehicle_class(*s.classify(vid, vtype))
             )
             network.write_network_tables(out, tables)
-            o = scenario.outputs
-            field = network.speed_field(
-                df, s.route_edges, o.speed_field_cell_m, o.speed_field_period_s
-            )
-            write_parquet_atomic(out / network.SPEED_FIELD_FILE, field)
+            write_parquet_atomic(out / network.SPEED_FIELD_FILE, field())
             summary["network"] = network.network_block(
                 tables,
                 hard_brake_events=self.hard_brakes.episodes,

@@ -300,7 +300,9 @@ def _drive(
     Whatever happens during the run, the trajectories and events gathered so far are written
     and the summary is built from them; a SUMO failure is raised after that.
     """
-    recorder = RunRecorder(session, controller, controller_name, scene, scenario.outputs)
+    recorder = RunRecorder(
+        session, controller, controller_name, scene, scenario.outputs, out_dir=out
+    )
     recorder.sumo_s = 0.0
     failure: str | None = None
     with session:

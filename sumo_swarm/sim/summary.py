@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -155,34 +156,84 @@ def swarms_block(own: dict[str, Any] | None) -> dict[str, int]:
     return {**{k: int(own.get(k, 0)) for k in SWARM_KEYS}, **extra}
 
 
+@dataclass(frozen=True)
+class TableMeasures:
+    """What summary.json measures on the trajectory table (the rest comes from the session and
+    the controller): :func:`table_measures` on a table in memory, or
+    :func:`sumo_swarm.sim.streamed.streamed_measures` a slice of steps at a time."""
+
+    speed: dict[str, Any]  # metrics.cav_speed_stats
+    gap: dict[str, Any]  # metrics.cav_gap_stats
+    travel_time_s: float | None
+    t_end_s: float | None  # overtake_times_s
+    t_regrouped_s: float | None
+    upstream: list[dict[str, Any]]  # metrics.upstream_impact
+    min_ttc_s: float | None
+
+
+def table_measures(
+    df: pd.DataFrame,
+    scenario: Scenario,
+    cav_ids: tuple[str, ...],
+    target: str | None,
+    t_start_s: float | None,
+) -> TableMeasures:
+    """The summary's measures of the trajectory table ``df`` over the scenario's evaluation
+    window; ``target`` and ``t_start_s``: the overtake's, as the controller reports them."""
+    ev = scenario.evaluation
+    w = EvaluationWindow(ev.start_s, ev.end_s)
+    pairs = metrics.gaps(metrics.window(df, w))  # every follower and leader, once
+    t_end, t_regroup = overtake_times_s(
+        df, cav_ids, target, REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m
+    )
+    ref_time = t_start_s if t_start_s is not None else ev.start_s
+    # The HVs behind the swarm's front at the decision: those beside the platoon, which the
+    # swarm blocks, rank first in their lanes; the slow vehicle itself is left out.
+    upstream = metrics.upstream_impact(
+        df,
+        ref_time,
+        n_rank=ev.upstream_ranks,
+        window=EvaluationWindow(ref_time, ev.end_s),
+        behind_of="front",
+        exclude=[target] if target else [],
+        # the pairs of the evaluation window hold this window's rows when it starts inside it
+        gap_table=pairs if ref_time >= ev.start_s else None,
+    )
+    return TableMeasures(
+        speed=metrics.cav_speed_stats(df, w),
+        gap=metrics.cav_gap_stats(df, w, gap_table=pairs),
+        travel_time_s=metrics.travel_time_s(df, w, ev.travel_distance_m),
+        t_end_s=t_end,
+        t_regrouped_s=t_regroup,
+        upstream=upstream,
+        min_ttc_s=metrics.min_ttc_s(df, w, gap_table=pairs),
+    )
+
+
 def build_summary(
     *,
     scenario: Scenario,
     controller: str,
-    df: pd.DataFrame,
+    df: pd.DataFrame | None,
     scene: Scene,
     session: SumoSession,
     controller_summary: dict[str, Any],
     timing: dict[str, Any],
     hard_brakes: metrics.HardBrakeCounter | None = None,
+    measures: TableMeasures | None = None,
 ) -> dict[str, Any]:
     """Assemble every key of the contract's summary.json (None where a key does not apply).
 
     ``hard_brakes``: counted during the run, of every vehicle whether recorded or not; without
-    it they are counted on ``df``."""
-    ev = scenario.evaluation
-    w = EvaluationWindow(ev.start_s, ev.end_s)
-    speed = metrics.cav_speed_stats(df, w)
-    pairs = metrics.gaps(metrics.window(df, w))  # every follower and leader, once
-    gap = metrics.cav_gap_stats(df, w, gap_table=pairs)
-    cav_ids = scene.cav_ids
-    target = scene.target_id
+    it they are counted on ``df``. ``measures``: the table's measures when the caller has them
+    (a run whose table is on disk); else they are taken on ``df``."""
     own = controller_summary.get("overtake", {})
-    target = own.get("target") or target
-    t_end, t_regroup = overtake_times_s(
-        df, cav_ids, target, REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m
-    )
+    target = own.get("target") or scene.target_id
     t_start = own.get("t_start_s")
+    if measures is None:
+        measures = table_measures(df, scenario, scene.cav_ids, target, t_start)
+    m = measures
+    speed, gap, t_end, t_regroup, upstream = m.speed, m.gap, m.t_end_s, m.t_regrouped_s, m.upstream
     overtake = {
         "triggered": bool(own.get("triggered", t_end is not None)),
         "completed": t_end is not None,
@@ -209,19 +260,6 @@ def build_summary(
     for key in extra:
         if key in own:  # extra (not in the contract): the swarm's own bookkeeping
             overtake[key] = own[key]
-    ref_time = t_start if t_start is not None else ev.start_s
-    # The HVs behind the swarm's front at the decision: those beside the platoon, which the
-    # swarm blocks, rank first in their lanes; the slow vehicle itself is left out.
-    upstream = metrics.upstream_impact(
-        df,
-        ref_time,
-        n_rank=ev.upstream_ranks,
-        window=EvaluationWindow(ref_time, ev.end_s),
-        behind_of="front",
-        exclude=[target] if target else [],
-        # the pairs of the evaluation window hold this window's rows when it starts inside it
-        gap_table=pairs if ref_time >= ev.start_s else None,
-    )
     collisions = {tuple(sorted((c.collider, c.victim))) for c in session.collisions}
     planner_keys = (
         "solves",
@@ -236,6 +274,8 @@ def build_summary(
     )
     if hard_brakes is not None:
         brakes = (hard_brakes.count(), hard_brakes.count("cav"), hard_brakes.count("hv"))
+    elif df is None:
+        raise ValueError("build_summary: without the table, the hard brakes must be counted")
     else:
         by_kind = [df[df["kind"] == k] if len(df) else df for k in ("cav", "hv")]
         brakes = (metrics.hard_brakes(df), *(metrics.hard_brakes(d) for d in by_kind))
@@ -249,12 +289,12 @@ def build_summary(
         "step_length_s": scenario.simulation.step_length_s,
         "sim_end_s": float(session.time_s),
         "cav": {
-            "count": len(cav_ids),
+            "count": len(scene.cav_ids),
             "mean_speed_mps": finite_or_none(speed.get("mean_speed_mps")),
             "min_speed_mps": finite_or_none(speed.get("min_speed_mps")),
             "max_speed_mps": finite_or_none(speed.get("max_speed_mps")),
             "speed_var_m2ps2": finite_or_none(speed.get("speed_var_m2ps2")),
-            "travel_time_s": finite_or_none(metrics.travel_time_s(df, w, ev.travel_distance_m)),
+            "travel_time_s": finite_or_none(m.travel_time_s),
             "gap_mean_m": finite_or_none(gap.get("gap_mean_m")),
             "gap_min_m": finite_or_none(gap.get("gap_min_m")),
             "gap_min_cav_m": finite_or_none(gap.get("gap_min_cav_m")),  # CAV behind a CAV
@@ -269,7 +309,7 @@ def build_summary(
             "hard_brakes_cav": brakes[1],
             "hard_brakes_hv": brakes[2],
             "teleports": int(session.teleports),
-            "min_ttc_s": finite_or_none(metrics.min_ttc_s(df, w, gap_table=pairs)),
+            "min_ttc_s": finite_or_none(m.min_ttc_s),
         },
         "swarms": swarms_block(controller_summary.get("swarms")),
         # From SUMO's own outputs, filled once the simulation has ended (RunRecorder.finish).

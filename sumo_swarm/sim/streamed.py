@@ -1,0 +1,278 @@
+"""A run's trajectory table on disk, written chunk by chunk, and the summary's measures taken
+from it a slice of steps at a time: what keeps the memory of a long run from growing with it.
+
+:class:`TrajectoryFile` appends the recorder's packed chunks (whole steps each) to a Parquet file,
+one row group per chunk, the name columns as dictionaries. :func:`streamed_measures` reads the
+row groups back one after another and takes the same measures as
+:func:`sumo_swarm.sim.summary.table_measures` takes on the whole table in memory, with the same
+functions on the few rows each needs:
+
+- the CAVs' speeds and travel times: the CAV rows of the evaluation window;
+- the CAVs' gaps and the smallest time to collision: the pairs of each slice (pairing is step by
+  step, so a slice's pairs are the whole table's);
+- the upstream block: every vehicle at the reference step, then the rows and pairs of the
+  vehicles it selected;
+- the overtake's times: the rows of the CAVs and the target; and, only if every CAV got past the
+  target, a second reading for the vehicles between the CAVs (a platoon's intruders);
+- the network's space-time speed field, cell sums merged over slices.
+
+Held in memory: those rows, a slice at a time of the rest.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from sumo_swarm.core.swarming.decision import REGROUPED_GAP_FACTOR
+from sumo_swarm.sim import metrics
+from sumo_swarm.sim.metrics import EvaluationWindow
+from sumo_swarm.sim.summary import TableMeasures, overtake_times_s, pass_times_s
+
+if TYPE_CHECKING:
+    from sumo_swarm.config import Scenario
+
+# What the CAVs' own measures and the overtake's pass times read of the CAV (and target) rows.
+CAV_COLUMNS = ["time_s", "vehicle", "kind", "s_m", "speed_mps"]
+TRACK_COLUMNS = ["time_s", "vehicle", "s_m", "length_m"]
+
+
+def _arrow_type(column: pd.Series) -> pa.DataType:
+    if isinstance(column.dtype, pd.CategoricalDtype):
+        return pa.dictionary(pa.int32(), pa.string())  # the same type whatever the chunk holds
+    return pa.from_numpy_dtype(column.dtype)
+
+
+class TrajectoryFile:
+    """``path`` written one chunk (whole steps) at a time: :meth:`append`, then :meth:`close`.
+
+    Each chunk is a file of its own in a hidden folder beside ``path`` until :meth:`close`
+    copies them, a row group each, into ``path`` (a chunk in memory at a time): the rows
+    written so far can be read back at any time (:meth:`slices`, a summary asked for in the
+    middle of a run), and a half-written file never stands where a finished one is expected."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.parts_dir = self.path.with_name(f".{self.path.name}.{os.getpid()}.parts")
+        self.parts: list[Path] = []
+        self._schema: pa.Schema | None = None
+        self.rows = 0
+        self.closed = False
+
+    @property
+    def open(self) -> bool:
+        """True while chunks were written and the file is not finished."""
+        return bool(self.parts) and not self.closed
+
+    def append(self, chunk: pd.DataFrame) -> None:
+        if chunk.empty:
+            return
+        if self._schema is None:
+            self.parts_dir.mkdir(parents=True, exist_ok=True)
+            fields = [pa.field(c, _arrow_type(chunk[c])) for c in chunk.columns]
+            # with the pandas metadata of the first chunk: the names read back as categories
+            self._schema = pa.Table.from_pandas(
+                chunk, schema=pa.schema(fields), preserve_index=False
+            ).schema
+        part = self.parts_dir / f"{len(self.parts):06d}.parquet"
+        pq.write_table(pa.Table.from_pandas(chunk, schema=self._schema, preserve_index=False), part)
+        self.parts.append(part)
+        self.rows += len(chunk)
+
+    def slices(self, tail: Iterable[pd.DataFrame] = ()) -> Iterator[pd.DataFrame]:
+        """The rows written so far, a chunk at a time, then ``tail`` (chunks not written):
+        each slice indexed by its rows' place in the whole table."""
+        if self.closed:
+            return read_slices(self.path, tail)
+        return _indexed([*(lambda p=p: pq.read_table(p).to_pandas() for p in self.parts),
+                         *(lambda c=c: c for c in tail)])  # fmt: skip
+
+    def close(self) -> None:
+        """Copy the chunks into ``path`` (under a temporary name, then renamed into place) and
+        remove them; nothing when nothing was appended."""
+        if not self.open:
+            return
+        partial = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
+        with pq.ParquetWriter(partial, self._schema) as writer:
+            for part in self.parts:
+                table = pq.read_table(part, schema=self._schema)
+                writer.write_table(table, row_group_size=max(1, table.num_rows))
+        os.replace(partial, self.path)
+        shutil.rmtree(self.parts_dir, ignore_errors=True)
+        self.closed = True
+
+
+def read_slices(path: Path, tail: Iterable[pd.DataFrame] = ()) -> Iterator[pd.DataFrame]:
+    """The row groups of the Parquet file ``path`` (whole steps each, as
+    :class:`TrajectoryFile` writes them) in order, then the ``tail`` chunks; each slice indexed
+    by its rows' place in the whole table."""
+    pf = pq.ParquetFile(path)
+    reads = [lambda i=i: pf.read_row_group(i).to_pandas() for i in range(pf.num_row_groups)]
+    return _indexed([*reads, *(lambda c=c: c for c in tail)])
+
+
+def _indexed(reads: list[Callable[[], pd.DataFrame]]) -> Iterator[pd.DataFrame]:
+    offset = 0
+    for read in reads:
+        part = read()
+        part.index = pd.RangeIndex(offset, offset + len(part))
+        offset += len(part)
+        yield part
+
+
+def _in(df: pd.DataFrame, w: EvaluationWindow) -> pd.DataFrame:
+    return metrics.window(df, w)
+
+
+def streamed_measures(
+    slices: Callable[[], Iterator[pd.DataFrame]],
+    scenario: Scenario,
+    cav_ids: tuple[str, ...],
+    target: str | None,
+    t_start_s: float | None,
+    speed_field: Callable[[pd.DataFrame], pd.DataFrame] | None = None,
+) -> tuple[TableMeasures, list[pd.DataFrame]]:
+    """:func:`~sumo_swarm.sim.summary.table_measures` of the table that ``slices()`` yields a
+    slice of whole steps at a time (called once, or twice when the overtake's regrouping must
+    be checked); also the speed field of each slice (``speed_field``, when given)."""
+    ev = scenario.evaluation
+    w = EvaluationWindow(ev.start_s, ev.end_s)
+    ref_time = t_start_s if t_start_s is not None else ev.start_s
+    ref_w = EvaluationWindow(ref_time, ev.end_s)
+    paired_w = EvaluationWindow(min(ev.start_s, ref_time), ev.end_s)
+    tol = metrics.TIME_TOLERANCE_S
+    followed = set(cav_ids) | ({target} if target else set())
+    excluded = {target} if target else set()
+
+    cav_rows, cav_pairs, tracks, fields = [], [], [], []
+    ttc_min = np.inf
+    up_rows, up_pairs = [], []
+    up_ids: set[str] | None = None  # the upstream vehicles, once the reference step is read
+    for part in slices():
+        if speed_field is not None:
+            fields.append(speed_field(part))
+        names = part["vehicle"].astype(str)
+        tracks.append(part.loc[names.isin(followed).to_numpy(), TRACK_COLUMNS])
+        windowed = _in(part, w)
+        cav_rows.append(windowed.loc[windowed["kind"] == metrics.CAV, CAV_COLUMNS])
+        pairs = metrics.gaps(_in(part, paired_w))
+        in_w = pairs.loc[pairs.index.isin(windowed.index)]
+        cav_pairs.append(in_w.loc[in_w["kind"] == metrics.CAV, ["kind", "gap_m", "leader_kind"]])
+        ttc = in_w["ttc_s"].to_numpy(dtype=float)
+        ttc = ttc[np.isfinite(ttc)]
+        if ttc.size:
+            ttc_min = min(ttc_min, float(ttc.min()))
+        # The upstream block: its vehicles are chosen at the first step at or after ref_time
+        # (metrics.upstream_impact, which then measures them over ref_w).
+        if up_ids is None:
+            times = part["time_s"].to_numpy(dtype=float)
+            later = times[times >= ref_time - tol]
+            if later.size:
+                at_ref = part[times == later.min()]
+                up_rows.append(at_ref)
+                up_pairs.append(pairs.loc[pairs.index.isin(at_ref.index)])
+                up_ids = _upstream_ids(at_ref, ev.upstream_ranks, excluded)
+        if up_ids:
+            in_ref = _in(part, ref_w)
+            mine = in_ref[in_ref["vehicle"].astype(str).isin(up_ids)]
+            up_rows.append(mine)
+            up_pairs.append(pairs.loc[pairs.index.isin(mine.index)])
+
+    cav = _concat(cav_rows, ["time_s", "vehicle", "kind", "s_m", "speed_mps"])
+    gap_table = _concat(cav_pairs, ["kind", "gap_m", "leader_kind"])
+    upstream_df = _first_of_each_row(_concat(up_rows))  # the reference step's rows: once
+    upstream: list = []
+    if up_ids:
+        upstream = metrics.upstream_impact(
+            upstream_df,
+            ref_time,
+            n_rank=ev.upstream_ranks,
+            window=ref_w,
+            behind_of="front",
+            exclude=[target] if target else [],
+            gap_table=_first_of_each_row(_concat(up_pairs)),
+        )
+    t_end = t_regroup = None
+    track = _concat(tracks, TRACK_COLUMNS)
+    passed = pass_times_s(track, cav_ids, target)
+    if passed and all(t is not None for t in passed.values()):
+        # Every CAV got past the target: the regrouping needs the vehicles between the CAVs.
+        t_end, t_regroup = overtake_times_s(
+            _between_cavs(slices(), cav_ids, followed),
+            cav_ids,
+            target,
+            REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m,
+        )
+    measures = TableMeasures(
+        speed=metrics.cav_speed_stats(cav, None),
+        gap=metrics.cav_gap_stats(cav, None, gap_table=gap_table),
+        travel_time_s=metrics.travel_time_s(cav, None, ev.travel_distance_m),
+        t_end_s=t_end,
+        t_regrouped_s=t_regroup,
+        upstream=upstream,
+        min_ttc_s=float(ttc_min) if np.isfinite(ttc_min) else None,
+    )
+    return measures, fields
+
+
+def _upstream_ids(at_ref: pd.DataFrame, n_rank: int, excluded: set[str]) -> set[str]:
+    """The vehicles :func:`~sumo_swarm.sim.metrics.upstream_impact` (``behind_of="front"``)
+    selects at the reference step ``at_ref``: behind the swarm's front, up to ``n_rank`` per
+    lane, nearest first (empty: no CAV at that step)."""
+    swarm = at_ref[at_ref["kind"] == metrics.CAV]
+    if swarm.empty:
+        return set()
+    names = at_ref["vehicle"].astype(str)
+    behind = at_ref[
+        (at_ref["kind"] != metrics.CAV)
+        & (at_ref["s_m"] < float(swarm["s_m"].max()))
+        & ~names.isin(excluded)
+    ]
+    behind = behind.assign(vehicle_key=behind["vehicle"].astype(str)).sort_values(
+        ["lane", "s_m", "vehicle_key"], ascending=[True, False, True], kind="mergesort"
+    )
+    ranked = behind[behind.groupby("lane").cumcount() < n_rank]
+    return set(ranked["vehicle_key"])
+
+
+def _concat(parts: list[pd.DataFrame], columns: list[str] | None = None) -> pd.DataFrame:
+    """Slices' rows in one table, their names as text (each slice has its own categories);
+    with ``columns`` and no rows, an empty table of them."""
+    parts = [p for p in parts if not p.empty]
+    if not parts:
+        return pd.DataFrame(columns=columns or [])
+    return pd.concat([_as_text(p) for p in parts])
+
+
+def _first_of_each_row(df: pd.DataFrame) -> pd.DataFrame:
+    return df[~df.index.duplicated()]
+
+
+def _as_text(df: pd.DataFrame) -> pd.DataFrame:
+    cats = [c for c in df.columns if isinstance(df[c].dtype, pd.CategoricalDtype)]
+    return df.astype(dict.fromkeys(cats, object)) if cats else df
+
+
+def _between_cavs(
+    slices: Iterator[pd.DataFrame], cav_ids: tuple[str, ...], followed: set[str]
+) -> pd.DataFrame:
+    """The rows of the CAVs and the target, and of every vehicle between the rearmost and the
+    front-most CAV at its step: all that :func:`overtake_times_s` looks at."""
+    cavs = set(cav_ids)
+    keep = []
+    for part in slices:
+        names = part["vehicle"].astype(str)
+        mine = part[names.isin(cavs).to_numpy()]
+        span = mine.groupby("time_s")["s_m"].agg(["min", "max"])
+        others = part[~names.isin(followed).to_numpy()].join(span, on="time_s", how="inner")
+        between = others[(others["s_m"] >= others["min"]) & (others["s_m"] <= others["max"])]
+        keep += [part[names.isin(followed).to_numpy()], between[part.columns]]
+    return _concat(keep).sort_index()
