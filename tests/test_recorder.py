@@ -175,3 +175,37 @@ def test_a_run_on_disk_has_the_summary_of_the_run_in_memory(monkeypatch, tmp_pat
     rows = len(pd.read_parquet(tmp_path / "disk" / "trajectories.parquet"))
     assert rows > 5 * 600  # many slices
     assert sorted(p.name for p in (tmp_path / "disk").iterdir() if p.name.startswith(".")) == []
+
+
+def test_a_collision_is_an_event_naming_who_hit_whom(tmp_path):
+    # A counted collision must be findable: events.jsonl gets SUMO's collisions, in time order.
+    import libsumo
+
+    cfg = write_user_case(tmp_path / "net", HighwaySpec(length_m=1500, lanes=3), end_s=END_S)
+    options = ["--lateral-resolution", "0.5", "--collision.mingap-factor", "0",
+               "--collision.action", "warn", "--time-to-teleport", "-1"]  # fmt: skip
+    libsumo.start([sumo_binary(), "-c", str(cfg), *options])
+    try:
+        handle = sumo_swarm.attach(
+            libsumo, cav_type="cav", controller="cacc", out_dir=tmp_path / "attach"
+        )
+        while len(handle.session.cav_ids) < 2:
+            libsumo.simulation.step()
+        # the last CAV drives into the one ahead of it: SUMO's safety checks off
+        cavs = sorted(handle.session.cav_ids, key=lambda v: libsumo.vehicle.getLanePosition(v))
+        rear, front = cavs[0], cavs[1]
+        while libsumo.simulation.getTime() < END_S:
+            libsumo.vehicle.setSpeedMode(rear, 0)
+            libsumo.vehicle.setSpeed(rear, 30.0)
+            libsumo.simulation.step()
+        summary = handle.summary()
+        handle.detach()
+    finally:
+        libsumo.close()
+    events = [json.loads(line) for line in (tmp_path / "attach" / "events.jsonl").open()]
+    hits = [e for e in events if e["event"] == "collision"]
+    assert summary["safety"]["collisions"] >= 1 and hits
+    assert (hits[0]["collider"], hits[0]["victim"]) == (rear, front)
+    assert hits[0]["type"] == "collision"
+    times = [e["time_s"] for e in events]
+    assert times == sorted(times)

@@ -369,7 +369,7 @@ class RunRecorder:
         else:  # in memory (or asked to finish elsewhere: the whole table, read back)
             df = self.frame() if self.on_disk else self._table()  # read only: no copy
             write_parquet_atomic(out / TRAJECTORIES, df)
-        write_events(out / "events.jsonl", events)
+        write_events(out / "events.jsonl", self._with_collisions(events))
         route = self.session.route_edges
         o = scenario.outputs
 
@@ -387,6 +387,17 @@ class RunRecorder:
             self._add_network(out, scenario, field, summary, network_files)
             write_json_atomic(out / "summary.json", summary)
         return summary
+
+    def _with_collisions(self, events: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """``events`` with SUMO's collisions among them, in time order (``collision``: who ran
+        into whom, and SUMO's type of collision), so that a collision counted in the summary
+        can be found."""
+        hits = [
+            {"time_s": c.time_s, "event": "collision", "collider": c.collider,
+             "victim": c.victim, "type": c.kind}
+            for c in getattr(self.session, "collisions", ())
+        ]  # fmt: skip
+        return sorted([*events, *hits], key=lambda e: e["time_s"]) if hits else events
 
     def _add_network(
         self,
