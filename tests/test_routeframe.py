@@ -201,3 +201,23 @@ def test_lane_shifts_where_lanes_are_added_or_dropped_on_the_right():
         "d_1": (200.0, 3.5, STRAIGHT, []),
     }
     assert RouteFrame(TableNetwork(lanes), ["a", "d"]).lane_shifts_m == [100.0]
+
+
+def test_a_lane_that_fans_out_at_a_deceleration_lane_keeps_its_index_on_the_junction():
+    """a (3 lanes) -> d (4 lanes, an off-ramp's deceleration lane added on the right), as
+    netconvert builds it (scenarios/corridor.toml's m1 -> dec0): a's lane 0 fans out into
+    junction lanes 0 and 1 (to d_0 and d_1), a_1 -> :j_0_2 -> d_2, a_2 -> :j_0_3 -> d_3. A CAV
+    in a's left lane is on junction lane 3: still a's lane 2 (the first junction lane's offset
+    for all made it lane 3, the swarm steered it 1.2 m right, into a car, in the study)."""
+    lanes = {
+        "a_0": (100.0, 3.5, STRAIGHT, [("d_0", ":j_0_0"), ("d_1", ":j_0_1")]),
+        "a_1": (100.0, 3.5, STRAIGHT, [("d_2", ":j_0_2")]),
+        "a_2": (100.0, 3.5, STRAIGHT, [("d_3", ":j_0_3")]),
+        **{f":j_0_{q}": (8.0, 3.5, STRAIGHT, [(f"d_{q}", "")]) for q in range(4)},
+        **{f"d_{q}": (250.0, 3.5, STRAIGHT, []) for q in range(4)},
+    }
+    frame = RouteFrame(TableNetwork(lanes), ["a", "d"])
+    assert frame.lane_offset["d"] == -1 and frame.lane_offset[":j_0"] == -1
+    assert [frame.lane_as_on(q, ":j_0", "a") for q in range(4)] == [0, 0, 1, 2]
+    assert [frame.lane_as_on(q, "d", "a") for q in range(4)] == [-1, 0, 1, 2]
+    assert frame.lane_as_on(3, ":j_0", "d") == 3  # the lane it enters, numbered on d

@@ -87,6 +87,9 @@ class RouteFrame:
         # lane drops and added lanes on the right shift the indices); junction lanes included.
         self.lane_offset: dict[str, int] = {edges[0]: 0} if edges else {}
         self.junction_from: dict[str, str] = {}  # junction edge on the route -> edge it leaves
+        # junction lane -> offset of the lane it comes from (a lane that fans out into two
+        # junction lanes is the same lane on both)
+        self.via_lane_offset: dict[str, int] = {}
         offset = 0.0
         for i, edge in enumerate(edges):
             self.edge_offset_m[edge] = offset
@@ -99,6 +102,7 @@ class RouteFrame:
             edge_end = offset
             shifted = False
             shifts: Counter[int] = Counter()  # lane here - lane reached, per connection
+            via_shifts: dict[str, Counter[int]] = {}  # the same per junction edge
             base = self.lane_offset.get(edge)
             for lane in range(self._lane_counts[edge]):
                 continues = False
@@ -112,11 +116,18 @@ class RouteFrame:
                         via_edge, via_index = via.rsplit("_", 1)
                         self.junction_from[via_edge] = edge
                         if base is not None:
-                            self.lane_offset.setdefault(via_edge, base + lane - int(via_index))
+                            self.via_lane_offset[via] = base + lane - int(via_index)
+                            via_shifts.setdefault(via_edge, Counter())[lane - int(via_index)] += 1
                 if not continues:  # no connection into the next route edge: the lane ends
                     self.lane_ends.append((i, lane, edge_end))
             if base is not None and shifts:
                 self.lane_offset[edges[i + 1]] = base + shifts.most_common(1)[0][0]
+            # A junction edge's lanes are one per connection: where a lane fans out into two
+            # (the first lane of an added deceleration lane) the edge has more lanes than the
+            # one it leaves, numbered as the edge it enters; its offset is its lanes' usual
+            # one, and each lane's own is in via_lane_offset.
+            for via_edge, counts in via_shifts.items():
+                self.lane_offset.setdefault(via_edge, base + counts.most_common(1)[0][0])
             if shifted or self._lane_counts[edges[i + 1]] != self._lane_counts[edge]:
                 self.lane_shifts_m.append(edge_end)
             offset += min(vias.values(), default=0.0)
@@ -127,7 +138,8 @@ class RouteFrame:
         """Index on ``reference`` of the lane that is lane ``lane`` of ``edge`` (both on the
         route, junction edges included); None where either is off the route. May fall outside
         ``reference``'s lanes: a lane that ended before it, or begins after it."""
-        a = self.lane_offset.get(edge)
+        a = self.via_lane_offset.get(f"{edge}_{lane}") if edge in self.junction_from else None
+        a = self.lane_offset.get(edge) if a is None else a
         b = self.lane_offset.get(reference)
         if a is None or b is None:
             return None
