@@ -7,6 +7,7 @@ the predecessor's acceleration, bounded by the free-road law towards the cruisin
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -54,6 +55,28 @@ def cacc_accel(
     return min(max(accel, cav.accel_min_mps2), cav.accel_max_mps2)
 
 
+# A CAV that SUMO changes lanes for (one released to take its exit) but whose speed our CACC
+# commands, in a lane that does not go on along its route: it slows for that lane's end as if
+# to stop LANE_END_STOP_M before it, braking LANE_END_DECEL_MPS2 (what SUMO's drivers do when
+# they cannot change lanes yet: slow down, let a gap come, stop at the end if none does).
+# Commanded at the CACC speed instead, an exiting CAV that found no gap into the deceleration
+# lane ran into its lane's end at 19 m/s and SUMO stopped it dead; the CAV behind hit it
+# (the penetration study, 10 % CAVs at 1000 veh/h/lane).
+LANE_END_DECEL_MPS2 = 2.0
+LANE_END_STOP_M = 8.0
+
+
+def lane_end_accel(ctx: RunContext, vid: str, speed_mps: float) -> float | None:
+    """Upper bound [m/s^2] of the acceleration of ``vid`` for the end of a lane it must leave
+    (see :data:`LANE_END_DECEL_MPS2`); None when its lane goes on along its route."""
+    distance = getattr(ctx.session, "lane_change_distance_m", lambda vid: None)(vid)
+    if distance is None:
+        return None
+    room = max(0.0, distance - LANE_END_STOP_M)
+    v_cap = math.sqrt(2.0 * LANE_END_DECEL_MPS2 * room)
+    return (v_cap - speed_mps) / ctx.dt_s
+
+
 def command_cacc(
     ctx: RunContext,
     platoon: list[str],
@@ -78,6 +101,7 @@ def command_cacc(
     # sorted once: a look-up per CAV below
     others = Snapshot(states.values(), ctx.road) if everyone is None else everyone
     sc = ctx.scenario
+    released = getattr(ctx.session, "released", ())
     for vid in platoon:
         ego = states[vid]
         cruise = leader_cruise_mps if vid == platoon[0] else cruise_mps
@@ -97,6 +121,10 @@ def command_cacc(
             a = max(min(a, accel_limits[vid]), sc.cav.accel_min_mps2)
         if accel_floors is not None and vid in accel_floors:
             a = min(max(a, accel_floors[vid]), sc.cav.accel_max_mps2)
+        if vid in released:  # SUMO makes its lane changes: its lane may end before its exit
+            bound = lane_end_accel(ctx, vid, ego.speed_mps)
+            if bound is not None:
+                a = max(min(a, bound), sc.cav.accel_min_mps2)
         ctx.session.set_speed(vid, ego.speed_mps + a * ctx.dt_s)
 
 

@@ -484,6 +484,20 @@ class SumoSession:
         controller sets its modes); :attr:`states` shows it as a CAV from the next read."""
         self.released.discard(vid)
 
+    def lane_change_distance_m(self, vid: str) -> float | None:
+        """Distance [m] ``vid`` can still drive in its lane before its route needs another
+        one (SUMO's best lanes: the lane ends, or leads elsewhere, e.g. past the off-ramp it
+        must take); None while its lane goes on along its route, or if SUMO cannot tell."""
+        vehicle = self.api.vehicle
+        try:
+            lane = vehicle.getLaneID(vid)
+            for lane_id, length, _, offset, _, _ in vehicle.getBestLanes(vid):
+                if lane_id == lane:
+                    return None if offset == 0 else length - vehicle.getLanePosition(vid)
+        except Exception:  # vanished, or on a junction lane the best lanes do not list
+            return None
+        return None
+
     def set_speed(self, vid: str, speed_mps: float) -> None:
         self._command(vid, self.api.vehicle.setSpeed, max(0.0, speed_mps))
 
