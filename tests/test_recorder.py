@@ -206,6 +206,7 @@ def test_a_collision_is_an_event_naming_who_hit_whom(tmp_path):
     hits = [e for e in events if e["event"] == "collision"]
     assert summary["safety"]["collisions"] >= 1 and hits
     assert (hits[0]["collider"], hits[0]["victim"]) == (rear, front)
+    assert len({(e["collider"], e["victim"]) for e in hits}) == len(hits)  # once per pair
     assert hits[0]["type"] == "collision"
     times = [e["time_s"] for e in events]
     assert times == sorted(times)

@@ -391,12 +391,14 @@ class RunRecorder:
     def _with_collisions(self, events: list[dict[str, Any]]) -> list[dict[str, Any]]:
         """``events`` with SUMO's collisions among them, in time order (``collision``: who ran
         into whom, and SUMO's type of collision), so that a collision counted in the summary
-        can be found."""
-        hits = [
-            {"time_s": c.time_s, "event": "collision", "collider": c.collider,
-             "victim": c.victim, "type": c.kind}
-            for c in getattr(self.session, "collisions", ())
-        ]  # fmt: skip
+        can be found: the first step of each pair, as the summary counts them (SUMO reports
+        two vehicles that stay overlapped again at every step)."""
+        hits, seen = [], set()
+        for c in getattr(self.session, "collisions", ()):
+            if (c.collider, c.victim) not in seen:
+                seen.add((c.collider, c.victim))
+                hits.append({"time_s": c.time_s, "event": "collision", "collider": c.collider,
+                             "victim": c.victim, "type": c.kind})  # fmt: skip
         return sorted([*events, *hits], key=lambda e: e["time_s"]) if hits else events
 
     def _add_network(
