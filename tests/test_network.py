@@ -204,6 +204,15 @@ def test_options_ask_for_every_output(tmp_path):
     assert files["edgedata"].is_absolute()  # SUMO reads it from the additional file's folder
 
 
+def test_the_ssm_device_can_be_left_out(tmp_path):
+    # SUMO's SSM device keeps every open encounter in memory (a jam's, for the jam's length):
+    # [outputs] ssm = false leaves it out and keeps the other outputs.
+    opts, files = network_options(tmp_path / "sumo", OutputSettings(ssm=False))
+    assert not any(o.startswith("--device.ssm") for o in opts[::2])
+    assert "ssm" not in files and {"tripinfo", "edgedata"} <= set(files)
+    assert "--device.emissions.probability" in opts
+
+
 def test_options_keep_what_the_user_asked_for(tmp_path):
     given = {
         "tripinfo-output": "out/trips.xml",

@@ -143,7 +143,7 @@ def network_options(
         measures = given.get("device.ssm.measures", "")  # SUMO's default: no TTC
         if "device.ssm.file" in given and "TTC" in measures.replace(",", " ").split():
             files["ssm"] = written(base / given["device.ssm.file"])
-    else:
+    elif settings.ssm:
         files["ssm"] = written(folder / SSM)
         # One option and its value a line: the formatter would split each pair over two lines.
         opts += [
