@@ -40,7 +40,10 @@ def headline(results: pd.DataFrame, demand: float) -> pd.DataFrame:
             run = group[group["controller"] == controller]
             if run.empty:
                 continue
-            row = {"CAV share": share, "controller": controller if share > 0 else "(no CAV)"}
+            row = {
+                "CAVs [%]": round(100 * share),
+                "controller": controller if share > 0 else "(no CAV)",
+            }
             for column, heading in COLUMNS.items():
                 row[heading] = run[column].mean() if column in run else float("nan")
             rows.append(row)
