@@ -28,14 +28,13 @@ from __future__ import annotations
 import argparse
 import json
 import re
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from bench_plumbing import stats, timed  # tools/: one process's wall time and peak memory
 
 from sumo_swarm.config import load_scenario
 from sumo_swarm.sim.bridge import sumo_binary
@@ -45,22 +44,6 @@ from sumo_swarm.sim.scene import write_sumo_inputs
 ROOT = Path(__file__).resolve().parent.parent
 CORRIDOR = ROOT / "scenarios" / "corridor.toml"
 MODES = ("sumo", "sumo-cacc", "swarm")
-
-
-def timed(cmd: list[str]) -> tuple[float, float]:
-    """Run ``cmd``; its wall time [s] and peak resident memory [MB]. Raises if it fails."""
-    import os
-
-    with tempfile.TemporaryFile() as err:  # a file, not a pipe: a chatty run never blocks
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
-        _, status, usage = os.wait4(proc.pid, 0)
-        wall = time.perf_counter() - t0
-        if os.waitstatus_to_exitcode(status) != 0:
-            err.seek(0)
-            tail = err.read().decode(errors="replace")[-400:]
-            raise RuntimeError(f"{' '.join(cmd[:5])} ... failed: {tail}")
-    return wall, usage.ru_maxrss / 1024.0  # Linux gives kB
 
 
 def scenario_file(folder: Path, duration_s: float, share: float) -> Path:
@@ -98,11 +81,6 @@ def what_it_did(mode: str, work: Path) -> dict[str, float]:
         "collisions": summary["safety"]["collisions"],
         "cav_mean_speed_mps": summary["cav"]["mean_speed_mps"],
     }
-
-
-def stats(values) -> dict[str, float]:
-    a = np.asarray(values, dtype=float)
-    return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": a.max()}
 
 
 def _floats(text: str) -> list[float]:

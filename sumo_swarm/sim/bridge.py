@@ -488,14 +488,17 @@ class SumoSession:
         """Distance [m] ``vid`` can still drive in its lane before its route needs another
         one (SUMO's best lanes: the lane ends, or leads elsewhere, e.g. past the off-ramp it
         must take); None while its lane goes on along its route, or if SUMO cannot tell."""
-        vehicle = self.api.vehicle
-        try:
-            lane = vehicle.getLaneID(vid)
-            for lane_id, length, _, offset, _, _ in vehicle.getBestLanes(vid):
-                if lane_id == lane:
-                    return None if offset == 0 else length - vehicle.getLanePosition(vid)
-        except Exception:  # vanished, or on a junction lane the best lanes do not list
+        state, edge = self.states.get(vid), self.edges.get(vid)
+        if state is None or edge is None:
             return None
+        lane = f"{edge}_{state.lane}"  # this step's read: no further call for it
+        try:
+            best = self.api.vehicle.getBestLanes(vid)
+        except Exception:  # vanished
+            return None
+        for lane_id, length, _, offset, _, _ in best:
+            if lane_id == lane:  # (a junction lane is not among them)
+                return None if offset == 0 else length - self.lane_positions.get(vid, 0.0)
         return None
 
     def set_speed(self, vid: str, speed_mps: float) -> None:
