@@ -870,3 +870,26 @@ def test_a_pass_out_of_time_goes_on_while_alongside_the_slow_vehicle():
     st["c1"] = car("c1", 230.0, 0, 16.0, cav=True)
     assert r.goals(0.1, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1
     assert events[-1] == ("passing_end", {"vehicle": "c1", "slow": "slow", "past": False})
+
+
+@pytest.mark.parametrize(
+    ("hv_s", "centres"),
+    [
+        (8.0, False),  # the HV's front alongside the CAV's rear half: the CAV stays put
+        # The HV 65 m behind (at 25 m, its driver model would brake harder than b_safe for
+        # the CAV it could squeeze past): the CAV moves back to its lane centre.
+        (-60.0, True),
+    ],
+)
+def test_a_cav_off_centre_in_a_jam_centres_only_once_the_hv_squeezing_past_has_gone(hv_s, centres):
+    # Corridor study, 20 % CAVs at 1500 veh/h: a CAV stopped 0.8 m right of its lane's centre
+    # after a pass it gave up; an HV of the same lane, 1.2 m left of the centre, crept up beside
+    # it, and the CAV's move back to the centre (0.4 m a step) hit its side.
+    r = reformer()
+    cav = car("c0", 10.0, 1, 0.0, cav=True, lat=-0.8)
+    hv = car("h0", hv_s, 1, 4.0, lat=1.2)
+    dlat, _ = r.moves(states(cav, hv), ["c0"], ROAD, 1, {"c0": 1}, 0.2)["c0"]
+    if centres:
+        assert dlat == pytest.approx(SCENARIO.cav.max_lateral_speed_mps * 0.2)
+    else:
+        assert dlat == 0.0

@@ -19,7 +19,7 @@ from typing import Any
 from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import clip
 from sumo_swarm.core.hvmodel import DriverModel
-from sumo_swarm.core.model import VehicleState
+from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import Snapshot
 from sumo_swarm.core.swarming.guards import (
     gap_accel_limit,
@@ -91,18 +91,15 @@ class PlanFollower:
             )  # fmt: skip
             refusal = None
             if waits_for is None:
-                refusal = lateral_refusal(
-                    ego, y, cmd.dlat_m, others, road, min_gap_m=sc.cav.min_gap_m,
-                    width_m=sc.cav.width_m, model_of=self.model_of,
-                    b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=dt, settings=sc.guards,
-                    brake_mps2=-sc.cav.accel_min_mps2,
-                )  # fmt: skip
+                refusal = self._refusal(ego, y, cmd.dlat_m, others, road, dt)
             else:
                 self._count_yield(vid, t_s)
             shift = self.lanes.shift_hold(ego, y, cmd.dlat_m)
             dlat = 0.0 if refusal or waits_for is not None else cmd.dlat_m
             if shift:  # back to the lane centre: never straddle two lanes near the junction
                 dlat = clip(road.lane_centre_y(road.lane_of_y(y)) - y, step_m)
+                if self._refusal(ego, y, dlat, others, road, dt) is not None:
+                    dlat = 0.0  # not into a vehicle alongside (as the reformer's centring)
             self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)
             self.tracker.commit(ego, cmd, dlat != cmd.dlat_m, road, dt)
             accel = cmd.accel_mps2
@@ -127,6 +124,23 @@ class PlanFollower:
             v_cmd = min(ego.speed_mps + accel * dt, max(cap, floor))
             ctx.session.set_speed(vid, max(v_cmd, 0.0))
             ctx.session.change_sublane(vid, dlat)
+
+    def _refusal(
+        self,
+        ego: VehicleState,
+        y: float,
+        dlat: float,
+        others: Snapshot,
+        road: RoadSection,
+        step_s: float,
+    ) -> str | None:
+        """The lateral guard (:func:`lateral_refusal`) on ego's move ``dlat`` [m] from ``y``."""
+        sc = self.ctx.scenario
+        return lateral_refusal(
+            ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
+            model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
+            settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
+        )  # fmt: skip
 
     def _new_episode(self, seen: dict[str, float], vid: str, t_s: float) -> bool:
         """Record ``vid`` in ``seen`` at ``t_s``: a new episode unless it was there within

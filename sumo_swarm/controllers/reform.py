@@ -685,6 +685,11 @@ class Reformer:
             centre = clip(road.lane_centre_y(lane) - y, step)
             escape = self.escape(ego, centre, step)
             if escape == centre:
+                # Back to the centre through the guard too: an HV squeezing past a CAV parked
+                # off-centre in a jam, or straddling the boundary beside one that has just
+                # entered, was hit by the CAV centring (corridor study, 20 % / 1500 veh/h).
+                if self._refusal(ego, y, centre, others, road, step_s) is not None:
+                    centre = 0.0
                 return centre, math.inf
             lane = lane_now + (1 if escape > 0 else -1)  # its lane ends: out of it first
         next_lane = lane_now + (1 if lane > lane_now else -1)
@@ -710,6 +715,8 @@ class Reformer:
             self.running.pop(ego.vehicle_id, None)
         if self.hold(ego, y, dlat):  # back to the lane centre: never straddle two lanes there
             dlat = clip(road.lane_centre_y(lane_now) - y, step)
+            if self._refusal(ego, y, dlat, others, road, step_s) is not None:
+                dlat = 0.0  # not into a vehicle alongside
         elif refusal is not None:
             waited = held_lane == lane and held + 1e-9 >= sc.swarm.run_up_after_s
             if beside is None and waited and sc.swarm.run_up_gap_m > 0.0:
