@@ -194,10 +194,14 @@ def test_flows_split_every_demand_by_destination_and_class():
 
 def test_routes_differ_between_controllers_only_in_the_cav_type():
     sc = load_scenario(CORRIDOR)
-    files = {name: corridor_routes_xml(sc, name) for name in ("cacc", "sumo-lc")}
+    files = {name: corridor_routes_xml(sc, name) for name in ("cacc", "sumo-cacc", "sumo-lc")}
     lines = {name: text.splitlines() for name, text in files.items()}
-    differ = [a for a, b in zip(lines["cacc"], lines["sumo-lc"], strict=True) if a != b]
+    differ = [a for a, b in zip(lines["cacc"], lines["sumo-cacc"], strict=True) if a != b]
     assert len(differ) == 1 and f'id="{CAV_TYPE}"' in differ[0]
+    # Until a platoon takes them, corridor CAVs under our controllers are ordinary SUMO
+    # drivers, sumo-lc's (not the controllers' tau 0.2 s and lcAccelLat 40, set per vehicle).
+    assert files["cacc"] == files["sumo-lc"] == corridor_routes_xml(sc, "swarm")
+    assert 'lcAccelLat' not in files["cacc"] and 'tau="0.2"' not in files["cacc"]
     text = files["cacc"]
     assert text.count("<flow ") == len(corridor_flows(sc.corridor))
     assert 'departLane="best"' in text and 'departSpeed="max"' in text and "exp(" in text
@@ -320,3 +324,41 @@ def test_class_shares_of_the_vehicles_that_came(runs):
     assert counts[CAV_TYPE] / n == pytest.approx(0.4, abs=0.1)
     assert counts[TRUCK_TYPE] / n == pytest.approx(0.15, abs=0.07)
     assert counts[CAR_TYPE] / n == pytest.approx(0.45, abs=0.1)
+
+
+@pytest.mark.sumo
+def test_a_released_cav_gets_its_own_lateral_behaviour_back(tmp_path):
+    # The controllers' lcAccelLat 40 and lateral speed are for CAVs whose moves they command;
+    # a CAV handed back to SUMO's lane changes drives sideways as its vType says again.
+    from sumo_swarm.controllers.base import CAV_LC_ACCEL_LAT_MPS2, configure_cav
+    from sumo_swarm.sim.bridge import SumoSession
+
+    routes = tmp_path / "r.rou.xml"
+    routes.write_text(
+        """<routes>
+  <vType id="cav" lcAccelLat="1.5" maxSpeedLat="1.2"/>
+  <route id="r" edges="hwy"/>
+  <vehicle id="c" type="cav" route="r" depart="0" departPos="50" departSpeed="20"/>
+</routes>""",
+        encoding="utf-8",
+    )
+    args = ["-n", str(ROOT / "networks" / "highway2.net.xml"), "-r", str(routes),
+            "--lateral-resolution", "0.5", "--no-step-log", "true"]  # fmt: skip
+    with SumoSession(args, is_cav=lambda vid, type_id: type_id == "cav") as sumo:
+        sumo.step()
+        vehicle = sumo.api.vehicle
+
+        def lateral():
+            return (
+                float(vehicle.getParameter("c", "laneChangeModel.lcAccelLat")),
+                vehicle.getMaxSpeedLat("c"),
+            )
+
+        assert lateral() == (1.5, 1.2)
+        configure_cav(sumo, "c", lateral_speed_mps=2.0)
+        sumo.step()
+        assert lateral() == (CAV_LC_ACCEL_LAT_MPS2, 2.0)
+        sumo.release("c")
+        sumo.step()
+        assert lateral() == (1.5, 1.2)
+        assert vehicle.getTau("c") == pytest.approx(0.2)  # its speed is still ours (CACC)

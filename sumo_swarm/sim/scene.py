@@ -133,8 +133,18 @@ def build_scene(sc: Scenario) -> Scene:
     return Scene(tuple(vehicles), types)
 
 
-def cav_vtype_xml(sc: Scenario, controller: str) -> str:
-    """The CAVs' vType for one controller (the only thing that differs between runs)."""
+def cav_vtype_xml(sc: Scenario, controller: str, *, entering: bool = False) -> str:
+    """The CAVs' vType for one controller (the only thing that differs between runs).
+
+    ``entering``: the CAVs enter with the traffic (a corridor) and drive as SUMO drives them
+    until a platoon takes them (on the on-ramp, in the acceleration lane, heading for an exit
+    they are near). Under ``swarm`` and ``cacc`` they then get ``sumo-lc``'s vType, an ordinary
+    SUMO driver: the controllers' settings (tau 0.2 s, minGap 0.5 m, lcAccelLat 40, below) are
+    for CAVs whose every move they command, and are set per vehicle when a platoon takes one
+    (:func:`~sumo_swarm.controllers.base.configure_cav`). With them, SUMO merged its on-ramp
+    CAVs into 0.2 s gaps and slid them sideways at full lateral speed at once, into a car
+    creeping past in a jam (corridor study, 40 % CAVs at 1500 veh/h/lane).
+    """
     cav = sc.cav
     common = (
         f'id="{CAV_TYPE}" vClass="passenger" length="{cav.length_m}" width="{cav.width_m}" '
@@ -154,10 +164,12 @@ def cav_vtype_xml(sc: Scenario, controller: str) -> str:
             f'<vType {common} maxSpeed="{cav.cruising_speed_mps}" carFollowModel="CACC" '
             f'tau="{time_gap:.3f}" minGap="{min_gap}"/>'
         )
-    if controller == "sumo-lc":
+    ordinary = entering and controller in ("swarm", "cacc")
+    if controller == "sumo-lc" or ordinary:
         # Ordinary SUMO vehicles: Krauss without dawdling, SUMO's sublane lane changing.
+        top = cav.max_speed_mps if ordinary else cav.cruising_speed_mps
         return (
-            f'<vType {common} maxSpeed="{cav.cruising_speed_mps}" carFollowModel="Krauss" '
+            f'<vType {common} maxSpeed="{top}" carFollowModel="Krauss" '
             f'sigma="0" tau="{0.92 * time_gap:.3f}" minGap="{min_gap}"/>'
         )
     # Our controllers command the speed every step; SUMO's Krauss model with a short tau stays
@@ -313,7 +325,7 @@ def corridor_routes_xml(sc: Scenario, controller: str) -> str:
     c = sc.corridor
     end = sc.simulation.duration_s
     lines = ['<?xml version="1.0" encoding="UTF-8"?>', "<routes>"]
-    lines.append("    " + cav_vtype_xml(sc, controller))
+    lines.append("    " + cav_vtype_xml(sc, controller, entering=True))
     # Cars: SUMO's default passenger vType, its speed spread written out (the run's
     # --default.speeddev 0 is for the paper's scenes). Trucks: see CorridorSettings.
     lines.append(f'    <vType id="{CAR_TYPE}" vClass="passenger" speedDev="{c.speed_dev}"/>')
