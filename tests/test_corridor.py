@@ -201,7 +201,7 @@ def test_routes_differ_between_controllers_only_in_the_cav_type():
     # Until a platoon takes them, corridor CAVs under our controllers are ordinary SUMO
     # drivers, sumo-lc's (not the controllers' tau 0.2 s and lcAccelLat 40, set per vehicle).
     assert files["cacc"] == files["sumo-lc"] == corridor_routes_xml(sc, "swarm")
-    assert 'lcAccelLat' not in files["cacc"] and 'tau="0.2"' not in files["cacc"]
+    assert "lcAccelLat" not in files["cacc"] and 'tau="0.2"' not in files["cacc"]
     text = files["cacc"]
     assert text.count("<flow ") == len(corridor_flows(sc.corridor))
     assert 'departLane="best"' in text and 'departSpeed="max"' in text and "exp(" in text

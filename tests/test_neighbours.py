@@ -113,3 +113,20 @@ def test_within_a_reach_of_a_position_open_at_both_ends():
         "v120",
         "v140",
     ]
+
+
+def test_an_hv_standing_off_its_lane_centre_counts_by_its_body_only():
+    # A car stuck at the end of an acceleration lane, 0.7 m towards ego's lane, standing: not
+    # a leader cutting in (the CAV behind it stood there and the merge deadlocked); the same car
+    # rolling at 2 m/s is one.
+    ego = car("ego", 100.0, 1, cav=True)
+    standing = VehicleState("merging", 110.0, 0, 0.7, 0.0, 5.0, 0.0, False)
+    rolling = VehicleState("merging", 110.0, 0, 0.7, 2.0, 5.0, 0.0, False)
+    for others in both([ego, standing]):
+        assert vehicle_ahead(ego, others, ROAD) is None
+    for others in both([ego, rolling]):
+        assert vehicle_ahead(ego, others, ROAD)[0].vehicle_id == "merging"
+    # Its body in ego's lane counts whatever its speed.
+    inside = VehicleState("merging", 110.0, 0, 1.5, 0.0, 5.0, 0.0, False)
+    for others in both([ego, inside]):
+        assert vehicle_ahead(ego, others, ROAD)[0].vehicle_id == "merging"

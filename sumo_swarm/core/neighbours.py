@@ -13,6 +13,12 @@ VEHICLE_WIDTH_M = 1.8  # lateral extent used for overlap tests [m]
 # is in its lane (in the stress sweep HVs cutting in ahead of CAVs made gaps of 2.2 m).
 CUT_IN_LAT_M = 0.3
 CUT_IN_EXTRA_WIDTH_M = 1.2
+# ...while it moves faster than this [m/s]. One standing still off its lane centre is not
+# cutting in (it cannot come in ahead without moving): it counts by its body only. SUMO held a
+# car at the end of an acceleration lane 0.4-0.8 m off its centre for minutes; the CAV behind
+# it in the lane beside took it for a leader cutting in, stood 4.7 m behind it, and the
+# merge never happened: the whole on-ramp jammed (corridor, 20 % CAVs at 1800 veh/h/lane).
+CUT_IN_MIN_SPEED_MPS = 0.5
 # Half of SUMO's lateral resolution as the swarm runs it (0.5 m sublanes) [m]
 SUBLANE_MARGIN_M = 0.25
 
@@ -40,10 +46,14 @@ def _band(width_m: float, other: VehicleState) -> float:
     """Lateral distance [m] of centres under which ``other`` counts as overlapping: both
     half-widths (a truck is wider than a car) and SUMO's sublane granularity (with the sublane
     model a vehicle occupies every sublane it touches, so SUMO sees a leader, and brakes for
-    it, a little before the two bodies overlap); wider for an HV drifting off its lane centre
-    (cutting in)."""
+    it, a little before the two bodies overlap); wider for a moving HV drifting off its lane
+    centre (cutting in)."""
     band = 0.5 * (width_m + other.width_m) + SUBLANE_MARGIN_M
-    if not other.is_cav and abs(other.lat_m) > CUT_IN_LAT_M:
+    if (
+        not other.is_cav
+        and abs(other.lat_m) > CUT_IN_LAT_M
+        and other.speed_mps > CUT_IN_MIN_SPEED_MPS
+    ):
         band += CUT_IN_EXTRA_WIDTH_M
     return band
 
