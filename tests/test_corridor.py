@@ -194,14 +194,10 @@ def test_flows_split_every_demand_by_destination_and_class():
 
 def test_routes_differ_between_controllers_only_in_the_cav_type():
     sc = load_scenario(CORRIDOR)
-    files = {name: corridor_routes_xml(sc, name) for name in ("cacc", "sumo-cacc", "sumo-lc")}
+    files = {name: corridor_routes_xml(sc, name) for name in ("cacc", "sumo-lc")}
     lines = {name: text.splitlines() for name, text in files.items()}
-    differ = [a for a, b in zip(lines["cacc"], lines["sumo-cacc"], strict=True) if a != b]
+    differ = [a for a, b in zip(lines["cacc"], lines["sumo-lc"], strict=True) if a != b]
     assert len(differ) == 1 and f'id="{CAV_TYPE}"' in differ[0]
-    # Until a platoon takes them, corridor CAVs under our controllers are ordinary SUMO
-    # drivers, sumo-lc's (not the controllers' tau 0.2 s and lcAccelLat 40, set per vehicle).
-    assert files["cacc"] == files["sumo-lc"] == corridor_routes_xml(sc, "swarm")
-    assert "lcAccelLat" not in files["cacc"] and 'tau="0.2"' not in files["cacc"]
     text = files["cacc"]
     assert text.count("<flow ") == len(corridor_flows(sc.corridor))
     assert 'departLane="best"' in text and 'departSpeed="max"' in text and "exp(" in text

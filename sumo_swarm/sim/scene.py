@@ -133,18 +133,8 @@ def build_scene(sc: Scenario) -> Scene:
     return Scene(tuple(vehicles), types)
 
 
-def cav_vtype_xml(sc: Scenario, controller: str, *, entering: bool = False) -> str:
-    """The CAVs' vType for one controller (the only thing that differs between runs).
-
-    ``entering``: the CAVs enter with the traffic (a corridor) and drive as SUMO drives them
-    until a platoon takes them (on the on-ramp, in the acceleration lane, heading for an exit
-    they are near). Under ``swarm`` and ``cacc`` they then get ``sumo-lc``'s vType, an ordinary
-    SUMO driver: the controllers' settings (tau 0.2 s, minGap 0.5 m, lcAccelLat 40, below) are
-    for CAVs whose every move they command, and are set per vehicle when a platoon takes one
-    (:func:`~sumo_swarm.controllers.base.configure_cav`). With them, SUMO merged its on-ramp
-    CAVs into 0.2 s gaps and slid them sideways at full lateral speed at once, into a car
-    creeping past in a jam (corridor study, 40 % CAVs at 1500 veh/h/lane).
-    """
+def cav_vtype_xml(sc: Scenario, controller: str) -> str:
+    """The CAVs' vType for one controller (the only thing that differs between runs)."""
     cav = sc.cav
     common = (
         f'id="{CAV_TYPE}" vClass="passenger" length="{cav.length_m}" width="{cav.width_m}" '
@@ -164,12 +154,10 @@ def cav_vtype_xml(sc: Scenario, controller: str, *, entering: bool = False) -> s
             f'<vType {common} maxSpeed="{cav.cruising_speed_mps}" carFollowModel="CACC" '
             f'tau="{time_gap:.3f}" minGap="{min_gap}"/>'
         )
-    ordinary = entering and controller in ("swarm", "cacc")
-    if controller == "sumo-lc" or ordinary:
+    if controller == "sumo-lc":
         # Ordinary SUMO vehicles: Krauss without dawdling, SUMO's sublane lane changing.
-        top = cav.max_speed_mps if ordinary else cav.cruising_speed_mps
         return (
-            f'<vType {common} maxSpeed="{top}" carFollowModel="Krauss" '
+            f'<vType {common} maxSpeed="{cav.cruising_speed_mps}" carFollowModel="Krauss" '
             f'sigma="0" tau="{0.92 * time_gap:.3f}" minGap="{min_gap}"/>'
         )
     # Our controllers command the speed every step; SUMO's Krauss model with a short tau stays
@@ -181,6 +169,12 @@ def cav_vtype_xml(sc: Scenario, controller: str, *, entering: bool = False) -> s
     # command of 0.05 m moved the CAV only 0.009 m per step (0.3 m/s, measured), and a 3 m lane
     # change took 9 s instead of the planned 3 s. At 40 m/s^2 SUMO executes each per-step
     # command exactly (0.05 -> 0.05 m, 0.003 -> 0.003 m); maxSpeedLat still caps the speed.
+    # On a corridor the CAVs enter with this vType and SUMO drives them until a platoon takes
+    # them (on-ramps, acceleration lanes). Tried instead: sumo-lc's vType (tau 0.39 s, minGap
+    # 2.5 m, lcAccelLat 1) for them, set to ours per vehicle when taken (configure_cav): they
+    # merged slowly, braked at up to 9 m/s^2 at the ends of the acceleration lanes (4-8 CAV hard
+    # brakes in each 600 s run at 20-40 % CAVs, against 0-1) and one stood at a lane's end for
+    # minutes; without lcAccelLat 40 alone, 4 hard brakes. Kept as it is.
     return (
         f'<vType {common} maxSpeed="{cav.max_speed_mps}" carFollowModel="Krauss" sigma="0" '
         f'tau="0.2" minGap="0.5" lcAccelLat="40"/>'
@@ -325,7 +319,7 @@ def corridor_routes_xml(sc: Scenario, controller: str) -> str:
     c = sc.corridor
     end = sc.simulation.duration_s
     lines = ['<?xml version="1.0" encoding="UTF-8"?>', "<routes>"]
-    lines.append("    " + cav_vtype_xml(sc, controller, entering=True))
+    lines.append("    " + cav_vtype_xml(sc, controller))
     # Cars: SUMO's default passenger vType, its speed spread written out (the run's
     # --default.speeddev 0 is for the paper's scenes). Trucks: see CorridorSettings.
     lines.append(f'    <vType id="{CAR_TYPE}" vClass="passenger" speedDev="{c.speed_dev}"/>')
