@@ -358,3 +358,53 @@ def test_a_released_cav_gets_its_own_lateral_behaviour_back(tmp_path):
         sumo.step()
         assert lateral() == (1.5, 1.2)
         assert vehicle.getTau("c") == pytest.approx(0.2)  # its speed is still ours (CACC)
+
+
+@pytest.mark.sumo
+def test_a_cav_stuck_beside_the_deceleration_lane_misses_its_exit_and_drives_on(tmp_path):
+    # A CAV released to take the off-ramp, standing near the end of dec0's leftmost lane (it
+    # found no gap): it gives up its exit and drives on (an ``exit_missed`` event) instead of
+    # holding up its lane (the corridor jammed for five minutes behind one, the road ahead
+    # empty). In the deceleration lane itself it keeps its exit.
+    from types import SimpleNamespace
+
+    from sumo_swarm.controllers.cacc import lane_end_accel
+    from sumo_swarm.sim.bridge import SumoSession
+
+    spec = CorridorSpec(length_m=1500.0, lanes=3, off_ramp_positions_m=(800.0,))
+    net = build_corridor(spec, tmp_path)
+    main = spec.route(None, None)
+    routes = tmp_path / "r.rou.xml"
+    dec_length = sumolib.net.readNet(str(net)).getEdge("dec0").getLength()
+    place = dec_length - 12.0
+    routes.write_text(
+        f"""<routes>
+  <vType id="cav" maxSpeedLat="2"/>
+  <route id="out" edges="{" ".join(spec.route(None, 0))}"/>
+  <vehicle id="stuck" type="cav" route="out" depart="0" departSpeed="0"/>
+  <vehicle id="exiting" type="cav" route="out" depart="0" departSpeed="0"/>
+</routes>""",
+        encoding="utf-8",
+    )
+    args = ["-n", str(net), "-r", str(routes), "--lateral-resolution", "0.5",
+            "--no-step-log", "true", "--step-length", "0.2"]  # fmt: skip
+    with SumoSession(args, route_edges=main, is_cav=lambda vid, type_id: True) as sumo:
+        sumo.step()
+        vehicle = sumo.api.vehicle
+        vehicle.moveTo("stuck", "dec0_3", place)
+        vehicle.moveTo("exiting", "dec0_0", place)
+        for vid in ("stuck", "exiting"):
+            vehicle.setLaneChangeMode(vid, 0)
+            sumo.release(vid)
+        sumo.step()
+        events = []
+        ctx = SimpleNamespace(session=sumo, dt_s=0.2,
+                              event=lambda kind, **data: events.append((kind, data)))  # fmt: skip
+        assert lane_end_accel(ctx, "stuck", 0.0) is None  # it drives on: no lane end to slow for
+        assert lane_end_accel(ctx, "exiting", 0.0) is None  # in the lane its route goes on in
+        assert events == [("exit_missed", {"vehicle": "stuck", "exit": "off0"})]
+        assert vehicle.getRoute("stuck")[-1] == main[-1]
+        assert vehicle.getRoute("exiting")[-1] == "off0"
+        for _ in range(100):
+            sumo.step()
+        assert vehicle.getRoadID("stuck") in main[main.index("dec0") + 1 :]

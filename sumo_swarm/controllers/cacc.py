@@ -64,6 +64,14 @@ def cacc_accel(
 # (the penetration study, 10 % CAVs at 1000 veh/h/lane).
 LANE_END_DECEL_MPS2 = 2.0
 LANE_END_STOP_M = 8.0
+# Such a CAV still in a lane that goes on along the road (a through lane beside the
+# deceleration lane), this close to where it must stop and slower than MISS_EXIT_BELOW_MPS,
+# misses its exit and drives on (SumoSession.miss_exit, a ``exit_missed`` event), as a driver
+# who found no gap does. Standing there, it held up its lane, and SUMO's drivers beside it
+# stopped to let it in: the whole corridor jammed behind the off-ramp for five minutes with the
+# road ahead empty (the corridor, 40 % CAVs at 1800 veh/h/lane).
+MISS_EXIT_WITHIN_M = LANE_END_STOP_M + 15.0
+MISS_EXIT_BELOW_MPS = 3.0
 
 
 def lane_end_accel(ctx: RunContext, vid: str, speed_mps: float) -> float | None:
@@ -72,9 +80,38 @@ def lane_end_accel(ctx: RunContext, vid: str, speed_mps: float) -> float | None:
     distance = getattr(ctx.session, "lane_change_distance_m", lambda vid: None)(vid)
     if distance is None:
         return None
+    if distance <= MISS_EXIT_WITHIN_M and speed_mps < MISS_EXIT_BELOW_MPS:
+        missed = _miss_exit(ctx, vid)
+        if missed:
+            return None
     room = max(0.0, distance - LANE_END_STOP_M)
     v_cap = math.sqrt(2.0 * LANE_END_DECEL_MPS2 * room)
     return (v_cap - speed_mps) / ctx.dt_s
+
+
+def _miss_exit(ctx: RunContext, vid: str) -> bool:
+    """Give up ``vid``'s exit where its lane goes on along the road (see
+    :data:`MISS_EXIT_WITHIN_M`); True if it now drives on."""
+    session = ctx.session
+    if not _lane_goes_on(session, vid):
+        return False
+    missed = getattr(session, "miss_exit", lambda vid: None)(vid)
+    if missed is None:
+        return False
+    ctx.event("exit_missed", vehicle=vid, exit=missed)
+    return True
+
+
+def _lane_goes_on(session: Any, vid: str) -> bool:
+    """Does the lane ``vid`` is in lead on past its end (a through lane, not one that ends)?"""
+    edge = session.edges.get(vid)
+    state = session.states.get(vid)
+    if edge is None or state is None or edge.startswith(":"):
+        return False
+    try:
+        return bool(session.api.lane.getLinks(f"{edge}_{state.lane}"))
+    except Exception:
+        return False
 
 
 def command_cacc(

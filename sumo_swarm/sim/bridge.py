@@ -532,6 +532,23 @@ class SumoSession:
                 return None if offset == 0 else length - self.lane_positions.get(vid, 0.0)
         return None
 
+    def miss_exit(self, vid: str) -> str | None:
+        """Let ``vid`` drive on along the road instead of taking the exit its route needs (a
+        new route to the route frame's last edge, through the lane it is in); the edge it was
+        heading for, or None when SUMO finds no such route (it keeps its own)."""
+        vehicle = self.api.vehicle
+        edges = self.route_edges
+        if not edges:
+            return None
+        try:
+            was = vehicle.getRoute(vid)[-1]
+            if was == edges[-1]:
+                return None
+            vehicle.changeTarget(vid, edges[-1])
+        except Exception:  # vanished, or no route there from where it is
+            return None
+        return was
+
     def set_speed(self, vid: str, speed_mps: float) -> None:
         self._command(vid, self.api.vehicle.setSpeed, max(0.0, speed_mps))
 
