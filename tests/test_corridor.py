@@ -363,12 +363,12 @@ def test_a_released_cav_gets_its_own_lateral_behaviour_back(tmp_path):
 @pytest.mark.sumo
 def test_a_cav_stuck_beside_the_deceleration_lane_misses_its_exit_and_drives_on(tmp_path):
     # A CAV released to take the off-ramp, standing near the end of dec0's leftmost lane (it
-    # found no gap): it gives up its exit and drives on (an ``exit_missed`` event) instead of
-    # holding up its lane (the corridor jammed for five minutes behind one, the road ahead
-    # empty). In the deceleration lane itself it keeps its exit.
+    # found no gap): after a wait it gives up its exit and drives on (an ``exit_missed``
+    # event) instead of holding up its lane (the corridor jammed for five minutes behind one,
+    # the road ahead empty). In the deceleration lane itself it keeps its exit.
     from types import SimpleNamespace
 
-    from sumo_swarm.controllers.cacc import lane_end_accel
+    from sumo_swarm.controllers.cacc import MISS_EXIT_AFTER_S, lane_end_accel
     from sumo_swarm.sim.bridge import SumoSession
 
     spec = CorridorSpec(length_m=1500.0, lanes=3, off_ramp_positions_m=(800.0,))
@@ -394,17 +394,24 @@ def test_a_cav_stuck_beside_the_deceleration_lane_misses_its_exit_and_drives_on(
         vehicle.moveTo("stuck", "dec0_3", place)
         vehicle.moveTo("exiting", "dec0_0", place)
         for vid in ("stuck", "exiting"):
-            vehicle.setLaneChangeMode(vid, 0)
             sumo.release(vid)
+            vehicle.setLaneChangeMode(vid, 0)  # it finds no gap
         sumo.step()
         events = []
         ctx = SimpleNamespace(session=sumo, dt_s=0.2,
                               event=lambda kind, **data: events.append((kind, data)))  # fmt: skip
+        for _ in range(round(MISS_EXIT_AFTER_S / 0.2)):  # it waits for a gap, standing
+            vehicle.setSpeed("stuck", 0.0)
+            sumo.step()
+            assert lane_end_accel(ctx, "stuck", 0.0) is not None
+        assert events == []
+        sumo.step()
         assert lane_end_accel(ctx, "stuck", 0.0) is None  # it drives on: no lane end to slow for
         assert lane_end_accel(ctx, "exiting", 0.0) is None  # in the lane its route goes on in
         assert events == [("exit_missed", {"vehicle": "stuck", "exit": "off0"})]
         assert vehicle.getRoute("stuck")[-1] == main[-1]
         assert vehicle.getRoute("exiting")[-1] == "off0"
+        vehicle.setSpeed("stuck", -1.0)  # (our CACC drives it in a run)
         for _ in range(100):
             sumo.step()
         assert vehicle.getRoadID("stuck") in main[main.index("dec0") + 1 :]

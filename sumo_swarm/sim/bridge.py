@@ -35,6 +35,7 @@ LCA_RIGHT = 1 << 2
 LCA_KEEPRIGHT = 1 << 6
 # The rate of a keep-right build-up is taken between readings at most this far apart [s].
 KEEP_RIGHT_RATE_WINDOW_S = 1.0
+STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
 
 
@@ -161,6 +162,7 @@ class SumoSession:
         # Each configured CAV's own lateral behaviour, (lcAccelLat, maxSpeedLat), restored when
         # it is released (remember_lateral, release).
         self._own_lateral: dict[str, tuple[str, float]] = {}
+        self._standing_since: dict[str, float] = {}  # released CAV -> since when it stands [s]
         self._lane_widths: dict[tuple[str, int], float] = {}
         self.types: dict[str, str] = {}
         self.vehicle_classes: dict[str, str] = {}  # SUMO's vClass of each vehicle's type
@@ -334,6 +336,8 @@ class SumoSession:
                 self._register(vid)
             for vid in self.arrived:  # what was kept per vehicle goes with it (an hour's flows)
                 self._own_lateral.pop(vid, None)
+                self.released.discard(vid)
+                self._standing_since.pop(vid, None)
                 self._lc_params.pop(vid, None)
                 self._keeps_right.pop(vid, None)
                 self._keep_right_seen.pop(vid, None)
@@ -395,6 +399,12 @@ class SumoSession:
             edges[vid] = edge
             lane_positions[vid] = pos
         self.states = states
+        for vid in self.released:  # how long each released CAV has stood (standing_s)
+            state = states.get(vid)
+            if state is not None and state.speed_mps < STANDING_MPS:
+                self._standing_since.setdefault(vid, self.time_s)
+            else:
+                self._standing_since.pop(vid, None)
         self.positions = positions
         self.edges = edges
         self.lane_positions = lane_positions
@@ -519,6 +529,13 @@ class SumoSession:
         """Distance [m] ``vid`` can still drive in its lane before its route needs another
         one (SUMO's best lanes: the lane ends, or leads elsewhere, e.g. past the off-ramp it
         must take); None while its lane goes on along its route, or if SUMO cannot tell."""
+        need = self.lane_change_need(vid)
+        return None if need is None else need[0]
+
+    def lane_change_need(self, vid: str) -> tuple[float, int] | None:
+        """``(distance [m], lanes)``: how far ``vid`` can still drive in its lane before its
+        route needs another one, and how many lanes over that one is (SUMO's best lanes); None
+        while its lane goes on along its route, or if SUMO cannot tell."""
         state, edge = self.states.get(vid), self.edges.get(vid)
         if state is None or edge is None:
             return None
@@ -529,8 +546,15 @@ class SumoSession:
             return None
         for lane_id, length, _, offset, _, _ in best:
             if lane_id == lane:  # (a junction lane is not among them)
-                return None if offset == 0 else length - self.lane_positions.get(vid, 0.0)
+                if offset == 0:
+                    return None
+                return length - self.lane_positions.get(vid, 0.0), abs(int(offset))
         return None
+
+    def standing_s(self, vid: str) -> float:
+        """How long [s] released CAV ``vid`` has stood still (0 while it moves)."""
+        since = self._standing_since.get(vid)
+        return 0.0 if since is None else self.time_s - since
 
     def miss_exit(self, vid: str) -> str | None:
         """Let ``vid`` drive on along the road instead of taking the exit its route needs (a
