@@ -323,44 +323,6 @@ def test_class_shares_of_the_vehicles_that_came(runs):
 
 
 @pytest.mark.sumo
-def test_a_released_cav_gets_its_own_lateral_behaviour_back(tmp_path):
-    # The controllers' lcAccelLat 40 and lateral speed are for CAVs whose moves they command;
-    # a CAV handed back to SUMO's lane changes drives sideways as its vType says again.
-    from sumo_swarm.controllers.base import CAV_LC_ACCEL_LAT_MPS2, configure_cav
-    from sumo_swarm.sim.bridge import SumoSession
-
-    routes = tmp_path / "r.rou.xml"
-    routes.write_text(
-        """<routes>
-  <vType id="cav" lcAccelLat="1.5" maxSpeedLat="1.2"/>
-  <route id="r" edges="hwy"/>
-  <vehicle id="c" type="cav" route="r" depart="0" departPos="50" departSpeed="20"/>
-</routes>""",
-        encoding="utf-8",
-    )
-    args = ["-n", str(ROOT / "networks" / "highway2.net.xml"), "-r", str(routes),
-            "--lateral-resolution", "0.5", "--no-step-log", "true"]  # fmt: skip
-    with SumoSession(args, is_cav=lambda vid, type_id: type_id == "cav") as sumo:
-        sumo.step()
-        vehicle = sumo.api.vehicle
-
-        def lateral():
-            return (
-                float(vehicle.getParameter("c", "laneChangeModel.lcAccelLat")),
-                vehicle.getMaxSpeedLat("c"),
-            )
-
-        assert lateral() == (1.5, 1.2)
-        configure_cav(sumo, "c", lateral_speed_mps=2.0)
-        sumo.step()
-        assert lateral() == (CAV_LC_ACCEL_LAT_MPS2, 2.0)
-        sumo.release("c")
-        sumo.step()
-        assert lateral() == (1.5, 1.2)
-        assert vehicle.getTau("c") == pytest.approx(0.2)  # its speed is still ours (CACC)
-
-
-@pytest.mark.sumo
 def test_a_cav_stuck_beside_the_deceleration_lane_misses_its_exit_and_drives_on(tmp_path):
     # A CAV released to take the off-ramp, standing near the end of dec0's leftmost lane (it
     # found no gap): after a wait it gives up its exit and drives on (an ``exit_missed``

@@ -216,9 +216,6 @@ def configure_cav(
     that vanished is left alone."""
     if session.set_modes(vid, SPEED_MODE_SAFE, lane_change_mode):
         vehicle = session.api.vehicle
-        remember = getattr(session, "remember_lateral", None)
-        if remember is not None:  # restored when the CAV is released
-            remember(vid)
         vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", f"{CAV_LC_ACCEL_LAT_MPS2:g}")
         vehicle.setTau(vid, CAV_TAU_S)
         vehicle.setMinGap(vid, CAV_MIN_GAP_M)

@@ -9,7 +9,6 @@ pure :mod:`sumo_swarm.core.routeframe` (fed from the running network), trajector
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 from collections.abc import Iterable, Sequence
@@ -159,9 +158,6 @@ class SumoSession:
         self.widths: dict[str, float] = {}
         self.lane_positions: dict[str, float] = {}  # front bumper along its lane [m]
         self.released: set[str] = set()  # CAVs handed back to SUMO (they left the swarm)
-        # Each configured CAV's own lateral behaviour, (lcAccelLat, maxSpeedLat), restored when
-        # it is released (remember_lateral, release).
-        self._own_lateral: dict[str, tuple[str, float]] = {}
         self._standing_since: dict[str, float] = {}  # released CAV -> since when it stands [s]
         self._lane_widths: dict[tuple[str, int], float] = {}
         self.types: dict[str, str] = {}
@@ -335,7 +331,6 @@ class SumoSession:
             for vid in self.departed:
                 self._register(vid)
             for vid in self.arrived:  # what was kept per vehicle goes with it (an hour's flows)
-                self._own_lateral.pop(vid, None)
                 self.released.discard(vid)
                 self._standing_since.pop(vid, None)
                 self._lc_params.pop(vid, None)
@@ -496,29 +491,8 @@ class SumoSession:
             # even one that left the swarm, stays inside the 4 m/s^2 hard-brake line.
             decel = self.api.vehicletype.getDecel(type_id)
             vehicle.setDecel(vid, min(decel, RELEASED_DECEL_MPS2))
-            # Its own lateral behaviour back: SUMO's lane changes at lcAccelLat 40 (set for our
-            # sublane commands) jump sideways at full lateral speed at once, and SUMO's lateral
-            # gap keeping does not foresee that (a released CAV slid into a car creeping past
-            # it in a jam). Tau and minGap stay ours: our CACC still commands its speed.
-            own = self._own_lateral.get(vid)
-            if own is not None:
-                vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", own[0])
-                vehicle.setMaxSpeedLat(vid, own[1])
         except Exception:  # vanished: nothing to hand back
             pass
-
-    def remember_lateral(self, vid: str) -> None:
-        """Keep ``vid``'s own lcAccelLat and maxSpeedLat, once, before a controller changes
-        them (:func:`~sumo_swarm.controllers.base.configure_cav`); :meth:`release` restores them."""
-        if vid in self._own_lateral:
-            return
-        vehicle = self.api.vehicle
-        try:
-            accel_lat = vehicle.getParameter(vid, "laneChangeModel.lcAccelLat") or "1.0"
-        except Exception:  # a lane-change model without it: SUMO's default
-            accel_lat = "1.0"
-        with contextlib.suppress(Exception):  # vanished: nothing to restore
-            self._own_lateral[vid] = (accel_lat, vehicle.getMaxSpeedLat(vid))
 
     def reclaim(self, vid: str) -> None:
         """``vid``, released before, is a swarm's CAV again (a platoon took it in: its
