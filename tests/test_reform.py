@@ -893,3 +893,28 @@ def test_a_cav_off_centre_in_a_jam_centres_only_once_the_hv_squeezing_past_has_g
         assert dlat == pytest.approx(SCENARIO.cav.max_lateral_speed_mps * 0.2)
     else:
         assert dlat == 0.0
+
+
+@pytest.mark.parametrize(("wants", "yields"), [(True, True), (False, False)])
+def test_a_cav_lets_in_a_vehicle_that_must_change_into_its_lane_for_its_route(wants, yields):
+    # The hour of the corridor: an exiting truck in the middle lane found no gap into the
+    # platoons of the right lane for 1.5 km and stood at the end of its lane; the corridor
+    # jammed behind it. A CAV behind such a vehicle (SUMO's strategic wish towards its lane)
+    # now drops back gently to let it in; a vehicle that only drives there is left alone.
+    r = reformer()
+    asked = []
+
+    def must_change(vid, direction):
+        asked.append((vid, direction))
+        return wants
+
+    r.must_change = must_change
+    cav = car("c0", 100.0, 0, 20.0, cav=True)
+    truck = VehicleState("truck", 118.0, 1, 0.0, 18.0, 12.0, 0.0, False)  # rear 6 m ahead
+    _, bound = r.moves(states(cav, truck), ["c0"], ROAD, 0, {"c0": 0}, 0.1)["c0"]
+    assert asked == [("truck", -1)]  # asked whether it must move right, into c0's lane
+    if yields:
+        gentle = -SCENARIO.hvmodel.planner_share * SCENARIO.hvmodel.b_safe_mps2
+        assert gentle <= bound < 0.0
+    else:
+        assert bound == math.inf

@@ -68,6 +68,9 @@ class Reformer:
     lane_wanted_right: Callable[[VehicleState, Mapping[str, VehicleState], float], int | None] = (
         lambda vehicle, states, t_s: None
     )
+    # must_change(vid, direction): does this vehicle need to move one lane that way (+1 left)
+    # for its route (SUMO's strategic wish)? A CAV lets such a vehicle ahead of it in (let_in).
+    must_change: Callable[[str, int], bool] = lambda vid, direction: False
     lane_id: int | None = None
     edge: str | None = None  # the edge whose lane indices lane_id is in
     # CAV -> (the slow vehicle it passes, the lane it passes in, since when [s])
@@ -599,6 +602,7 @@ class Reformer:
         self._make_room(
             states, others, [v for v in platoon if v not in self.passing], road, lane, moves
         )
+        self._let_in(states, others, [v for v in platoon if v not in self.passing], road, moves)
         self._block_for_stranded(states, others, platoon, road, moves, step_s)
         return moves
 
@@ -902,6 +906,46 @@ class Reformer:
                 continue  # its own leader is nearer: the merging CAV slots in further ahead
             dlat, bound = moves[vid]
             moves[vid] = (dlat, min(bound, self._follow_gently(ego, m, gap)))
+
+    def _let_in(
+        self,
+        states: Mapping[str, VehicleState],
+        others: Snapshot,
+        platoon: Sequence[str],
+        road: RoadSection,
+        moves: dict[str, Move],
+    ) -> None:
+        """A CAV lets in a vehicle that must change into its lane for its route (SUMO's
+        strategic wish, :attr:`must_change`): the nearest one ahead of it in a lane beside,
+        within ``cav.desired_gap_m`` plus 2 s at its speed, is followed as if it were already
+        ahead (braking gently), as SUMO's cooperative drivers open a gap. Without it an exiting
+        truck two lanes from the deceleration lane found no gap into the platoons of the right
+        lane for 1.5 km, stood at the end of its lane, and the corridor jammed behind it (the
+        hour of scenarios/corridor.toml, from 1630 s)."""
+        sc = self.scenario
+        members = set(platoon)
+        for vid in platoon:
+            ego = states[vid]
+            here = road.lane_of(ego)
+            reach = sc.cav.desired_gap_m + 2.0 * ego.speed_mps
+            real = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
+            for side in (1, -1):
+                q = here + side
+                if not 0 <= q < road.n_lanes:
+                    continue
+                near = vehicle_ahead(ego, others, road, y_m=road.lane_centre_y(q),
+                                     width_m=sc.cav.width_m)  # fmt: skip
+                if near is None or near[0].vehicle_id in members or near[0].is_cav:
+                    continue
+                m, gap = near
+                if gap > reach or road.lane_of(m) != q:
+                    continue
+                if real is not None and real[1] <= gap:
+                    continue  # its own leader is nearer: room for it is made further ahead
+                if not self.must_change(m.vehicle_id, -side):
+                    continue
+                dlat, bound = moves[vid]
+                moves[vid] = (dlat, min(bound, self._follow_gently(ego, m, gap)))
 
     def _held_next_to(
         self,

@@ -30,7 +30,9 @@ DEFAULT_WIDTHS_M = (3.2, 3.2)  # the road assumed until a route is known (SUMO's
 LC_MODE_DEFAULT = 0b011001010101
 # SUMO's lane-change state bits (libsumo vehicle.getLaneChangeState): a change to the right is
 # wanted, for the keep-right reason.
+LCA_LEFT = 1 << 1
 LCA_RIGHT = 1 << 2
+LCA_STRATEGIC = 1 << 3
 LCA_KEEPRIGHT = 1 << 6
 # The rate of a keep-right build-up is taken between readings at most this far apart [s].
 KEEP_RIGHT_RATE_WINDOW_S = 1.0
@@ -606,6 +608,17 @@ class SumoSession:
         except Exception:  # the vehicle left, or a TraCI without the call
             return False
         return state & LCA_RIGHT != 0 and state & LCA_KEEPRIGHT != 0
+
+    def must_change(self, vid: str, direction: int) -> bool:
+        """Does ``vid``'s lane-change model want to move one lane ``direction`` (+1 left, -1
+        right) for its route (SUMO's LCA_STRATEGIC), whether the lane there lets it or not?
+        False when it vanished."""
+        try:
+            state = self.api.vehicle.getLaneChangeState(vid, direction)[0]
+        except Exception:  # the vehicle left, or a TraCI without the call
+            return False
+        side = LCA_LEFT if direction > 0 else LCA_RIGHT
+        return state & side != 0 and state & LCA_STRATEGIC != 0
 
     def keep_right_due_s(self, vid: str) -> float | None:
         """Seconds until ``vid``'s keep-right wish shows (0: it shows), from the build-up of its
