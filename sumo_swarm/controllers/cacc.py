@@ -97,26 +97,11 @@ def lane_end_accel(ctx: RunContext, vid: str, speed_mps: float) -> float | None:
 def _miss_exit(ctx: RunContext, vid: str) -> bool:
     """Give up ``vid``'s exit where its lane goes on along the road (see
     :data:`MISS_EXIT_WITHIN_M`); True if it now drives on."""
-    session = ctx.session
-    if not _lane_goes_on(session, vid):
-        return False
-    missed = getattr(session, "miss_exit", lambda vid: None)(vid)
+    missed = getattr(ctx.session, "miss_exit", lambda vid: None)(vid)
     if missed is None:
         return False
     ctx.event("exit_missed", vehicle=vid, exit=missed)
     return True
-
-
-def _lane_goes_on(session: Any, vid: str) -> bool:
-    """Does the lane ``vid`` is in lead on past its end (a through lane, not one that ends)?"""
-    edge = session.edges.get(vid)
-    state = session.states.get(vid)
-    if edge is None or state is None or edge.startswith(":"):
-        return False
-    try:
-        return bool(session.api.lane.getLinks(f"{edge}_{state.lane}"))
-    except Exception:
-        return False
 
 
 def command_cacc(

@@ -274,15 +274,20 @@ class Decider:
     def _keeps_right(self, target: VehicleState) -> bool:
         """Does ``target``'s lane-change model keep right (read through libsumo)? False when
         it vanished or TraCI cannot tell."""
-        return self._session_says("keeps_right", target)
+        return self._session_says("keeps_right", target.vehicle_id)
 
-    def _session_says(self, question: str, vehicle: VehicleState) -> bool:
-        """The session's answer to ``question`` (a method of it, asked with the vehicle's
-        id) about ``vehicle``; False when the session has no such method or it fails (the
-        vehicle left)."""
+    def must_change(self, vid: str, direction: int) -> bool:
+        """Does vehicle ``vid`` need to move one lane ``direction`` (+1 left) for its route
+        (SUMO's strategic wish, read through libsumo)? False when TraCI cannot tell."""
+        return self._session_says("must_change", vid, direction)
+
+    def _session_says(self, question: str, vid: str, *args: Any) -> bool:
+        """The session's answer to ``question`` (a method of it, asked with vehicle ``vid``
+        and ``args``); False when the session has no such method or it fails (the vehicle
+        left)."""
         ask = getattr(self.ctx.session, question, None)
         try:
-            return ask is not None and bool(ask(vehicle.vehicle_id))
+            return ask is not None and bool(ask(vid, *args))
         except Exception:
             return False
 
@@ -306,7 +311,9 @@ class Decider:
         """Does ``target``'s driver want to move right to keep right now, the lane there free
         or not (SUMO's lane-change state, read through libsumo)? False with ``[swarm]
         keep_right_wish`` off, or when TraCI cannot tell."""
-        return self.ctx.scenario.swarm.keep_right_wish and self._session_says("wants_right", target)
+        return self.ctx.scenario.swarm.keep_right_wish and self._session_says(
+            "wants_right", target.vehicle_id
+        )
 
     def _follower_gap(self, follower: VehicleState) -> float:
         """The minimum gap [m] SUMO's lane-change check leaves in front of ``follower``: an

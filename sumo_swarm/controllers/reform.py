@@ -692,7 +692,7 @@ class Reformer:
                 # Back to the centre through the guard too: an HV squeezing past a CAV parked
                 # off-centre in a jam, or straddling the boundary beside one that has just
                 # entered, was hit by the CAV centring (corridor study, 20 % / 1500 veh/h).
-                if self._refusal(ego, y, centre, others, road, step_s) is not None:
+                if centre and self._refusal(ego, y, centre, others, road, step_s) is not None:
                     centre = 0.0
                 return centre, math.inf
             lane = lane_now + (1 if escape > 0 else -1)  # its lane ends: out of it first
@@ -719,7 +719,7 @@ class Reformer:
             self.running.pop(ego.vehicle_id, None)
         if self.hold(ego, y, dlat):  # back to the lane centre: never straddle two lanes there
             dlat = clip(road.lane_centre_y(lane_now) - y, step)
-            if self._refusal(ego, y, dlat, others, road, step_s) is not None:
+            if dlat and self._refusal(ego, y, dlat, others, road, step_s) is not None:
                 dlat = 0.0  # not into a vehicle alongside
         elif refusal is not None:
             waited = held_lane == lane and held + 1e-9 >= sc.swarm.run_up_after_s
@@ -885,7 +885,6 @@ class Reformer:
         """A CAV in the platoon's lane lets a CAV next to that lane merge in front of it: it
         follows the merging CAV as if it were already ahead (braking gently), so a gap opens
         there instead of the platoon streaming past a CAV that cannot get in."""
-        sc = self.scenario
         lane_of = {v: road.lane_of(states[v]) for v in platoon}
         merging = [states[v] for v in platoon if abs(lane_of[v] - lane) == 1]
         if not merging:
@@ -900,12 +899,7 @@ class Reformer:
             if not ahead:
                 continue
             m = min(ahead, key=lambda x: x.s_m)
-            gap = m.rear_s_m - ego.s_m
-            real = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
-            if real is not None and real[1] <= gap:
-                continue  # its own leader is nearer: the merging CAV slots in further ahead
-            dlat, bound = moves[vid]
-            moves[vid] = (dlat, min(bound, self._follow_gently(ego, m, gap)))
+            self._let_ahead(ego, m, m.rear_s_m - ego.s_m, others, road, moves)
 
     def _let_in(
         self,
@@ -928,7 +922,6 @@ class Reformer:
             ego = states[vid]
             here = road.lane_of(ego)
             reach = sc.cav.desired_gap_m + 2.0 * ego.speed_mps
-            real = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
             for side in (1, -1):
                 q = here + side
                 if not 0 <= q < road.n_lanes:
@@ -940,12 +933,26 @@ class Reformer:
                 m, gap = near
                 if gap > reach or road.lane_of(m) != q:
                     continue
-                if real is not None and real[1] <= gap:
-                    continue  # its own leader is nearer: room for it is made further ahead
-                if not self.must_change(m.vehicle_id, -side):
-                    continue
-                dlat, bound = moves[vid]
-                moves[vid] = (dlat, min(bound, self._follow_gently(ego, m, gap)))
+                if self.must_change(m.vehicle_id, -side):
+                    self._let_ahead(ego, m, gap, others, road, moves)
+
+    def _let_ahead(
+        self,
+        ego: VehicleState,
+        lead: VehicleState,
+        gap_m: float,
+        others: Sequence[VehicleState],
+        road: RoadSection,
+        moves: dict[str, Move],
+    ) -> None:
+        """Ego follows ``lead``, in a lane beside and ``gap_m`` ahead, as if it were already
+        ahead (braking gently, :meth:`_follow_gently`), so that a gap opens for it there;
+        unless ego's own leader is nearer (room for ``lead`` is made further ahead)."""
+        real = vehicle_ahead(ego, others, road, width_m=self.scenario.cav.width_m)
+        if real is not None and real[1] <= gap_m:
+            return
+        dlat, bound = moves[ego.vehicle_id]
+        moves[ego.vehicle_id] = (dlat, min(bound, self._follow_gently(ego, lead, gap_m)))
 
     def _held_next_to(
         self,

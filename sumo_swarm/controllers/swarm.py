@@ -138,7 +138,7 @@ class SwarmController:
             planner=self.planner_settings,
         )  # fmt: skip
         self.reformer.lane_wanted_right = self._lane_kept_free
-        self.reformer.must_change = self._must_change
+        self.reformer.must_change = self.decider.must_change
         self.replanner = Replanner(
             ctx, manoeuvre, self.planner_settings, decider=self.decider, lanes=self.lanes,
             model_of=self.model_of, planlog=self.planlog, tracker_reset=self.tracker.reset,
@@ -361,15 +361,6 @@ class SwarmController:
                 # No way past together: the CAVs pass it one by one, as SUMO's drivers do,
                 # through the guards, and re-form the platoon ahead.
                 self.reformer.singly = (self.target_id, t_s + sc.swarm.pass_singly_s)
-
-    def _must_change(self, vid: str, direction: int) -> bool:
-        """Does ``vid`` need to move one lane ``direction`` (+1 left) for its route (the
-        session's answer; False where the session cannot tell)?"""
-        ask = getattr(self.ctx.session, "must_change", None)
-        try:
-            return ask is not None and bool(ask(vid, direction))
-        except Exception:
-            return False
 
     def _lane_kept_free(
         self, vehicle: VehicleState, states: dict[str, VehicleState], t_s: float

@@ -501,13 +501,6 @@ class SumoSession:
         controller sets its modes); :attr:`states` shows it as a CAV from the next read."""
         self.released.discard(vid)
 
-    def lane_change_distance_m(self, vid: str) -> float | None:
-        """Distance [m] ``vid`` can still drive in its lane before its route needs another
-        one (SUMO's best lanes: the lane ends, or leads elsewhere, e.g. past the off-ramp it
-        must take); None while its lane goes on along its route, or if SUMO cannot tell."""
-        need = self.lane_change_need(vid)
-        return None if need is None else need[0]
-
     def lane_change_need(self, vid: str) -> tuple[float, int] | None:
         """``(distance [m], lanes)``: how far ``vid`` can still drive in its lane before its
         route needs another one, and how many lanes over that one is (SUMO's best lanes); None
@@ -535,12 +528,15 @@ class SumoSession:
     def miss_exit(self, vid: str) -> str | None:
         """Let ``vid`` drive on along the road instead of taking the exit its route needs (a
         new route to the route frame's last edge, through the lane it is in); the edge it was
-        heading for, or None when SUMO finds no such route (it keeps its own)."""
+        heading for, or None when its lane does not go on (it ends) or SUMO finds no such
+        route (it keeps its own)."""
         vehicle = self.api.vehicle
-        edges = self.route_edges
-        if not edges:
+        edges, edge, state = self.route_edges, self.edges.get(vid), self.states.get(vid)
+        if not edges or edge is None or state is None or edge.startswith(":"):
             return None
         try:
+            if not self.api.lane.getLinks(f"{edge}_{state.lane}"):
+                return None  # a lane that ends: driving on does not need it less
             was = vehicle.getRoute(vid)[-1]
             if was == edges[-1]:
                 return None
