@@ -10,6 +10,7 @@ from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import (
     Snapshot,
     cav_alongside_behind,
+    snapshot_of,
     vehicle_ahead,
     vehicle_behind,
     within,
@@ -113,6 +114,20 @@ def test_within_a_reach_of_a_position_open_at_both_ends():
         "v120",
         "v140",
     ]
+
+
+def test_one_snapshot_per_states_table_and_road_until_the_table_changes():
+    states = {v.vehicle_id: v for v in (car("a", 50.0, 0), car("b", 20.0, 1), car("c", 80.0, 2))}
+    snap = snapshot_of(states, ROAD)
+    assert [v.vehicle_id for v in snap] == ["b", "a", "c"]
+    assert snapshot_of(states, ROAD) is snap
+    # Another table of the same vehicles, or the same table on another road: a new one.
+    assert snapshot_of(dict(states), ROAD) is not snap
+    other_road = RoadSection((3.5, 3.5, 3.5))
+    assert snapshot_of(states, other_road) is not snap
+    # A vehicle dropped from the table (one that vanished from SUMO): made again, without it.
+    del states["a"]
+    assert [v.vehicle_id for v in snapshot_of(states, ROAD)] == ["b", "c"]
 
 
 def test_an_hv_standing_off_its_lane_centre_counts_by_its_body_only():

@@ -643,28 +643,36 @@ def test_lateral_guard_judges_an_entry_speeding_up_by_the_speeds_it_reaches():
 
 
 def test_the_leader_eases_off_more_only_for_a_platoon_strung_out_in_its_lane():
+    from sumo_swarm.core.neighbours import Snapshot
+
     kw = dict(width_m=1.8, reach_m=60.0, ease_mps=2.0, regroup_ease_mps=5.0)
+
+    def ease(states, platoon, **kw):  # the same answer over a plain table and a Snapshot
+        plain = leader_ease_cap(states, platoon, ROAD, **kw)
+        assert leader_ease_cap(states, platoon, ROAD, everyone=Snapshot(states.values(), ROAD),
+                               **kw) == plain  # fmt: skip
+        return plain
+
     platoon = ["c0", "c1", "c2"]
     strung = states_of(
         car("c0", 500.0, 1, 20.0, cav=True), car("c1", 380.0, 1, 22.0, cav=True),
         car("c2", 360.0, 1, 22.0, cav=True),
     )  # fmt: skip
-    assert leader_ease_cap(strung, platoon, ROAD, **kw) == 5.0
+    assert ease(strung, platoon, **kw) == 5.0
     # An HV between the leader and the others: easing off would hold it back, not close up.
-    assert leader_ease_cap({**strung, **states_of(car("h", 450.0, 1, 20.0))}, platoon, ROAD,
-                           **kw) == 2.0  # fmt: skip
+    assert ease({**strung, **states_of(car("h", 450.0, 1, 20.0))}, platoon, **kw) == 2.0
     # A CAV stuck in another lane (behind a truck): the leader slowing does not bring it closer.
     stuck = {**strung, **states_of(car("c2", 360.0, 0, 12.0, cav=True))}
-    assert leader_ease_cap(stuck, platoon, ROAD, **kw) == 2.0
+    assert ease(stuck, platoon, **kw) == 2.0
     # A single CAV leading, an HV 30 m behind it: that HV would be held back.
     alone = states_of(car("c0", 500.0, 1, 20.0, cav=True), car("h", 465.0, 1, 22.0))
-    assert leader_ease_cap(alone, ["c0"], ROAD, **kw) == 2.0
+    assert ease(alone, ["c0"], **kw) == 2.0
     far = states_of(car("c0", 500.0, 1, 20.0, cav=True), car("h", 400.0, 1, 22.0))
-    assert leader_ease_cap(far, ["c0"], ROAD, **kw) == 5.0
+    assert ease(far, ["c0"], **kw) == 5.0
     # Vehicles in other lanes do not matter; no larger ease configured: the base one.
     beside = {**strung, **states_of(car("h", 450.0, 2, 20.0))}
-    assert leader_ease_cap(beside, platoon, ROAD, **kw) == 5.0
-    assert leader_ease_cap(strung, platoon, ROAD, **{**kw, "regroup_ease_mps": 2.0}) == 2.0
+    assert ease(beside, platoon, **kw) == 5.0
+    assert ease(strung, platoon, **{**kw, "regroup_ease_mps": 2.0}) == 2.0
 
 
 def test_a_cav_fallen_back_behind_a_platoon_cav_in_another_lane_closes_up():

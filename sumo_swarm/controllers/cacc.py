@@ -14,7 +14,7 @@ from typing import Any
 from sumo_swarm.config import CaccSettings, CavSettings
 from sumo_swarm.controllers.base import LC_MODE_STRATEGIC, RouteWatch, RunContext
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead
+from sumo_swarm.core.neighbours import Snapshot, snapshot_of, vehicle_ahead
 
 
 def cacc_accel(
@@ -126,7 +126,7 @@ def command_cacc(
     if states is None:
         states = ctx.session.states
     # sorted once: a look-up per CAV below
-    others = Snapshot(states.values(), ctx.road) if everyone is None else everyone
+    others = snapshot_of(states, ctx.road) if everyone is None else everyone
     sc = ctx.scenario
     released = getattr(ctx.session, "released", ())
     for vid in platoon:

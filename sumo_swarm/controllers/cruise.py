@@ -19,7 +19,7 @@ from sumo_swarm.controllers.decider import Decider
 from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.neighbours import Snapshot
+from sumo_swarm.core.neighbours import snapshot_of
 from sumo_swarm.core.swarming.decision import leader_ease_cap, straggler_cruise
 from sumo_swarm.core.swarming.tracker import Tracker
 
@@ -65,7 +65,7 @@ class Cruiser:
         edge = self.lanes.edge_of(platoon[0])
         waits_at = reformer.split_by(t_s, states, platoon, road, ending)
         lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap, edge=edge)
-        everyone = Snapshot(states.values(), road)  # sorted once for this step's look-ups
+        everyone = snapshot_of(states, road)  # sorted once for this step's look-ups
         goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap, step_s=ctx.dt_s,
                                everyone=everyone)  # fmt: skip
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s, everyone=everyone)
@@ -117,4 +117,5 @@ class Cruiser:
             states, platoon, self.ctx.road, width_m=sc.cav.width_m,
             reach_m=sc.swarm.detect_range_m, ease_mps=sc.swarm.max_leader_ease_mps,
             regroup_ease_mps=sc.swarm.regroup_ease_mps,
+            everyone=snapshot_of(states, self.ctx.road),
         )  # fmt: skip

@@ -19,7 +19,7 @@ from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.core.grid import MovingGrid
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.neighbours import Snapshot
+from sumo_swarm.core.neighbours import Snapshot, snapshot_of
 from sumo_swarm.core.swarming.decision import (
     TargetWatch,
     behaving_interval_s,
@@ -117,7 +117,7 @@ class Decider:
         leader = states[self.leader(states, platoon)]
         # Sorted once for both look-ups (the vehicle ahead of the leader, then the line ahead of
         # a candidate): every cruise step asks, a plain list scanned every vehicle each time.
-        vehicles = Snapshot(states.values(), ctx.road)
+        vehicles = snapshot_of(states, ctx.road)
         candidate = slow_vehicle_ahead(
             leader, vehicles, ctx.road,
             slow_below_mps=self.slow_below(), detect_range_m=sw.detect_range_m,

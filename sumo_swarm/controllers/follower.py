@@ -20,7 +20,7 @@ from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import clip
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import Snapshot
+from sumo_swarm.core.neighbours import Snapshot, snapshot_of
 from sumo_swarm.core.swarming.guards import (
     gap_accel_limit,
     gentle_for_follower,
@@ -69,7 +69,7 @@ class PlanFollower:
         sc = ctx.scenario
         road = ctx.road
         dt = ctx.dt_s
-        others = Snapshot(states.values(), road)
+        others = snapshot_of(states, road)
         solve = self.tracker.tick()
         cap = cap_mps if math.isfinite(cap_mps) else sc.cav.max_speed_mps
         gentle = sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2

@@ -35,6 +35,7 @@ from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import (
     Snapshot,
     cav_alongside_behind,
+    snapshot_of,
     vehicle_ahead,
     vehicle_behind,
     within,
@@ -350,7 +351,7 @@ class Reformer:
         members = set(platoon)
         others = [st for v, st in states.items() if v not in members]
         if everyone is None:
-            everyone = Snapshot(states.values(), road)  # sorted once: a look-up per CAV below
+            everyone = snapshot_of(states, road)  # sorted once: a look-up per CAV below
         waits_at = states.get(self.waiting[0]) if self.waiting is not None else None
         platoon_lane = lane
         goals = {}
@@ -588,7 +589,7 @@ class Reformer:
     ) -> dict[str, Move]:
         """Lateral move and acceleration bound of every CAV of ``platoon`` (``everyone``:
         ``states`` as a :class:`Snapshot`, if the caller has one)."""
-        others = Snapshot(states.values(), road) if everyone is None else everyone
+        others = snapshot_of(states, road) if everyone is None else everyone
         self.floors = {}
         moves = {vid: self._steer(states[vid], goals[vid], others, road, step_s) for vid in platoon}
         for vid in platoon:  # how long each CAV's lane change has been held, in a row

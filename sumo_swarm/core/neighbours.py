@@ -42,6 +42,31 @@ class Snapshot(list[VehicleState]):
         self.max_length_m = max((v.length_m for v in self), default=0.0)
 
 
+# Snapshots made by snapshot_of, by the identity of the states table and the road they were made
+# of; each entry holds both, so that no later table can take their ids while it is kept.
+_SNAPSHOTS: dict[tuple[int, int], tuple[Mapping[str, VehicleState], RoadSection, Snapshot]] = {}
+_SNAPSHOTS_KEPT = 64  # a step's tables (one per platoon and lane numbering), then emptied
+
+
+def snapshot_of(states: Mapping[str, VehicleState], road: RoadSection) -> Snapshot:
+    """``Snapshot(states.values(), road)``, made once per states table and road: a platoon's
+    cruise, decision, plan following and CACC all ask for one of the same table in a step,
+    and each sorted every vehicle of the road again (a corridor's 600, for each of 20
+    platoons). A table whose length changed since (a vehicle that vanished was dropped from
+    it) gets a new one; the tables are the step's, read-only once made."""
+    key = (id(states), id(road))
+    entry = _SNAPSHOTS.get(key)
+    if entry is not None and entry[0] is states and entry[1] is road:
+        snap = entry[2]
+        if len(snap) == len(states):
+            return snap
+    if len(_SNAPSHOTS) >= _SNAPSHOTS_KEPT:
+        _SNAPSHOTS.clear()
+    snap = Snapshot(states.values(), road)
+    _SNAPSHOTS[key] = (states, road, snap)
+    return snap
+
+
 def _band(width_m: float, other: VehicleState) -> float:
     """Lateral distance [m] of centres under which ``other`` counts as overlapping: both
     half-widths (a truck is wider than a car) and SUMO's sublane granularity (with the sublane

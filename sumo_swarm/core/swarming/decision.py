@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import itertools
 import math
+from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from enum import Enum
 
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import vehicle_ahead, vehicle_behind
+from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead, vehicle_behind
 
 # Defaults of [swarm] accelerating_mps2 and progress_step_m (see config.SwarmSettings).
 ACCELERATING_MPS2 = 0.5
@@ -704,24 +705,30 @@ def leader_ease_cap(
     reach_m: float,
     ease_mps: float,
     regroup_ease_mps: float,
+    everyone: Snapshot | None = None,
 ) -> float:
     """How much [m/s] the cruising leader (``platoon[0]``) may slow to let a stretched platoon
     close up: ``regroup_ease_mps`` when every CAV is in the leader's lane with nobody else
     between them, and what follows the leader there is a CAV of the platoon or nothing within
     ``reach_m`` (no HV held back; a CAV stuck behind a truck elsewhere does not come closer
-    when the leader slows); ``ease_mps`` otherwise."""
+    when the leader slows); ``ease_mps`` otherwise. ``everyone``: ``states`` as a
+    :class:`Snapshot` (only the vehicles between the tail and the leader are then looked at)."""
     if regroup_ease_mps <= ease_mps or not platoon:
         return ease_mps
     leader, tail = states[platoon[0]], states[platoon[-1]]
     lane = road.lane_of(leader)
+    if any(road.lane_of(states[v]) != lane for v in platoon):
+        return ease_mps
     members = set(platoon)
-    for vehicle in states.values():
-        in_lane = road.lane_of(vehicle) == lane
-        if vehicle.vehicle_id in members and not in_lane:
+    if everyone is None:
+        between = [v for v in states.values() if tail.s_m < v.s_m < leader.s_m]
+    else:
+        between = everyone[bisect_right(everyone.s, tail.s_m) : bisect_left(everyone.s, leader.s_m)]
+    for vehicle in between:
+        if vehicle.vehicle_id not in members and road.lane_of(vehicle) == lane:
             return ease_mps
-        if vehicle.vehicle_id not in members and in_lane and tail.s_m < vehicle.s_m < leader.s_m:
-            return ease_mps
-    behind = vehicle_behind(leader, states.values(), road, width_m=width_m)
+    behind = vehicle_behind(leader, states.values() if everyone is None else everyone, road,
+                            width_m=width_m)  # fmt: skip
     if behind is None or behind[1] > reach_m or behind[0].vehicle_id in members:
         return regroup_ease_mps
     return ease_mps
