@@ -392,6 +392,40 @@ def fig7_problem(settings: PlannerSettings | None = None) -> PlanningProblem:
     return build_problem(grid, cavs, hvs, target, 0.0, settings, grid_settings)
 
 
+def test_hvs_out_of_the_grids_reach_are_left_out_of_the_margins_not_of_the_problem():
+    # The Fig. 7 scene on a long road: HVs 2 km ahead and behind claim no cell with any
+    # margin up to the bound, so theirs are never asked for; one 300 m behind at 35 m/s
+    # reaches the grid within the horizon and still claims cells. The problem is the same.
+    road = RoadSection((3.0, 3.0, 3.0))
+    cavs = [dataclasses.replace(veh(f"cav{i}", 2300 - 15 * i, 1), is_cav=True) for i in range(6)]
+    target = veh("target", 2315, 1)
+    closing = dataclasses.replace(veh("closing", 1900, 2), speed_mps=35.0)
+    hvs = [target, veh("left", 2255, 2), veh("right", 2240, 0), veh("far_ahead", 4300, 0),
+           veh("far_behind", 300, 2), closing]  # fmt: skip
+    asked: list[str] = []
+
+    def margin(hv: VehicleState) -> tuple[float, float]:
+        asked.append(hv.vehicle_id)
+        return 2.5, 2.5 + 2.0 * hv.speed_mps  # at most 72.5 m here
+
+    gs = GridSettings()
+    grid = build_grid(cavs, target, road, 0.0, 17.5, gs)
+    settings = PlannerSettings(block_steps=1)
+    every = build_problem(grid, cavs, hvs, target, 0.0, settings, gs, front_margin=margin)
+    assert {"far_ahead", "far_behind"} <= set(asked)
+    asked.clear()
+    near = build_problem(grid, cavs, hvs, target, 0.0, settings, gs, front_margin=margin,
+                         margin_bound_m=72.5)  # fmt: skip
+    assert "far_ahead" not in asked and "far_behind" not in asked and "closing" in asked
+    for name in ("blocked", "entry_blocked", "goal_rows", "hv_tracks", "hv_ids", "stay_ok",
+                 "stay_on", "blockers", "exempt_moves"):  # fmt: skip
+        assert getattr(near, name) == getattr(every, name), name
+    # ...and the closing HV's cells are in it (without it, fewer are claimed).
+    without = build_problem(grid, cavs, [h for h in hvs if h is not closing], target, 0.0,
+                            settings, gs, front_margin=margin, margin_bound_m=72.5)  # fmt: skip
+    assert without.blocked != near.blocked
+
+
 def test_fig7_problem_data():
     problem = fig7_problem()
     assert problem.n_rows == 14 and problem.n_cols == 3 and problem.n_steps == 14

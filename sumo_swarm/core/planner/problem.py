@@ -684,6 +684,27 @@ def _swept_cells(
     return frozenset(cells)
 
 
+def _out_of_reach(
+    grid: MovingGrid,
+    predicted: Sequence[VehicleState],
+    times: Sequence[float],
+    gs: GridSettings,
+    margin_m: float,
+) -> bool:
+    """Whether an HV at these predicted states claims no row of the grid at any of them, with
+    a front margin of ``margin_m``, and stays on one side of it (ahead at every step, or behind
+    at every step: the grid and the HV move linearly in between, so the rows it sweeps between
+    two steps are out of the grid too)."""
+    ahead = behind = True
+    for state, t in zip(predicted, times, strict=True):
+        rows = hv_blocked_rows(grid, state, t, gs, margin_m)
+        ahead = ahead and rows.start >= grid.n_rows
+        behind = behind and rows.stop <= 0
+        if not (ahead or behind):
+            return False
+    return True
+
+
 def _hv_cells(
     grid: MovingGrid,
     all_hvs: Mapping[str, VehicleState],
@@ -693,7 +714,12 @@ def _hv_cells(
     gs: GridSettings,
     predictor: HvPredictor,
     front_margin: FrontMargin | None,
+    margin_bound_m: float | None = None,
 ) -> _HvCells:
+    """Each HV's claims on the grid over the horizon. With ``margin_bound_m`` (no margin
+    ``front_margin`` gives is larger), an HV whose footprint and that margin stay ahead of the
+    grid, or behind it, at every step claims no cell: only its track is kept, and its
+    margins are never asked for (on a corridor, every HV of the road was, at every step)."""
     n_steps = len(times)
     hard: list[set[Cell]] = [set() for _ in range(n_steps)]
     entry: list[set[Cell]] = [set() for _ in range(n_steps)]
@@ -702,12 +728,23 @@ def _hv_cells(
     early_states: dict[str, tuple[VehicleState, VehicleState]] = {}
     tracks = []
     for hv_id, hv in all_hvs.items():
+        predicted = [predictor.predict(hv, now_s, t) for t in times]
+        if (
+            margin_bound_m is not None
+            and hv_id != target.vehicle_id
+            and not hv_id.startswith(LANE_END_PREFIX)
+            and _out_of_reach(grid, predicted, times, gs, margin_bound_m)
+        ):
+            rows = [(st.centre_s_m - grid.origin_at(t)) / grid.cell_length_m - 0.5
+                    for st, t in zip(predicted, times, strict=True)]  # fmt: skip
+            tracks.append((hv_columns(grid, hv, gs)[0], tuple(rows)))
+            continue
         first: list[frozenset[Cell]] = []
         first_states: list[VehicleState] = []
-        rows: list[float] = []
+        rows = []
         previous: VehicleState | None = None
         for k, t in enumerate(times):
-            state = predictor.predict(hv, now_s, t)
+            state = predicted[k]
             if gs.hv_sweep and previous is not None:
                 swept = _swept_cells(grid, previous, state, times[k - 1], t, gs, front_margin)
                 hard[k - 1] |= swept
@@ -759,6 +796,7 @@ def build_problem(
     blocked_predictor: Callable[[Sequence[Blocker]], HvPredictor] | None = None,
     block_budget: Mapping[str, int] | None = None,
     block_margin: Callable[[VehicleState], float] | None = None,
+    margin_bound_m: float | None = None,
 ) -> PlanningProblem:
     """Turn vehicle states into a :class:`PlanningProblem` (CAVs ordered leader first).
 
@@ -774,6 +812,8 @@ def build_problem(
     blocker); ``block_budget`` limits, per HV, the steps it may still be held this manoeuvre;
     ``block_margin`` gives the gap a blocker needs in front of an HV when it enters at that HV's
     speed (then slows gently): its entry is checked against that instead of the entry margin.
+    ``margin_bound_m``: no margin of ``front_margin`` is larger; HVs that stay out of the
+    grid's reach with it are then not asked for theirs (the same problem, built faster).
     CAVs outside the grid raise :class:`ConfigError` (build the grid from the same CAVs).
     """
     predictor = predictor or ConstantSpeedPredictor()
@@ -781,7 +821,8 @@ def build_problem(
     times = [now_s + k * settings.behaving_interval_s for k in range(n_steps)]
     all_hvs = {hv.vehicle_id: hv for hv in hvs}
     all_hvs[target.vehicle_id] = target
-    cells = _hv_cells(grid, all_hvs, target, now_s, times, grid_settings, predictor, front_margin)
+    cells = _hv_cells(grid, all_hvs, target, now_s, times, grid_settings, predictor, front_margin,
+                      margin_bound_m)  # fmt: skip
     in_grid = set(hvs_in_grid(grid, all_hvs.values(), now_s)) | {target.vehicle_id}
 
     start_cells = tuple(cav_cell(grid, cav, grid.road, now_s) for cav in cavs)
@@ -833,8 +874,9 @@ def build_problem(
     if blockers and blocked_predictor is not None:
         final_predictor = blocked_predictor(blockers)
         cells = _hv_cells(
-            grid, all_hvs, target, now_s, times, grid_settings, final_predictor, front_margin
-        )
+            grid, all_hvs, target, now_s, times, grid_settings, final_predictor, front_margin,
+            margin_bound_m,
+        )  # fmt: skip
         problem = replace(
             problem,
             exempt_moves=_exempt(problem, blockers),

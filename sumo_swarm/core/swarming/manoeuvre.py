@@ -263,6 +263,10 @@ class ManoeuvrePlanner:
             predictor = None
         outcome = PlanOutcome(None, None, None, record, predictor=predictor)
         levels = RELAXATION[: RELAXATION.index(relax_to) + 1]
+        # No margin of _front_margin is larger (its gaps are capped at MAX_MARGIN_M): HVs that
+        # stay farther than this from the grid are left out of the margins (build_problem).
+        margin_bound = max(MAX_MARGIN_M, st.grid.gap_behind_m,
+                           *(m.min_gap_m for m in models.values()))  # fmt: skip
         try:
             for level in levels:
                 front_margin = self._front_margin(
@@ -287,6 +291,7 @@ class ManoeuvrePlanner:
                     block_budget=block_budget,
                     block_margin=self._block_margin(level, models, grid_speed_mps, cap_mps,
                                                     step_s),
+                    margin_bound_m=None if front_margin is None else margin_bound,
                 )  # fmt: skip
                 if closed_lane is not None:
                     problem = close_beside(problem, grid, target, t_s, closed_lane)
