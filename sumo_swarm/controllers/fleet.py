@@ -121,10 +121,7 @@ class PlatoonSession:
         return self._fleet.view(self.members)
 
     def states_in_lanes_of(self, vid: str) -> dict[str, VehicleState]:
-        table = self._session.states_in_lanes_of(vid)
-        if table is self._session.states:  # no lane numbering to shift
-            return self._fleet.view(self.members)
-        return self._fleet.relabel(table, self.members)
+        return self._fleet.view(self.members, self._session.states_in_lanes_of(vid))
 
 
 @dataclass
@@ -190,7 +187,9 @@ class Fleet:
         self._first_summary: dict[str, Any] | None = None  # ... kept when it ended
         self._view_source: dict[str, VehicleState] | None = None  # the table _views are of
         self._relabelled: dict[str, tuple[VehicleState, VehicleState]] = {}
-        self._views: dict[frozenset[str], dict[str, VehicleState]] = {}
+        # (table, view) by (the table's id, members): each entry holds its table, so no later
+        # table can take its id while the entry is kept (one step)
+        self._views: dict[tuple[int, frozenset[str]], tuple[dict, dict[str, VehicleState]]] = {}
         self._handed: set[str] = set()  # CAVs once in a platoon, now free: CACC for the speed
         self._off_frame: set[str] = set()  # ... that left the route frame: SUMO drives them
         self._single: Controller | None = None  # grouping = "one"
@@ -247,17 +246,22 @@ class Fleet:
         self._drive_free(states)
 
     # ------------------------------------------------------------------ views
-    def view(self, members: frozenset[str]) -> dict[str, VehicleState]:
-        """The session's states as the platoon of ``members`` sees them (:meth:`relabel`),
-        built once per step and platoon."""
+    def view(
+        self, members: frozenset[str], table: dict[str, VehicleState] | None = None
+    ) -> dict[str, VehicleState]:
+        """The session's states (or ``table``, the step's states in one lane numbering: see
+        ``states_in_lanes_of``) as the platoon of ``members`` sees them (:meth:`relabel`),
+        built once per step, table and platoon."""
         states = self.ctx.session.states
         if states is not self._view_source:  # a new step (held: no later table reuses its id)
             self._view_source = states
             self._views = {}
-        view = self._views.get(members)
-        if view is None:
-            view = self._views[members] = self.relabel(states, members)
-        return view
+        table = states if table is None else table
+        key = (id(table), members)
+        entry = self._views.get(key)
+        if entry is None or entry[0] is not table:
+            entry = self._views[key] = (table, self.relabel(table, members))
+        return entry[1]
 
     def relabel(
         self, states: dict[str, VehicleState], members: frozenset[str]
