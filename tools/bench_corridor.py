@@ -7,6 +7,12 @@ alternated point by point so that each sees the same machine load:
 - ``sumo``: the sumo binary on the configuration ``sumo-swarm run`` writes for sumo-cacc
   (``sumo/scenario.sumocfg``: the same network, flows, step, sublane model and collision
   options), with the same network outputs (tripinfo with emissions, SSM, edge data);
+- ``libsumo``: the same configuration and outputs stepped through libsumo, nothing read, with
+  the one command per CAV that defines sumo-cacc (its lane-change mode: SUMO's strategic
+  changes only; tools/libsumo_plain.py). This is the same simulation as sumo-cacc's; ``sumo``
+  is not (its CAVs change lanes to gain speed and cooperate too: over the hour sumo-cacc's
+  CAVs jam the corridor and ``sumo``'s do not), so the plumbing's cost is sumo-cacc's against
+  this one;
 - ``sumo-cacc``: ``sumo-swarm run ... --controller sumo-cacc``: SUMO drives, the project reads,
   records and summarises (the plumbing);
 - ``swarm``: ``sumo-swarm run ... --controller swarm``.
@@ -14,7 +20,8 @@ alternated point by point so that each sees the same machine load:
 Two axes: the simulated time (``--times``, at the scenario's CAV share) and the number of CAVs
 (``--shares`` of the demand, at ``--share-time`` simulated seconds). Prints and saves a table of
 process wall time and peak resident memory per point and mode (median, p95 and max over
-``--repeats``), the ratios swarm / sumo-cacc and sumo-cacc / sumo run by run, each mode's peak
+``--repeats``), the ratios swarm / sumo-cacc, sumo-cacc / libsumo and sumo-cacc / sumo run by
+run, each mode's peak
 memory against its shortest run's, and what the runs did (CAVs that entered, platoons formed,
 collisions).
 
@@ -37,13 +44,14 @@ import pandas as pd
 from bench_plumbing import stats, timed  # tools/: one process's wall time and peak memory
 
 from sumo_swarm.config import load_scenario
+from sumo_swarm.controllers.base import LC_MODE_STRATEGIC
 from sumo_swarm.sim.bridge import sumo_binary
 from sumo_swarm.sim.network import network_options
-from sumo_swarm.sim.scene import write_sumo_inputs
+from sumo_swarm.sim.scene import CAV_TYPE, write_sumo_inputs
 
 ROOT = Path(__file__).resolve().parent.parent
 CORRIDOR = ROOT / "scenarios" / "corridor.toml"
-MODES = ("sumo", "sumo-cacc", "swarm")
+MODES = ("sumo", "libsumo", "sumo-cacc", "swarm")
 
 
 def scenario_file(folder: Path, duration_s: float, share: float) -> Path:
@@ -59,17 +67,21 @@ def scenario_file(folder: Path, duration_s: float, share: float) -> Path:
 
 
 def command(mode: str, scenario: Path, work: Path) -> list[str]:
-    if mode == "sumo":
+    if mode in ("sumo", "libsumo"):
         sc = load_scenario(scenario)
         cfg, _ = write_sumo_inputs(sc, "sumo-cacc", work / "sumo")
         outputs = network_options(work / "sumo", sc.outputs)[0]
-        return [sumo_binary(), "-c", str(cfg), *outputs]
+        if mode == "sumo":
+            return [sumo_binary(), "-c", str(cfg), *outputs]
+        plain = ROOT / "tools" / "libsumo_plain.py"
+        return [sys.executable, str(plain), CAV_TYPE, str(LC_MODE_STRATEGIC), "-c", str(cfg),
+                *outputs]  # fmt: skip
     return [sys.executable, "-m", "sumo_swarm", "run", str(scenario), "--controller", mode,
             "--out", str(work)]  # fmt: skip
 
 
 def what_it_did(mode: str, work: Path) -> dict[str, float]:
-    if mode == "sumo":
+    if mode in ("sumo", "libsumo"):
         return {}
     summary = json.loads((work / "summary.json").read_text(encoding="utf-8"))
     network = summary.get("network") or {}
@@ -133,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         wall = sub["wall_s"]
         ratios = (
             ("swarm", "wall / sumo-cacc's", wall["swarm"] / wall["sumo-cacc"]),
+            ("sumo-cacc", "wall / libsumo's", wall["sumo-cacc"] / wall["libsumo"]),
             ("sumo-cacc", "wall / plain SUMO's", wall["sumo-cacc"] / wall["sumo"]),
         )
         for mode, measure, ratio in ratios:
