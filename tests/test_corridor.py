@@ -5,6 +5,7 @@ off-ramp) without a collision."""
 
 from __future__ import annotations
 
+import json
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -293,8 +294,11 @@ def test_cavs_merge_and_exit_without_a_collision(runs, controller):
         traj["vehicle"].astype(str).str.startswith("on0_end_cav") & (traj["edge"] == "m1")
     ]
     assert merged["vehicle"].nunique() >= 3
-    # the network block counts the classes
+    # the network block counts the classes, and the exits given up (events.jsonl)
     assert set(summary["network"]["vehicles_per_class"]) >= {"cav", "hv", "truck"}
+    events = [json.loads(line) for line in (folder / "events.jsonl").open()]
+    missed = sum(e["event"] == "exit_missed" for e in events)
+    assert summary["network"]["exits_missed"] == missed
 
 
 @pytest.mark.sumo

@@ -139,6 +139,9 @@ def test_network_block_from_hand_made_trips(sumo_files):
     block = network_block(tables, hard_brake_events=3, duration_s=180.0, ttc_threshold_s=1.5)
     assert block["vehicles"] == 4 and block["trips_finished"] == 2
     assert block["vehicles_not_departed"] == 1
+    assert block["exits_missed"] == 0
+    assert network_block(tables, hard_brake_events=3, duration_s=180.0, ttc_threshold_s=1.5,
+                         exits_missed=2)["exits_missed"] == 2  # fmt: skip
     # travel time over finished trips only: none of the truck's
     assert block["travel_time_s"] == {"cav": 100.0, "hv": 120.0, "truck": None}
     # delay: timeLoss plus insertion delay, every vehicle due to depart, so far for unfinished

@@ -305,6 +305,7 @@ def network_block(
     hard_brake_events: int,
     duration_s: float,
     ttc_threshold_s: float,
+    exits_missed: int = 0,
 ) -> dict[str, Any]:
     """summary.json's ``network`` block.
 
@@ -321,6 +322,9 @@ def network_block(
     - ``ttc_below_1_5s_events``: SSM conflicts with a minimum TTC below ``ttc_threshold_s``
       (None without SSM output);
     - ``co2_g_per_km``, ``fuel_g_per_km``: emitted / driven per class (mg per m = g per km);
+    - ``exits_missed``: CAVs that gave up the exit of their route after standing for it and
+      drove on (``exit_missed`` events, controllers.cacc): they are counted as trips, to
+      another end than their own;
     - extras: ``vehicle_km``, ``trips_finished``, ``vehicles_per_class`` (entered),
       ``vehicles_not_departed`` (still waiting at the end), ``depart_delay_s`` per class.
     """
@@ -362,6 +366,7 @@ def network_block(
         "vehicles_per_class": {str(k): int(v) for k, v in by_class.size().items()},
         "vehicles_not_departed": int((~departed).sum()),
         "depart_delay_s": per_class(every.groupby("vehicle_class")["depart_delay_s"].mean()),
+        "exits_missed": int(exits_missed),
     }
 
 

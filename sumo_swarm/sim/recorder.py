@@ -384,7 +384,8 @@ class RunRecorder:
             def field() -> pd.DataFrame:
                 return mean_speed_field(fields) if df is None else field_of(df)
 
-            self._add_network(out, scenario, field, summary, network_files)
+            missed = sum(1 for e in events if e.get("event") == "exit_missed")
+            self._add_network(out, scenario, field, summary, network_files, missed)
             write_json_atomic(out / "summary.json", summary)
         return summary
 
@@ -408,6 +409,7 @@ class RunRecorder:
         field: Callable[[], pd.DataFrame],
         summary: dict[str, Any],
         files: Mapping[str, Path],
+        exits_missed: int = 0,
     ) -> None:
         from sumo_swarm.sim import network
 
@@ -423,6 +425,7 @@ class RunRecorder:
                 hard_brake_events=self.hard_brakes.episodes,
                 duration_s=self.timing_simulated_s(),
                 ttc_threshold_s=scenario.outputs.ttc_threshold_s,
+                exits_missed=exits_missed,
             )
         except Exception as exc:  # a damaged output costs the block, never the run
             log.warning("network measures not read: %s", exc)
