@@ -494,7 +494,7 @@ def test_krauss_margins_cached_with_the_desired_speed_rounded_up():
     from sumo_swarm.core.swarming.manoeuvre import block_gap, canonical_model
 
     a = DriverModel(model="Krauss", desired_speed_mps=35.3, speed_factor=1.06, sigma=0.5)
-    b = DriverModel(model="Krauss", desired_speed_mps=35.05, speed_factor=1.03, sigma=0.5)
+    b = DriverModel(model="Krauss", desired_speed_mps=34.2, speed_factor=1.03, sigma=0.5)
     assert canonical_model(a) == canonical_model(b)
     assert canonical_model(a).desired_speed_mps == 36.0
     # Krauss' desired speed only caps it: a higher one closes in faster. The driver just under
