@@ -489,25 +489,6 @@ def test_margins_cached_per_desired_speed_class_on_the_safe_side():
     assert entry_gap(a, 24.0, 18.0, 2.0, 0.1) >= min_entry_gap(a, 24.0, 18.0, 2.0, 0.1) - 0.1
 
 
-def test_krauss_margins_cached_with_the_desired_speed_rounded_up():
-    from sumo_swarm.core.hvmodel import braking_needed, min_block_gap
-    from sumo_swarm.core.swarming.manoeuvre import block_gap, canonical_model
-
-    a = DriverModel(model="Krauss", desired_speed_mps=35.3, speed_factor=1.06, sigma=0.5)
-    b = DriverModel(model="Krauss", desired_speed_mps=34.2, speed_factor=1.03, sigma=0.5)
-    assert canonical_model(a) == canonical_model(b)
-    assert canonical_model(a).desired_speed_mps == 36.0
-    # Krauss' desired speed only caps it: a higher one closes in faster. The driver just under
-    # its own desired speed must not count as braking on a free road (rounded down to 35.0 it
-    # would, at 2.5 m/s^2 over a 0.2 s step, and the limit would grow by that much).
-    for v, v_enter, v_final in ((35.2, 35.0, 30.0), (30.0, 30.0, 25.0), (34.0, 33.0, 20.0)):
-        exact = min_block_gap(
-            a, v, v_enter, v_final, 1.4, 2.0 + braking_needed(a, v, None, None, 0.2), 0.2,
-            tol_m=0.1, max_gap_m=150.0,
-        )  # fmt: skip
-        assert block_gap(a, v, v_enter, v_final, 1.4, 2.0, 0.2) >= min(exact, 150.0) - 0.1
-
-
 def test_lateral_guard_leaves_room_to_stop_closing_in_on_the_leader():
     ego = car("c0", 100.0, 1, 20.0, cav=True, lat=1.0)  # moving left, about to cross
     # 6 m/s faster than the vehicle ahead there: closing at b_safe needs 6^2 / (2 * 2) = 9 m,

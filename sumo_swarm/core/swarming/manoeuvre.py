@@ -29,7 +29,6 @@ from typing import Any
 
 from sumo_swarm.core.grid import GridSettings, MovingGrid, build_grid
 from sumo_swarm.core.hvmodel import (
-    KRAUSS_MODELS,
     CarFollowingPredictor,
     DriverModel,
     braking_needed,
@@ -121,36 +120,22 @@ def _entry_gap(model: DriverModel, v_q: int, v_lead_q: int, b: float, step_s: fl
     return min(gap, MAX_MARGIN_M)
 
 
-# Desired speeds are rounded before the margins are cached: SUMO draws a speedFactor per
-# vehicle, so without it every HV of a flow has its own model and misses the cache. Each family
-# is rounded to its safe side, where the cached margin is never the smaller:
-# - IDM (and any other model) down, to DESIRED_SPEED_QUANTUM_MPS: a slower desired speed makes
-#   IDM brake harder (its free-road term);
-# - Krauss up, to KRAUSS_DESIRED_SPEED_QUANTUM_MPS: its desired speed only caps how fast it
-#   drives, so a higher one closes in faster and brakes harder, and a driver just above its own
-#   desired speed is not counted as braking on a free road (which would loosen its limit). On
-#   1200 blocking margins of a dense corridor run the rounded-up margin was never the smaller
-#   (median unchanged, 90th percentile +1.4 m); the coarser quantum halves the margins a run
-#   computes (each a simulated reaction: a third of the swarm's time in dense traffic).
+# Desired speeds are rounded down to this [m/s] before the margins are cached: SUMO draws a
+# speedFactor per vehicle, so without it every HV of a flow has its own model and misses the
+# cache (a slower desired speed makes IDM brake harder: the safe side).
 DESIRED_SPEED_QUANTUM_MPS = 0.5
-KRAUSS_DESIRED_SPEED_QUANTUM_MPS = 2.0
 
 
 @functools.lru_cache(maxsize=4096)
 def canonical_model(model: DriverModel) -> DriverModel:
-    """``model`` with its desired speed rounded to its family's safe side and no speedFactor:
-    one cache entry per vType and desired-speed class, not per vehicle (itself cached: a plan
-    asks it for every HV at every step of its horizon)."""
-    v0 = model.desired_speed_mps
-    if model.model in KRAUSS_MODELS:
-        q = KRAUSS_DESIRED_SPEED_QUANTUM_MPS
-        v0 = math.ceil(v0 / q - 1e-9) * q
-    else:
-        q = DESIRED_SPEED_QUANTUM_MPS
-        v0 = max(math.floor(v0 / q + 1e-9) * q, q)
+    """``model`` with its desired speed rounded down and no speedFactor: one cache entry per
+    vType and desired-speed class, not per vehicle (itself cached: a plan asks it for every HV
+    at every step of its horizon)."""
+    q = DESIRED_SPEED_QUANTUM_MPS
+    v0 = math.floor(model.desired_speed_mps / q + 1e-9) * q
     if v0 == model.desired_speed_mps and model.speed_factor == 1.0:
         return model
-    return replace(model, desired_speed_mps=v0, speed_factor=1.0)
+    return replace(model, desired_speed_mps=max(v0, q), speed_factor=1.0)
 
 
 def entry_gap(
