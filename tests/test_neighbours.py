@@ -125,9 +125,12 @@ def test_one_snapshot_per_states_table_and_road_until_the_table_changes():
     assert snapshot_of(dict(states), ROAD) is not snap
     other_road = RoadSection((3.5, 3.5, 3.5))
     assert snapshot_of(states, other_road) is not snap
-    # A vehicle dropped from the table (one that vanished from SUMO): made again, without it.
+    # A vehicle dropped from the table (one that vanished from SUMO), or given a new state in
+    # place: made again.
     del states["a"]
     assert [v.vehicle_id for v in snapshot_of(states, ROAD)] == ["b", "c"]
+    states["b"] = car("b", 120.0, 1)
+    assert [v.vehicle_id for v in snapshot_of(states, ROAD)] == ["c", "b"]
 
 
 def test_an_hv_standing_off_its_lane_centre_counts_by_its_body_only():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import operator
 from bisect import bisect_left, bisect_right
 from collections.abc import Iterable, Mapping
 
@@ -42,28 +43,29 @@ class Snapshot(list[VehicleState]):
         self.max_length_m = max((v.length_m for v in self), default=0.0)
 
 
-# Snapshots made by snapshot_of, by the identity of the states table and the road they were made
-# of; each entry holds both, so that no later table can take their ids while it is kept.
-_SNAPSHOTS: dict[tuple[int, int], tuple[Mapping[str, VehicleState], RoadSection, Snapshot]] = {}
+# Snapshots made by snapshot_of, by the identity of the states table and the road they were
+# made of; each entry holds both (so that no later table can take their ids while it is kept)
+# and the table's vehicles as they were.
+_SNAPSHOTS: dict[tuple[int, int], tuple[Mapping, RoadSection, tuple, Snapshot]] = {}
 _SNAPSHOTS_KEPT = 64  # a step's tables (one per platoon and lane numbering), then emptied
 
 
 def snapshot_of(states: Mapping[str, VehicleState], road: RoadSection) -> Snapshot:
-    """``Snapshot(states.values(), road)``, made once per states table and road: a platoon's
-    cruise, decision, plan following and CACC all ask for one of the same table in a step,
-    and each sorted every vehicle of the road again (a corridor's 600, for each of 20
-    platoons). A table whose length changed since (a vehicle that vanished was dropped from
-    it) gets a new one; the tables are the step's, read-only once made."""
+    """``Snapshot(states.values(), road)``, made once per states table and road while the
+    table holds the same vehicle states: a platoon's cruise, decision, plan following and
+    CACC all ask for one of the same table in a step, and each sorted every vehicle of the
+    road again (a corridor's 600, for each of 20 platoons). A table changed in place since (a
+    vehicle dropped, added or given a new state) gets a new one."""
     key = (id(states), id(road))
     entry = _SNAPSHOTS.get(key)
     if entry is not None and entry[0] is states and entry[1] is road:
-        snap = entry[2]
-        if len(snap) == len(states):
-            return snap
+        seen = entry[2]
+        if len(seen) == len(states) and all(map(operator.is_, seen, states.values())):
+            return entry[3]
     if len(_SNAPSHOTS) >= _SNAPSHOTS_KEPT:
         _SNAPSHOTS.clear()
     snap = Snapshot(states.values(), road)
-    _SNAPSHOTS[key] = (states, road, snap)
+    _SNAPSHOTS[key] = (states, road, tuple(states.values()), snap)
     return snap
 
 
