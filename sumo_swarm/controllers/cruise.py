@@ -19,7 +19,7 @@ from sumo_swarm.controllers.decider import Decider
 from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.neighbours import snapshot_of
+from sumo_swarm.core.neighbours import Snapshot, snapshot_of
 from sumo_swarm.core.swarming.decision import leader_ease_cap, straggler_cruise
 from sumo_swarm.core.swarming.tracker import Tracker
 
@@ -54,10 +54,12 @@ class Cruiser:
         # by up to 2 m/s for 20 s after a target left the lane, where cacc drove on.
         reformer, road = self.reformer, ctx.road
         reformer.scenario = sc  # the speeds may follow the world
+        everyone = snapshot_of(states, road)  # sorted once for this step's look-ups
         cap = self.decider.speed_cap(platoon[:1])
         room = max(min(cap, sc.cav.max_speed_mps) - sc.cav.cruising_speed_mps, 0.0)
+        ease = self._leader_ease_cap(states, platoon, everyone)
         leader_cruise = sc.cav.cruising_speed_mps - min(
-            self._leader_ease_cap(states, platoon), max(sc.cacc.k_close * stretch - room, 0.0)
+            ease, max(sc.cacc.k_close * stretch - room, 0.0)
         )
         # Never re-form in a lane that ends within 10 s at the cruise (an acceleration lane).
         reach = sc.swarm.detect_range_m + 10.0 * sc.cav.cruising_speed_mps
@@ -65,7 +67,6 @@ class Cruiser:
         edge = self.lanes.edge_of(platoon[0])
         waits_at = reformer.split_by(t_s, states, platoon, road, ending)
         lane = reformer.lane(states, platoon, road, ending=ending, cap_mps=cap, edge=edge)
-        everyone = snapshot_of(states, road)  # sorted once for this step's look-ups
         goals = reformer.goals(t_s, states, platoon, road, lane, cap_mps=cap, step_s=ctx.dt_s,
                                everyone=everyone)  # fmt: skip
         moves = reformer.moves(states, platoon, road, lane, goals, ctx.dt_s, everyone=everyone)
@@ -109,13 +110,15 @@ class Cruiser:
             self.ctx.event("wait_start", slow=target.vehicle_id, past=past,
                            behind=len(cavs) - past, until_s=round(t_s + wait_s, 2))  # fmt: skip
 
-    def _leader_ease_cap(self, states: Mapping[str, VehicleState], platoon: list[str]) -> float:
+    def _leader_ease_cap(
+        self, states: Mapping[str, VehicleState], platoon: list[str], everyone: Snapshot
+    ) -> float:
         """How much [m/s] the cruising leader may slow to let a stretched platoon close up
-        (:func:`leader_ease_cap`)."""
+        (:func:`leader_ease_cap`; ``everyone``: ``states`` as a Snapshot)."""
         sc = self.ctx.scenario
         return leader_ease_cap(
             states, platoon, self.ctx.road, width_m=sc.cav.width_m,
             reach_m=sc.swarm.detect_range_m, ease_mps=sc.swarm.max_leader_ease_mps,
             regroup_ease_mps=sc.swarm.regroup_ease_mps,
-            everyone=snapshot_of(states, self.ctx.road),
+            everyone=everyone,
         )  # fmt: skip

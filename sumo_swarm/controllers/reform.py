@@ -600,10 +600,9 @@ class Reformer:
                 self.held_s[vid] = (goals[vid], (held if lane_was == goals[vid] else 0.0) + step_s)
             else:
                 self.held_s.pop(vid, None)
-        self._make_room(
-            states, others, [v for v in platoon if v not in self.passing], road, lane, moves
-        )
-        self._let_in(states, others, [v for v in platoon if v not in self.passing], road, moves)
+        settled = [v for v in platoon if v not in self.passing]  # no CAV passing a slow one
+        self._make_room(states, others, settled, road, lane, moves)
+        self._let_in(states, others, settled, road, moves)
         self._block_for_stranded(states, others, platoon, road, moves, step_s)
         return moves
 

@@ -729,19 +729,19 @@ def _hv_cells(
     tracks = []
     for hv_id, hv in all_hvs.items():
         predicted = [predictor.predict(hv, now_s, t) for t in times]
+        if not hv_id.startswith(LANE_END_PREFIX):
+            rows = [(st.centre_s_m - grid.origin_at(t)) / grid.cell_length_m - 0.5
+                    for st, t in zip(predicted, times, strict=True)]  # fmt: skip
+            tracks.append((hv_columns(grid, hv, gs)[0], tuple(rows)))
         if (
             margin_bound_m is not None
             and hv_id != target.vehicle_id
             and not hv_id.startswith(LANE_END_PREFIX)
             and _out_of_reach(grid, predicted, times, gs, margin_bound_m)
         ):
-            rows = [(st.centre_s_m - grid.origin_at(t)) / grid.cell_length_m - 0.5
-                    for st, t in zip(predicted, times, strict=True)]  # fmt: skip
-            tracks.append((hv_columns(grid, hv, gs)[0], tuple(rows)))
             continue
         first: list[frozenset[Cell]] = []
         first_states: list[VehicleState] = []
-        rows = []
         previous: VehicleState | None = None
         for k, t in enumerate(times):
             state = predicted[k]
@@ -750,7 +750,6 @@ def _hv_cells(
                 hard[k - 1] |= swept
                 hard[k] |= swept
             previous = state
-            rows.append((state.centre_s_m - grid.origin_at(t)) / grid.cell_length_m - 0.5)
             if front_margin is None:
                 hard[k] |= hv_blocked_cells(grid, state, t, gs)
                 margin = None
@@ -769,8 +768,6 @@ def _hv_cells(
             early_entry[hv_id] = (first[0], first[1])
         if len(first_states) == 2:
             early_states[hv_id] = (first_states[0], first_states[1])
-        if not hv_id.startswith(LANE_END_PREFIX):
-            tracks.append((hv_columns(grid, hv, gs)[0], tuple(rows)))
     entry_blocked = (
         ()
         if front_margin is None
