@@ -165,6 +165,42 @@ def test_travel_time_is_none_when_a_cav_does_not_cover_the_distance(two_cavs):
     assert metrics.travel_time_s(two_cavs, distance_m=150.0) is None
 
 
+@pytest.mark.parametrize("distance_m", [50.0, 55.0, 95.0, 150.0])
+@pytest.mark.parametrize("cuts", [(), (3,), (1, 2, 6), (5, 6)])
+def test_a_travel_clock_fed_in_pieces_gives_the_times_of_the_whole_table(
+    two_cavs, distance_m, cuts
+):
+    # The streamed summary's clock: each CAV's track in pieces (cut at the given samples,
+    # a piece may be one sample), a crossing between two pieces interpolated across them.
+    clock = metrics.TravelClock(distance_m)
+    cav = two_cavs[two_cavs["kind"] == "cav"]
+    for lo, hi in zip((0, *cuts), (*cuts, None), strict=True):
+        for v, g in cav.groupby("vehicle"):
+            piece = g.iloc[lo:hi]
+            clock.add(v, piece["time_s"].to_numpy(), piece["s_m"].to_numpy())
+    assert clock.times() == metrics.travel_times_s(two_cavs, distance_m=distance_m)
+    # by hand: a at 10 m/s, b at 20 m/s, both from s = 0 at t = 0 for 10 s
+    expected = {"a": distance_m / 10.0 if distance_m <= 100 else None, "b": distance_m / 20.0}
+    assert clock.times() == pytest.approx(expected)
+
+
+def test_a_travel_clock_needs_a_distance():
+    with pytest.raises(ConfigError, match="travel distance_m"):
+        metrics.TravelClock(0.0)
+
+
+def test_speed_and_gap_stats_of_arrays_are_those_of_the_table():
+    assert metrics.speed_stats(np.array([10.0, 20.0, 30.0]), 2) == {
+        "mean_speed_mps": 20.0, "min_speed_mps": 10.0, "max_speed_mps": 30.0,
+        "speed_var_m2ps2": pytest.approx(200.0 / 3), "count": 2, "samples": 3,
+    }  # fmt: skip
+    assert metrics.speed_stats(np.empty(0), 0)["mean_speed_mps"] is None
+    gaps = metrics.gap_stats(np.array([5.0, 2.0, 8.0]), np.array([True, False, True]))
+    assert gaps == {"gap_mean_m": 5.0, "gap_min_m": 2.0, "gap_min_cav_m": 5.0,
+                    "gap_min_hv_m": 2.0, "samples": 3}  # fmt: skip
+    assert metrics.gap_stats(np.empty(0), np.empty(0, bool))["gap_min_m"] is None
+
+
 def test_travel_time_default_distance_is_the_shortest_covered(two_cavs):
     # a covers 100 m, the shortest: a needs 10 s, b 5 s
     assert metrics.travel_time_s(two_cavs) == pytest.approx(7.5)

@@ -124,7 +124,11 @@ def cav_speed_stats(
     _require(df, ["time_s", "vehicle", "kind", "speed_mps"])
     cav = _select(df, window)
     cav = cav[cav["kind"] == kind]
-    speeds = cav["speed_mps"].to_numpy(dtype=float)
+    return speed_stats(cav["speed_mps"].to_numpy(dtype=float), int(cav["vehicle"].nunique()))
+
+
+def speed_stats(speeds: np.ndarray, count: int) -> dict[str, float | int | None]:
+    """:func:`cav_speed_stats` of the speed samples ``speeds`` of ``count`` CAVs."""
     if speeds.size == 0:
         return {
             "mean_speed_mps": None,
@@ -139,23 +143,57 @@ def cav_speed_stats(
         "min_speed_mps": finite_or_none(speeds.min()),
         "max_speed_mps": finite_or_none(speeds.max()),
         "speed_var_m2ps2": finite_or_none(speeds.var()),
-        "count": int(cav["vehicle"].nunique()),
+        "count": count,
         "samples": int(speeds.size),
     }
 
 
-def _time_to_cover(t: np.ndarray, s: np.ndarray, distance_m: float) -> float | None:
-    """Time from ``t[0]`` until ``s`` first reaches ``s[0] + distance_m``, linearly interpolated."""
-    target = s[0] + distance_m
+def _time_to_cover(
+    t: np.ndarray, s: np.ndarray, distance_m: float, start: tuple[float, float] | None = None
+) -> float | None:
+    """Time from ``t[0]`` until ``s`` first reaches ``s[0] + distance_m``, linearly interpolated.
+
+    ``start``: the first sample ``(t0, s0)`` when ``t`` and ``s`` continue a track from its
+    last sample that did not reach the distance (:class:`TravelClock`)."""
+    t0, s0 = (t[0], s[0]) if start is None else start
+    target = s0 + distance_m
     reached = np.flatnonzero(s >= target - 1e-9)
     if reached.size == 0:
         return None
     i = int(reached[0])
     if i == 0:
-        return 0.0
+        return float(t[0] - t0)
     ds = s[i] - s[i - 1]
     frac = (target - s[i - 1]) / ds if ds > 0 else 1.0
-    return float(t[i - 1] + frac * (t[i] - t[i - 1]) - t[0])
+    return float(t[i - 1] + frac * (t[i] - t[i - 1]) - t0)
+
+
+class TravelClock:
+    """:func:`travel_times_s` over a given distance, taken a few samples at a time: each
+    vehicle's samples of the window in time order, in as many calls of :meth:`add` as come.
+    Holds two samples per vehicle, whatever the length of the run."""
+
+    def __init__(self, distance_m: float) -> None:
+        require_number("travel distance_m", distance_m, gt=0.0)
+        self.distance_m = distance_m
+        self._start: dict[str, tuple[float, float]] = {}
+        self._last: dict[str, tuple[float, float]] = {}
+        self._times: dict[str, float | None] = {}
+
+    def add(self, vehicle: str, t: np.ndarray, s: np.ndarray) -> None:
+        """The next samples of ``vehicle``: times ``t`` [s] and positions ``s`` [m]."""
+        if t.size == 0 or self._times.get(vehicle) is not None:
+            return
+        start = self._start.setdefault(vehicle, (float(t[0]), float(s[0])))
+        last = self._last.get(vehicle)
+        if last is not None:  # from the last sample, which did not reach the distance
+            t, s = np.concatenate(([last[0]], t)), np.concatenate(([last[1]], s))
+        self._times[vehicle] = _time_to_cover(t, s, self.distance_m, start)
+        self._last[vehicle] = (float(t[-1]), float(s[-1]))
+
+    def times(self) -> dict[str, float | None]:
+        """``{vehicle: seconds or None}`` as :func:`travel_times_s` gives them."""
+        return {v: self._times[v] for v in sorted(self._times)}
 
 
 def travel_times_s(
@@ -210,7 +248,11 @@ def travel_time_s(
     before the window ends (the platoon's travel time is then undefined), or when the default
     distance is zero.
     """
-    per_cav = travel_times_s(df, window, distance_m, kind=kind)
+    return mean_travel_time_s(travel_times_s(df, window, distance_m, kind=kind))
+
+
+def mean_travel_time_s(per_cav: dict[str, float | None]) -> float | None:
+    """:func:`travel_time_s` of the per-CAV times :func:`travel_times_s` gives."""
     times = list(per_cav.values())
     if not times or any(t is None for t in times):
         return None
@@ -422,11 +464,15 @@ def cav_gap_stats(
     g = g[(g["kind"] == kind) & g["gap_m"].notna()]
     if max_gap_m is not None:
         g = g[g["gap_m"] <= max_gap_m]
-    values = g["gap_m"].to_numpy(dtype=float)
+    return gap_stats(g["gap_m"].to_numpy(dtype=float), (g["leader_kind"] == kind).to_numpy())
+
+
+def gap_stats(values: np.ndarray, behind_cav: np.ndarray) -> dict[str, float | int | None]:
+    """:func:`cav_gap_stats` of the gap samples ``values`` [m] (none NaN); ``behind_cav``:
+    which of them are behind a CAV."""
     if values.size == 0:
         return {"gap_mean_m": None, "gap_min_m": None, "gap_min_cav_m": None,
                 "gap_min_hv_m": None, "samples": 0}  # fmt: skip
-    behind_cav = (g["leader_kind"] == kind).to_numpy()
     return {
         "gap_mean_m": finite_or_none(values.mean()),
         "gap_min_m": finite_or_none(values.min()),
