@@ -19,7 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 
-@dataclass(frozen=True, slots=True)
+# Not frozen, for speed: one is made for every vehicle at every step (and many more by the
+# planner's predictions), and a frozen dataclass takes five times as long to make (each field
+# set through object.__setattr__). Treat it as a value all the same: never assign to a field
+# (caches such as neighbours.snapshot_of tell tables apart by the states they hold);
+# dataclasses.replace makes a changed copy. Hashable by value, as a frozen one is.
+@dataclass(slots=True, unsafe_hash=True)
 class VehicleState:
     """Snapshot of one vehicle at one instant."""
 

@@ -364,35 +364,40 @@ class SumoSession:
 
     def _read(self, results: dict) -> None:
         c = _constants(self.api)
+        road, lane_index, lane_pos, speed_var, lat_var, accel_var, xy_var = (
+            c.VAR_ROAD_ID, c.VAR_LANE_INDEX, c.VAR_LANEPOSITION, c.VAR_SPEED,
+            c.VAR_LANEPOSITION_LAT, c.VAR_ACCELERATION, c.VAR_POSITION,
+        )  # fmt: skip
         previous = self.states
         states: dict[str, VehicleState] = {}
         positions: dict[str, tuple[float, float]] = {}
         edges: dict[str, str] = {}
         lane_positions: dict[str, float] = {}
         dt = self.step_length_s
+        offsets = self.frame.edge_offset_m  # route_s of a vehicle on a route edge, inlined
         route_s = self.frame.route_s
+        kinds, lengths, widths, released = self.kinds, self.lengths, self.widths, self.released
         for vid, r in results.items():
-            edge = r[c.VAR_ROAD_ID]
-            lane = r[c.VAR_LANE_INDEX]
-            pos = r[c.VAR_LANEPOSITION]
-            speed = r[c.VAR_SPEED]
-            s = route_s(edge, lane, pos)
+            edge = r[road]
+            lane = r[lane_index]
+            pos = r[lane_pos]
+            speed = r[speed_var]
+            offset = offsets.get(edge)
+            s = offset + pos if offset is not None else route_s(edge, lane, pos)
             if s is None:  # on a junction edge off the route: integrate the speed
                 s = previous[vid].s_m + speed * dt if vid in previous else pos
-            kind = self.kinds.get(vid, "hv")
             states[vid] = VehicleState(
                 vid,
                 s,
                 lane,
-                r[c.VAR_LANEPOSITION_LAT],
+                r[lat_var],
                 speed,
-                self.lengths.get(vid, 5.0),
-                r[c.VAR_ACCELERATION],
-                kind == "cav" and vid not in self.released,  # released: SUMO drives it
-                self.widths.get(vid, 1.8),
+                lengths.get(vid, 5.0),
+                r[accel_var],
+                kinds.get(vid) == "cav" and vid not in released,  # released: SUMO drives it
+                widths.get(vid, 1.8),
             )
-            x, y = r[c.VAR_POSITION]
-            positions[vid] = (x, y)
+            positions[vid] = tuple(r[xy_var])
             edges[vid] = edge
             lane_positions[vid] = pos
         self.states = states

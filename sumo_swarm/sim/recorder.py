@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import replace
 from itertools import repeat
+from operator import attrgetter, itemgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -68,6 +69,14 @@ CHUNK_ROWS = 50_000
 CATEGORY_COLUMNS = ("kind", "vehicle", "edge")
 NAN = float("nan")
 TRAJECTORIES = "trajectories.parquet"
+
+
+# The columns :meth:`RunRecorder.record` takes from each VehicleState as they are.
+_LANE = attrgetter("lane")
+_X, _Y = itemgetter(0), itemgetter(1)
+_STATE_COLUMNS = tuple(
+    (c, attrgetter(c)) for c in ("s_m", "lat_m", "speed_mps", "accel_mps2", "length_m")
+)
 
 
 def _typed(df: pd.DataFrame) -> pd.DataFrame:
@@ -180,29 +189,23 @@ class RunRecorder:
         if self._first_time_s is None:
             self._first_time_s = t
         self._last_time_s = t
-        kinds, edges, positions = s.kinds, [s.edges[v] for v in ids], s.positions
-        xy = [positions[v] for v in ids]
+        kinds, edges, positions = s.kinds, list(map(s.edges.__getitem__, ids)), s.positions
+        xy = list(map(positions.__getitem__, ids))
+        lanes = list(map(_LANE, sts))
         rec = self.columns
         rec["time_s"].extend(repeat(t, n))
         rec["vehicle"].extend(ids)
         rec["kind"].extend([kinds.get(v, "hv") for v in ids])
         rec["edge"].extend(edges)
-        rec["lane"].extend([st.lane for st in sts])
-        rec["x_m"].extend([p[0] for p in xy])
-        rec["y_m"].extend([p[1] for p in xy])
-        rec["s_m"].extend([st.s_m for st in sts])
-        rec["lat_m"].extend([st.lat_m for st in sts])
-        rec["speed_mps"].extend([st.speed_mps for st in sts])
-        rec["accel_mps2"].extend([st.accel_mps2 for st in sts])
-        rec["length_m"].extend([st.length_m for st in sts])
-        lane_pos = s.lane_positions
+        rec["lane"].extend(lanes)
+        rec["x_m"].extend(map(_X, xy))
+        rec["y_m"].extend(map(_Y, xy))
+        for column, field in _STATE_COLUMNS:
+            rec[column].extend(map(field, sts))
+        lane_pos, widths = s.lane_positions, s.widths
         rec["lane_pos_m"].extend([lane_pos.get(v, NAN) for v in ids])
-        widths = s.widths
         rec["width_m"].extend([widths.get(v, NAN) for v in ids])
-        lane_width = s.lane_width_m
-        rec["lane_width_m"].extend(
-            [lane_width(e, st.lane) for e, st in zip(edges, sts, strict=True)]
-        )
+        rec["lane_width_m"].extend(map(s.lane_width_m, edges, lanes))
         if len(rec["time_s"]) >= CHUNK_ROWS:
             self._pack()
 

@@ -6,14 +6,13 @@ exception inside OR-Tools all come back as a :class:`Plan` with that status.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import replace
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-from ortools.linear_solver import pywraplp
-from ortools.sat.python import cp_model, cp_model_helper
 
 from sumo_swarm.core.planner.flow import (
     FlowModel,
@@ -31,6 +30,12 @@ from sumo_swarm.core.planner.problem import (
     evaluate_objective,
 )
 from sumo_swarm.errors import ConfigError
+
+if TYPE_CHECKING:
+    from ortools.sat.python import cp_model
+
+# OR-Tools is imported when a solver is first made or used, not with this module: a run whose
+# controller never plans (sumo-cacc, cacc) does not pay for the import (~0.15 s).
 
 _LOG = logging.getLogger(__name__)
 
@@ -271,8 +276,14 @@ def cp_sat_constraints_text(model: FlowModel) -> str:
     return "".join(parts)
 
 
-_BOOLEAN = cp_model_helper.IntegerVariableProto()
-_BOOLEAN.domain.extend([0, 1])
+@functools.cache
+def _boolean() -> Any:
+    """The proto of a 0-1 variable, copied into every model."""
+    from ortools.sat.python import cp_model_helper
+
+    boolean = cp_model_helper.IntegerVariableProto()
+    boolean.domain.extend([0, 1])
+    return boolean
 
 
 def fill_cp_sat_model(cp: cp_model.CpModel, model: FlowModel, hints: list[int] | None) -> None:
@@ -281,7 +292,7 @@ def fill_cp_sat_model(cp: cp_model.CpModel, model: FlowModel, hints: list[int] |
     if not proto.parse_text_format(cp_sat_constraints_text(model)):
         raise RuntimeError("CP-SAT rejected the model text")
     # Whole lists go through one call each: copies of one Boolean, then the few fixings.
-    proto.variables.extend([_BOOLEAN] * model.n_vars)
+    proto.variables.extend([_boolean()] * model.n_vars)
     for var in np.flatnonzero((model.lower != 0) | (model.upper != 1)).tolist():
         domain = proto.variables[var].domain
         domain[0], domain[1] = int(model.lower[var]), int(model.upper[var])
@@ -321,11 +332,15 @@ class CpSatPlanner(_FlowPlanner):
         # One CpModel per planner, its proto replaced by every parse: constructing a CpModel
         # costs ~0.5 ms of Python set-up each time.
         if self._cp is None:
+            from ortools.sat.python import cp_model
+
             self._cp = cp_model.CpModel()
         fill_cp_sat_model(self._cp, model, hints)
         return self._cp
 
     def _solve(self, model, prepared, time_limit_s):
+        from ortools.sat.python import cp_model
+
         solver = cp_model.CpSolver()
         params = solver.parameters
         params.max_time_in_seconds = time_limit_s
@@ -363,6 +378,8 @@ class ScipPlanner(_FlowPlanner):
     """SCIP through OR-Tools' linear solver wrapper (HiGHS if SCIP is not compiled in)."""
 
     def __init__(self, time_limit_s: float = 1.0, retry_without_blockers: bool = True) -> None:
+        from ortools.linear_solver import pywraplp
+
         super().__init__(time_limit_s, retry_without_blockers)
         self._solver_id = "SCIP"
         if pywraplp.Solver.CreateSolver("SCIP") is None:
@@ -370,6 +387,8 @@ class ScipPlanner(_FlowPlanner):
         self.backend = self._solver_id.lower()
 
     def _prepare(self, model, hints):
+        from ortools.linear_solver import pywraplp
+
         solver = pywraplp.Solver.CreateSolver(self._solver_id)
         if solver is None:
             raise RuntimeError(f"{self._solver_id} unavailable")
@@ -407,6 +426,8 @@ class ScipPlanner(_FlowPlanner):
         return solver, x
 
     def _solve(self, model, prepared, time_limit_s):
+        from ortools.linear_solver import pywraplp
+
         solver, x = prepared
         solver.SetTimeLimit(max(1, int(time_limit_s * 1e3)))
         code = solver.Solve()
