@@ -339,14 +339,21 @@ def gaps(df: pd.DataFrame) -> pd.DataFrame:
     return out.iloc[order]
 
 
+def _sorted_codes(column: pd.Series) -> np.ndarray:
+    """Integers in the order of ``column``'s values as text (equal values, equal integers):
+    a categorical column's codes ranked by their categories, without making a text array."""
+    if isinstance(column.dtype, pd.CategoricalDtype) and not column.isna().any():
+        names = column.cat.categories.astype(str).to_numpy(dtype=object)
+        rank = np.empty(len(names), dtype=np.int64)
+        rank[np.argsort(names, kind="stable")] = np.arange(len(names))
+        return rank[column.cat.codes.to_numpy()]
+    return pd.factorize(column.astype(str), sort=True)[0]
+
+
 def _gaps(df: pd.DataFrame) -> pd.DataFrame:
     """:func:`gaps` of a table small enough to pair at once."""
     n = len(df)
-    edge = (
-        pd.factorize(df["edge"].astype(str), sort=True)[0]
-        if "edge" in df.columns
-        else np.zeros(n, dtype=np.int64)
-    )
+    edge = _sorted_codes(df["edge"]) if "edge" in df.columns else np.zeros(n, dtype=np.int64)
     lane = df["lane"].to_numpy(dtype=np.int64)
     pos = _finite_column(df, LANE_POS)
     if pos is None or not np.isfinite(pos).all():
@@ -368,7 +375,7 @@ def _gaps(df: pd.DataFrame) -> pd.DataFrame:
     rows = np.concatenate([np.arange(n), np.flatnonzero(into_left), np.flatnonzero(into_right)])
     occ_lane = np.concatenate([lane, lane[into_left] + 1, lane[into_right] - 1])
     t = df["time_s"].to_numpy(dtype=float)
-    vid_code = pd.factorize(df["vehicle"].astype(str), sort=True)[0]
+    vid_code = _sorted_codes(df["vehicle"])
     order = np.lexsort((vid_code[rows], pos[rows], occ_lane, edge[rows], t[rows]))
     rows = rows[order]
     group_t, group_e, group_l = t[rows], edge[rows], occ_lane[order]
@@ -426,8 +433,8 @@ def _gaps(df: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(
         {
             "time_s": df["time_s"].to_numpy(),
-            "vehicle": df["vehicle"].to_numpy(),
-            "kind": df["kind"].to_numpy(),
+            "vehicle": vehicle,
+            "kind": kind,
             "lane": df["lane"].to_numpy(),
             "leader": leader,
             "leader_kind": leader_kind,

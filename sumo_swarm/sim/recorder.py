@@ -72,7 +72,7 @@ TRAJECTORIES = "trajectories.parquet"
 
 
 # The columns :meth:`RunRecorder.record` takes from each VehicleState as they are.
-_LANE = attrgetter("lane")
+_LANE, _ACCEL = attrgetter("lane"), attrgetter("accel_mps2")
 _X, _Y = itemgetter(0), itemgetter(1)
 _STATE_COLUMNS = tuple(
     (c, attrgetter(c)) for c in ("s_m", "lat_m", "speed_mps", "accel_mps2", "length_m")
@@ -86,6 +86,19 @@ def _typed(df: pd.DataFrame) -> pd.DataFrame:
             df[col] = df[col].astype("category")
         df["lane"] = df["lane"].astype("int16")
     return df
+
+
+def _table_of(columns: dict[str, list]) -> pd.DataFrame:
+    """The rows gathered as Python lists as a table of :func:`_typed`'s dtypes, each column
+    made straight from its list (not inferred, then converted)."""
+    data: dict[str, Any] = {}
+    for col in RECORD_COLUMNS:
+        values = columns[col]
+        if col in CATEGORY_COLUMNS:
+            data[col] = pd.Categorical(np.array(values, dtype=object))
+        else:
+            data[col] = np.array(values, dtype=np.int16 if col == "lane" else float)
+    return pd.DataFrame(data)
 
 
 def _concat(chunks: list[pd.DataFrame]) -> pd.DataFrame:
@@ -174,7 +187,8 @@ class RunRecorder:
         if self._t0_s is None:
             self._t0_s = s.time_s - s.step_length_s
         states = s.states
-        self.hard_brakes.update({v: st.accel_mps2 for v, st in states.items()}, s.kinds)
+        accels = dict(zip(states, map(_ACCEL, states.values()), strict=True))
+        self.hard_brakes.update(accels, s.kinds)
         o = self.outputs
         t = s.time_s
         if t < o.record_from_s - 1e-9 or (o.record_to_s is not None and t > o.record_to_s + 1e-9):
@@ -195,7 +209,7 @@ class RunRecorder:
         rec = self.columns
         rec["time_s"].extend(repeat(t, n))
         rec["vehicle"].extend(ids)
-        rec["kind"].extend([kinds.get(v, "hv") for v in ids])
+        rec["kind"].extend(map(kinds.get, ids, repeat("hv")))
         rec["edge"].extend(edges)
         rec["lane"].extend(lanes)
         rec["x_m"].extend(map(_X, xy))
@@ -203,8 +217,8 @@ class RunRecorder:
         for column, field in _STATE_COLUMNS:
             rec[column].extend(map(field, sts))
         lane_pos, widths = s.lane_positions, s.widths
-        rec["lane_pos_m"].extend([lane_pos.get(v, NAN) for v in ids])
-        rec["width_m"].extend([widths.get(v, NAN) for v in ids])
+        rec["lane_pos_m"].extend(map(lane_pos.get, ids, repeat(NAN)))
+        rec["width_m"].extend(map(widths.get, ids, repeat(NAN)))
         rec["lane_width_m"].extend(map(s.lane_width_m, edges, lanes))
         if len(rec["time_s"]) >= CHUNK_ROWS:
             self._pack()
@@ -223,7 +237,7 @@ class RunRecorder:
         """Turn the rows gathered as Python lists into a typed table (a tenth of the memory);
         past ``outputs.memory_rows`` held, write the tables held to the trajectory file."""
         if self.columns["time_s"]:
-            chunk = _typed(pd.DataFrame(self.columns))
+            chunk = _table_of(self.columns)
             self._chunks.append(chunk)
             self._held_rows += len(chunk)
             self.columns = {k: [] for k in RECORD_COLUMNS}

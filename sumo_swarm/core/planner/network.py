@@ -37,7 +37,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from ortools.graph.python import min_cost_flow
 
 from sumo_swarm.core.planner.flow import FlowModel
 
@@ -165,6 +164,8 @@ class _Network:
             self.base_supply[int(head[edge])] += 1
             self.constant += int(model.edge_cost[edge])  # blockers move at delta-fixed steps
         self.teleport = -1  # a hub node of the last flow entered and left unequally (or -1)
+        from ortools.graph.python import min_cost_flow  # when first used (as solvers.py)
+
         self.solver = min_cost_flow.SimpleMinCostFlow()
         self.solver.add_arcs_with_capacity_and_unit_cost(
             self.tails, self.heads, self.base_cap, self.costs
