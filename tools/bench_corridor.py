@@ -28,6 +28,7 @@ collisions).
 Usage: python tools/bench_corridor.py [--times 300,1200,3600] [--shares 0.1,0.2,0.4]
                                       [--share-time 300] [--repeats 1]
                                       [--out docs/bench/corridor]
+                                      [--modes sumo,libsumo,sumo-cacc,swarm]
 """
 
 from __future__ import annotations
@@ -106,7 +107,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--share-time", type=float, default=300.0)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "corridor")
+    parser.add_argument("--modes", default=",".join(MODES), help="modes to run, comma list")
     args = parser.parse_args(argv)
+    chosen = {m.strip() for m in args.modes.split(",") if m.strip()}
+    if not chosen or chosen - set(MODES):
+        parser.error(f"--modes: expected some of {', '.join(MODES)}, got {args.modes!r}")
+    modes = tuple(m for m in MODES if m in chosen)
     base_share = load_scenario(CORRIDOR).corridor.cav_share
     points = [("time", t, base_share) for t in _floats(args.times)]
     points += [("cavs", args.share_time, s) for s in _floats(args.shares)]
@@ -117,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
                 if axis == "cavs" and ("time", duration, share) in points:
                     continue  # the same runs as a point of the time axis: measured there
                 scenario = scenario_file(Path(tmp), duration, share)
-                for mode in MODES:
+                for mode in modes:
                     work = Path(tmp) / f"{i}-{duration:g}-{share:g}-{mode}"
                     wall, rss = timed(command(mode, scenario, work))
                     row = {"repeat": i, "duration_s": duration, "cav_share": share,
@@ -135,25 +141,27 @@ def main(argv: list[str] | None = None) -> int:
         did = runs[runs["mode"] == "swarm"]
         cacc = runs[runs["mode"] == "sumo-cacc"]
         head = {"simulated_s": duration, "cav_share": share,
-                "cavs": float(cacc["cavs"].median()),
-                "platoons_formed": float(did["platoons_formed"].median()),
-                "collisions_swarm": float(did["collisions"].max())}  # fmt: skip
-        for mode in MODES:
+                "cavs": cacc["cavs"].median() if len(cacc) else np.nan,
+                "platoons_formed": did["platoons_formed"].median() if len(did) else np.nan,
+                "collisions_swarm": did["collisions"].max() if len(did) else np.nan}  # fmt: skip
+        for mode in modes:
             for measure, column in (("wall [s]", "wall_s"), ("peak memory [MB]", "peak_rss_mb")):
                 table.append({**head, "mode": mode, "measure": measure,
                               **stats(sub[(column, mode)])})  # fmt: skip
         wall = sub["wall_s"]
         ratios = (
-            ("swarm", "wall / sumo-cacc's", wall["swarm"] / wall["sumo-cacc"]),
-            ("sumo-cacc", "wall / libsumo's", wall["sumo-cacc"] / wall["libsumo"]),
-            ("sumo-cacc", "wall / plain SUMO's", wall["sumo-cacc"] / wall["sumo"]),
+            ("swarm", "sumo-cacc", "wall / sumo-cacc's"),
+            ("sumo-cacc", "libsumo", "wall / libsumo's"),
+            ("sumo-cacc", "sumo", "wall / plain SUMO's"),
         )
-        for mode, measure, ratio in ratios:
-            table.append({**head, "mode": mode, "measure": measure, **stats(ratio)})
+        for mode, against, measure in ratios:
+            if mode in modes and against in modes:
+                ratio = wall[mode] / wall[against]
+                table.append({**head, "mode": mode, "measure": measure, **stats(ratio)})
     out = pd.DataFrame(table)
     shortest = df["duration_s"].min()
     growth = []
-    for mode in MODES:
+    for mode in modes:
         mine = df[(df["mode"] == mode) & (df["cav_share"] == base_share)]
         first = mine[mine["duration_s"] == shortest]["peak_rss_mb"].median()
         for duration, sub in mine.groupby("duration_s"):
@@ -166,6 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     out.to_csv(args.out.with_suffix(".csv"), index=False)
     command_line = (f"python tools/bench_corridor.py --times {args.times} --shares {args.shares} "
                     f"--share-time {args.share_time:g} --repeats {args.repeats}")  # fmt: skip
+    if modes != MODES:
+        command_line += f" --modes {','.join(modes)}"
     md = (
         f"Corridor cost (`scenarios/corridor.toml`), {args.repeats} repeat(s), modes alternated, "
         f"one process each: `{command_line}`\n\n"
