@@ -149,13 +149,13 @@ def speed_stats(speeds: np.ndarray, count: int) -> dict[str, float | int | None]
 
 
 def _time_to_cover(
-    t: np.ndarray, s: np.ndarray, distance_m: float, start: tuple[float, float] | None = None
+    t: np.ndarray, s: np.ndarray, distance_m: float, start: tuple[float, float]
 ) -> float | None:
-    """Time from ``t[0]`` until ``s`` first reaches ``s[0] + distance_m``, linearly interpolated.
-
-    ``start``: the first sample ``(t0, s0)`` when ``t`` and ``s`` continue a track from its
-    last sample that did not reach the distance (:class:`TravelClock`)."""
-    t0, s0 = (t[0], s[0]) if start is None else start
+    """Time from ``start = (t0, s0)``, a vehicle's first sample, until ``s`` first reaches
+    ``s0 + distance_m``, linearly interpolated between samples; ``t`` and ``s`` begin with
+    ``start`` or continue the track from a sample that did not reach the distance
+    (:class:`TravelClock`)."""
+    t0, s0 = start
     target = s0 + distance_m
     reached = np.flatnonzero(s >= target - 1e-9)
     if reached.size == 0:
@@ -169,8 +169,9 @@ def _time_to_cover(
 
 
 class TravelClock:
-    """:func:`travel_times_s` over a given distance, taken a few samples at a time: each
-    vehicle's samples of the window in time order, in as many calls of :meth:`add` as come.
+    """Each vehicle's travel time over ``distance_m`` (see :func:`travel_time_s`) from its
+    samples in time order, given in as many calls of :meth:`add` as come: the whole track at
+    once (:func:`travel_times_s`) or a slice of the run at a time (the streamed summary).
     Holds two samples per vehicle, whatever the length of the run."""
 
     def __init__(self, distance_m: float) -> None:
@@ -221,9 +222,10 @@ def travel_times_s(
         distance_m = min(s[-1] - s[0] for _, s in tracks.values())
         if distance_m <= 0:
             return {v: None for v in tracks}
-    else:
-        require_number("travel distance_m", distance_m, gt=0.0)
-    return {v: _time_to_cover(t, s, distance_m) for v, (t, s) in tracks.items()}
+    clock = TravelClock(distance_m)
+    for v, (t, s) in tracks.items():
+        clock.add(v, t, s)
+    return clock.times()
 
 
 def travel_time_s(

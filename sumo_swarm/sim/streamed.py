@@ -45,7 +45,7 @@ if TYPE_CHECKING:
     from sumo_swarm.config import Scenario
 
 # What the CAVs' own measures and the overtake's pass times read of the CAV (and target) rows.
-CAV_COLUMNS = ["time_s", "vehicle", "kind", "s_m", "speed_mps"]
+CAV_COLUMNS = ["time_s", "vehicle", "s_m", "speed_mps"]
 TRACK_COLUMNS = ["time_s", "vehicle", "s_m", "length_m"]
 
 
