@@ -290,6 +290,27 @@ def test_gaps_of_a_long_table_are_paired_in_slices_of_whole_steps(monkeypatch):
     assert row_of(sliced, 0, "a")["leader"] == "b" and pd.isna(row_of(sliced, 6, "a")["leader"])
 
 
+def test_gaps_of_categorical_names_are_those_of_text_names_and_stay_categorical():
+    rows = []
+    for t in range(4):  # a follower, its leader, a lone vehicle in the next lane, one gone
+        rows += [(t, "me", "cav", 0, 10.0 + t, 12.0), (t, "lead", "hv", 0, 30.0 + t, 9.0)]
+        rows += [(t, "side", "hv", 1, 20.0, 10.0)] + ([(t, "gone", "cav", 1, 50.0, 10.0)] * (t < 2))
+    text = table(rows)
+    cats = text.astype({"vehicle": "category", "kind": "category"})
+    by_text, by_cats = metrics.gaps(text), metrics.gaps(cats)
+    for col in ("vehicle", "kind", "leader", "leader_kind"):
+        assert isinstance(by_cats[col].dtype, pd.CategoricalDtype)
+        assert by_cats[col].astype(object).where(by_cats[col].notna(), None).tolist() == (
+            by_text[col].astype(object).where(by_text[col].notna(), None).tolist()
+        )
+    numbers = ["gap_m", "headway_s", "closing_speed_mps", "ttc_s"]
+    pd.testing.assert_frame_equal(by_cats[numbers], by_text[numbers])
+    assert row_of(by_cats, 3, "me")["leader"] == "lead"
+    assert row_of(by_cats, 3, "me")["leader_kind"] == "hv"
+    assert row_of(by_cats, 0, "side")["leader"] == "gone"
+    assert pd.isna(row_of(by_cats, 3, "side")["leader"])  # "gone" left: nobody ahead
+
+
 def test_a_lane_change_changes_the_leader():
     df = table(
         [

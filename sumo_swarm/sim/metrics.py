@@ -384,19 +384,23 @@ def _gaps(df: pd.DataFrame) -> pd.DataFrame:
     m = len(rows)
 
     leader_row = np.full(m, -1, dtype=np.int64)  # per entry: the row of its leader
+    # Entries still looking, tried against the entry k places on. A lane's entries of a step
+    # are contiguous, so one whose k-th next is in another lane has no leader further on.
+    pending = np.arange(m)
     for k in range(1, LEADER_LOOKAHEAD + 1):
-        if k >= m:
+        pending = pending[pending + k < m]
+        if pending.size == 0:
             break
-        a = rows[:-k]
-        b = rows[k:]
-        same = (group_t[k:] == group_t[:-k]) & (group_e[k:] == group_e[:-k])
-        same &= group_l[k:] == group_l[:-k]
+        i, j = pending, pending + k
+        same = (group_t[j] == group_t[i]) & (group_e[j] == group_e[i]) & (group_l[j] == group_l[i])
+        i, j = i[same], j[same]
+        a, b = rows[i], rows[j]
         # lateral distance of b's centre from a's: lanes apart times the mean lane width
         both = known[a] & known[b]
         centre = (lane[b] - lane[a]) * (half_lane[a] + half_lane[b]) + lat[b] - lat[a]
         overlap = ~both | (np.abs(centre) < half_w[a] + half_w[b] - LATERAL_TOLERANCE_M)
-        take = same & overlap & (leader_row[:-k] < 0)
-        leader_row[:-k][take] = b[take]
+        leader_row[i[overlap]] = b[overlap]
+        pending = i[~overlap]
 
     # Per vehicle row: the nearest of the leaders found in the lanes it is in.
     entry_gap = np.full(m, np.inf)
@@ -426,12 +430,8 @@ def _gaps(df: pd.DataFrame) -> pd.DataFrame:
         )
     headway[~has_leader] = np.nan
     ttc[~has_leader] = np.nan
-    vehicle = df["vehicle"].to_numpy(dtype=object)
-    kind = df["kind"].to_numpy(dtype=object)
-    leader = np.full(n, None, dtype=object)
-    leader[has_leader] = vehicle[nxt][has_leader]
-    leader_kind = np.full(n, None, dtype=object)
-    leader_kind[has_leader] = kind[nxt][has_leader]
+    vehicle, leader = _with_leaders(df["vehicle"], nxt, has_leader)
+    kind, leader_kind = _with_leaders(df["kind"], nxt, has_leader)
     return pd.DataFrame(
         {
             "time_s": df["time_s"].to_numpy(),
@@ -447,6 +447,20 @@ def _gaps(df: pd.DataFrame) -> pd.DataFrame:
         },
         index=df.index,
     )
+
+
+def _with_leaders(column: pd.Series, nxt: np.ndarray, has_leader: np.ndarray) -> tuple:
+    """``column``'s values and, per row, its leader's (``nxt``; missing where ``has_leader``
+    is False). A categorical column stays categorical: as text, a table of a run's rows takes
+    pandas longer to make than the pairing itself."""
+    if isinstance(column.dtype, pd.CategoricalDtype):
+        codes = column.cat.codes.to_numpy()
+        lead = np.where(has_leader, codes[nxt], -1)
+        return column.array, pd.Categorical.from_codes(lead, dtype=column.dtype)
+    values = column.to_numpy(dtype=object)
+    lead = np.full(len(values), None, dtype=object)
+    lead[has_leader] = values[nxt][has_leader]
+    return values, lead
 
 
 def cav_gap_stats(
