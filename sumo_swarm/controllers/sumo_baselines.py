@@ -22,7 +22,8 @@ class SumoModelController:
         self.name = name
         self.lane_changes = lane_changes
         self.ctx: RunContext | None = None
-        self._configured: set[str] = set()
+        self._seen = 0  # CAVs of ctx.cav_ids (a growing list) looked at so far
+        self._waiting: list[str] = []  # CAVs seen, not yet configured (not in a lane yet)
 
     def attach(self, ctx: RunContext) -> None:
         self.ctx = ctx
@@ -31,10 +32,20 @@ class SumoModelController:
         if self.lane_changes:
             return
         ctx = self.ctx
-        for vid in ctx.cav_ids:
-            if vid in ctx.session.states and vid not in self._configured:
-                ctx.session.set_modes(vid, None, LC_MODE_STRATEGIC)
-                self._configured.add(vid)
+        session = ctx.session
+        # Only the CAVs that departed since the last step (an hour's flows bring thousands).
+        if len(ctx.cav_ids) > self._seen:
+            self._waiting.extend(ctx.cav_ids[self._seen :])
+            self._seen = len(ctx.cav_ids)
+        if self._waiting:
+            gone = set(session.arrived)
+            waiting = []
+            for vid in self._waiting:
+                if vid in session.states:
+                    session.set_modes(vid, None, LC_MODE_STRATEGIC)
+                elif vid not in gone:
+                    waiting.append(vid)
+            self._waiting = waiting
 
     def summary(self) -> dict[str, Any]:
         return {}
