@@ -70,6 +70,8 @@ def test_window_bounds_are_inclusive_and_tolerate_float_time_stamps():
     assert len(metrics.window(df, EvaluationWindow(start_s=2.5))) == 1
     assert len(metrics.window(df, EvaluationWindow(end_s=0.0))) == 1
     assert metrics.window(df, None) is df
+    assert metrics.window(df, EvaluationWindow(0.0, 3.0)) is df  # every row: no copy
+    assert metrics.window(df, EvaluationWindow(0.5, 3.0)) is not df
 
 
 def test_window_ending_before_it_starts_is_rejected():

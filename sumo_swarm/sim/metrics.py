@@ -83,7 +83,8 @@ class EvaluationWindow:
 
 
 def window(df: pd.DataFrame, w: EvaluationWindow | None) -> pd.DataFrame:
-    """Rows of ``df`` whose ``time_s`` lies in ``w`` (all rows when ``w`` is None)."""
+    """Rows of ``df`` whose ``time_s`` lies in ``w`` (all rows when ``w`` is None): ``df``
+    itself when every row does (a run's table is large; callers only read it)."""
     if w is None:
         return df
     _require(df, ["time_s"])
@@ -93,7 +94,7 @@ def window(df: pd.DataFrame, w: EvaluationWindow | None) -> pd.DataFrame:
         keep &= t >= w.start_s - TIME_TOLERANCE_S
     if w.end_s is not None:
         keep &= t <= w.end_s + TIME_TOLERANCE_S
-    return df[keep]
+    return df if keep.all() else df[keep]
 
 
 # The metric functions take their window as a parameter named ``window``, which hides the
