@@ -54,4 +54,13 @@ def write_json_atomic(path: Path, data: Any) -> None:
 
 def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
     """Write ``df`` (without its index) as Parquet atomically."""
-    write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
+    coded = dictionary_columns(df)
+    write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False, use_dictionary=coded))
+
+
+def dictionary_columns(df: pd.DataFrame) -> list[str]:
+    """The columns of ``df`` worth a Parquet dictionary: all but the floating-point ones.
+    Parquet's writers try a dictionary on every column by default and fall back to plain
+    values when it grows too large: on a run's trajectories (266k rows, 12 float columns)
+    that try took half the write (0.10 -> 0.056 s), for a larger file."""
+    return [str(c) for c in df.columns if not pd.api.types.is_float_dtype(df[c].dtype)]

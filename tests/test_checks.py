@@ -87,3 +87,23 @@ def test_a_failed_write_keeps_the_old_file(tmp_path):
         write_atomic(path, half_then_crash)
     assert json.loads(path.read_text()) == {"x": 1}
     assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
+
+
+def test_parquet_dictionaries_for_names_and_integers_plain_floats(tmp_path):
+    import pyarrow.parquet as pq
+
+    df = pd.DataFrame(
+        {
+            "vehicle": pd.Categorical(["a", "b", "a", "c"]),
+            "lane": pd.array([0, 1, 0, 2], dtype="int16"),
+            "speed": [10.0, 11.5, 10.0, 9.25],
+        }
+    )
+    path = tmp_path / "t.parquet"
+    write_parquet_atomic(path, df)
+    pd.testing.assert_frame_equal(pd.read_parquet(path), df)
+    meta = pq.ParquetFile(path).metadata.row_group(0)
+    encodings = {meta.column(i).path_in_schema: meta.column(i).encodings for i in range(3)}
+    assert any("DICTIONARY" in e for e in encodings["vehicle"])
+    assert any("DICTIONARY" in e for e in encodings["lane"])
+    assert not any("DICTIONARY" in e for e in encodings["speed"])

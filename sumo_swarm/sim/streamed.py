@@ -37,6 +37,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from sumo_swarm.core.swarming.decision import REGROUPED_GAP_FACTOR
+from sumo_swarm.files import dictionary_columns
 from sumo_swarm.sim import metrics
 from sumo_swarm.sim.metrics import EvaluationWindow
 from sumo_swarm.sim.summary import TableMeasures, overtake_times_s, pass_times_s
@@ -87,7 +88,8 @@ class TrajectoryFile:
                 chunk, schema=pa.schema(fields), preserve_index=False
             ).schema
         part = self.parts_dir / f"{len(self.parts):06d}.parquet"
-        pq.write_table(pa.Table.from_pandas(chunk, schema=self._schema, preserve_index=False), part)
+        table = pa.Table.from_pandas(chunk, schema=self._schema, preserve_index=False)
+        pq.write_table(table, part, use_dictionary=dictionary_columns(chunk))
         self.parts.append(part)
         self.rows += len(chunk)
 
@@ -105,7 +107,8 @@ class TrajectoryFile:
         if not self.open:
             return
         partial = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
-        with pq.ParquetWriter(partial, self._schema) as writer:
+        coded = [f.name for f in self._schema if not pa.types.is_floating(f.type)]
+        with pq.ParquetWriter(partial, self._schema, use_dictionary=coded) as writer:
             for part in self.parts:
                 table = pq.read_table(part, schema=self._schema)
                 writer.write_table(table, row_group_size=max(1, table.num_rows))
