@@ -19,11 +19,11 @@ alternated point by point so that each sees the same machine load:
 
 Two axes: the simulated time (``--times``, at the scenario's CAV share) and the number of CAVs
 (``--shares`` of the demand, at ``--share-time`` simulated seconds). Prints and saves a table of
-process wall time and peak resident memory per point and mode (median, p95 and max over
-``--repeats``), the ratios swarm / sumo-cacc, sumo-cacc / libsumo and sumo-cacc / sumo run by
-run, each mode's peak
-memory against its shortest run's, and what the runs did (CAVs that entered, platoons formed,
-collisions).
+process wall time, CPU time (user + system: what others running on the machine do not inflate)
+and peak resident memory per point and mode (median, p95 and max over ``--repeats``), the
+ratios swarm / sumo-cacc, sumo-cacc / libsumo and sumo-cacc / sumo of wall and of CPU time run
+by run, each mode's peak memory against its shortest run's, and what the runs did (CAVs that
+entered, platoons formed, collisions).
 
 Usage: python tools/bench_corridor.py [--times 300,1200,3600] [--shares 0.1,0.2,0.4]
                                       [--share-time 300] [--repeats 1]
@@ -125,16 +125,17 @@ def main(argv: list[str] | None = None) -> int:
                 scenario = scenario_file(Path(tmp), duration, share)
                 for mode in modes:
                     work = Path(tmp) / f"{i}-{duration:g}-{share:g}-{mode}"
-                    wall, rss = timed(command(mode, scenario, work))
+                    wall, rss, cpu = timed(command(mode, scenario, work))
                     row = {"repeat": i, "duration_s": duration, "cav_share": share,
-                           "mode": mode, "wall_s": wall, "peak_rss_mb": rss,
+                           "mode": mode, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss,
                            **what_it_did(mode, work)}  # fmt: skip
                     rows.append(row)
                     print(f"run {i} {duration:6g} s share {share:4g} {mode:10s} "
-                          f"wall {wall:8.2f} s  peak {rss:6.0f} MB", flush=True)  # fmt: skip
+                          f"wall {wall:8.2f} s  cpu {cpu:8.2f} s  peak {rss:6.0f} MB",
+                          flush=True)  # fmt: skip
     df = pd.DataFrame(rows)
     keys = ["repeat", "duration_s", "cav_share"]
-    wide = df.pivot_table(index=keys, columns="mode", values=["wall_s", "peak_rss_mb"])
+    wide = df.pivot_table(index=keys, columns="mode", values=["wall_s", "cpu_s", "peak_rss_mb"])
     table = []
     for (duration, share), sub in wide.groupby(level=["duration_s", "cav_share"]):
         runs = df[(df["duration_s"] == duration) & (df["cav_share"] == share)]
@@ -145,19 +146,21 @@ def main(argv: list[str] | None = None) -> int:
                 "platoons_formed": did["platoons_formed"].median() if len(did) else np.nan,
                 "collisions_swarm": did["collisions"].max() if len(did) else np.nan}  # fmt: skip
         for mode in modes:
-            for measure, column in (("wall [s]", "wall_s"), ("peak memory [MB]", "peak_rss_mb")):
+            for measure, column in (("wall [s]", "wall_s"), ("cpu [s]", "cpu_s"),
+                                    ("peak memory [MB]", "peak_rss_mb")):  # fmt: skip
                 table.append({**head, "mode": mode, "measure": measure,
                               **stats(sub[(column, mode)])})  # fmt: skip
-        wall = sub["wall_s"]
         ratios = (
-            ("swarm", "sumo-cacc", "wall / sumo-cacc's"),
-            ("sumo-cacc", "libsumo", "wall / libsumo's"),
-            ("sumo-cacc", "sumo", "wall / plain SUMO's"),
+            ("swarm", "sumo-cacc", "sumo-cacc's"),
+            ("sumo-cacc", "libsumo", "libsumo's"),
+            ("sumo-cacc", "sumo", "plain SUMO's"),
         )
-        for mode, against, measure in ratios:
+        for mode, against, whose in ratios:
             if mode in modes and against in modes:
-                ratio = wall[mode] / wall[against]
-                table.append({**head, "mode": mode, "measure": measure, **stats(ratio)})
+                for what in ("wall", "cpu"):
+                    ratio = sub[f"{what}_s"][mode] / sub[f"{what}_s"][against]
+                    table.append({**head, "mode": mode, "measure": f"{what} / {whose}",
+                                  **stats(ratio)})  # fmt: skip
     out = pd.DataFrame(table)
     shortest = df["duration_s"].min()
     growth = []

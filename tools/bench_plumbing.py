@@ -13,8 +13,8 @@ the same machine load, each in its own process:
 - ``sumo-cacc + outputs``: the same with the network outputs read into the summary (the
   default).
 
-Prints and saves a table of process wall time and peak memory (median, p95, max) and the
-ratio of each to plain SUMO's, run by run.
+Prints and saves a table of process wall time, CPU time and peak memory (median, p95, max)
+and the ratios of each mode's wall and CPU time to plain SUMO's, run by run.
 
 Usage: python tools/bench_plumbing.py [--road motorway-ramps] [--end 300] [--repeats 5]
                                       [--out docs/bench/plumbing]
@@ -46,8 +46,13 @@ RUN_OPTIONS = ["--lateral-resolution", "0.5", "--collision.mingap-factor", "0",
 MODES = ("sumo", "sumo + outputs", "sumo-cacc", "sumo-cacc + outputs")
 
 
-def timed(cmd: list[str]) -> tuple[float, float]:
-    """Run ``cmd``; its wall time [s] and peak resident memory [MB]. Raises if it fails."""
+def timed(cmd: list[str]) -> tuple[float, float, float]:
+    """Run ``cmd``; its wall time [s], peak resident memory [MB] and CPU time [s] (user +
+    system, its own and its subprocesses'). Raises if it fails.
+
+    On a shared machine the wall time also counts the time others held the cores (a repeat of
+    one run varied by 20-40 % here); the CPU time does not, so a ratio of CPU times is the
+    steadier measure of what one run costs over another."""
     with tempfile.TemporaryFile() as err:  # a file, not a pipe: a chatty run never blocks
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
@@ -57,7 +62,7 @@ def timed(cmd: list[str]) -> tuple[float, float]:
             err.seek(0)
             tail = err.read().decode(errors="replace")[-400:]
             raise RuntimeError(f"{' '.join(cmd[:4])} ... failed: {tail}")
-    return wall, usage.ru_maxrss / 1024.0  # Linux gives kB
+    return wall, usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime  # Linux: kB
 
 
 def command(mode: str, cfg: Path, work: Path) -> list[str]:
@@ -94,19 +99,23 @@ def main(argv: list[str] | None = None) -> int:
             for mode in MODES:
                 work = Path(tmp) / f"{i}-{mode.replace(' ', '')}"
                 work.mkdir()
-                wall, rss = timed(command(mode, cfg, work))
-                rows.append({"repeat": i, "mode": mode, "wall_s": wall, "peak_rss_mb": rss})
-                print(f"run {i} {mode:20s} wall {wall:6.2f} s  peak {rss:6.0f} MB", flush=True)
+                wall, rss, cpu = timed(command(mode, cfg, work))
+                rows.append({"repeat": i, "mode": mode, "wall_s": wall, "cpu_s": cpu,
+                             "peak_rss_mb": rss})  # fmt: skip
+                print(f"run {i} {mode:20s} wall {wall:6.2f} s  cpu {cpu:6.2f} s  "
+                      f"peak {rss:6.0f} MB", flush=True)  # fmt: skip
     df = pd.DataFrame(rows)
     plain = df[df["mode"] == "sumo"].set_index("repeat")
     table = []
     for mode in MODES:
         sub = df[df["mode"] == mode].set_index("repeat")
         table.append({"mode": mode, "measure": "wall [s]", **stats(sub["wall_s"])})
+        table.append({"mode": mode, "measure": "cpu [s]", **stats(sub["cpu_s"])})
         table.append({"mode": mode, "measure": "peak memory [MB]", **stats(sub["peak_rss_mb"])})
         if mode != "sumo":
-            ratio = sub["wall_s"] / plain["wall_s"]
-            table.append({"mode": mode, "measure": "wall / plain SUMO's", **stats(ratio)})
+            for what in ("wall", "cpu"):
+                ratio = sub[f"{what}_s"] / plain[f"{what}_s"]
+                table.append({"mode": mode, "measure": f"{what} / plain SUMO's", **stats(ratio)})
     out = pd.DataFrame(table)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out.with_suffix(".runs.csv"), index=False)
