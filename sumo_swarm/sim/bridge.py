@@ -128,17 +128,21 @@ class SumoSession:
 
     # Every variable costs SUMO and the conversion to Python about the same for every vehicle
     # at every step (callgrind, 150 s of scenarios/corridor.toml: 7 variables 2.1 G
-    # instructions over the bare simulation's 12.9 G, 1 variable 0.46 G). The lane id gives the
-    # edge and the lane index (ROAD_ID and LANE_INDEX, one variable fewer), read once per lane
-    # (:meth:`_lane_of`); for a vehicle on no lane (teleporting, parked) it is "": edge "",
-    # lane INVALID_INT_VALUE.
+    # instructions over the bare simulation's 12.9 G, 1 variable 0.46 G). Two are not read:
+    # - the lane id gives the edge and the lane index (ROAD_ID and LANE_INDEX), read once per
+    #   lane (:meth:`_lane_of`); for a vehicle on no lane (teleporting, parked) it is "": edge
+    #   "", lane INVALID_INT_VALUE;
+    # - the acceleration is SUMO's own (vehicle.getAcceleration: SPEED2ACCEL(vNext - v), the
+    #   speed change over the step divided by the step length, every vehicle, every step)
+    #   from the speeds read one step apart, to the last bit (:meth:`_read`); SUMO is
+    #   asked for it where there is no such pair (a vehicle's first step, a vehicle back from
+    #   off the lanes, a read that skipped steps).
     VARS = (
         "LANE_ID",
         "LANEPOSITION",
         "LANEPOSITION_LAT",
         "POSITION",
         "SPEED",
-        "ACCELERATION",
     )
 
     def __init__(
@@ -168,6 +172,7 @@ class SumoSession:
         self._standing_since: dict[str, float] = {}  # released CAV -> since when it stands [s]
         self._lane_widths: dict[tuple[str, int], float] = {}
         self._lanes: dict[str, tuple[str, int]] = {}  # lane id -> (edge, lane index)
+        self._read_at_s: float | None = None  # simulated time of the last read [s]
         self.types: dict[str, str] = {}
         self.vehicle_classes: dict[str, str] = {}  # SUMO's vClass of each vehicle's type
         self._type_classes: dict[str, str] = {}
@@ -370,17 +375,21 @@ class SumoSession:
 
     def _read(self, results: dict) -> None:
         c = _constants(self.api)
-        lane_var, lane_pos, speed_var, lat_var, accel_var, xy_var = (
+        lane_var, lane_pos, speed_var, lat_var, xy_var = (
             c.VAR_LANE_ID, c.VAR_LANEPOSITION, c.VAR_SPEED, c.VAR_LANEPOSITION_LAT,
-            c.VAR_ACCELERATION, c.VAR_POSITION,
+            c.VAR_POSITION,
         )  # fmt: skip
         lanes, lane_of = self._lanes, self._lane_of
         previous = self.states
+        dt = self.step_length_s
+        # SUMO's acceleration from the speeds one step apart (see VARS); else SUMO's answer
+        last, self._read_at_s = self._read_at_s, self.time_s
+        before = previous if last is not None and abs(self.time_s - dt - last) < 1e-6 else {}
+        asked = self.api.vehicle.getAcceleration
         states: dict[str, VehicleState] = {}
         positions: dict[str, tuple[float, float]] = {}
         edges: dict[str, str] = {}
         lane_positions: dict[str, float] = {}
-        dt = self.step_length_s
         offsets = self.frame.edge_offset_m  # route_s of a vehicle on a route edge, inlined
         route_s = self.frame.route_s
         kinds, lengths, widths, released = self.kinds, self.lengths, self.widths, self.released
@@ -393,6 +402,11 @@ class SumoSession:
             s = offset + pos if offset is not None else route_s(edge, lane, pos)
             if s is None:  # on a junction edge off the route: integrate the speed
                 s = previous[vid].s_m + speed * dt if vid in previous else pos
+            was = before.get(vid)
+            if was is not None and was.speed_mps >= 0.0 and speed >= 0.0:
+                accel = (speed - was.speed_mps) / dt
+            else:  # its first step, back on a lane (an invalid speed off them), a skipped step
+                accel = asked(vid)
             states[vid] = VehicleState(
                 vid,
                 s,
@@ -400,7 +414,7 @@ class SumoSession:
                 r[lat_var],
                 speed,
                 lengths.get(vid, 5.0),
-                r[accel_var],
+                accel,
                 kinds.get(vid) == "cav" and vid not in released,  # released: SUMO drives it
                 widths.get(vid, 1.8),
             )
