@@ -19,11 +19,11 @@ alternated point by point so that each sees the same machine load:
 
 Two axes: the simulated time (``--times``, at the scenario's CAV share) and the number of CAVs
 (``--shares`` of the demand, at ``--share-time`` simulated seconds). Prints and saves a table of
-process wall time, CPU time (user + system: what others running on the machine do not inflate)
-and peak resident memory per point and mode (median, p95 and max over ``--repeats``), the
-ratios swarm / sumo-cacc, sumo-cacc / libsumo and sumo-cacc / sumo of wall and of CPU time run
-by run, each mode's peak memory against its shortest run's, and what the runs did (CAVs that
-entered, platoons formed, collisions).
+process wall time, CPU time (user + system: without the waits for a core) and peak resident
+memory per point and mode (median, p95 and max over ``--repeats``), the ratios swarm /
+sumo-cacc, sumo-cacc / libsumo and sumo-cacc / sumo of wall and of CPU time run by run, each
+mode's peak memory against its shortest run's, and what the runs did (CAVs that entered,
+platoons formed, collisions).
 
 Usage: python tools/bench_corridor.py [--times 300,1200,3600] [--shares 0.1,0.2,0.4]
                                       [--share-time 300] [--repeats 1]

@@ -50,9 +50,10 @@ def timed(cmd: list[str]) -> tuple[float, float, float]:
     """Run ``cmd``; its wall time [s], peak resident memory [MB] and CPU time [s] (user +
     system, its own and its subprocesses'). Raises if it fails.
 
-    On a shared machine the wall time also counts the time others held the cores (a repeat of
-    one run varied by 20-40 % here); the CPU time does not, so a ratio of CPU times is the
-    steadier measure of what one run costs over another."""
+    The wall time also counts the time the process waited for a core while others held it; the
+    CPU time does not. On the 2-core machine of docs/bench the two agreed within 1-2 %: its
+    20-40 % spread between repeats of one run is in how fast the cores ran, which both count
+    (medians over alternated repeats are what to compare)."""
     with tempfile.TemporaryFile() as err:  # a file, not a pipe: a chatty run never blocks
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
