@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 from sumo_swarm.core.model import RoadSection
+from sumo_swarm.core.swarming.guards import lateral_refusal
 
 if TYPE_CHECKING:
     from sumo_swarm.config import Scenario
@@ -238,3 +239,28 @@ def configure_cav(
             if limit > 0.0:
                 factor = max(factor, vehicle.getSpeed(vid) / limit)
             vehicle.setSpeedFactor(vid, factor)
+
+
+def lateral_guard(
+    scenario: Scenario,
+    model_of: Callable[[str], Any],
+    ego: Any,
+    y: float,
+    dlat: float,
+    others: Any,
+    road: RoadSection,
+    step_s: float,
+    commit: tuple[float, float] | None = None,
+) -> str | None:
+    """The lateral guard (:func:`~sumo_swarm.core.swarming.guards.lateral_refusal`) on ego's
+    move ``dlat`` [m] from ``y``, with the scenario's CAV, HV-model and guard settings: why it
+    refuses, or None. ``commit``: ego speeds up at this rate [m/s^2] to this speed [m/s] as it
+    moves (the plan follower's moves and the reformer's)."""
+    sc = scenario
+    accel, final = commit if commit is not None else (0.0, None)
+    return lateral_refusal(
+        ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
+        model_of=model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
+        settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
+        ego_accel_mps2=accel, ego_final_mps=final,
+    )  # fmt: skip

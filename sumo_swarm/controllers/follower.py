@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import replace
 from typing import Any
 
+from sumo_swarm.controllers.base import lateral_guard
 from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import clip
 from sumo_swarm.core.hvmodel import DriverModel
@@ -25,7 +26,6 @@ from sumo_swarm.core.swarming.guards import (
     gap_accel_limit,
     gentle_for_follower,
     lane_speed_match,
-    lateral_refusal,
     yields_to_cav,
 )
 from sumo_swarm.core.swarming.tracker import Tracker
@@ -134,13 +134,9 @@ class PlanFollower:
         road: RoadSection,
         step_s: float,
     ) -> str | None:
-        """The lateral guard (:func:`lateral_refusal`) on ego's move ``dlat`` [m] from ``y``."""
-        sc = self.ctx.scenario
-        return lateral_refusal(
-            ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
-            model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
-            settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
-        )  # fmt: skip
+        """The lateral guard (:func:`~sumo_swarm.controllers.base.lateral_guard`) on ego's
+        move ``dlat`` [m] from ``y``."""
+        return lateral_guard(self.ctx.scenario, self.model_of, ego, y, dlat, others, road, step_s)
 
     def _new_episode(self, seen: dict[str, float], vid: str, t_s: float) -> bool:
         """Record ``vid`` in ``seen`` at ``t_s``: a new episode unless it was there within

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sumo_swarm.config import Scenario
+from sumo_swarm.controllers.base import lateral_guard
 from sumo_swarm.controllers.cacc import cacc_accel
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
@@ -41,7 +42,7 @@ from sumo_swarm.core.neighbours import (
     within,
 )
 from sumo_swarm.core.swarming.decision import is_past, lane_speeds
-from sumo_swarm.core.swarming.guards import gap_accel_limit, lateral_refusal, run_up
+from sumo_swarm.core.swarming.guards import gap_accel_limit, run_up
 
 Move = tuple[float, float]  # (lateral move [m], acceleration bound [m/s^2])
 
@@ -755,16 +756,11 @@ class Reformer:
         step_s: float,
         commit: tuple[float, float] | None = None,
     ) -> str | None:
-        """The lateral guard (:func:`lateral_refusal`) on ego's move ``dlat`` from ``y``
-        (``commit``: ego speeds up at this rate [m/s^2] to this speed [m/s] as it moves)."""
-        sc = self.scenario
-        accel, final = commit if commit is not None else (0.0, None)
-        return lateral_refusal(
-            ego, y, dlat, others, road, min_gap_m=sc.cav.min_gap_m, width_m=sc.cav.width_m,
-            model_of=self.model_of, b_safe_mps2=sc.hvmodel.b_safe_mps2, step_s=step_s,
-            settings=sc.guards, brake_mps2=-sc.cav.accel_min_mps2,
-            ego_accel_mps2=accel, ego_final_mps=final,
-        )  # fmt: skip
+        """The lateral guard (:func:`~sumo_swarm.controllers.base.lateral_guard`) on ego's
+        move ``dlat`` from ``y`` (``commit``: ego speeds up at this rate [m/s^2] to this speed
+        [m/s] as it moves)."""
+        return lateral_guard(self.scenario, self.model_of, ego, y, dlat, others, road, step_s,
+                             commit)  # fmt: skip
 
     def _speed_up_into(
         self,

@@ -418,7 +418,7 @@ class SumoSession:
                 kinds.get(vid) == "cav" and vid not in released,  # released: SUMO drives it
                 widths.get(vid, 1.8),
             )
-            positions[vid] = tuple(r[xy_var])
+            positions[vid] = r[xy_var]  # (x, y), a tuple already
             edges[vid] = edge
             lane_positions[vid] = pos
         self.states = states
