@@ -8,7 +8,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
-from sumo_swarm.core.model import RoadSection
+from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.guards import lateral_refusal
 
 if TYPE_CHECKING:
@@ -244,10 +244,10 @@ def configure_cav(
 def lateral_guard(
     scenario: Scenario,
     model_of: Callable[[str], Any],
-    ego: Any,
+    ego: VehicleState,
     y: float,
     dlat: float,
-    others: Any,
+    others: Any,  # the vehicles around: a Snapshot or a sequence of VehicleState
     road: RoadSection,
     step_s: float,
     commit: tuple[float, float] | None = None,

@@ -69,6 +69,7 @@ class TrajectoryFile:
         self.parts_dir = self.path.with_name(f".{self.path.name}.{os.getpid()}.parts")
         self.parts: list[Path] = []
         self._schema: pa.Schema | None = None
+        self._coded: list[str] = []  # the columns written as dictionaries (files.py)
         self.rows = 0
         self.closed = False
 
@@ -87,9 +88,10 @@ class TrajectoryFile:
             self._schema = pa.Table.from_pandas(
                 chunk, schema=pa.schema(fields), preserve_index=False
             ).schema
+            self._coded = dictionary_columns(chunk)
         part = self.parts_dir / f"{len(self.parts):06d}.parquet"
         table = pa.Table.from_pandas(chunk, schema=self._schema, preserve_index=False)
-        pq.write_table(table, part, use_dictionary=dictionary_columns(chunk))
+        pq.write_table(table, part, use_dictionary=self._coded)
         self.parts.append(part)
         self.rows += len(chunk)
 
@@ -107,8 +109,7 @@ class TrajectoryFile:
         if not self.open:
             return
         partial = self.path.with_name(f".{self.path.name}.{os.getpid()}.partial")
-        coded = [f.name for f in self._schema if not pa.types.is_floating(f.type)]
-        with pq.ParquetWriter(partial, self._schema, use_dictionary=coded) as writer:
+        with pq.ParquetWriter(partial, self._schema, use_dictionary=self._coded) as writer:
             for part in self.parts:
                 table = pq.read_table(part, schema=self._schema)
                 writer.write_table(table, row_group_size=max(1, table.num_rows))
