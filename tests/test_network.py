@@ -396,7 +396,7 @@ def test_hard_brakes_counted_step_by_step_as_on_the_whole_table():
     counter = HardBrakeCounter()
     rows = []
     for t, accels in steps.items():
-        counter.update(accels, kinds)
+        counter.update(list(accels), list(accels.values()), kinds)
         rows += [(float(t), v, kinds.get(v, "hv"), a) for v, a in accels.items()]
     df = pd.DataFrame(rows, columns=["time_s", "vehicle", "kind", "accel_mps2"])
     events = hard_brake_events(df)
@@ -406,16 +406,16 @@ def test_hard_brakes_counted_step_by_step_as_on_the_whole_table():
 
 
 def test_near_cavs_keeps_the_cavs_and_their_neighbours():
-    from sumo_swarm.core.model import VehicleState
     from sumo_swarm.sim.recorder import _near_cavs
 
-    pos = {"cav0": (0.0, 0.0), "cav1": (1000.0, 0.0), "near": (150.0, 100.0),
-           "far": (500.0, 0.0), "ramp": (1000.0, 199.0)}  # fmt: skip
-    states = {v: VehicleState(v, 0.0, 0, 0.0, 20.0, 5.0) for v in pos}
+    pos = {"cav0": (0.0, 0.0), "near": (150.0, 100.0), "far": (500.0, 0.0),
+           "cav1": (1000.0, 0.0), "ramp": (1000.0, 199.0)}  # fmt: skip
+    ids, xy = list(pos), list(pos.values())
     kinds = {"cav0": "cav", "cav1": "cav"}
-    assert set(_near_cavs(states, pos, kinds, 200.0)) == {"cav0", "cav1", "near", "ramp"}
-    assert set(_near_cavs(states, pos, kinds, 100.0)) == {"cav0", "cav1"}
-    assert _near_cavs(states, pos, {}, 200.0) == {}
+    assert _near_cavs(ids, xy, kinds, 200.0) == [0, 1, 3, 4]  # rows, in order
+    assert _near_cavs(ids, xy, kinds, 100.0) == [0, 3]
+    assert _near_cavs(ids, xy, {}, 200.0) == []
+    assert _near_cavs([], [], kinds, 200.0) == []
 
 
 @pytest.mark.sumo

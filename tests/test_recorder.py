@@ -65,26 +65,31 @@ class _Road:
     step_length_s = 0.5
 
     def __init__(self) -> None:
-        self.time_s = 0.0
-        self.states, self.positions, self.edges = {}, {}, {}
-        self.kinds, self.lane_positions, self.widths = {}, {}, {}
+        from sumo_swarm.sim.bridge import StepColumns
 
-    def lane_width_m(self, edge: str, lane: int) -> float:
-        return 3.0 + 0.1 * lane + (0.2 if edge == "b" else 0.0)
+        self.time_s = 0.0
+        self.columns = StepColumns()
+        self.kinds, self.lengths, self.widths = {}, {}, {}
 
     def advance(self, k: int) -> None:
-        from sumo_swarm.core.model import VehicleState
+        from sumo_swarm.sim.bridge import StepColumns
 
         self.time_s = k * self.step_length_s
         ids = [f"v{j}" for j in range(k % 5, k % 5 + 3 + k % 4)]  # 3 to 6, a changing set
-        self.states = {
-            v: VehicleState(v, 10.0 * k + j, j % 3, 0.1 * j, 20.0 + j, 4.5, -0.5 * j)
-            for j, v in enumerate(ids)
-        }
-        self.positions = {v: (float(k), float(j)) for j, v in enumerate(ids)}
-        self.edges = {v: "ab"[(k + j) % 2] for j, v in enumerate(ids)}
+        js = range(len(ids))
+        edges = ["ab"[(k + j) % 2] for j in js]
+        lanes = [j % 3 for j in js]
+        widen = {"a": 0.0, "b": 0.2}
+        lane_widths = [3.0 + 0.1 * lane + widen[e] for lane, e in zip(lanes, edges, strict=True)]
+        self.columns = StepColumns(
+            self.time_s, ids, edges, lanes,
+            [float("nan")] + [1.0 * k] * (len(ids) - 1),  # the first's: unknown (NaN)
+            [10.0 * k + j for j in js], [0.1 * j for j in js], [20.0 + j for j in js],
+            [-0.5 * j for j in js], [(float(k), float(j)) for j in js],
+            lane_widths,
+        )  # fmt: skip
         self.kinds = {v: "cav" for v in ids[:1]}  # the others are HVs by default
-        self.lane_positions = {v: 1.0 * k for v in ids[1:]}  # the first: unknown (NaN)
+        self.lengths = {v: 4.5 for v in ids}
         self.widths = {v: 1.8 for v in ids}
 
 

@@ -165,7 +165,7 @@ class RouteWatch:
         """Drive every CAV that left with ``command`` (the controllers give their CACC step,
         ``cacc.command_cacc``); a no-op while none has left."""
         if self.left:
-            command(ctx, [v for v in self.left if v in ctx.session.states])
+            command(ctx, [v for v in self.left if ctx.session.exists(v)])
 
     def _check(self, ctx: RunContext, platoon: list[str]) -> None:
         session = ctx.session

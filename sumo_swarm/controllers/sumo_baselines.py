@@ -41,7 +41,7 @@ class SumoModelController:
             gone = set(session.arrived)
             waiting = []
             for vid in self._waiting:
-                if vid in session.states:
+                if session.exists(vid):
                     session.set_modes(vid, None, LC_MODE_STRATEGIC)
                 elif vid not in gone:
                     waiting.append(vid)

@@ -12,7 +12,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from operator import itemgetter
 from pathlib import Path
 from types import ModuleType
 
@@ -74,6 +75,26 @@ def is_of_type(type_id: str, vtype: str) -> bool:
     (e.g. ``cav@cav0``): the copy still belongs to ``vtype``.
     """
     return type_id == vtype or type_id.startswith(vtype + "@")
+
+
+@dataclass(slots=True)
+class StepColumns:
+    """One read of the simulation, column by column: row ``i`` of every list is vehicle
+    ``ids[i]`` (SUMO's order). The recorder takes its rows from here as they are; the
+    per-vehicle views (:attr:`SumoSession.states` and the dicts beside it) are made from it
+    when a controller first asks, once per step."""
+
+    time_s: float = 0.0
+    ids: list[str] = field(default_factory=list)
+    edge: list[str] = field(default_factory=list)
+    lane: list[int] = field(default_factory=list)
+    lane_pos_m: list[float] = field(default_factory=list)  # front bumper along its lane [m]
+    s_m: list[float] = field(default_factory=list)  # along the route frame [m]
+    lat_m: list[float] = field(default_factory=list)
+    speed_mps: list[float] = field(default_factory=list)
+    accel_mps2: list[float] = field(default_factory=list)
+    xy: list[tuple[float, float]] = field(default_factory=list)
+    lane_width_m: list[float] = field(default_factory=list)
 
 
 @dataclass
@@ -167,21 +188,24 @@ class SumoSession:
         self.kinds: dict[str, str] = {}
         self.lengths: dict[str, float] = {}
         self.widths: dict[str, float] = {}
-        self.lane_positions: dict[str, float] = {}  # front bumper along its lane [m]
         self.released: set[str] = set()  # CAVs handed back to SUMO (they left the swarm)
         self._standing_since: dict[str, float] = {}  # released CAV -> since when it stands [s]
-        self._lane_widths: dict[tuple[str, int], float] = {}
-        self._lanes: dict[str, tuple[str, int]] = {}  # lane id -> (edge, lane index)
+        self._lanes: dict[str, tuple[str, int, float]] = {}  # lane id -> edge, index, width
         self._read_at_s: float | None = None  # simulated time of the last read [s]
         self.types: dict[str, str] = {}
         self.vehicle_classes: dict[str, str] = {}  # SUMO's vClass of each vehicle's type
         self._type_classes: dict[str, str] = {}
-        self.states: dict[str, VehicleState] = {}
+        self.columns = StepColumns()  # the last read (what :meth:`_read` gives)
+        self._speeds: dict[str, float] = {}  # the last read's speeds, by vehicle [m/s]
+        self._released_at_read: frozenset[str] = frozenset()  # :attr:`released` then
+        # The views of the last read, each made when first asked (None: not yet).
+        self._states: dict[str, VehicleState] | None = None
+        self._positions: dict[str, tuple[float, float]] | None = None
+        self._edges: dict[str, str] | None = None
+        self._lane_positions: dict[str, float] | None = None
         # states_in_lanes_of's tables of this step, per reference edge (of the table held)
         self._lane_views_of: dict[str, VehicleState] | None = None
         self._lane_views: dict[str, dict[str, VehicleState]] = {}
-        self.positions: dict[str, tuple[float, float]] = {}
-        self.edges: dict[str, str] = {}
         self.collisions: list[Collision] = []
         self.teleports: int = 0
         self.departed: list[str] = []
@@ -374,81 +398,122 @@ class SumoSession:
                 self._set_route(api.vehicle.getRoute(vid))
 
     def _read(self, results: dict) -> None:
+        """Take one step's subscription results as :attr:`columns`, a list per quantity (the
+        per-vehicle views follow when asked: :attr:`states`)."""
         c = _constants(self.api)
-        lane_var, lane_pos, speed_var, lat_var, xy_var = (
-            c.VAR_LANE_ID, c.VAR_LANEPOSITION, c.VAR_SPEED, c.VAR_LANEPOSITION_LAT,
-            c.VAR_POSITION,
-        )  # fmt: skip
-        lanes, lane_of = self._lanes, self._lane_of
-        previous = self.states
+        ids = list(results)
+        rows = list(results.values())
+        lane_ids = list(map(itemgetter(c.VAR_LANE_ID), rows))
+        lane_pos = list(map(itemgetter(c.VAR_LANEPOSITION), rows))
+        speed = list(map(itemgetter(c.VAR_SPEED), rows))
+        where = list(map(self._lanes.get, lane_ids))
+        if None in where:  # a lane seen for the first time, or none
+            where = [w or self._lane_of(lane) for w, lane in zip(where, lane_ids, strict=True)]
+        edges = list(map(itemgetter(0), where))
+        lanes = list(map(itemgetter(1), where))
+        widths = list(map(itemgetter(2), where))
         dt = self.step_length_s
+        # Along the route frame: the edge's offset plus the lane position on a route edge.
+        offsets = list(map(self.frame.edge_offset_m.get, edges))
+        s = [p if o is None else o + p for o, p in zip(offsets, lane_pos, strict=True)]
+        if None in offsets:  # another edge (a junction's, a ramp): the frame's projection
+            previous = dict(zip(self.columns.ids, self.columns.s_m, strict=True))
+            route_s = self.frame.route_s
+            for i, o in enumerate(offsets):
+                if o is None:
+                    x = route_s(edges[i], lanes[i], lane_pos[i])
+                    if x is None:  # a junction edge off the route: integrate the speed
+                        was = previous.get(ids[i])
+                        x = lane_pos[i] if was is None else was + speed[i] * dt
+                    s[i] = x
         # SUMO's acceleration from the speeds one step apart (see VARS); else SUMO's answer
         last, self._read_at_s = self._read_at_s, self.time_s
-        before = previous if last is not None and abs(self.time_s - dt - last) < 1e-6 else {}
-        asked = self.api.vehicle.getAcceleration
-        states: dict[str, VehicleState] = {}
-        positions: dict[str, tuple[float, float]] = {}
-        edges: dict[str, str] = {}
-        lane_positions: dict[str, float] = {}
-        offsets = self.frame.edge_offset_m  # route_s of a vehicle on a route edge, inlined
-        route_s = self.frame.route_s
-        kinds, lengths, widths, released = self.kinds, self.lengths, self.widths, self.released
-        for vid, r in results.items():
-            lane_id = r[lane_var]
-            edge, lane = lanes.get(lane_id) or lane_of(lane_id)
-            pos = r[lane_pos]
-            speed = r[speed_var]
-            offset = offsets.get(edge)
-            s = offset + pos if offset is not None else route_s(edge, lane, pos)
-            if s is None:  # on a junction edge off the route: integrate the speed
-                s = previous[vid].s_m + speed * dt if vid in previous else pos
-            was = before.get(vid)
-            if was is not None and was.speed_mps >= 0.0 and speed >= 0.0:
-                accel = (speed - was.speed_mps) / dt
-            else:  # its first step, back on a lane (an invalid speed off them), a skipped step
-                accel = asked(vid)
-            states[vid] = VehicleState(
-                vid,
-                s,
-                lane,
-                r[lat_var],
-                speed,
-                lengths.get(vid, 5.0),
-                accel,
-                kinds.get(vid) == "cav" and vid not in released,  # released: SUMO drives it
-                widths.get(vid, 1.8),
-            )
-            positions[vid] = r[xy_var]  # (x, y), a tuple already
-            edges[vid] = edge
-            lane_positions[vid] = pos
-        self.states = states
+        one_step = last is not None and abs(self.time_s - dt - last) < 1e-6
+        before = list(map(self._speeds.get, ids)) if one_step else [None] * len(ids)
+        accel = [
+            None if was is None or was < 0.0 or v < 0.0 else (v - was) / dt
+            for v, was in zip(speed, before, strict=True)
+        ]
+        if None in accel:  # a first step, back on a lane, a skipped step
+            asked = self.api.vehicle.getAcceleration
+            accel = [asked(vid) if a is None else a for vid, a in zip(ids, accel, strict=True)]
+        self.columns = StepColumns(
+            self.time_s, ids, edges, lanes, lane_pos, s,
+            list(map(itemgetter(c.VAR_LANEPOSITION_LAT), rows)), speed, accel,
+            list(map(itemgetter(c.VAR_POSITION), rows)), widths,  # (x, y): tuples already
+        )  # fmt: skip
+        self._speeds = speeds = dict(zip(ids, speed, strict=True))
+        self._released_at_read = frozenset(self.released)
+        self._states = self._positions = self._edges = self._lane_positions = None
         for vid in self.released:  # how long each released CAV has stood (standing_s)
-            state = states.get(vid)
-            if state is not None and state.speed_mps < STANDING_MPS:
+            v = speeds.get(vid)
+            if v is not None and v < STANDING_MPS:
                 self._standing_since.setdefault(vid, self.time_s)
             else:
                 self._standing_since.pop(vid, None)
-        self.positions = positions
-        self.edges = edges
-        self.lane_positions = lane_positions
 
-    def _lane_of(self, lane_id: str) -> tuple[str, int]:
-        """``(edge, lane index)`` of SUMO lane ``lane_id`` (read once); "" (a vehicle on no
-        lane): ``("", INVALID_INT_VALUE)``, what ROAD_ID and LANE_INDEX give a teleporting one."""
+    # The last read as dicts by vehicle, each made when first asked in a step.
+    @property
+    def states(self) -> dict[str, VehicleState]:
+        """Every vehicle of the last read (a released CAV counts as an HV: SUMO drives it)."""
+        if self._states is None:
+            c = self.columns
+            lengths, widths, kinds = self.lengths, self.widths, self.kinds
+            released = self._released_at_read
+            rows = zip(c.ids, c.s_m, c.lane, c.lat_m, c.speed_mps, c.accel_mps2, strict=True)
+            self._states = {
+                vid: VehicleState(
+                    vid,
+                    s,
+                    lane,
+                    lat,
+                    v,
+                    lengths.get(vid, 5.0),
+                    a,
+                    kinds.get(vid) == "cav" and vid not in released,
+                    widths.get(vid, 1.8),
+                )
+                for vid, s, lane, lat, v, a in rows
+            }
+        return self._states
+
+    @states.setter
+    def states(self, states: dict[str, VehicleState]) -> None:
+        self._states = states
+
+    @property
+    def positions(self) -> dict[str, tuple[float, float]]:
+        """``(x, y)`` of every vehicle of the last read [m]."""
+        if self._positions is None:
+            self._positions = dict(zip(self.columns.ids, self.columns.xy, strict=True))
+        return self._positions
+
+    @property
+    def edges(self) -> dict[str, str]:
+        """The edge of every vehicle of the last read ("" on no lane)."""
+        if self._edges is None:
+            self._edges = dict(zip(self.columns.ids, self.columns.edge, strict=True))
+        return self._edges
+
+    @property
+    def lane_positions(self) -> dict[str, float]:
+        """Front bumper along its lane of every vehicle of the last read [m]."""
+        if self._lane_positions is None:
+            c = self.columns
+            self._lane_positions = dict(zip(c.ids, c.lane_pos_m, strict=True))
+        return self._lane_positions
+
+    def _lane_of(self, lane_id: str) -> tuple[str, int, float]:
+        """``(edge, lane index, lane width [m])`` of SUMO lane ``lane_id`` (read once); ""
+        (a vehicle on no lane): ``("", INVALID_INT_VALUE, nan)``, what ROAD_ID and LANE_INDEX
+        give a teleporting one."""
         if not lane_id:
-            return "", _constants(self.api).INVALID_INT_VALUE
+            return "", _constants(self.api).INVALID_INT_VALUE, float("nan")
+        lane = self.api.lane
         where = self._lanes[lane_id] = (
-            self.api.lane.getEdgeID(lane_id), int(lane_id.rpartition("_")[2])
+            lane.getEdgeID(lane_id), int(lane_id.rpartition("_")[2]), lane.getWidth(lane_id)
         )  # fmt: skip
         return where
-
-    def lane_width_m(self, edge: str, lane: int) -> float:
-        """Width of lane ``lane`` of ``edge`` (junction edges ``:...`` too) [m], read once."""
-        key = (edge, lane)
-        width = self._lane_widths.get(key)
-        if width is None:
-            width = self._lane_widths[key] = self.api.lane.getWidth(f"{edge}_{lane}")
-        return width
 
     def has_vehicles_to_come(self) -> bool:
         return self.api.simulation.getMinExpectedNumber() > 0
@@ -691,7 +756,8 @@ class SumoSession:
         return self.road_section(edge) if edge is not None else None
 
     def exists(self, vid: str) -> bool:
-        return vid in self.states
+        """Whether ``vid`` was in the last read (and has not vanished since)."""
+        return vid in (self._speeds if self._states is None else self._states)
 
     # ------------------------------------------------------------------ driver models
     def driver_model(self, vehicle_id: str) -> DriverModel:

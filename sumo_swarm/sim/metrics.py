@@ -26,7 +26,7 @@ Conventions shared by every function here:
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -591,16 +591,20 @@ class HardBrakeCounter:
         self.vehicles: dict[str, str] = {}  # every vehicle that ever braked hard -> its kind
         self._last_hard: set[str] = set()  # vehicles whose latest sample braked hard
 
-    def update(self, accels: Mapping[str, float], kinds: Mapping[str, str]) -> None:
-        """One step: ``accels`` every vehicle's acceleration [m/s^2] at it."""
+    def update(self, ids: Sequence[str], accels: Sequence[float], kinds: Mapping[str, str]) -> None:
+        """One step: vehicle ``ids[i]``'s acceleration at it is ``accels[i]`` [m/s^2] (every
+        vehicle of the step)."""
         limit = self.limit_mps2
-        hard = {v for v, a in accels.items() if a < limit}
+        hard = {v for v, a in zip(ids, accels, strict=True) if a < limit}
         starts = hard - self._last_hard
         self.episodes += len(starts)
         for v in starts:
             self.vehicles.setdefault(v, kinds.get(v, "hv"))
         # a vehicle absent this step keeps its latest sample's state (as in a table)
-        self._last_hard = {v for v in self._last_hard if v not in accels} | hard
+        if self._last_hard - hard:
+            present = set(ids)
+            hard |= {v for v in self._last_hard if v not in present}
+        self._last_hard = hard
 
     def count(self, kind: str | None = None) -> int:
         """Vehicles (of ``kind``, or any) that ever braked hard (:func:`hard_brakes`)."""

@@ -156,7 +156,7 @@ class SwarmHandle:
         except Exception as exc:  # the simulation may already be closed
             log.debug("removing the step listener: %s", exc)
         for vid in list(self.session.cav_ids):
-            if vid in self.session.states:
+            if self.session.exists(vid):
                 try:
                     self.session.release_speed(vid)
                 except Exception as exc:

@@ -13,10 +13,10 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from itertools import repeat
-from operator import attrgetter, itemgetter
+from operator import itemgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -36,7 +36,6 @@ log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from sumo_swarm.config import Scenario
-    from sumo_swarm.core.model import VehicleState
     from sumo_swarm.sim.bridge import SumoSession
     from sumo_swarm.sim.scene import Scene
 
@@ -71,12 +70,9 @@ NAN = float("nan")
 TRAJECTORIES = "trajectories.parquet"
 
 
-# The columns :meth:`RunRecorder.record` takes from each VehicleState as they are.
-_LANE, _ACCEL = attrgetter("lane"), attrgetter("accel_mps2")
+# The columns :meth:`RunRecorder.record` takes from the session's read as they are.
 _X, _Y = itemgetter(0), itemgetter(1)
-_STATE_COLUMNS = tuple(
-    (c, attrgetter(c)) for c in ("s_m", "lat_m", "speed_mps", "accel_mps2", "length_m")
-)
+_STATE_COLUMNS = ("s_m", "lat_m", "speed_mps", "accel_mps2")
 
 
 def _typed(df: pd.DataFrame) -> pd.DataFrame:
@@ -115,21 +111,19 @@ def _concat(chunks: list[pd.DataFrame]) -> pd.DataFrame:
 
 
 def _near_cavs(
-    states: Mapping[str, VehicleState],
-    positions: Mapping[str, tuple[float, float]],
+    ids: Sequence[str],
+    xy: Sequence[tuple[float, float]],
     kinds: Mapping[str, str],
     range_m: float,
-) -> dict[str, VehicleState]:
-    """The CAVs of ``states`` and every vehicle within ``range_m`` of one (straight line)."""
-    cavs = [v for v in states if kinds.get(v) == "cav"]
+) -> list[int]:
+    """The rows of ``ids`` (at positions ``xy``) that are CAVs or within ``range_m`` of one
+    (straight line), in order."""
+    cavs = [i for i, v in enumerate(ids) if kinds.get(v) == "cav"]
     if not cavs:
-        return {}
-    ids = list(states)
-    xy = np.array([positions[v] for v in ids], dtype=float)
-    cav_xy = np.array([positions[v] for v in cavs], dtype=float)
-    d2 = ((xy[:, None, :] - cav_xy[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-    near = d2 <= range_m * range_m
-    return {v: states[v] for v, keep in zip(ids, near, strict=True) if keep}
+        return []
+    points = np.array(xy, dtype=float).reshape(-1, 2)
+    d2 = ((points[:, None, :] - points[None, cavs, :]) ** 2).sum(axis=2).min(axis=1)
+    return np.flatnonzero(d2 <= range_m * range_m).tolist()
 
 
 def write_events(path: Path, events: list[dict[str, Any]]) -> None:
@@ -186,40 +180,38 @@ class RunRecorder:
         s = self.session
         if self._t0_s is None:
             self._t0_s = s.time_s - s.step_length_s
-        states = s.states
-        accels = dict(zip(states, map(_ACCEL, states.values()), strict=True))
-        self.hard_brakes.update(accels, s.kinds)
+        c = s.columns
+        self.hard_brakes.update(c.ids, c.accel_mps2, s.kinds)
         o = self.outputs
         t = s.time_s
         if t < o.record_from_s - 1e-9 or (o.record_to_s is not None and t > o.record_to_s + 1e-9):
             return
+        columns = [c.ids, c.edge, c.lane, c.xy, c.s_m, c.lat_m, c.speed_mps, c.accel_mps2,
+                   c.lane_pos_m, c.lane_width_m]  # fmt: skip
         if o.trajectories == "cavs":
-            states = _near_cavs(states, s.positions, s.kinds, o.neighbour_range_m)
-        n = len(states)
+            rows = _near_cavs(c.ids, c.xy, s.kinds, o.neighbour_range_m)
+            columns = [list(map(column.__getitem__, rows)) for column in columns]
+        ids, edges, lanes, xy, *values, lane_pos, lane_widths = columns
+        n = len(ids)
         if n == 0:
             return
-        ids = list(states)
-        sts = list(states.values())
         if self._first_time_s is None:
             self._first_time_s = t
         self._last_time_s = t
-        kinds, edges, positions = s.kinds, list(map(s.edges.__getitem__, ids)), s.positions
-        xy = list(map(positions.__getitem__, ids))
-        lanes = list(map(_LANE, sts))
         rec = self.columns
         rec["time_s"].extend(repeat(t, n))
         rec["vehicle"].extend(ids)
-        rec["kind"].extend(map(kinds.get, ids, repeat("hv")))
+        rec["kind"].extend(map(s.kinds.get, ids, repeat("hv")))
         rec["edge"].extend(edges)
         rec["lane"].extend(lanes)
         rec["x_m"].extend(map(_X, xy))
         rec["y_m"].extend(map(_Y, xy))
-        for column, field in _STATE_COLUMNS:
-            rec[column].extend(map(field, sts))
-        lane_pos, widths = s.lane_positions, s.widths
-        rec["lane_pos_m"].extend(map(lane_pos.get, ids, repeat(NAN)))
-        rec["width_m"].extend(map(widths.get, ids, repeat(NAN)))
-        rec["lane_width_m"].extend(map(s.lane_width_m, edges, lanes))
+        for column, value in zip(_STATE_COLUMNS, values, strict=True):
+            rec[column].extend(value)
+        rec["length_m"].extend(map(s.lengths.get, ids, repeat(5.0)))
+        rec["lane_pos_m"].extend(lane_pos)
+        rec["width_m"].extend(map(s.widths.get, ids, repeat(NAN)))
+        rec["lane_width_m"].extend(lane_widths)
         if len(rec["time_s"]) >= CHUNK_ROWS:
             self._pack()
 
