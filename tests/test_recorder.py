@@ -69,7 +69,11 @@ class _Road:
 
         self.time_s = 0.0
         self.columns = StepColumns()
-        self.kinds, self.lengths, self.widths = {}, {}, {}
+        # as a session registers them when each vehicle departs: they do not change
+        names = [f"v{j}" for j in range(10)]
+        self.kinds = {v: "cav" for v in ("v0", "v3")}  # the others are HVs by default
+        self.lengths = {v: 4.0 + 0.5 * j for j, v in enumerate(names)}
+        self.widths = {v: 1.8 for v in names if v != "v1"}  # v1's: unknown (NaN)
 
     def advance(self, k: int) -> None:
         from sumo_swarm.sim.bridge import StepColumns
@@ -88,9 +92,6 @@ class _Road:
             [-0.5 * j for j in js], [(float(k), float(j)) for j in js],
             lane_widths,
         )  # fmt: skip
-        self.kinds = {v: "cav" for v in ids[:1]}  # the others are HVs by default
-        self.lengths = {v: 4.5 for v in ids}
-        self.widths = {v: 1.8 for v in ids}
 
 
 def test_rows_packed_in_chunks_make_the_table_one_list_would(monkeypatch):
@@ -111,8 +112,10 @@ def test_rows_packed_in_chunks_make_the_table_one_list_would(monkeypatch):
     assert len(whole) > 150 and chunks > 10  # packed in many chunks, then joined into one
     pd.testing.assert_frame_equal(packed, whole)
     assert list(whole["vehicle"].cat.categories) == sorted(whole["vehicle"].unique())
-    assert whole["lane_pos_m"].isna().sum() == 39  # the CAV's, unknown
-    assert set(whole.loc[whole["kind"] == "cav", "vehicle"]) == {f"v{j}" for j in range(5)}
+    assert whole["lane_pos_m"].isna().sum() == 39  # each step's first, unknown
+    assert set(whole.loc[whole["width_m"].isna(), "vehicle"]) == {"v1"}
+    assert set(whole.loc[whole["kind"] == "cav", "vehicle"]) == {"v0", "v3"}
+    assert (whole["length_m"] == 4.0 + 0.5 * whole["vehicle"].str[1:].astype(int)).all()
 
 
 def test_rows_on_disk_read_back_as_the_table_in_memory(monkeypatch, tmp_path):

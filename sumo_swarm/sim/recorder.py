@@ -15,8 +15,7 @@ import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
-from itertools import repeat
-from operator import itemgetter
+from itertools import chain
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -61,9 +60,9 @@ RECORD_COLUMNS = (
 )
 
 EMPTY_WINDOW_S = 1e-3  # the evaluation window of a run with nothing to evaluate [s]
-# Rows gathered as Python lists (several hundred bytes each) before they are packed into a
-# typed table (about 100 bytes each): 30 min of a motorway, 1.46 M rows, peaked at 1.96 GB
-# unpacked and 1.44 GB packed (with the summary's own needs).
+# Rows held as the session read them (Python lists and objects, several hundred bytes a row)
+# before they are packed into a typed table (about 100 bytes a row): 30 min of a motorway,
+# 1.46 M rows, peaked at 1.96 GB unpacked and 1.44 GB packed (with the summary's own needs).
 CHUNK_ROWS = 50_000
 CATEGORY_COLUMNS = ("kind", "vehicle", "edge")
 NAN = float("nan")
@@ -71,7 +70,6 @@ TRAJECTORIES = "trajectories.parquet"
 
 
 # The columns :meth:`RunRecorder.record` takes from the session's read as they are.
-_X, _Y = itemgetter(0), itemgetter(1)
 _STATE_COLUMNS = ("s_m", "lat_m", "speed_mps", "accel_mps2")
 
 
@@ -84,17 +82,53 @@ def _typed(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-def _table_of(columns: dict[str, list]) -> pd.DataFrame:
-    """The rows gathered as Python lists as a table of :func:`_typed`'s dtypes, each column
-    made straight from its list (not inferred, then converted)."""
-    data: dict[str, Any] = {}
-    for col in RECORD_COLUMNS:
-        values = columns[col]
-        if col in CATEGORY_COLUMNS:
-            data[col] = pd.Categorical(np.array(values, dtype=object))
-        else:
-            data[col] = np.array(values, dtype=np.int16 if col == "lane" else float)
-    return pd.DataFrame(data)
+class _Steps:
+    """Recorded steps not packed yet: each step's columns as the session read them (lists, kept
+    as they are: no row is copied until :meth:`table`)."""
+
+    # The parts of a step, in the order :meth:`add` takes them.
+    PARTS = ("vehicle", "edge", "lane", "xy", *_STATE_COLUMNS, "lane_pos_m", "lane_width_m")
+
+    def __init__(self) -> None:
+        self.times: list[float] = []
+        self.counts: list[int] = []
+        self.parts: list[list[list]] = [[] for _ in self.PARTS]
+        self.rows = 0
+
+    def add(self, t: float, columns: list[list]) -> None:
+        n = len(columns[0])
+        self.times.append(t)
+        self.counts.append(n)
+        for held, column in zip(self.parts, columns, strict=True):
+            held.append(column)
+        self.rows += n
+
+    def table(self, info: Callable[[str], tuple[str, float, float]]) -> pd.DataFrame:
+        """The rows as a table of :func:`_typed`'s dtypes, each column made straight from the
+        values (not inferred, then converted). ``info(vehicle)``: its kind, length and width,
+        asked once per vehicle of the table."""
+        n = self.rows
+        flat = dict(zip(self.PARTS, map(chain.from_iterable, self.parts), strict=True))
+        vehicle = pd.Categorical(np.array(list(flat["vehicle"]), dtype=object))
+        static = list(zip(*map(info, vehicle.categories), strict=True)) or [(), (), ()]
+        codes = vehicle.codes
+        xy = np.fromiter(chain.from_iterable(flat["xy"]), dtype=float, count=2 * n)
+        data: dict[str, Any] = {
+            "time_s": np.repeat(np.array(self.times, dtype=float), self.counts),
+            "vehicle": vehicle,
+            "kind": pd.Categorical(np.array(static[0], dtype=object)[codes]),
+            "edge": pd.Categorical(np.array(list(flat["edge"]), dtype=object)),
+            "lane": np.fromiter(flat["lane"], dtype=np.int16, count=n),
+            "x_m": xy[0::2].copy(),
+            "y_m": xy[1::2].copy(),
+        }
+        for column in _STATE_COLUMNS:
+            data[column] = np.fromiter(flat[column], dtype=float, count=n)
+        data["length_m"] = np.array(static[1], dtype=float)[codes]
+        data["lane_pos_m"] = np.fromiter(flat["lane_pos_m"], dtype=float, count=n)
+        data["width_m"] = np.array(static[2], dtype=float)[codes]
+        data["lane_width_m"] = np.fromiter(flat["lane_width_m"], dtype=float, count=n)
+        return pd.DataFrame({col: data[col] for col in RECORD_COLUMNS})
 
 
 def _concat(chunks: list[pd.DataFrame]) -> pd.DataFrame:
@@ -156,7 +190,7 @@ class RunRecorder:
         self.controller = controller
         self.controller_name = controller_name
         self.scene = scene
-        self.columns: dict[str, list] = {k: [] for k in RECORD_COLUMNS}
+        self._steps = _Steps()  # rows recorded, not packed yet
         self.sumo_s: float | None = None  # measured by the caller, else wall minus controller
         self.controller_s = 0.0
         self._wall0 = time.perf_counter()
@@ -186,34 +220,26 @@ class RunRecorder:
         t = s.time_s
         if t < o.record_from_s - 1e-9 or (o.record_to_s is not None and t > o.record_to_s + 1e-9):
             return
+        # in _Steps.PARTS' order
         columns = [c.ids, c.edge, c.lane, c.xy, c.s_m, c.lat_m, c.speed_mps, c.accel_mps2,
                    c.lane_pos_m, c.lane_width_m]  # fmt: skip
         if o.trajectories == "cavs":
             rows = _near_cavs(c.ids, c.xy, s.kinds, o.neighbour_range_m)
             columns = [list(map(column.__getitem__, rows)) for column in columns]
-        ids, edges, lanes, xy, *values, lane_pos, lane_widths = columns
-        n = len(ids)
-        if n == 0:
+        if not columns[0]:
             return
         if self._first_time_s is None:
             self._first_time_s = t
         self._last_time_s = t
-        rec = self.columns
-        rec["time_s"].extend(repeat(t, n))
-        rec["vehicle"].extend(ids)
-        rec["kind"].extend(map(s.kinds.get, ids, repeat("hv")))
-        rec["edge"].extend(edges)
-        rec["lane"].extend(lanes)
-        rec["x_m"].extend(map(_X, xy))
-        rec["y_m"].extend(map(_Y, xy))
-        for column, value in zip(_STATE_COLUMNS, values, strict=True):
-            rec[column].extend(value)
-        rec["length_m"].extend(map(s.lengths.get, ids, repeat(5.0)))
-        rec["lane_pos_m"].extend(lane_pos)
-        rec["width_m"].extend(map(s.widths.get, ids, repeat(NAN)))
-        rec["lane_width_m"].extend(lane_widths)
-        if len(rec["time_s"]) >= CHUNK_ROWS:
+        self._steps.add(t, columns)
+        if self._steps.rows >= CHUNK_ROWS:
             self._pack()
+
+    def _vehicle_info(self, vid: str) -> tuple[str, float, float]:
+        """Kind, length [m] and width [m] of ``vid``, as the session registered it when it
+        departed (they do not change)."""
+        s = self.session
+        return s.kinds.get(vid, "hv"), s.lengths.get(vid, 5.0), s.widths.get(vid, NAN)
 
     @property
     def first_time_s(self) -> float | None:
@@ -228,11 +254,11 @@ class RunRecorder:
     def _pack(self) -> None:
         """Turn the rows gathered as Python lists into a typed table (a tenth of the memory);
         past ``outputs.memory_rows`` held, write the tables held to the trajectory file."""
-        if self.columns["time_s"]:
-            chunk = _table_of(self.columns)
+        if self._steps.rows:
+            chunk = self._steps.table(self._vehicle_info)
             self._chunks.append(chunk)
             self._held_rows += len(chunk)
-            self.columns = {k: [] for k in RECORD_COLUMNS}
+            self._steps = _Steps()
         if self._file is not None and (self._file.open or self._held_rows > self.memory_rows):
             self._spill()
 
