@@ -23,6 +23,19 @@ def _session(tmp_path: Path) -> SumoSession:
 
 def _check_step(sumo: SumoSession, every_vehicle: bool) -> int:
     veh = sumo.api.vehicle
+    # Before any view is made: who is there comes from the read itself.
+    if every_vehicle:
+        assert all(sumo.exists(vid) for vid in veh.getIDList())
+    assert not sumo.exists("nobody")
+    # The columns the recorder takes as they are, and the views made from them.
+    c = sumo.columns
+    assert c.time_s == sumo.time_s and list(sumo.states) == c.ids
+    for i, vid in enumerate(c.ids):
+        assert c.xy[i] == veh.getPosition(vid), (sumo.time_s, vid)
+        assert c.speed_mps[i] == veh.getSpeed(vid), (sumo.time_s, vid)
+        assert c.lat_m[i] == veh.getLateralLanePosition(vid), (sumo.time_s, vid)
+        assert c.lane_width_m[i] == sumo.api.lane.getWidth(veh.getLaneID(vid)), (sumo.time_s, vid)
+        assert sumo.positions[vid] == c.xy[i]
     for vid, st in sumo.states.items():
         assert st.accel_mps2 == veh.getAcceleration(vid), (sumo.time_s, vid)
         assert st.lane == veh.getLaneIndex(vid), (sumo.time_s, vid)
@@ -46,3 +59,17 @@ def test_lanes_and_accelerations_read_are_sumos_own(tmp_path):
             braking += sum(1 for st in sumo.states.values() if st.accel_mps2 < -0.5)
     assert skipped and seen > 2000  # vehicle-steps compared
     assert junction > 0 and braking > 0  # internal lanes and real braking among them
+
+
+def test_a_vehicle_taken_out_of_the_states_is_gone_until_the_next_read(tmp_path):
+    # As a command to a vehicle SUMO no longer knows does (SumoSession._command): the
+    # controllers stop commanding it in this step; the next read has it again if it is there.
+    with _session(tmp_path) as sumo:
+        while not sumo.columns.ids:
+            sumo.step()
+        vid = sumo.columns.ids[0]
+        assert sumo.exists(vid)
+        sumo.states.pop(vid)
+        assert not sumo.exists(vid) and vid in sumo.columns.ids  # the read itself is kept
+        sumo.step()
+        assert sumo.exists(vid) and vid in sumo.states
