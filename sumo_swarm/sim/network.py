@@ -190,8 +190,9 @@ Classify = Callable[[str, str], str]  # (vehicle, vType) -> vehicle class
 
 # The attributes read of each element of SUMO's outputs. sumolib makes one class per element
 # type from these (an attribute an element lacks reads None), instead of a class per element
-# from the element's own attributes (heterogeneous=True): a third of the time of reading the
-# tripinfo of 300 s of scenarios/corridor.toml.
+# from the element's own attributes (heterogeneous=True): reading the outputs of 300 s of
+# scenarios/corridor.toml took 0.057 s that way, 0.030 s this way. Other children of an element
+# (a trip's stops, say) are read alike, from the first one's attributes.
 _TRIP_ATTRS = {
     "tripinfo": ["id", "depart", "departDelay", "arrival", "duration", "routeLength",
                  "waitingTime", "timeLoss", "vType"],
