@@ -73,3 +73,37 @@ def test_a_vehicle_taken_out_of_the_states_is_gone_until_the_next_read(tmp_path)
         assert not sumo.exists(vid) and vid in sumo.columns.ids  # the read itself is kept
         sumo.step()
         assert sumo.exists(vid) and vid in sumo.states
+
+
+def test_a_vehicle_removed_and_added_again_starts_afresh(tmp_path):
+    # TraCI can add a vehicle of an id that left. The new one's first acceleration is SUMO's
+    # own (not a speed difference with the old one's last speed), and its rows get its own
+    # length when the recorder packs them: the old one's rows are packed before the new values
+    # come.
+    from sumo_swarm.sim.recorder import RunRecorder
+
+    with _session(tmp_path) as sumo:
+        rec = RunRecorder(sumo, None, "none", None)
+        while sumo.time_s < 2.0 or not sumo.columns.ids:
+            sumo.step()
+            rec.record()
+        vid = sumo.columns.ids[0]
+        assert sumo.states[vid].speed_mps > 5.0
+        route = sumo.api.vehicle.getRouteID(vid)
+        sumo.remove_vehicle(vid)  # and added again before the next step, ahead of the others
+        assert not sumo.exists(vid)
+        sumo.api.vehicle.add(vid, route, typeID="DEFAULT_VEHTYPE", departSpeed="0",
+                             departPos="300", departLane="free")  # fmt: skip
+        sumo.api.vehicle.setLength(vid, 9.5)
+        sumo.step()
+        rec.record()
+        i = sumo.columns.ids.index(vid)  # in the very next read
+        assert sumo.columns.lane_pos_m[i] == 300.0
+        assert sumo.columns.accel_mps2[i] == sumo.api.vehicle.getAcceleration(vid) == 0.0
+        for _ in range(5):
+            sumo.step()
+            rec.record()
+        rows = rec.frame()
+        mine = rows[rows["vehicle"] == vid]
+        assert (mine.loc[mine["time_s"] < 2.0, "length_m"] == 5.0).all()
+        assert (mine.loc[mine["time_s"] > sumo.time_s - 0.6, "length_m"] == 9.5).all()

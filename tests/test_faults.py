@@ -161,3 +161,17 @@ def test_sumo_exiting_mid_run_keeps_the_outputs(tmp_path):
     assert summary["sim_end_s"] == pytest.approx(5.0, abs=0.05)
     events = (tmp_path / "events.jsonl").read_text()
     assert "sumo_failed" in events or "run_failed" in events
+
+
+def test_a_run_that_records_nothing_still_writes_its_outputs(tmp_path):
+    # Every step before record_from_s: no row at all. The run ends as any other: an empty
+    # trajectory table with the usual columns and a summary.
+    from sumo_swarm.sim.recorder import RECORD_COLUMNS
+
+    sc = paper(5.0)
+    sc = replace(sc, outputs=replace(sc.outputs, record_from_s=100.0))
+    summary = run_scenario(sc, "cacc", tmp_path, progress=False)
+    df = pd.read_parquet(tmp_path / "trajectories.parquet")
+    assert df.empty and list(df.columns) == list(RECORD_COLUMNS)
+    assert summary["safety"]["collisions"] == 0
+    assert json.loads((tmp_path / "summary.json").read_text())["controller"] == "cacc"

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
@@ -197,6 +197,11 @@ class SumoSession:
         self._type_classes: dict[str, str] = {}
         self.columns = StepColumns()  # the last read (what :meth:`_read` gives)
         self._speeds: dict[str, float] = {}  # the last read's speeds, by vehicle [m/s]
+        self._forgotten: set[str] = set()  # taken out since the last read (:meth:`_forget`)
+        # Called before a vehicle id seen before departs again (TraCI can add one of an id
+        # that arrived) and gets its new kind, length and width: the recorder packs the rows
+        # it holds of the old one first.
+        self.on_id_reused: list[Callable[[], None]] = []
         self._released_at_read: frozenset[str] = frozenset()  # :attr:`released` then
         # The views of the last read, each made when first asked (None: not yet).
         self._states: dict[str, VehicleState] | None = None
@@ -384,6 +389,9 @@ class SumoSession:
 
     def _register(self, vid: str) -> None:
         api = self.api
+        if vid in self.kinds:
+            for hook in self.on_id_reused:
+                hook()
         api.vehicle.subscribe(vid, self._vars)
         type_id = api.vehicle.getTypeID(vid)
         self.types[vid] = type_id
@@ -418,6 +426,8 @@ class SumoSession:
         s = [p if o is None else o + p for o, p in zip(offsets, lane_pos, strict=True)]
         if None in offsets:  # another edge (a junction's, a ramp): the frame's projection
             previous = dict(zip(self.columns.ids, self.columns.s_m, strict=True))
+            for vid in self._forgotten:
+                previous.pop(vid, None)
             route_s = self.frame.route_s
             for i, o in enumerate(offsets):
                 if o is None:
@@ -443,6 +453,7 @@ class SumoSession:
             list(map(itemgetter(c.VAR_POSITION), rows)), widths,  # (x, y): tuples already
         )  # fmt: skip
         self._speeds = speeds = dict(zip(ids, speed, strict=True))
+        self._forgotten.clear()
         self._released_at_read = frozenset(self.released)
         self._states = self._positions = self._edges = self._lane_positions = None
         for vid in self.released:  # how long each released CAV has stood (standing_s)
@@ -537,7 +548,7 @@ class SumoSession:
                 raise
             log.warning("vehicle %s vanished: %s", vid, exc)
             self.vanished.append((self.time_s, vid))
-            self.states.pop(vid, None)
+            self._forget(vid)
             return False
         return True
 
@@ -555,7 +566,15 @@ class SumoSession:
         """
         self.api.vehicle.unsubscribe(vid)
         self.api.vehicle.remove(vid)
+        self._forget(vid)
+
+    def _forget(self, vid: str) -> None:
+        """Take ``vid`` out of this step's views and out of what the next read carries over
+        (its speed for the acceleration, its route position on a junction): a vehicle of the
+        same id read later starts afresh, as one that departs."""
         self.states.pop(vid, None)
+        self._speeds.pop(vid, None)
+        self._forgotten.add(vid)
 
     def route_of(self, vid: str) -> tuple[tuple[str, ...], int] | None:
         """``vid``'s route edges and the index of the edge it is on (None if it vanished)."""

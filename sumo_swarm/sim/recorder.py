@@ -191,6 +191,11 @@ class RunRecorder:
         self.controller_name = controller_name
         self.scene = scene
         self._steps = _Steps()  # rows recorded, not packed yet
+        # Kind, length and width are taken per vehicle when rows are packed: rows of a vehicle
+        # id that departs again are packed before the new one's values replace the old.
+        hooks = getattr(session, "on_id_reused", None)
+        if hooks is not None:
+            hooks.append(self._pack)
         self.sumo_s: float | None = None  # measured by the caller, else wall minus controller
         self.controller_s = 0.0
         self._wall0 = time.perf_counter()
@@ -293,8 +298,8 @@ class RunRecorder:
     def _table(self) -> pd.DataFrame:
         """The recorded table itself (not a copy: for reading only)."""
         self._pack()
-        if not self._chunks:
-            return _typed(pd.DataFrame(self.columns))
+        if not self._chunks:  # nothing recorded
+            return _typed(pd.DataFrame({col: [] for col in RECORD_COLUMNS}))
         if len(self._chunks) > 1:  # one table; the category columns on one sorted vocabulary
             self._chunks = [_concat(self._chunks)]
         return self._chunks[0]
