@@ -191,7 +191,6 @@ class SumoSession:
         self.released: set[str] = set()  # CAVs handed back to SUMO (they left the swarm)
         self._standing_since: dict[str, float] = {}  # released CAV -> since when it stands [s]
         self._lanes: dict[str, tuple[str, int, float]] = {}  # lane id -> edge, index, width
-        self._read_at_s: float | None = None  # simulated time of the last read [s]
         self.types: dict[str, str] = {}
         self.vehicle_classes: dict[str, str] = {}  # SUMO's vClass of each vehicle's type
         self._type_classes: dict[str, str] = {}
@@ -437,8 +436,8 @@ class SumoSession:
                         x = lane_pos[i] if was is None else was + speed[i] * dt
                     s[i] = x
         # SUMO's acceleration from the speeds one step apart (see VARS); else SUMO's answer
-        last, self._read_at_s = self._read_at_s, self.time_s
-        one_step = last is not None and abs(self.time_s - dt - last) < 1e-6
+        # (before the first read the columns are empty, and so are the speeds)
+        one_step = abs(self.time_s - dt - self.columns.time_s) < 1e-6
         before = list(map(self._speeds.get, ids)) if one_step else [None] * len(ids)
         accel = [
             None if was is None or was < 0.0 or v < 0.0 else (v - was) / dt

@@ -110,7 +110,7 @@ class _Steps:
         n = self.rows
         flat = dict(zip(self.PARTS, map(chain.from_iterable, self.parts), strict=True))
         vehicle = pd.Categorical(np.array(list(flat["vehicle"]), dtype=object))
-        static = list(zip(*map(info, vehicle.categories), strict=True)) or [(), (), ()]
+        static = list(zip(*map(info, vehicle.categories), strict=True))  # (rows > 0)
         codes = vehicle.codes
         xy = np.fromiter(chain.from_iterable(flat["xy"]), dtype=float, count=2 * n)
         data: dict[str, Any] = {
@@ -299,7 +299,7 @@ class RunRecorder:
         """The recorded table itself (not a copy: for reading only)."""
         self._pack()
         if not self._chunks:  # nothing recorded
-            return _typed(pd.DataFrame({col: [] for col in RECORD_COLUMNS}))
+            return pd.DataFrame({col: [] for col in RECORD_COLUMNS})
         if len(self._chunks) > 1:  # one table; the category columns on one sorted vocabulary
             self._chunks = [_concat(self._chunks)]
         return self._chunks[0]
