@@ -12,6 +12,11 @@ from sumo_swarm.errors import ConfigError
 SEED_MAX = 2**31 - 1  # SUMO's --seed is a signed 32-bit integer
 _COMPARE = {">": operator.gt, ">=": operator.ge, "<": operator.lt, "<=": operator.le}
 
+# The settings reference (tools/settings_reference.py) reads each key's range from the checks
+# themselves, so the page cannot drift from them: while this is a list, every check appends
+# (name, bounds, integer) to it. None (always, outside that tool): nothing is kept.
+recorded_checks: list[tuple[str, dict[str, float], bool]] | None = None
+
 
 def is_number(value: object) -> bool:
     """True for an int or float that is finite (booleans are not numbers here)."""
@@ -38,6 +43,8 @@ def require_number(
     NaN and inf never pass, whatever the bounds.
     """
     bounds = [(op, b) for op, b in ((">", gt), (">=", ge), ("<", lt), ("<=", le)) if b is not None]
+    if recorded_checks is not None:
+        recorded_checks.append((name, dict(bounds), integer))
     ok = is_number(value) and (isinstance(value, int) or not integer)
     if ok:
         ok = all(_COMPARE[op](value, bound) for op, bound in bounds)
@@ -45,6 +52,27 @@ def require_number(
         kind = "an integer " if integer else ("" if is_number(value) else "a finite number ")
         limits = " and ".join(f"{op} {_show(bound)}" for op, bound in bounds)
         raise ConfigError(f"{name} must be {kind}{limits}".rstrip() + f", got {value!r}")
+
+
+_OPS = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
+
+
+def require_order(
+    low_name: str, low: float, high_name: str, high: float, *, strict: bool = True
+) -> None:
+    """Raise ConfigError unless ``low`` < ``high`` (``strict=False``: <=), both finite."""
+    if recorded_checks is not None:
+        op_low, op_high = ("<", ">") if strict else ("<=", ">=")
+        recorded_checks.append((low_name, {op_low: _short(high_name)}, False))  # type: ignore[dict-item]
+        recorded_checks.append((high_name, {op_high: _short(low_name)}, False))  # type: ignore[dict-item]
+    ok = is_number(low) and is_number(high) and (low < high if strict else low <= high)
+    if not ok:
+        relation = "<" if strict else "<="
+        raise ConfigError(f"{low_name} must be {relation} {high_name}, got {low!r} and {high!r}")
+
+
+def _short(name: str) -> str:
+    return name.rpartition(".")[2]
 
 
 def _show(bound: float) -> str:
@@ -57,6 +85,14 @@ def check_fields(owner: object, *names: str, **bounds: Any) -> None:
         value = getattr(owner, name)
         if value is not None:
             require_number(name, value, **bounds)
+        elif recorded_checks is not None:  # a None default still has a range when set
+            recorded_checks.append(
+                (
+                    name,
+                    {_OPS[k]: b for k, b in bounds.items() if k in _OPS and b is not None},
+                    bool(bounds.get("integer")),
+                )
+            )
 
 
 def finite_or_none(value: object) -> float | None:

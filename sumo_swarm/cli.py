@@ -32,8 +32,8 @@ EXIT_STATUS = (
 )
 CONTROLLER_HELP = (
     "how the CAVs are driven: swarm (the paper's method), cacc (the paper's baseline, a "
-    "longitudinal-only CACC platoon), sumo-cacc (SUMO's own CACC car-following model, no lane "
-    "changes), sumo-lc (the CAVs as ordinary SUMO vehicles, each overtaking on its own) "
+    "longitudinal-only CACC platoon), sumo-cacc (SUMO's own CACC car-following model, only the "
+    "lane changes its route needs), sumo-lc (the CAVs as ordinary SUMO vehicles, each overtaking on its own) "
     "(default: %(default)s)"
 )
 
@@ -54,7 +54,8 @@ A scenario file (TOML) has the sections [simulation], [evaluation], [cav], [hv],
 unit in its name, and an unknown key or a value out of range is refused. The paper's
 scenario, installed with the package, lists every key with its meaning and source:
   {_paper_scenario()}
-Copy it, change what you need (its network path is relative to the file) and run the copy.
+Copy it anywhere, change what you need and run the copy: a network path that does not
+resolve beside the copy falls back to the built-in network of that file name.
 
 With --sumocfg, your own SUMO configuration runs as it is (the sublane model is added if it
 lacks one; collisions are counted, not teleported away); the vehicles of vType --cav-type form
@@ -341,6 +342,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     from sumo_swarm.study.reproduce import reproduce
 
     reproduce(args.out, scenario_path=args.scenario)
+    print(f"report: {args.out / 'report.md'} (report.json, figures and runs/ in {args.out})")
     return EXIT_OK
 
 
@@ -359,6 +361,7 @@ def _cmd_impact(args: argparse.Namespace) -> int:
     from sumo_swarm.study.impact import impact
 
     print(impact(args.dir))
+    print(f"impact tables and plots: {args.dir / 'impact'}")
     return EXIT_OK
 
 

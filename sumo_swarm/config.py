@@ -43,14 +43,36 @@ check_non_negative = functools.partial(check_fields, ge=0.0)
 
 @dataclass(frozen=True)
 class SimulationSettings:
-    """How SUMO runs."""
+    """How SUMO runs.
 
-    network: str = "../networks/highway3.net.xml"  # relative to the scenario file
-    step_length_s: float = 0.03  # paper IV-C: time step 0.03 s
+    Attributes
+    ----------
+    network
+        The SUMO network file, relative to the scenario file; a copied file whose network is not
+        beside it falls back to the built-in network of that name.
+    step_length_s
+        SUMO's step length [s] (the paper: 0.03 s; the swarm needs 0.3 s or less).
+    duration_s
+        How long the simulation runs [s].
+    seed
+        SUMO's random seed [1].
+    lateral_resolution_m
+        SUMO's sublane resolution [m], which lateral control needs (0.5 m on 3 m lanes: 6 sublanes
+        a lane).
+    route_edges
+        The edges of the route the scene is placed along, in order.
+    """
+
+    network: str = field(
+        default="../networks/highway3.net.xml", metadata={"range": "a SUMO .net.xml file"}
+    )
+    step_length_s: float = 0.03
     duration_s: float = 80.0
     seed: int = 42
-    lateral_resolution_m: float = 0.5  # sublane model; 0.5 m on 3 m lanes = 6 sublanes per lane
-    route_edges: tuple[str, ...] = ("hwy",)
+    lateral_resolution_m: float = 0.5
+    route_edges: tuple[str, ...] = field(
+        default=("hwy",), metadata={"range": "edges of the network, 2 lanes or more"}
+    )
 
     def __post_init__(self) -> None:
         check_positive(self, "duration_s", "lateral_resolution_m")
@@ -62,11 +84,23 @@ class SimulationSettings:
 
 @dataclass(frozen=True)
 class EvaluationSettings:
-    """The window over which mobility and safety are measured (paper Section IV-E)."""
+    """The window over which mobility and safety are measured (paper Section IV-E).
+
+    Attributes
+    ----------
+    start_s
+        Start of the window over which mobility and safety are measured [s].
+    end_s
+        End of that window [s].
+    travel_distance_m
+        A CAV's travel time is the time it takes to cover this distance [m].
+    upstream_ranks
+        How many HVs behind the swarm in each lane are ranked in the upstream block [vehicles].
+    """
 
     start_s: float = 0.0
     end_s: float = 60.0
-    travel_distance_m: float = 1000.0  # travel time = time for a CAV to cover this distance
+    travel_distance_m: float = 1000.0
     upstream_ranks: int = 5
 
     def __post_init__(self) -> None:
@@ -79,40 +113,51 @@ class EvaluationSettings:
 @dataclass(frozen=True)
 class OutputSettings:
     """SUMO's own outputs that a run asks for, and the network measures read from them
-    (summary.json's ``network`` block, :mod:`sumo_swarm.sim.network`)."""
+    (summary.json's ``network`` block, :mod:`sumo_swarm.sim.network`).
 
-    # tripinfo with the emissions device, SSM conflicts (TTC) and edge data: what traffic
-    # studies expect. They watch, they do not drive (a run's vehicles move the same with or
-    # without them) and cost about a third more SUMO time; false: none of them.
+    Attributes
+    ----------
+    network
+        Ask SUMO for tripinfo (with emissions), SSM conflicts and edge data, and fill
+        summary.json's network block from them.
+    edge_data_period_s
+        The edge data's aggregation interval [s].
+    ttc_threshold_s
+        A conflict is an encounter with a time to collision below this [s].
+    ssm_range_m
+        How far SUMO's SSM device looks for encounters [m].
+    ssm
+        Run SUMO's SSM device (TTC conflicts) at all; it holds open encounters in memory, which
+        grows in a jam.
+    speed_field_cell_m
+        Cell length of the space-time speed field along the route [m].
+    speed_field_period_s
+        Period of the space-time speed field [s].
+    trajectories
+        Rows of trajectories.parquet: every vehicle at every step, or the CAVs and the vehicles
+        within neighbour_range_m of one.
+    neighbour_range_m
+        With trajectories = "cavs", how far (straight line) from a CAV a vehicle is recorded [m].
+    record_from_s
+        Record steps from this simulated time on [s].
+    record_to_s
+        Record steps up to this simulated time [s] (none: to the end).
+    memory_rows
+        Recorded rows held in memory; beyond it the rows go to disk chunk by chunk and the summary
+        reads them back [rows].
+    """
+
     network: bool = True
-    edge_data_period_s: float = 60.0  # the edge data's aggregation interval [s]
-    ttc_threshold_s: float = 1.5  # a conflict is an encounter with a TTC below this [s]
-    ssm_range_m: float = 50.0  # how far the SSM device looks for encounters (SUMO's default) [m]
-    # SUMO's SSM device (the TTC conflicts) at all. It keeps every open encounter's samples in
-    # memory for as long as the two vehicles stay within ssm_range_m: in a jam that is for as
-    # long as the jam lasts, and SUMO's memory grows with it (an hour of the corridor under
-    # sumo-cacc, which jams: 12.4 GB; without the device 0.4 GB for 900 s). false: no
-    # network.ttc_below_1_5s_events; safety.min_ttc_s still comes from the trajectories.
+    edge_data_period_s: float = 60.0
+    ttc_threshold_s: float = 1.5
+    ssm_range_m: float = 50.0
     ssm: bool = True
-    # The space-time speed field along the route, from the trajectories: cell length [m] and
-    # period [s] (network_speed_field.parquet; sumo-swarm impact draws it per controller).
     speed_field_cell_m: float = 100.0
     speed_field_period_s: float = 10.0
-    # Which rows trajectories.parquet gets: "all" vehicles at every step, or "cavs": the CAVs
-    # and every vehicle within neighbour_range_m of one (straight-line distance), enough for
-    # the summary's cav and overtake blocks; a network of thousands of vehicles then records a
-    # few hundred. Hard brakes are counted for every vehicle either way; the upstream block,
-    # the smallest TTC (safety.min_ttc_s) and the speed field see the recorded vehicles only.
     trajectories: Literal["all", "cavs"] = "all"
     neighbour_range_m: float = 200.0
-    # Steps recorded: from record_from_s to record_to_s [s] of simulated time (None: the end).
     record_from_s: float = 0.0
-    record_to_s: float | None = None
-    # Recorded rows held in memory [rows]; beyond it the trajectories go to trajectories.parquet
-    # chunk by chunk as they are recorded, and the summary is built from that file a slice of
-    # steps at a time (sim/streamed.py): the same numbers, and a run's memory stops growing
-    # with its length (an hour of the corridor is ~8 M rows, ~100 bytes each and as much
-    # again for the summary's pairs). 1 M rows: 5 minutes of the corridor stay in memory.
+    record_to_s: float | None = field(default=None, metadata={"range": "> record_from_s; none"})
     memory_rows: int = 1_000_000
 
     def __post_init__(self) -> None:
@@ -136,44 +181,63 @@ class OutputSettings:
 
 @dataclass(frozen=True)
 class CavSettings:
-    """The CAVs and the swarm's set points (paper IV-C)."""
+    """The CAVs and the swarm's set points (paper IV-C).
+
+    Attributes
+    ----------
+    count
+        Number of CAVs in the scene [CAVs].
+    length_m
+        CAV length [m].
+    width_m
+        CAV width [m].
+    cruising_speed_mps
+        The swarm's cruising speed [m/s].
+    max_speed_mps
+        The highest speed a CAV may drive [m/s].
+    speeds
+        Where the two speeds above come from: these keys ("config") or SUMO's desired speed of the
+        CAVs where they drive ("world", the default on a user's sumocfg).
+    min_gap_m
+        Minimum safety distance between CAVs [m].
+    desired_gap_m
+        Desired safety distance between CAVs [m].
+    accel_min_mps2
+        Strongest braking a CAV is commanded [m/s²].
+    accel_max_mps2
+        Strongest acceleration a CAV is commanded [m/s²].
+    steering_wheel_range_deg
+        Steering-wheel angle range, plus or minus [deg] (the paper's "front wheel angle [-450, 450]
+        deg").
+    steering_ratio
+        Steering ratio: the front-wheel angle is the steering-wheel angle divided by it [1].
+    max_lateral_speed_mps
+        The CAVs' lateral speed limit, given to SUMO as their maxSpeedLat [m/s].
+    speed_factor
+        With speeds = "world": every CAV gets its vType's speedFactor ("type") or keeps SUMO's draw
+        ("vehicle").
+    wheelbase_m
+        Wheelbase of the lateral model [m].
+    """
 
     count: int = 6
     length_m: float = 5.0
     width_m: float = 1.8
     cruising_speed_mps: float = 20.0
     max_speed_mps: float = 25.0
-    # Where the two speeds above come from. "config": these keys (the paper's 20 and 25 m/s).
-    # "world": the user's world, updated every step: SUMO's desired speed of the CAVs where they
-    # drive, min over the platoon of min(vType maxSpeed, lane limit * speedFactor) (what SUMO's
-    # own drivers and sumo-cacc drive at), as both the cruising and the highest speed. A user's
-    # sumocfg and attach() use "world" unless their config sets either speed; scenario files
-    # default to "config".
     speeds: Literal["config", "world"] = "config"
-    min_gap_m: float = 5.0  # minimum safety distance between CAVs
-    desired_gap_m: float = 10.0  # desired safety distance between CAVs
+    min_gap_m: float = 5.0
+    desired_gap_m: float = 10.0
     accel_min_mps2: float = -4.0
     accel_max_mps2: float = 3.0
-    # Paper IV-C: "front wheel angle [-450 deg, 450 deg]" is evidently the steering-wheel range;
-    # with a steering ratio of 15 that is +-30 deg at the wheels (see tracking.LateralSettings).
     steering_wheel_range_deg: float = 450.0
     steering_ratio: float = 15.0
-    # The CAVs' lateral speed limit [m/s]: the trajectories plan lane changes under it, and every
-    # CAV handed to the controllers gets it as its maxSpeedLat (SUMO caps changeSublane there;
-    # a user's vType left at SUMO's default 1 m/s made each lane change take twice the time the
-    # plan gave it).
     max_lateral_speed_mps: float = 2.0
-    # With speeds = "world": "type" gives every CAV its vType's speedFactor (the mean of the
-    # distribution SUMO draws from), so the platoon cruises at the lane limit times that one
-    # factor; "vehicle" keeps SUMO's draw per CAV and the platoon cruises at its lowest (with
-    # SUMO's default speedDev 0.1, five CAVs drew 0.83 on a 120 km/h road: 27.7 instead of
-    # 33.3 m/s, while the same CAVs as SUMO drivers averaged 30.7 m/s).
     speed_factor: Literal["type", "vehicle"] = "type"
     wheelbase_m: float = 2.8
 
     def __post_init__(self) -> None:
-        if self.count < 1:
-            raise ConfigError(f"count must be >= 1 CAV, got {self.count}")
+        check_fields(self, "count", ge=1)
         check_positive(
             self,
             "length_m",
@@ -188,8 +252,7 @@ class CavSettings:
             "max_lateral_speed_mps",
             "wheelbase_m",
         )
-        if self.accel_min_mps2 >= 0:
-            raise ConfigError(f"accel_min_mps2 must be < 0, got {self.accel_min_mps2}")
+        check_fields(self, "accel_min_mps2", lt=0.0)
         if self.desired_gap_m < self.min_gap_m:
             raise ConfigError(
                 f"desired_gap_m ({self.desired_gap_m}) must be >= min_gap_m ({self.min_gap_m})"
@@ -214,18 +277,41 @@ class IdmSettings:
     s0 = 2 m, delta = 4, v0 = 120 km/h. Its T = 1.6 s is replaced by the paper's "minimum
     car-following headway" of 1.2 s (IV-C), which is also what reproduces the paper's upstream
     gaps (23.9 m at 17.15 m/s, IV-E-4); set ``headway_s = 1.6`` for Treiber's value.
+
+    Attributes
+    ----------
+    length_m
+        HV length [m].
+    width_m
+        HV width [m].
+    accel_mps2
+        IDM maximum acceleration a [m/s²].
+    decel_mps2
+        IDM comfortable deceleration b [m/s²].
+    emergency_decel_mps2
+        SUMO's emergency deceleration of the HVs [m/s²].
+    headway_s
+        IDM time headway T [s].
+    min_gap_m
+        IDM standstill gap s0 [m].
+    delta
+        IDM acceleration exponent delta [1].
+    desired_speed_mps
+        IDM desired speed v0 of HVs that follow others [m/s].
+    lane_changes
+        Let the HVs change lanes (the paper's HVs keep their lanes).
     """
 
     length_m: float = 5.0
     width_m: float = 1.8
-    accel_mps2: float = 0.73  # a
-    decel_mps2: float = 1.67  # b (comfortable deceleration)
+    accel_mps2: float = 0.73
+    decel_mps2: float = 1.67
     emergency_decel_mps2: float = 9.0
-    headway_s: float = 1.2  # T
-    min_gap_m: float = 2.0  # s0
+    headway_s: float = 1.2
+    min_gap_m: float = 2.0
     delta: float = 4.0
-    desired_speed_mps: float = 33.33  # v0 = 120 km/h, for HVs that follow others
-    lane_changes: bool = False  # paper: HVs keep their lanes
+    desired_speed_mps: float = 33.33
+    lane_changes: bool = False
 
     def __post_init__(self) -> None:
         check_positive(
@@ -244,13 +330,31 @@ class IdmSettings:
 
 @dataclass(frozen=True)
 class HvPlacement:
-    """One explicitly placed human-driven vehicle."""
+    """One explicitly placed human-driven vehicle.
 
-    id: str
+    Attributes
+    ----------
+    id
+        The HV's SUMO id.
+    lane
+        Its lane (0: rightmost) [lane].
+    front_m
+        Its front bumper along the route at t = 0 [m].
+    speed_mps
+        Its speed at t = 0 [m/s].
+    desired_speed_mps
+        Its IDM desired speed [m/s] (none: [hv] desired_speed_mps).
+    length_m
+        Its length [m] (none: [hv] length_m).
+    role
+        Its role in the paper's scene: the slow target, an HV adjacent to the platoon, or other.
+    """
+
+    id: str = field(metadata={"range": "a vehicle id, unique in the scene"})
     lane: int
-    front_m: float  # front bumper along the route at t = 0 [m]
+    front_m: float
     speed_mps: float = 17.5
-    desired_speed_mps: float | None = None  # None: IDM v0 of the HV settings
+    desired_speed_mps: float | None = None
     length_m: float | None = None
     role: Literal["target", "adjacent", "other"] = "other"
 
@@ -268,12 +372,29 @@ class SceneSettings:
     The platoon drives in ``platoon_lane`` behind the slow ``target`` HV. HVs listed in ``hv``
     stand beside it; ``upstream_per_lane`` HVs follow, in every lane, the last vehicle of that
     lane at ``upstream_gap_m`` (paper IV-C: initial following distance of the upstream HVs 25 m).
+
+    Attributes
+    ----------
+    platoon_lane
+        Lane of the CAV platoon at the start (0: rightmost) [lane].
+    leader_front_m
+        Front bumper of the platoon's leader along the route at t = 0 [m].
+    initial_speed_mps
+        Speed of every vehicle at t = 0 [m/s].
+    initial_gap_m
+        Gap from CAV to CAV, and from the leader to the target HV, at t = 0 [m].
+    upstream_per_lane
+        HVs placed behind the platoon in each lane [vehicles].
+    upstream_gap_m
+        Gap between the upstream HVs [m].
+    upstream_speed_mps
+        Speed of the upstream HVs at t = 0 [m/s].
     """
 
     platoon_lane: int = 1
     leader_front_m: float = 300.0
-    initial_speed_mps: float = 17.5  # paper IV-C: speed of HVs 17.5 m/s
-    initial_gap_m: float = 10.0  # CAV to CAV, and leader to the target HV
+    initial_speed_mps: float = 17.5
+    initial_gap_m: float = 10.0
     upstream_per_lane: int = 5
     upstream_gap_m: float = 25.0
     upstream_speed_mps: float = 17.5
@@ -299,6 +420,14 @@ class CellLengthSettings:
     (5 + 10 = 15 m), so a platoon in consecutive rows keeps the desired 10 m gap and tracking
     errors of a few metres still leave the 5 m minimum. ``vehicle+min_gap`` gives 10 m;
     ``fixed`` uses ``cell_length_m`` as given (5.0 is the paper's IV-C value).
+
+    Attributes
+    ----------
+    rule
+        How the planner's cell length is set: CAV length plus desired gap, CAV length plus minimum
+        gap, or cell_length_m.
+    cell_length_m
+        The cell length with rule = "fixed" [m].
     """
 
     rule: Literal["vehicle+desired_gap", "vehicle+min_gap", "fixed"] = "vehicle+desired_gap"
@@ -323,15 +452,32 @@ class CaccSettings:
     d = desired_gap_m + time_gap_s * v, limited by the free-road law k_cruise * (v_cruise - v).
     Behind another CAV the free-road target rises by k_close * (gap - d) (capped at the CAV's
     max speed), so a follower that fell back can close up to a platoon cruising at v_cruise.
+
+    Attributes
+    ----------
+    k_gap
+        CACC gain on the gap error [1/s²].
+    k_speed
+        CACC gain on the speed difference to the vehicle ahead [1/s].
+    k_accel
+        CACC gain on the vehicle ahead's acceleration [1].
+    k_cruise
+        Gain towards the cruising speed on a free road [1/s].
+    k_close
+        Extra free-road speed per metre of excess gap behind a CAV [1/s].
+    time_gap_s
+        Time gap added to the desired gap [s].
+    hv_time_gap_s
+        Extra time gap when the vehicle ahead is human-driven [s].
     """
 
     k_gap: float = 0.45
     k_speed: float = 1.1
     k_accel: float = 0.3
     k_cruise: float = 0.6
-    k_close: float = 0.15  # [1/s] extra free-road speed per metre of excess gap behind a CAV
+    k_close: float = 0.15
     time_gap_s: float = 0.0
-    hv_time_gap_s: float = 0.0  # extra time gap when the vehicle ahead is human-driven
+    hv_time_gap_s: float = 0.0
 
     def __post_init__(self) -> None:
         check_positive(self, "k_gap", "k_speed", "k_cruise")
@@ -340,339 +486,258 @@ class CaccSettings:
 
 @dataclass(frozen=True)
 class SwarmSettings:
-    """When the swarm decides to overtake, and how it tracks its plan."""
+    """When the swarm decides to overtake, and how it tracks its plan.
 
-    trigger_speed_ratio: float = 0.95  # leader held below this share of the cruising speed...
-    trigger_after_s: float = 2.0  # ...for this long, by a slower vehicle ahead: overtake
-    detect_range_m: float = 60.0  # the slower vehicle must be within this gap of the leader
-    start_after_s: float = 1.0  # no overtaking decision before this time
-    # A vehicle ahead accelerating harder than this [m/s^2] is getting up to speed (after a
-    # merge), not a target.
+    Attributes
+    ----------
+    trigger_speed_ratio
+        An overtake is considered when the leader is held below this share of the cruising speed
+        [1].
+    trigger_after_s
+        ...for this long, by a slower vehicle ahead [s].
+    detect_range_m
+        The slower vehicle must be within this gap of the leader [m].
+    start_after_s
+        No overtaking decision before this simulated time [s].
+    accelerating_mps2
+        A vehicle ahead accelerating harder than this is getting up to speed, not a target [m/s²].
+    catching_up_ahead_m
+        A slow vehicle is only catching up (not a target) when it and every vehicle this far ahead
+        of it in its lane want at least the trigger speed [m].
+    progress_step_m
+        Progress of a manoeuvre includes the CAVs behind the target getting this much closer to
+        passing it [m].
+    control_interval_s
+        MPC re-solve period; in between the solved inputs are held [s].
+    control_interval_steps
+        If set, the MPC re-solve period in SUMO steps instead [steps].
+    drift_rows
+        Replan when a CAV is more than this many cells from its planned cells [rows].
+    regroup_lane
+        Lane to regroup in (none: the platoon's original lane) [lane].
+    regroup_grid_speed
+        Grid speed once every CAV is past the target: the target's speed or the cruising speed.
+    regroup_by
+        Who regroups the CAVs once all are past the target: the cell planner (the paper) or the
+        cruise mode.
+    regroup_anywhere
+        With regroup_by = "planner", a platoon in any lane counts as regrouped, not only in the
+        regroup lane.
+    hand_over_in_lane
+        Hand the pass over to the cruise once all CAVs are settled in one lane faster than the
+        plan's pace.
+    lane_pass
+        Pass in a faster lane as a unit where that beats the cell plan.
+    lane_pass_stall_s
+        A lane pass with no CAV getting out of the target's lane or past it for this long hands
+        over to the cell plan [s].
+    lane_pass_beats
+        What a free lane must beat by min_speed_gain_mps for a lane pass: the plan's pace ("cells")
+        or the lower of that and the cruise ("free").
+    max_pass_s
+        A CAV cut off from the platoon passes a slow vehicle on its own for at most this long [s].
+    pass_switch_s
+        A CAV held from its passing side this long tries the other side (0: never) [s].
+    pass_open_side_s
+        Held this long towards its passing side, a CAV switches at once to the other side when that
+        opens (0: never) [s].
+    drop_behind_s
+        A CAV held this long beside a platoon CAV slightly behind it drops back behind that CAV (0:
+        never) [s].
+    pass_intruder_mps
+        An HV that splits the platoon is passed when it drives below the cruise by
+        min_speed_gain_mps less this (0: only slow vehicles) [m/s].
+    catch_up_across_lanes
+        A cruising CAV fallen back from a platoon CAV in another lane closes up as if in the same
+        lane.
+    run_up_gap_m
+        Gap a CAV refused a lane change keeps behind a slow vehicle so it can run up to the next
+        lane's speed (0: it waits) [m].
+    entry_accel_mps2
+        Acceleration of a CAV entering a faster lane in the cruise (0: the guard assumes it keeps
+        its speed) [m/s²].
+    run_up_after_s
+        A run-up starts once the guard has held the lane change this long [s].
+    run_up_commit_s
+        A run-up goes on this long after the last step a gap would take the CAV [s].
+    run_up_drop_mps
+        Dropping back to its run-up gap, a CAV slows at most this much below the slow vehicle [m/s].
+    pull_away_after_s
+        A CAV held this long beside the platoon's lane by an HV following the platoon makes the
+        platoon pull away (0: off) [s].
+    pull_away_mps
+        How much faster the platoon cruises when it pulls away [m/s].
+    reform_switch_s
+        Where that HV follows, after this long the platoon re-forms in the held CAVs' lane (0: off)
+        [s].
+    block_assist_after_s
+        A CAV stranded behind a slow vehicle this long is helped by the platoon CAV the blocking HV
+        follows (0: off) [s].
+    block_assist_mps
+        The helping CAV slows this much below the stranded CAV [m/s].
+    min_speed_gain_mps
+        Overtake only when the swarm's speed cap exceeds the target's speed by at least this [m/s].
+    interval_rule
+        Behaving interval: long enough that a one-row move never needs a speed above the cap
+        ("drivable"), or always planner.behaving_interval_s ("fixed").
+    speed_margin_mps
+        Room kept under the speed cap for tracking [m/s].
+    replan_min_interval_s
+        At most one replan per this long unless a safety check demands one (none: one behaving
+        interval) [s].
+    retry_after_s
+        After a failed replan, wait this long before the next [s].
+    replan_every_intervals
+        Check the last plan's HV predictions every this many behaving intervals (0: only on the
+        paper's events) [intervals].
+    prediction_error_m
+        Replan when an HV in the grid is off its prediction by more than this [m].
+    give_up_no_progress_intervals
+        Give up a manoeuvre with no progress for this many behaving intervals [intervals].
+    give_up_partial_intervals
+        With some CAVs past and the others stuck, give up after this many intervals without
+        progress [intervals].
+    give_up_stranded_plans
+        Give up once this many fresh plans in a row keep some CAVs behind the target for the whole
+        horizon (0: never) [plans].
+    give_up_waiting_plans
+        Give up once this many fresh plans in a row keep every CAV behind the target waiting for
+        give_up_waiting_s (0: never) [plans].
+    give_up_waiting_s
+        The wait at the start of a plan that counts for give_up_waiting_plans [s].
+    give_up_no_plan_s
+        Give up a manoeuvre without a usable plan for this long [s].
+    cooldown_s
+        No new overtaking decision for this long after a give-up [s].
+    pass_singly_s
+        After a give-up for no progress or stranded CAVs, the leader too passes on its own for this
+        long (0: the platoon follows) [s].
+    wait_ahead_s
+        After a give-up that splits the platoon around the target, the CAVs past it wait for the
+        others up to this long (0: they drive on) [s].
+    wait_lead_m
+        Waiting, the CAVs past the target keep up to this much more room ahead of it than the CAVs
+        behind need [m].
+    pass_in_train
+        A CAV passing on its own is followed at once by the CAV behind it, as a train.
+    pass_reach_s
+        A CAV passing on its own judges the lanes beside over detect_range_m plus this many seconds
+        at the cruise [s].
+    keep_right_wait_s
+        A target that keeps right with a free lane on its right is waited for up to this long
+        before the swarm starts (0: never) [s].
+    keep_right_middle
+        A keep-right target with a lane on its left: pass on its left with its right lane closed
+        ("left"), wait for it ("wait"), or start at once on either side ("go").
+    keep_right_move_s
+        A keep-right driver is expected to move over this long after the lane to its right is free
+        for it [s].
+    keep_right_due
+        Read when the keep-right move is due from SUMO's driver state, and judge the followers
+        there as SUMO will.
+    keep_right_wish
+        While the target wants to keep right and its right lane opens within keep_right_soon_s,
+        that lane is closed to the cell plan.
+    keep_right_soon_s
+        How soon the target's right lane must open for keep_right_wish to close it [s].
+    keep_right_ahead_s
+        Nothing slower may be within this time ahead in the target's right lane for it to be judged
+        free [s].
+    max_block_s
+        An HV is held back by blockers for at most this long per manoeuvre [s].
+    max_leader_ease_mps
+        A cruising leader slows by at most this to let the platoon close up [m/s].
+    regroup_ease_mps
+        ...and by up to this when no HV follows it in its lane [m/s].
+    match_lookahead_s
+        A CAV matches the speed of the lane its reference enters this far ahead [s].
+    hold_episode_s
+        Lateral holds of one CAV closer together than this count once [s].
+    lane_end_hold_s
+        No CAV moves into a lane that ends within this time at its speed [s].
+    lane_end_escape_s
+        A CAV whose lane ends within this time heads out of it [s].
+    lane_end_min_m
+        Lane ends are looked for at least this far ahead [m].
+    lane_shift_hold_m
+        No lane change within this distance of a place where lane indices shift [m].
+    cap_decel_mps2
+        A CAV above the speed cap slows to it at this rate [m/s²].
+    in_lane_tolerance_m
+        A CAV is in a lane when within this of its centre [m].
+    """
+
+    trigger_speed_ratio: float = 0.95
+    trigger_after_s: float = 2.0
+    detect_range_m: float = 60.0
+    start_after_s: float = 1.0
     accelerating_mps2: float = 0.5
-    # A slow vehicle is only catching up (not a target) when it and every vehicle ahead of it
-    # in its lane within this [m] want at least the trigger speed (decision.only_catching_up).
     catching_up_ahead_m: float = 300.0
-    # Progress of a manoeuvre, besides CAVs past the target or out of its lane: the CAVs still
-    # behind it closer to passing it by this much in all [m] (give_up_no_progress_intervals).
     progress_step_m: float = 3.0
-    # MPC re-solve period [s]; in between, the solved inputs are applied (zero-order hold on the
-    # MPC's own 0.1 s step). 0.18 s = 6 SUMO steps at the paper's 0.03 s step: the tracking
-    # error stays at 0.07 m RMS on the paper scene and a run costs half what 0.09 s costs.
     control_interval_s: float = 0.18
-    control_interval_steps: int | None = None  # if set, the period in SUMO steps instead
-    # Replan when a CAV is more than this many cells (rows + columns) away from both its planned
-    # cell of the current behaving step and of the next one.
+    control_interval_steps: int | None = None
     drift_rows: float = 1.0
-    regroup_lane: int | None = None  # None: the platoon's original lane
-    # Grid speed once every CAV is past the target (paper II-B-1 Step 4 sets it to the front HV's
-    # speed while overtaking and to a cruising speed otherwise). "target": keep the target's
-    # speed until the swarm has regrouped (default: regroups on every network we tried);
-    # "cruise": replan in a grid moving at the cruising speed (CAVs keep more speed while they
-    # merge, but on a curved 3-lane road a CAV was left between lanes: see docs/closed-loop.md).
+    regroup_lane: int | None = None
     regroup_grid_speed: Literal["target", "cruise"] = "target"
-    # Who regroups the CAVs once every one is past the target. "planner": the cell MIP goes on
-    # until they share the regroup lane (the paper's Fig. 6, step 4). "cruise": the manoeuvre
-    # is complete when all are past, and the cruise mode re-forms the platoon in the fastest
-    # lane it occupies (lane changes through the guards, CAVs in that lane opening gaps).
-    # Default "cruise", a departure from the paper's step 4: the plan regroups in a grid moving
-    # at the target's speed, so CAVs already past it slowed to the truck's speed and below
-    # (9.6 m/s ahead of a 12 m/s truck, stress scene 95) to close up in the regroup lane. At
-    # 15ef351, stress v2: completed and regrouped 86.4 -> 87.9 % where sumo-lc passes, gain
-    # +19.6 -> +20.4 %, no scene worse by more than 0.3 points; paper-scene variants: 22 -> 29
-    # of 40 pass every check (run cost <= 3x cacc in 28 -> 37: no planning after the pass).
-    # Re-forming in the regroup lane after a pass (Reformer.prefer): the paper scene 20.49 m/s
-    # (20.54), regrouped 32.2 s after the decision (35.8 s).
     regroup_by: Literal["planner", "cruise"] = "cruise"
-    # With "planner": the manoeuvre is also complete once every CAV is past the target and they
-    # form one platoon in any lane (the check of summary.json's "regrouped"), not only in the
-    # regroup lane. A 3-lane road: all five CAVs were in the passing lane, 15 m apart, ahead of
-    # a 15 m/s truck at 30 s; the plan then cut them back in front of it at the truck's speed
-    # for 20 s. The cruise mode takes the platoon on (and moves it over as a unit if another
-    # lane is faster). False: only in the regroup lane (the paper's Fig. 6 step 4).
     regroup_anywhere: bool = True
-    # Hand the pass over to the cruise: once every CAV has left the target's lane and settled
-    # in one other lane that is faster than the target by min_speed_gain_mps, the CAVs are a
-    # platoon passing in that lane; when the lane's speed (at most the cruise) beats the
-    # plan's pace (one cell per behaving interval above the grid) by min_speed_gain_mps, the
-    # manoeuvre ends (event reason "passing_lane", not a give-up) and the cruise drives them
-    # past at the lane's pace, as SUMO's drivers pass.
-    # The plan moves them one cell per behaving interval relative to the target (5 m/s above
-    # a truck with 15 m cells and 3 s): a 3-lane road at 900 veh/h/lane had all five CAVs in
-    # the free middle lane at 20 m/s for 10 s beside a 15 m/s truck, lanes limited to 33 m/s.
-    # False: the plan leads them past and regroups them (the paper's Fig. 6).
     hand_over_in_lane: bool = True
-    # Pass in a faster lane as a unit, where that beats the cell plan: when a lane beside the
-    # leader (its speed ahead, at most the cruise) is faster than the plan's pace past the
-    # target (one cell per behaving interval above it) by min_speed_gain_mps and has room for
-    # the platoon (within detect_range_m of its ends, a platoon's length of cells per vehicle
-    # there; never the lane the target is moving into), the platoon moves over to that lane
-    # ("overtake_start" with how = "lane"), each CAV through the lateral guard, entering
-    # speeding up (entry_accel_mps2), and passes the target there at the lane's pace. Where
-    # that stalls (a CAV still in the target's lane behind it, and no CAV out of that lane
-    # or past the target for lane_pass_stall_s: no gaps) the cell plan takes over, blocking
-    # and cutting through. Users' roads (33 m/s lanes, a 15 m/s truck): 0.70-0.93x sumo-lc's
-    # CAV speed with the cells alone, 0.91-1.22x this way. False: always the cell plan (the
-    # paper's method); with the paper's 20 m/s cruise beside a 15 m/s truck the plan's pace
-    # is the cruise and the cells are kept.
     lane_pass: bool = True
     lane_pass_stall_s: float = 15.0
-    # What a *free* lane (no HV beside the platoon or faster within detect_range_m behind it)
-    # must beat by min_speed_gain_mps (decision.lane_pass_pace): "cells", the plan's pace as
-    # above; "free" (default), the lower of that and the cruise less the gain: a lane free at
-    # the cruise takes the platoon past together. With the paper's 20 m/s cruise the plan's
-    # pace (19.4 m/s past a 14.4 m/s truck) left no lane pass at all: the cells took the CAVs
-    # out one by one and the last met the stream that had come up the free lane meanwhile
-    # (stress scenes 92, 192); SUMO's drivers all changed lanes at once, 60 m behind the truck.
-    # A lane with HVs beside or behind the platoon keeps the plan's pace (with the free pace
-    # there too, a car at 17.5 m/s coming up beside the platoon made the CAVs brake to 12 m/s
-    # to let it by: stress scene 184). The paper's scene keeps its cells: HVs drive beside the
-    # platoon in both side lanes.
     lane_pass_beats: Literal["cells", "free"] = "free"
-    # A cruising CAV cut off from the platoon by a slow vehicle passes it on its own, in the
-    # faster lane beside; it gives that up after this long [s] and heads for the platoon's lane
-    # (not while it is alongside the slow vehicle in the passing lane: the pass goes on).
     max_pass_s: float = 30.0
-    # A CAV whose lane change towards its goal (the side it passes in, or the platoon's lane)
-    # the guard has refused for this long [s] in a row, with a slow vehicle ahead in its own
-    # lane, tries the lane on its other side instead (event ``passing_switch``; 0 = never): a
-    # CAV waited 30 s to pass a truck through a dense stream on its right while the lane on
-    # its left was free (paper-scene variants with 9-11 CAVs).
     pass_switch_s: float = 6.0
-    # Held towards its passing side for this long [s] already (0 = never), a CAV passing a
-    # slow vehicle switches to the other side at once when the guard would let it in there
-    # now, without waiting out pass_switch_s (not a CAV heading for the platoon's lane: it
-    # would leave that lane): a CAV held 7 s towards a stream of 18 m/s traffic on its left
-    # was still held there when the lane on its right, whose traffic had gone by, opened
-    # (held-out variants: the last CAV of five behind the truck for 60 s).
     pass_open_side_s: float = 1.0
-    # A CAV held this long [s] out of the platoon's lane beside a CAV of that lane whose front
-    # is a little behind its own drops back behind that CAV (0 = never): neither counts the
-    # other as ahead, and two CAVs at the same speed stayed side by side for 35 s (stress scenes
-    # with regroup_by = "cruise"). Not at once: a CAV passing alongside for a moment braked for
-    # nothing and slowed the CAVs behind it (stress scene 81: -1.2 m/s).
     drop_behind_s: float = 3.0
-    # An HV that splits the platoon (a platoon CAV ahead of it in its lane) is passed by the
-    # CAVs behind it when it drives below the cruise by min_speed_gain_mps less this [m/s]
-    # (and a lane beside is faster by the gain), not only when it is as slow as a target
-    # must be: it follows the platoon's front part, which eases off to close up (stress scene
-    # 187: an HV at 18 m/s between four CAVs and five, 85 m apart, never passed). 0 = only
-    # slow vehicles are passed (Reformer._splits).
     pass_intruder_mps: float = 1.0
-    # A cruising CAV that has fallen back from the platoon CAV ahead of it, that CAV in another
-    # lane, closes up as a CAV behind a CAV in its own lane does (cacc k_close per metre of
-    # excess gap, at most the speed cap; decision.straggler_cruise). False: it cruises at the
-    # platoon's speed, and a CAV that got past last, in the lane beside, stayed 150 m behind.
     catch_up_across_lanes: bool = True
-    # A CAV refused a lane change out of a slow vehicle's lane into a faster one (stranded
-    # behind the target after a give-up, or passing on its own) keeps this bumper gap [m]
-    # behind the slow vehicle, and runs up towards the next lane's speed when a gap there would
-    # take it at the speed it can reach (and still brake back behind the slow vehicle); 0 = it
-    # waits at the slow vehicle's speed. Entering a stream 8 m/s faster at the truck's speed
-    # makes the HV behind brake harder than b_safe at any gap the stream offers: stress scenes
-    # left a CAV behind a 12 m/s truck for 36 s beside a lane at 20 m/s with 45-60 m headways.
     run_up_gap_m: float = 30.0
-    # A CAV changing lanes in the cruise (re-forming, passing on its own) into a lane faster than
-    # it by min_speed_gain_mps enters speeding up at this rate [m/s^2] to that lane's speed (at
-    # most the cruise), and the lateral guard judges the HV behind by that: SUMO's drivers
-    # enter a fast lane accelerating. Only with room to speed up behind the vehicle ahead in
-    # its own lane during the lane change. 0: the guard assumes it keeps its speed.
     entry_accel_mps2: float = 1.5
-    run_up_after_s: float = 2.0  # ...once the guard has held its lane change this long [s]
-    # A run-up goes on this long [s] after the last step a gap would take the CAV (the HVs do
-    # not drive at the constant speeds the look-ahead assumes; a run-up stopped half-way is
-    # lost); dropping back to its run-up gap, a CAV slows at most run_up_drop_mps below the
-    # slow vehicle [m/s].
+    run_up_after_s: float = 2.0
     run_up_commit_s: float = 1.0
     run_up_drop_mps: float = 2.0
-    # A CAV held this long [s] next to the platoon's lane by an HV that follows the platoon
-    # there (at its speed, alongside or just behind the CAV) makes the whole platoon pull away
-    # from that HV: every CAV cruises up to pull_away_mps [m/s] faster (at most the speed cap)
-    # while the HV wants less than that, so the gap behind the CAV grows until the guard lets
-    # it in. No HV is made to brake. Without it the CAV and the HV drove side by side at the
-    # cruise for 30 s (stress scenes 17, 112: the platoon past the truck, never regrouped).
-    # 0 = off.
     pull_away_after_s: float = 3.0
     pull_away_mps: float = 3.0
-    # ...and where that HV wants more (it follows), after this long [s] the platoon re-forms in
-    # the held CAVs' lane if it cruises as fast there (lane speeds at most the cruise, within
-    # min_speed_gain_mps): the HV gets its lane back. Once per lane and edge; 0 = off.
     reform_switch_s: float = 6.0
-    # A CAV stranded behind a slow vehicle, held this long [s] out of the lane beside by an HV
-    # alongside it there, is helped by the platoon CAV that HV follows: it slows to
-    # block_assist_mps [m/s] below the stranded CAV (the paper's blocking, while cruising;
-    # Reformer._block_for_stranded). 0 = off.
     block_assist_after_s: float = 3.0
     block_assist_mps: float = 2.0
-    # Overtake only when it pays: the swarm's speed cap (cav.max_speed_mps, the CAVs' vType
-    # maxSpeed and the lane's limit for them, whichever is lowest) must exceed the target's speed
-    # by at least this much [m/s]; the incentive criterion of MOBIL, for the whole platoon.
-    # (Counted from the cap, not the cruise: passing at up to the cap, a swarm cruising at 20
-    # m/s that overtook a car at 18.3 m/s drove 17% faster than one that stayed behind it.)
-    # A car slower than the trigger speed that wants at least it, as does every vehicle ahead
-    # of it in its lane within catching_up_ahead_m, is catching up, not a target
-    # (decision.only_catching_up).
     min_speed_gain_mps: float = 2.0
-    # "drivable": each behaving interval lasts at least one cell length at (cap - speed_margin -
-    # grid speed), so a one-row move per interval never needs a speed above the cap (issue 11);
-    # "fixed": the configured planner.behaving_interval_s always (the paper's 3 s, whatever the
-    # speeds it needs: 15 m cells in 3 s need 5 m/s above the target).
     interval_rule: Literal["drivable", "fixed"] = "drivable"
-    speed_margin_mps: float = 0.3  # room under the cap for tracking [m/s]
-    # At most one replan per this long [s] unless a safety check demands one (a CAV left or
-    # appeared, a new HV whose cells conflict with the plan, the plan ran out); None = one
-    # behaving interval.
+    speed_margin_mps: float = 0.3
     replan_min_interval_s: float | None = None
-    retry_after_s: float = 1.0  # after a failed replan, wait this long before the next [s]
-    # Rolling horizon: while some CAV is still behind the target, check the last plan's HV
-    # predictions every this many behaving intervals and replan when an HV in the grid is off
-    # by more than prediction_error_m [m] (0 = only on the paper's events).
+    retry_after_s: float = 1.0
     replan_every_intervals: int = 1
     prediction_error_m: float = 4.0
-    # A manoeuvre with no progress (CAVs past the target, rows gained) for this many behaving
-    # intervals, or without a usable plan for give_up_no_plan_s, is given up: the CAVs re-form a
-    # platoon and follow; no new decision for cooldown_s.
     give_up_no_progress_intervals: int = 6
-    # With some CAVs past the target and the others stuck behind it, the ones past wait at the
-    # target's speed in the passing lane (the paper's regroup), holding that lane back: give up
-    # after this many intervals without progress instead, so they drive on and the ones behind
-    # pass on their own (2-lane-change stress scenes: three CAVs at a truck's 14.4 m/s for 20 s).
     give_up_partial_intervals: int = 3
-    # Give up once this many fresh plans in a row keep some CAVs in their cells behind the target
-    # for the whole horizon while they take the others on (0 = never): the planner sees no way
-    # past for them, and the CAVs past waited at the target's speed in the passing lane. After
-    # the give-up the CAVs past drive on and the ones behind pass on their own, through the
-    # guards (a 3-lane road at 900 veh/h/lane: two CAVs stranded from 14 s to 42 s).
     give_up_stranded_plans: int = 2
-    # Give up once this many fresh plans in a row keep every CAV still behind the target in
-    # its cell for the first give_up_waiting_s [s] (0 = never; reason "no_way_past"): the cell
-    # planner sees a gap only that far ahead, if at all. Where a plan waited 24 s for a gap in
-    # a stream 6 m/s faster than the target, the swarm gave up after 18 s without progress and
-    # the CAVs then passed one by one through the guards within 5 s (stress v2: 27 first plans
-    # waited 12 s or more; 25 of them ended in no_progress, 6 regrouped). While a plan waits
-    # the swarm asks again every behaving interval (HVs entering the grid bring new gaps).
     give_up_waiting_plans: int = 2
     give_up_waiting_s: float = 12.0
     give_up_no_plan_s: float = 10.0
     cooldown_s: float = 15.0
-    # After a give-up for no progress or stranded CAVs (not after failed plans: the platoon
-    # then follows, the safe fallback) the leader too passes the target on its own for this
-    # long [s] (the others already do, each once the CAV ahead is past), through the lateral
-    # guard; 0 = the platoon follows the target until the next decision. Where the cells find
-    # no way past together (a stream 15 m/s faster than the target in every other lane: 900
-    # veh/h/lane), the CAVs get past as SUMO's own drivers do, one gap at a time, and re-form
-    # ahead.
     pass_singly_s: float = 60.0
-    # After a give-up that leaves the target between CAVs past it and CAVs behind it, the CAVs
-    # past it wait for the others up to this long [s] (0 = they drive on): they re-form in its
-    # lane ahead of it, where they hold up nobody but it, and keep its speed once they are
-    # wait_lead_m ahead of the room the CAVs behind need to get in ahead of it (each a CAV
-    # length plus cav.desired_gap_m, plus the target's secure gap by its model); the CAVs
-    # behind it keep their lanes and pass it as they can, in any lane beside once the wait has
-    # lasted pass_switch_s. The wait ends once every CAV is past and in one lane. Driving on,
-    # the CAVs past were 190 m ahead when the last one got by, and the platoon was still in
-    # two lanes when the run ended (variants 24, 27, 39). A choice of ours (the paper's swarm
-    # never gives up): while it lasts, the CAVs past the target lose their speed above it.
     wait_ahead_s: float = 45.0
-    # Waiting, the CAVs past the target keep up to this much more room [m] ahead of it than the
-    # CAVs behind need (they slow to its speed only beyond it; cacc.k_close per metre): a CAV
-    # that gets past soon after the give-up costs the others nothing, and one that gets past
-    # late has this much to close at its catch-up speed. 0 = they hold just the room needed
-    # (an earlier form of the wait, measured both ways: at 0, 34 variants passing the
-    # overtake check and a mean CAV speed of 17.56 m/s; at 50 m, 33 and 17.71 m/s).
     wait_lead_m: float = 50.0
-    # A CAV passing on its own is followed at once by the CAV behind it, in the same lane, once
-    # its centre is in that lane (a train, as SUMO's drivers overtake); false = each CAV starts
-    # its pass only once the CAV ahead is past the slow vehicle (5-6 s a CAV: platoons of 9-12
-    # that gave up were still in two lanes 50 s later).
     pass_in_train: bool = True
-    # A CAV passing a slow vehicle on its own judges the lanes beside over detect_range_m plus
-    # this many seconds at the cruise [s]: the pass takes that long, and a slower vehicle just
-    # beyond detect_range_m holds it there (variant 23: three CAVs passing a queued car in the
-    # truck's lane, the truck 94 m ahead, ended behind the truck for 20 s and the platoon never
-    # regrouped). 0 = detect_range_m only (the former rule; it passed 6 s sooner in one
-    # held-out stress scene, where a car 2 m/s faster drove 100 m ahead in the passing lane).
     pass_reach_s: float = 5.0
-    # A target that keeps right (its lane-change model's lcKeepRight > 0 and its lane-change
-    # mode allows right-drive changes, read through libsumo) with the lane to its right free
-    # is waited for up to this long [s] before the swarm starts: SUMO's drivers move over
-    # within seconds, and a swarm that had started lost more re-forming than the plain platoon
-    # lost waiting (13 stress scenes where the truck moved right at 8 s into the lane of the
-    # CAV passing on its right: 1-7 % slower than cacc). For a target in the leftmost lane
-    # (every pass of it takes the lane it is to move into), once seen so, the wait holds even
-    # while that lane is taken for a moment (a car passing there): the swarm that started
-    # then, 2 s in, filled the lane the truck was to move to, and the truck moved only at
-    # 22 s, into a CAV's lane (stress scene 51, 3.8 % slower than cacc, whose truck moved at
-    # 8 s). Not for a target with a lane on its left: there the swarm that passed at once was
-    # faster than waiting (a paper-scene variant). 0 = start after trigger_after_s whatever
-    # the target may do (the paper's HVs keep their lanes).
     keep_right_wait_s: float = 10.0
-    # A target that keeps right with a lane on its left (not in the leftmost lane): "left", the
-    # swarm starts at once and passes it on its left: its right lane, beside and behind it, is
-    # closed to the cell plan while that lane is free for it to move into (up to
-    # keep_right_wait_s from the start; plans.jsonl: "closed_lane"); "wait", waited for as one
-    # in the leftmost lane; "go", started at once on either side. Waiting tied the plain platoon
-    # exactly where a truck in the middle lane moved right 7-8 s in (stress v2: 10 scenes;
-    # paper-scene variants 20, 21, 35); going at once on either side beat it by 1.2-2.9 % in
-    # those, but a CAV put in the truck's right lane was cut off by it (stress scene 182, 3.2 %
-    # slower than cacc).
     keep_right_middle: Literal["left", "wait", "go"] = "left"
-    # A keep-right driver starts moving over this long [s] after the lane to its right is free
-    # for it (SUMO's LC2013/SL2015: the wish builds over KEEP_RIGHT_TIME = 5 s at lcKeepRight
-    # 1), if the follower there is then at least at its secure gap: the swarm waits for it only
-    # where that holds with the follower closing in at its speed till then, and nothing slower
-    # is within keep_right_ahead_s [s] ahead there (decision.right_lane_free).
     keep_right_move_s: float = 5.0
-    # keep_right_due: the move comes sooner where SUMO's driver model says its wish will show
-    # sooner: its keepRightProbability, read through libsumo, builds up towards the threshold
-    # (decision.keep_right_due_s), and a driver that has built it up for 3 s moves 2 s later.
-    # Each follower there is then judged as SUMO's lane-change check will see it: its own
-    # minGap (not the CAVs' min_gap_m), and, speeding up, at its speed then. Judged 5 s ahead
-    # with 5 m, a truck in the middle lane whose wish was 2 s away, with a car closing in at
-    # 2.9 m/s 62 m behind it on its right, was judged unable to move over: the plan sent a
-    # blocker into that lane, and the truck, which moved over at 7 s under cacc and sumo-lc,
-    # stayed in the platoon's way until 17 s (a fresh variant of seed 23, 1 % slower than
-    # cacc). false: keep_right_move_s from now with min_gap_m, whatever SUMO's state (and for
-    # LC2013, whose reading is a whole number, always).
     keep_right_due: bool = True
-    # With "left": while the target's driver wants to move right to keep right (SUMO's
-    # lane-change state, read through libsumo: the wish it shows while that lane is taken, a
-    # stream passing), its right lane is closed to the cell plan too, as long as the wish
-    # lasts and that lane will open for it within keep_right_soon_s [s] (the HVs there driving
-    # on at their speeds: decision.right_lane_opens_within). CAVs passing a truck on its right
-    # just after a stream kept it from moving over (held-out variants 6, 8 and 24: 0.08-0.40
-    # m/s slower than cacc; with 10 s, 6 is 0.19 faster, 8 and 24 are 0.11 and 0.25 slower).
-    # Closed for as long as the wish lasted (keep_right_soon_s = 0), 8 passed too, but three
-    # others whose stream went on for 60-90 s lost 1.2-1.7 m/s (10 s: at most 0.48).
-    # keep_right_wish = false: the former rule, closed only while free, within
-    # keep_right_wait_s of the start.
     keep_right_wish: bool = True
     keep_right_soon_s: float = 10.0
     keep_right_ahead_s: float = 4.0
-    # An HV is held back by blockers for at most this long per manoeuvre [s] (the impact on
-    # the traffic behind is bounded; the swarm gives up rather than hold a lane forever).
     max_block_s: float = 30.0
-    max_leader_ease_mps: float = 2.0  # a cruising leader slows by at most this to close up [m/s]
-    # ...and by up to this [m/s] when what follows it in its lane is a CAV of the platoon or
-    # nothing within detect_range_m (no HV held back): CAVs that passed one by one in a lane
-    # at the cap (users' 33 m/s roads) closed a 130 m stretch at 2 m/s in 65 s.
+    max_leader_ease_mps: float = 2.0
     regroup_ease_mps: float = 5.0
-    # A CAV matches the speed of the lane its reference enters this far ahead [s].
     match_lookahead_s: float = 2.0
-    hold_episode_s: float = 1.0  # lateral holds of one CAV closer together count once [s]
-    # Lanes that end (an on-ramp's acceleration lane, a lane drop): no CAV moves into a lane
-    # that ends within lane_end_hold_s at its speed, and a CAV whose lane ends within
-    # lane_end_escape_s heads out of it (left first), both looking at least lane_end_min_m ahead
-    # (an acceleration lane of netbuild's motorway is 250 m). No lane change within
-    # lane_shift_hold_m [m] of a place where lane indices shift (a lane added or dropped on the
-    # right): the vehicles on either side count their lanes differently there.
+    hold_episode_s: float = 1.0
     lane_end_hold_s: float = 12.0
     lane_end_escape_s: float = 8.0
     lane_end_min_m: float = 300.0
     lane_shift_hold_m: float = 40.0
-    # A CAV above the speed cap (it departed faster, a lower limit ahead) slows to it at this
-    # rate [m/s^2], never by a jump in the commanded speed (SUMO would brake at its decel).
     cap_decel_mps2: float = 2.0
-    in_lane_tolerance_m: float = 0.3  # a CAV is "in" a lane within this of its centre [m]
+    in_lane_tolerance_m: float = 0.3
 
     def __post_init__(self) -> None:
         check_positive(
@@ -710,6 +775,7 @@ class SwarmSettings:
             "pass_intruder_mps",
         )
         check_fields(self, "give_up_no_progress_intervals", "give_up_partial_intervals", ge=1)
+        check_fields(self, "regroup_lane", "replan_every_intervals", ge=0, integer=True)
 
 
 @dataclass(frozen=True)
@@ -725,22 +791,34 @@ class HvModelSettings:
     the guard, which checks the true speeds against ``b_safe_mps2``, rarely has to refuse.
 
     ``margin_rule = "headway"`` keeps the paper's constant headway instead (grid.headway_s).
+
+    Attributes
+    ----------
+    b_safe_mps2
+        The hardest an HV may be made to brake by a CAV entering ahead of it [m/s²].
+    planner_share
+        Share of b_safe the planner's margins allow [1].
+    target_b_mps2
+        The swarm regroups ahead of the target no closer than where the target would brake harder
+        than this [m/s²].
+    block_decel_share
+        A blocker entering at a faster lane's speed slows that lane at this share of b_safe [1].
+    entry_speed_gain_mps
+        A CAV entering a faster lane speeds up by up to this much above the grid's speed first
+        [m/s].
+    margin_rule
+        Entry margins from the HV's car-following model ("model") or from a time headway
+        ("headway").
+    predictor
+        How HVs are predicted: by their car-following model, or at constant speed.
+    prediction_dt_s
+        Time step of the HV prediction [s].
     """
 
     b_safe_mps2: float = 2.0
     planner_share: float = 0.7
-    # The swarm regroups in front of the target no closer than where the target would brake
-    # harder than this [m/s^2]: past it, the swarm must not hold the slow vehicle back.
     target_b_mps2: float = 0.3
-    # A blocker that enters at a faster lane's speed then slows it at this share of the
-    # planner's b_safe.
     block_decel_share: float = 0.7
-    # Entry margins in front of an HV faster than the grid: a CAV speeds up towards that lane's
-    # speed before it changes lanes (the tracker's speed matching), by up to this much above the
-    # grid's speed [m/s], and then slows the lane to the grid's speed as a blocker does. The
-    # margin is the gap at which the HV, reacting by its model, brakes no harder than b for
-    # that whole entry; much smaller than for an entry at the grid's speed, so CAVs fit into the
-    # gaps of a faster lane. 0: an entry at the grid's speed (the previous rule).
     entry_speed_gain_mps: float = 3.0
     margin_rule: Literal["model", "headway"] = "model"
     predictor: Literal["car-following", "constant-speed"] = "car-following"
@@ -779,19 +857,36 @@ class PlatoonSettings:
 
     ``grouping = "one"``: every CAV of the run is one swarm (the paper's scene; the behaviour
     before many swarms).
+
+    Attributes
+    ----------
+    grouping
+        Form platoons of nearby CAVs as they meet ("many") or one platoon of every CAV ("one").
+    join_gap_m
+        A CAV within this gap of a platoon in its lane joins it [m].
+    max_size
+        Largest platoon [CAVs].
+    split_gap_m
+        A platoon splits where a gap between its CAVs grows beyond this [m].
+    review_every_s
+        How often the platoons are reviewed (joins, splits) [s].
+    exit_reach_s
+        A CAV whose route leaves the platoon's leaves the platoon this long before the parting
+        point [s].
+    exit_reach_min_m
+        ...and at least this far before it [m].
+    manoeuvre_clearance_m
+        A swarm starts an overtake only where no other swarm's manoeuvre is within this distance
+        [m].
     """
 
     grouping: Literal["many", "one"] = "many"
     join_gap_m: float = 60.0
-    # 12: the largest platoon of the paper's scene family (2-12 CAVs, scenarios/variants.toml)
-    # stays one swarm, as before many swarms
     max_size: int = 12
     split_gap_m: float = 150.0
     review_every_s: float = 1.0
     exit_reach_s: float = 25.0
     exit_reach_min_m: float = 600.0
-    # A swarm starts an overtake only where no other swarm's manoeuvre (its CAVs, its target,
-    # its grid) is within this distance [m]: two swarms' grids never overlap.
     manoeuvre_clearance_m: float = 100.0
 
     def __post_init__(self) -> None:
@@ -800,8 +895,7 @@ class PlatoonSettings:
             "exit_reach_min_m",
         )  # fmt: skip
         require_number("manoeuvre_clearance_m", self.manoeuvre_clearance_m, ge=0.0)
-        if self.max_size < 1:
-            raise ConfigError(f"max_size must be >= 1 CAV, got {self.max_size}")
+        check_fields(self, "max_size", ge=1)
         if self.split_gap_m < self.join_gap_m:
             raise ConfigError(
                 f"split_gap_m ({self.split_gap_m}) must be >= join_gap_m ({self.join_gap_m})"
@@ -872,44 +966,71 @@ class CorridorSettings:
     speed. Times: flows run from 0 to ``simulation.duration_s``; the road starts empty (about
     ``length_m`` / 30 m/s to fill), so a study measures after a warm-up (``[evaluation]
     start_s``; the window is the whole run unless ``[evaluation]`` sets it).
+
+    Attributes
+    ----------
+    length_m
+        Length of the main road [m].
+    lanes
+        Through lanes (the swarm needs 2 or more) [lanes].
+    speed_limit_mps
+        Speed limit of the main road [m/s].
+    lane_width_m
+        Lane width [m].
+    on_ramp_positions_m
+        Where each on-ramp's acceleration lane begins, from the upstream end, in order [m].
+    on_ramp_demands_vph
+        Demand of each on-ramp, one per position [veh/h].
+    off_ramp_positions_m
+        Where each off-ramp's deceleration lane ends, from the upstream end, in order [m].
+    off_ramp_shares
+        Share of the main-road traffic just upstream of each off-ramp that leaves there [1].
+    accel_lane_m
+        Length of an on-ramp's acceleration lane [m].
+    decel_lane_m
+        Length of an off-ramp's deceleration lane [m].
+    ramp_length_m
+        Length of each ramp's own edge [m].
+    ramp_speed_limit_mps
+        Speed limit on the ramps [m/s].
+    main_demand_vph_per_lane
+        Demand at the upstream end, per through lane [veh/h].
+    cav_share
+        Share of CAVs in every demand [1].
+    truck_share
+        Share of trucks in every demand [1].
+    truck_desired_speed_mps
+        Trucks' desired speed, times SUMO's speed factor [m/s].
+    truck_max_speed_mps
+        Trucks' maximum speed [m/s].
+    speed_dev
+        SUMO's speed-factor spread of cars and trucks [1].
+    arrivals
+        Departures at random (exponential headways, "poisson") or evenly spaced ("uniform").
     """
 
-    # The road. Positions are metres from the upstream end along the main road.
     length_m: float = 6000.0
-    lanes: int = 3  # through lanes (the swarm needs 2 or more)
-    speed_limit_mps: float = 33.33  # 120 km/h, a common European motorway limit
-    lane_width_m: float = 3.5  # the usual motorway lane (RAA, AASHTO ~3.6 m); SUMO's default 3.2
-    # Where each on-ramp joins, i.e. its acceleration lane begins (the merge nose), in order.
-    on_ramp_positions_m: tuple[float, ...] = ()
-    # veh/h entering from each on-ramp (one per on-ramp position).
-    on_ramp_demands_vph: tuple[float, ...] = ()
-    # Where each off-ramp leaves, i.e. its deceleration lane ends (the diverge nose), in order.
-    off_ramp_positions_m: tuple[float, ...] = ()
-    # Share (0..1) of the traffic passing on the main road just upstream of each off-ramp that
-    # leaves there (a turning ratio: it applies to the main demand and to earlier on-ramps'
-    # traffic alike; traffic entering downstream of an off-ramp cannot take it).
-    off_ramp_shares: tuple[float, ...] = ()
-    # Parallel-type ramp lanes: 250 m is the usual acceleration lane of German (RAA, E1) and
-    # similar guidelines; the deceleration lane is taken as long. Ramps are one lane.
+    lanes: int = 3
+    speed_limit_mps: float = 33.33
+    lane_width_m: float = 3.5
+    on_ramp_positions_m: tuple[float, ...] = field(
+        default=(), metadata={"range": "each > 0, on the road"}
+    )
+    on_ramp_demands_vph: tuple[float, ...] = field(default=(), metadata={"range": "each >= 0"})
+    off_ramp_positions_m: tuple[float, ...] = field(
+        default=(), metadata={"range": "each > 0, on the road"}
+    )
+    off_ramp_shares: tuple[float, ...] = field(default=(), metadata={"range": "each >= 0 and <= 1"})
     accel_lane_m: float = 250.0
     decel_lane_m: float = 250.0
-    ramp_length_m: float = 300.0  # each ramp's own edge, off the main road
-    ramp_speed_limit_mps: float = 22.22  # 80 km/h on the ramps
-    # The traffic.
-    main_demand_vph_per_lane: float = 1500.0  # at the upstream end [veh/h per through lane]
-    cav_share: float = 0.2  # of every demand (main and ramps); CAVs are cars
-    truck_share: float = 0.15  # of every demand; the usual heavy-vehicle share of a motorway
-    # Trucks are semi-trailers (SUMO's vClass "trailer": 16.5 m, accel 1 m/s^2). Their desired
-    # speed is truck_desired_speed_mps times SUMO's speed factor (mean 1, spread speed_dev: about
-    # 20.7-25 m/s), capped at truck_max_speed_mps: the EU's 80 km/h truck limit as trucks drive
-    # it (about 83 km/h) and the 90 km/h speed limiter (EU directive 92/6/EEC).
+    ramp_length_m: float = 300.0
+    ramp_speed_limit_mps: float = 22.22
+    main_demand_vph_per_lane: float = 1500.0
+    cav_share: float = 0.2
+    truck_share: float = 0.15
     truck_desired_speed_mps: float = 23.0
     truck_max_speed_mps: float = 25.0
-    # SUMO's speed-factor spread (its default 0.1) of cars and trucks; the run's
-    # --default.speeddev 0 would otherwise take it away. CAVs keep one speed (their vType).
     speed_dev: float = 0.1
-    # Departures: "poisson" (exponential headways: random arrivals, as traffic counts show) or
-    # "uniform" (evenly spaced vehicles of each flow).
     arrivals: Literal["poisson", "uniform"] = "poisson"
 
     def __post_init__(self) -> None:
@@ -1002,7 +1123,13 @@ class Scenario:
 
     @property
     def network_path(self) -> Path:
-        return (self.path.parent / self.simulation.network).resolve()
+        """The network file, relative to the scenario file; where there is none, the built-in
+        network of that file name (so a copy of the paper's scenario runs wherever it is)."""
+        beside = (self.path.parent / self.simulation.network).resolve()
+        if beside.is_file():
+            return beside
+        built_in = BUILT_IN_NETWORKS / Path(self.simulation.network).name
+        return built_in if built_in.is_file() else beside
 
     @property
     def cell_length_m(self) -> float:
@@ -1014,6 +1141,10 @@ def union_members(tp: Any) -> tuple[Any, ...]:
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
         return typing.get_args(tp)
     return (tp,)
+
+
+# The networks installed with the package (sumo_swarm/data), by file name.
+BUILT_IN_NETWORKS = Path(__file__).resolve().parent / "data"
 
 
 # Each section's settings class (an optional section, such as [corridor], by its class).

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from sumo_swarm.checks import check_fields, require_number
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.errors import ConfigError
 
@@ -69,24 +70,15 @@ class GridSettings:
         _require_non_negative("headway_s", self.headway_s)
         _require_non_negative("gap_behind_m", self.gap_behind_m)
         _require_non_negative("lateral_overlap_m", self.lateral_overlap_m)
-        if self.rows_ahead is not None and (
-            isinstance(self.rows_ahead, bool)
-            or not isinstance(self.rows_ahead, int)
-            or self.rows_ahead < 0
-        ):
-            raise ConfigError(
-                f"GridSettings.rows_ahead must be None or an integer >= 0, got {self.rows_ahead!r}"
-            )
+        check_fields(self, "rows_ahead", ge=0, integer=True)
 
 
 def _require_positive(name: str, value: float) -> None:
-    if not _is_number(value) or not value > 0.0:
-        raise ConfigError(f"GridSettings.{name} must be a finite number > 0, got {value!r}")
+    require_number(f"GridSettings.{name}", value, gt=0.0)
 
 
 def _require_non_negative(name: str, value: float) -> None:
-    if not _is_number(value) or value < 0.0:
-        raise ConfigError(f"GridSettings.{name} must be a finite number >= 0, got {value!r}")
+    require_number(f"GridSettings.{name}", value, ge=0.0)
 
 
 def _is_number(value: object) -> bool:

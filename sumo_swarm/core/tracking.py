@@ -58,6 +58,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sumo_swarm.checks import require_number, require_order
 from sumo_swarm.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -88,6 +89,19 @@ class OsqpSettings:
 
     ``check_termination`` = 5 (OSQP's default is 25): a warm-started MPC call converges in
     about 10-20 iterations, so checking every 25 would run at least 25.
+
+    Attributes
+    ----------
+    eps_abs
+        OSQP absolute tolerance [1].
+    eps_rel
+        OSQP relative tolerance [1].
+    max_iter
+        OSQP iteration limit [iterations].
+    polish
+        OSQP solution polishing.
+    check_termination
+        OSQP checks for termination every this many iterations [iterations].
     """
 
     eps_abs: float = 1e-4
@@ -112,7 +126,7 @@ class LongitudinalSettings:
     dt_s
         Prediction step [s].
     horizon
-        Number of steps K.
+        Number of steps K [steps].
     q_s, q_v, r_lon
         Weights on the position error [1/m^2], speed error [s^2/m^2] and acceleration
         [s^4/m^2]. The paper gives no values; ours are 1, 2 and 1. These take out a speed
@@ -153,11 +167,9 @@ class LongitudinalSettings:
         _require_positive(name, "r_lon", self.r_lon)
         _require_order(name, "v_min", self.v_min, "v_max", self.v_max)
         _require_order(name, "a_min", self.a_min, "a_max", self.a_max)
-        if not self.a_min <= self.fallback_accel_mps2 <= self.a_max:
-            raise ConfigError(
-                f"{name}.fallback_accel_mps2 must lie in [a_min, a_max], "
-                f"got {self.fallback_accel_mps2!r}"
-            )
+        fallback = f"{name}.fallback_accel_mps2"
+        require_order(f"{name}.a_min", self.a_min, fallback, self.fallback_accel_mps2, strict=False)
+        require_order(fallback, self.fallback_accel_mps2, f"{name}.a_max", self.a_max, strict=False)
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,7 +181,7 @@ class LateralSettings:
     dt_s
         Time per prediction step [s]; the caller passes ``ds = v * dt_s`` to ``solve``.
     horizon
-        Number of steps K.
+        Number of steps K [steps].
     q_l, q_phi, r_lat
         Weights on the lateral error [1/m^2], yaw error [1/rad^2] and front-wheel angle
         [1/rad^2].
@@ -759,19 +771,13 @@ def _elapsed_ms(started: float) -> float:
 
 
 def _require_positive(owner: str, name: str, value: float, *, allow_zero: bool = False) -> None:
-    ok = math.isfinite(value) and (value >= 0.0 if allow_zero else value > 0.0)
-    if not ok:
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ConfigError(f"{owner}.{name} must be {bound}, got {value!r}")
+    bound = {"ge": 0.0} if allow_zero else {"gt": 0.0}
+    require_number(f"{owner}.{name}", value, **bound)
 
 
 def _require_int(owner: str, name: str, value: object) -> None:
-    if not isinstance(value, int) or isinstance(value, bool):
-        raise ConfigError(f"{owner}.{name} must be an int, got {value!r}")
+    require_number(f"{owner}.{name}", value, integer=True)
 
 
 def _require_order(owner: str, low_name: str, low: float, high_name: str, high: float) -> None:
-    if not (math.isfinite(low) and math.isfinite(high) and low < high):
-        raise ConfigError(
-            f"{owner}.{low_name} must be < {owner}.{high_name}, got {low!r} and {high!r}"
-        )
+    require_order(f"{owner}.{low_name}", low, f"{owner}.{high_name}", high)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
+import typing
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -21,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from sumo_swarm.checks import require_number
+from sumo_swarm.checks import check_fields, require_number
 from sumo_swarm.core.grid import (
     Cell,
     ConstantSpeedPredictor,
@@ -36,9 +37,12 @@ from sumo_swarm.core.grid import (
 from sumo_swarm.core.model import VehicleState
 from sumo_swarm.errors import ConfigError
 
-BACKENDS = ("cp-sat", "scip")
-TARGET_FORMS = ("paper", "distance")
-DELTA_MODES = ("swarm", "cav")
+Backend = Literal["cp-sat", "scip"]
+TargetForm = Literal["paper", "distance"]
+DeltaMode = Literal["swarm", "cav"]
+BACKENDS: tuple[str, ...] = typing.get_args(Backend)
+TARGET_FORMS: tuple[str, ...] = typing.get_args(TargetForm)
+DELTA_MODES: tuple[str, ...] = typing.get_args(DeltaMode)
 
 
 class PlanStatus(str, Enum):  # noqa: UP042 - the integrator asked for str + Enum
@@ -59,6 +63,15 @@ class PlannerWeights:
     ``target_form="distance"``); a move of one row costs ``2 * w_lon`` and a move of one
     column ``2 * w_lat`` (the one-hot squared differences of eq. (5) sum to 2 per move); a CAV
     ``d`` columns off the regroup lane costs ``w_lat * d**2`` per step once no CAV is impeded.
+
+    Attributes
+    ----------
+    w_tar
+        Cost per CAV per step (or row) behind the goal region, eq. (5) [1].
+    w_lon
+        Half the cost of a move of one row, eq. (5) [1].
+    w_lat
+        Half the cost of a move of one column, eq. (5) [1].
     """
 
     w_tar: float = 30.0
@@ -67,16 +80,7 @@ class PlannerWeights:
 
     def __post_init__(self) -> None:
         for name in ("w_tar", "w_lon", "w_lat"):
-            value = getattr(self, name)
-            if (
-                not isinstance(value, int | float)
-                or isinstance(value, bool)
-                or not math.isfinite(value)
-                or value < 0
-            ):
-                raise ConfigError(
-                    f"PlannerWeights.{name} must be a finite number >= 0, got {value!r}"
-                )
+            require_number(f"PlannerWeights.{name}", getattr(self, name), ge=0.0)
 
 
 @dataclass(frozen=True)
@@ -99,14 +103,14 @@ class PlannerSettings:
         wall time: with CP-SAT alone, raise this to keep its plans load-independent; the
         ``scip`` backend, a cross-check without the network search, needs ~1 s).
     work_limit
-        CP-SAT's deterministic time budget of one solve (its own work units, about 2-3 s of
+        CP-SAT's deterministic time budget of one solve [CP-SAT work units] (about 2-3 s of
         wall time per unit on the project's machine): the plan returned is the same however
         loaded the machine is, so runs are reproducible. 0.25 covers every solve measured on
         the paper scene (at most 0.1) with room; ``None``: the wall budget only.
     weights
         :class:`PlannerWeights`, or a mapping with keys ``w_tar``, ``w_lon``, ``w_lat``.
     regroup_lane
-        Lane ``l_index`` to regroup in; ``None`` = the target HV's lane (the lane where the
+        Lane ``l_index`` to regroup in [lane]; ``None`` = the target HV's lane (the lane where the
         platoon was impeded, i.e. its original lane).
     target_form
         ``"paper"``: ``w_tar`` per step behind the goal region (eq. (5)); ``"distance"``:
@@ -121,7 +125,7 @@ class PlannerSettings:
         (the prediction of the blocked HV follows the blocker, see the swarm's manoeuvre).
         ``"auto"``: one step per CAV still to cut through behind the blocker.
     max_blockers
-        How many front CAVs may be assigned as blockers (one per adjacent lane).
+        How many front CAVs may be assigned as blockers (one per adjacent lane) [CAVs].
     release_idle_holds
         A hold is *idle* when no CAV still to pass the target, in a lane beside the HV's, is
         more than ``idle_hold_rows`` ahead of that HV (:func:`hold_useful`): the space in
@@ -153,9 +157,10 @@ class PlannerSettings:
         from 13.4 to 12.8 m/s (IDM brakes for a car 25 m ahead at its own speed), and the CAVs
         behind it fell back out of the grid (repository variant 17). 0: merge anywhere.
     num_workers
-        CP-SAT search workers (keep 1 on a shared machine).
+        CP-SAT search workers (keep 1 on a shared machine) [threads].
     network_work
-        Work budget of the exact network search (:mod:`sumo_swarm.core.planner.network`:
+        Work budget [arcs x flows] of the exact network search
+        (:mod:`sumo_swarm.core.planner.network`:
         min-cost flows, branch and bound over the paper's delta) run before CP-SAT: flows are
         solved while the sum of their networks' arc counts stays within it (a flow costs about
         1.5 us of cpu per arc). A problem with every delta fixed takes one flow and is proved
@@ -174,7 +179,7 @@ class PlannerSettings:
         infeasibility) and CP-SAT is not called. A count, not a time: the plan does not depend
         on the machine's load. 0: CP-SAT only, as before.
     network_ref_cavs
-        The CAV count ``network_work`` is meant for: above it a search that has found a plan
+        The CAV count ``network_work`` is meant for [CAVs]: above it a search that has found a plan
         stops at ``network_work * network_ref_cavs / n_cavs`` (one without a plan goes on
         within ``network_work``: a 12-CAV problem found none in 3 flows). A flow carries one
         augmenting path per CAV, so its cost grows with both arcs and CAVs: 10-CAV stress
@@ -191,13 +196,13 @@ class PlannerSettings:
 
     n_steps: int = 14
     behaving_interval_s: float = 3.0
-    backend: str = "cp-sat"
+    backend: Backend = "cp-sat"
     time_limit_s: float = 0.25
     work_limit: float | None = 0.25
     weights: PlannerWeights = field(default_factory=PlannerWeights)
     regroup_lane: int | None = None
-    target_form: str = "distance"
-    delta_mode: str = "swarm"
+    target_form: TargetForm = "distance"
+    delta_mode: DeltaMode = "swarm"
     block_steps: int | Literal["auto"] = 1
     max_blockers: int = 2
     release_idle_holds: bool | Literal["stranded"] = False
@@ -242,20 +247,9 @@ class PlannerSettings:
                 f"PlannerSettings.block_steps must be < n_steps ({self.n_steps}), "
                 f"got {self.block_steps}"
             )
-        if self.work_limit is not None and not (
-            isinstance(self.work_limit, int | float) and math.isfinite(self.work_limit)
-            and self.work_limit > 0
-        ):  # fmt: skip
-            raise ConfigError(f"PlannerSettings.work_limit must be > 0, got {self.work_limit!r}")
+        check_fields(self, "work_limit", gt=0.0)
         for name in ("behaving_interval_s", "time_limit_s"):
-            value = getattr(self, name)
-            if (
-                not isinstance(value, int | float)
-                or isinstance(value, bool)
-                or not math.isfinite(value)
-                or value <= 0
-            ):
-                raise ConfigError(f"PlannerSettings.{name} must be a number > 0, got {value!r}")
+            require_number(f"PlannerSettings.{name}", getattr(self, name), gt=0.0)
         if self.backend not in BACKENDS:
             raise ConfigError(
                 f"PlannerSettings.backend must be one of {BACKENDS}, got {self.backend!r}"
@@ -269,13 +263,11 @@ class PlannerSettings:
             raise ConfigError(
                 f"PlannerSettings.delta_mode must be one of {DELTA_MODES}, got {self.delta_mode!r}"
             )
-        if self.regroup_lane is not None:
-            _require_int("regroup_lane", self.regroup_lane, minimum=0)
+        check_fields(self, "regroup_lane", ge=0, integer=True)
 
 
 def _require_int(name: str, value: object, minimum: int) -> None:
-    if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
-        raise ConfigError(f"PlannerSettings.{name} must be an integer >= {minimum}, got {value!r}")
+    require_number(f"PlannerSettings.{name}", value, ge=minimum, integer=True)
 
 
 @dataclass(frozen=True)

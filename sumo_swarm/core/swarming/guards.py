@@ -14,54 +14,64 @@ towards a CAV counts early.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
+from sumo_swarm.checks import check_fields
 from sumo_swarm.core.hvmodel import DriverModel, accepts_entry
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import vehicle_ahead, vehicle_behind, within
-from sumo_swarm.errors import ConfigError
 
 
 @dataclass(frozen=True)
 class GuardSettings:
-    """Gains and thresholds of the guards (scenario section ``[guards]``)."""
+    """Gains and thresholds of the guards (scenario section ``[guards]``).
 
-    gap_gain: float = 0.8  # [1/s^2] gap guard: a <= k_g (gap - d) + k_v (v_ahead - v)
-    speed_gain: float = 1.5  # [1/s]
-    gap_extra_m: float = 1.0  # the gap guard aims this far beyond the minimum gap [m]
-    lane_probe_m: float = 0.9  # a move enters the next lane once the CAV's side would [m]
-    match_gain: float = 1.0  # [1/s] speed matching before entering a faster lane
-    follower_range_m: float = 60.0  # an HV this close behind makes a CAV brake gently [m]
-    # A lateral move never brings a CAV's side closer than this to a vehicle alongside it [m]
-    # (whatever lane that vehicle is in: HVs stop straddling a lane boundary); 0 = off.
+    Attributes
+    ----------
+    gap_gain
+        Gap guard gain on the gap error [1/s²].
+    speed_gain
+        Gap guard gain on the speed difference [1/s].
+    gap_extra_m
+        The gap guard aims this far beyond the minimum gap [m].
+    lane_probe_m
+        A lateral move enters the next lane once the CAV's side would be this far across [m].
+    match_gain
+        Gain of the speed matching before entering a faster lane [1/s].
+    follower_range_m
+        An HV this close behind makes a CAV brake gently [m].
+    side_clearance_m
+        A lateral move never brings a CAV's side closer than this to a vehicle alongside (0: off)
+        [m].
+    follower_lat_gap_m
+        A vehicle behind that a lateral move brings within this of the CAV's side is judged as a
+        follower (0: off) [m].
+    feedforward_from_mps2
+        The gap guard feeds forward a leader's braking beyond this [m/s²].
+    lane_follower_reach_m
+        The lateral guard looks for the entered lane's follower this far behind the CAV [m].
+    clearing_mps
+        A CAV yields to a swarm CAV still in the lane it enters when that CAV clears it by at least
+        this speed [m/s].
+    """
+
+    gap_gain: float = 0.8
+    speed_gain: float = 1.5
+    gap_extra_m: float = 1.0
+    lane_probe_m: float = 0.9
+    match_gain: float = 1.0
+    follower_range_m: float = 60.0
     side_clearance_m: float = 0.3
-    # A vehicle behind that a lateral move brings within this of the CAV's side is judged as
-    # a follower, as if the CAV entered its lane [m]: SUMO's sublane drivers take a vehicle
-    # that close sideways (their minGapLat, 0.6 m by default) for their leader. An HV leaning
-    # 0.07 m into the CAV's lane, 4 m behind it and 3.6 m/s faster, braked at 9 m/s^2 when a
-    # CAV moved 0.2 m towards it within its own lane (stress scene 113). 0 = off.
     follower_lat_gap_m: float = 0.6
-    # The gap guard feeds forward a leader's braking beyond this [m/s^2]. Under a leader
-    # braking steadily at b, the gains settle (b - this) / gap_gain inside the gap they aim at
-    # (the minimum plus gap_extra_m): at most this / gap_gain = 0.75 m, within the 1 m of
-    # gap_extra_m. With 1.0 it was 1.25 m: 4.75 m behind a CAV braking at 1 m/s^2 (4.998 m
-    # seen, a held-out stress scene).
     feedforward_from_mps2: float = 0.6
-    # The lateral guard looks for the entered lane's own follower this far behind the CAV [m].
     lane_follower_reach_m: float = 150.0
-    # A CAV waits for a swarm CAV still in the lane it enters (a yield, not a refusal) when that
-    # CAV clears it by at least this much faster ahead or slower behind [m/s].
     clearing_mps: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("gap_gain", "speed_gain", "gap_extra_m", "lane_probe_m", "match_gain",
-                     "follower_range_m", "side_clearance_m", "follower_lat_gap_m",
-                     "feedforward_from_mps2", "lane_follower_reach_m", "clearing_mps"):  # fmt: skip
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
+        check_fields(self, *(f.name for f in dataclasses.fields(self)), ge=0.0)
 
 
 DEFAULT = GuardSettings()
