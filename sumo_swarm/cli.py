@@ -33,7 +33,8 @@ EXIT_STATUS = (
 CONTROLLER_HELP = (
     "how the CAVs are driven: swarm (the paper's method), cacc (the paper's baseline, a "
     "longitudinal-only CACC platoon), sumo-cacc (SUMO's own CACC car-following model, only the "
-    "lane changes its route needs), sumo-lc (the CAVs as ordinary SUMO vehicles, each overtaking on its own) "
+    "lane changes its route needs), sumo-lc (the CAVs as ordinary SUMO vehicles, each "
+    "overtaking on its own) "
     "(default: %(default)s)"
 )
 
@@ -283,7 +284,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--follow", metavar="VEHICLE", help="keep this vehicle in view (default: the swarm)"
     )
     rpl.add_argument(
-        "--from", dest="t_from", type=float, metavar="S", help="start [s] (default: 0)"
+        "--from",
+        dest="t_from",
+        type=float,
+        metavar="S",
+        help="start [s] (default: when the first CAV appears)",
     )
     rpl.add_argument(
         "--to", dest="t_to", type=float, metavar="S", help="end [s] (default: the end of the run)"

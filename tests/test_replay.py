@@ -224,3 +224,56 @@ def test_missing_network(run_dir, tmp_path, capsys):
     shutil.copytree(run_dir, copy)
     shutil.rmtree(copy / "sumo")
     assert_bad_input(main(["replay", str(copy)]), capsys, "sumo", str(copy))
+
+
+# ------------------------------------------------------------------ targets and the first frame
+
+
+def test_every_manoeuvres_target_is_marked():
+    from sumo_swarm.study.replay import manoeuvre_targets
+
+    with_list = {
+        "overtake": {"target": "truck", "targets": ["truck"]},
+        "manoeuvres": [
+            {"kind": "cells", "target": "truck"},
+            {"kind": "lane_pass", "target": "bus"},
+            {"kind": "wait", "target": None},
+            {"kind": "one_by_one", "target": "truck"},
+        ],
+    }
+    assert manoeuvre_targets(with_list) == ("truck", ("truck", "bus"))
+    # summaries written before the manoeuvres list: overtake.targets, then overtake.target
+    assert manoeuvre_targets({"overtake": {"target": "t", "targets": ["t", "car.1"]}}) == (
+        "t",
+        ("t", "car.1"),
+    )
+    assert manoeuvre_targets({"overtake": {"target": "t"}}) == ("t", ("t",))
+    assert manoeuvre_targets({}) == (None, ())
+
+
+def test_replay_starts_where_the_first_cav_appears():
+    import pandas as pd
+
+    from sumo_swarm.study.replay import RunRecord
+
+    rows = [  # an HV from 0 s, a CAV from 12 s
+        {"time_s": t, "vehicle": v, "kind": k, "x_m": t, "y_m": 0.0, "s_m": t,
+         "speed_mps": 10.0, "length_m": 5.0, "width_m": 1.8, "heading_rad": 0.0}
+        for t in np.arange(0.0, 20.0, 1.0)
+        for v, k in (("hv0", "hv"), ("cav0", "cav"))
+        if k == "hv" or t >= 12.0
+    ]  # fmt: skip
+    df = pd.DataFrame(rows)
+    times, starts = np.unique(df["time_s"].to_numpy(), return_index=True)
+    run = RunRecord(Path("."), df, times, np.r_[starts, len(df)], "hv0", [], None, [], "", ("bus",))
+    assert run.targets == ("hv0", "bus")
+    assert frame_times(run, None, None, 1.0)[0] == pytest.approx(12.0)
+    assert frame_times(run, 3.0, None, 1.0)[0] == pytest.approx(3.0)  # --from still wins
+    r = Renderer.__new__(Renderer)
+    r.run = run
+    assert r.roles(np.array(["hv0", "bus", "car", "cav0"]), np.array([0, 0, 0, 1], bool), None) == [
+        "target",
+        "target",
+        "hv",
+        "cav",
+    ]

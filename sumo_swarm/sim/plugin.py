@@ -206,8 +206,11 @@ def attach(
         Where the swarm writes ``plans.jsonl`` as it goes and, at :meth:`SwarmHandle.detach`,
         ``summary.json``, ``trajectories.parquet`` and ``events.jsonl`` (optional).
 
-    Raises :class:`~sumo_swarm.errors.ConfigError` when the swarm controller is asked to run
-    at a SUMO step longer than :data:`~sumo_swarm.sim.steplimit.MAX_SWARM_STEP_S`.
+    Raises
+    ------
+    ConfigError
+        When the swarm controller is asked to run at a SUMO step longer than
+        :data:`~sumo_swarm.sim.steplimit.MAX_SWARM_STEP_S`, or the CAVs are named twice.
     """
     if connection is None:
         connection = importlib.import_module("libsumo")

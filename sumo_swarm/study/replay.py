@@ -89,6 +89,8 @@ class RunRecord:
     route: RouteGeometry
     lanes: list[tuple[LaneGeometry, ...]] = field(default_factory=list)  # lanes of each edge
     title: str = ""
+    # every manoeuvre's target (cells, lane pass, passing alone, ...), the first one first
+    targets: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         # plain arrays: a frame slices them (pandas indexing per frame is the slow way)
@@ -99,6 +101,14 @@ class RunRecord:
         }
         self.vehicle = df["vehicle"].astype(str).to_numpy()
         self.is_cav = (df["kind"].astype(str) == "cav").to_numpy()
+        if self.target is not None and self.target not in self.targets:
+            self.targets = (self.target, *self.targets)
+
+    @property
+    def first_cav_s(self) -> float | None:
+        """When the first CAV appears [s] (None: a run without CAVs)."""
+        times = self.df["time_s"].to_numpy()[self.is_cav]
+        return float(times.min()) if len(times) else None
 
     def rows_at(self, t_s: float) -> slice:
         """The rows (a slice of ``df`` and of the arrays) of the step time nearest ``t_s``."""
@@ -236,7 +246,7 @@ def load_run(folder: Path) -> RunRecord:
 
     summary_path = folder / "summary.json"
     summary = json.loads(summary_path.read_text(encoding="utf-8")) if summary_path.is_file() else {}
-    target = (summary.get("overtake") or {}).get("target")
+    target, targets = manoeuvre_targets(summary)
     ends = sorted(
         float(e["time_s"])
         for e in _read_jsonl(folder / "events.jsonl")
@@ -262,7 +272,23 @@ def load_run(folder: Path) -> RunRecord:
         route,
         all_lanes,
         f"{summary.get('scenario', '?')} / {summary.get('controller', '?')}   (run {folder.name})",
+        targets,
     )
+
+
+def manoeuvre_targets(summary: dict) -> tuple[str | None, tuple[str, ...]]:
+    """The first target and every manoeuvre's target, in order and once each: from the
+    summary's ``manoeuvres`` list where it has one, else ``overtake.targets`` and
+    ``overtake.target`` (summaries written before that list)."""
+    overtake = summary.get("overtake") or {}
+    manoeuvres = summary.get("manoeuvres")
+    if isinstance(manoeuvres, list):
+        found = [m.get("target") for m in manoeuvres if isinstance(m, dict)]
+    else:
+        found = [*(overtake.get("targets") or []), overtake.get("target")]
+    targets = tuple(dict.fromkeys(str(t) for t in found if t))
+    first = overtake.get("target") or (targets[0] if targets else None)
+    return first, targets
 
 
 # --------------------------------------------------------------------------------------------
@@ -586,7 +612,7 @@ class Renderer:
         blocked = set(blockers.values())
         out = []
         for vid, cav in zip(vehicles, is_cav, strict=True):
-            if vid == self.run.target:
+            if vid in self.run.targets:
                 out.append("target")
             elif cav:
                 out.append("blocker" if vid in blockers else "cav")
@@ -650,9 +676,11 @@ class ReplayResult:
 
 
 def frame_times(run: RunRecord, t_from: float | None, t_to: float | None, fps: float) -> np.ndarray:
-    """Times of the frames [s] within the run (ConfigError on an empty or inverted range)."""
+    """Times of the frames [s] within the run (ConfigError on an empty or inverted range); by
+    default from when the first CAV appears (a user's sumocfg may run long before)."""
     first, last = float(run.times_s[0]), float(run.times_s[-1])
-    start = first if t_from is None else float(t_from)
+    first_cav = run.first_cav_s
+    start = (first if first_cav is None else first_cav) if t_from is None else float(t_from)
     stop = last if t_to is None else float(t_to)
     if not (math.isfinite(start) and math.isfinite(stop)) or stop <= start:
         raise ConfigError(f"replay: --from {start:g} must be before --to {stop:g}")
