@@ -6,6 +6,7 @@ import pytest
 
 from sumo_swarm.config import load_scenario
 from sumo_swarm.errors import ConfigError
+from tests.conftest import ROOT
 
 
 def test_paper_scenario_holds_section_iv_c(paper_path):
@@ -126,3 +127,31 @@ def test_a_settings_file_for_a_sumocfg_is_not_held_to_the_papers_step(tmp_path):
     )
     with pytest.raises(ConfigError, match="whole number of"):
         default_settings(path)
+
+
+def test_a_copied_scenario_finds_its_network_by_name(tmp_path):
+    """A copy of the paper's scenario runs wherever it is: a network path that does not resolve
+    beside the copy falls back to the built-in network of that file name."""
+    import shutil
+
+    from sumo_swarm.config import BUILT_IN_NETWORKS
+
+    for source in (ROOT / "scenarios" / "paper.toml", BUILT_IN_NETWORKS / "paper.toml"):
+        copy = tmp_path / source.parent.name / "my.toml"
+        copy.parent.mkdir()
+        shutil.copy(source, copy)
+        sc = load_scenario(copy)
+        assert sc.network_path == BUILT_IN_NETWORKS / "highway3.net.xml"
+    # a network beside the copy is the one used
+    (tmp_path / "data" / "highway3.net.xml").write_bytes(
+        (BUILT_IN_NETWORKS / "highway3.net.xml").read_bytes()
+    )
+    assert (
+        load_scenario(tmp_path / "data" / "my.toml").network_path
+        == (tmp_path / "data" / "highway3.net.xml").resolve()
+    )
+    # a name that is not built in is still refused, naming the file
+    text = (tmp_path / "data" / "my.toml").read_text().replace("highway3.net.xml", "mine.net.xml")
+    (tmp_path / "data" / "bad.toml").write_text(text)
+    with pytest.raises(ConfigError, match=r"bad.toml: simulation.network: file not found"):
+        load_scenario(tmp_path / "data" / "bad.toml")
