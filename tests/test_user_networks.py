@@ -13,6 +13,7 @@ import pytest
 import sumo
 
 import sumo_swarm
+from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.netbuild import HighwaySpec
 from sumo_swarm.sim.runner import run_sumocfg
 from tests.usercases import write_user_case
@@ -162,3 +163,23 @@ def test_attach_refuses_a_cruising_speed_that_is_no_speed(speed):
 
     with pytest.raises(ValueError, match="cruising_speed_mps must be"):
         sumo_swarm.attach(libsumo, cav_type="cav", cruising_speed_mps=speed)
+
+
+def test_attach_refuses_a_simulation_without_the_sublane_model(tmp_path):
+    """Without --lateral-resolution every CAV command fails at every step (SUMO's LC2013 has no
+    lcAccelLat): attach() says so at once, in one line, for the controllers that need it."""
+    import libsumo
+
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    command = [c for c in _sumo_cmd(cfg) if c not in ("--lateral-resolution", "0.5")]
+    libsumo.start(command)
+    try:
+        for controller in ("swarm", "cacc"):
+            with pytest.raises(ConfigError) as err:
+                sumo_swarm.attach(libsumo, cav_type="cav", controller=controller)
+            assert "--lateral-resolution" in str(err.value) and "\n" not in str(err.value)
+        handle = sumo_swarm.attach(libsumo, cav_type="cav", controller="sumo-lc")
+        libsumo.simulation.step()
+        handle.detach()
+    finally:
+        libsumo.close()

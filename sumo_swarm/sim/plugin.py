@@ -5,7 +5,9 @@
     import libsumo  # or: import traci (then sumo-gui works too)
     import sumo_swarm
 
-    libsumo.start(["sumo", "-c", "my.sumocfg", "--lateral-resolution", "0.5"])
+    libsumo.start(["sumo", "-c", "my.sumocfg", "--lateral-resolution", "0.5",
+                   "--time-to-teleport", "-1", "--collision.action", "warn",
+                   "--collision.mingap-factor", "0"])
     swarm = sumo_swarm.attach(libsumo, cav_type="cav")
     while libsumo.simulation.getMinExpectedNumber() > 0:
         libsumo.simulation.step()
@@ -210,7 +212,9 @@ def attach(
     ------
     ConfigError
         When the swarm controller is asked to run at a SUMO step longer than
-        :data:`~sumo_swarm.sim.steplimit.MAX_SWARM_STEP_S`, or the CAVs are named twice.
+        :data:`~sumo_swarm.sim.steplimit.MAX_SWARM_STEP_S`, when SUMO runs without the sublane
+        model (``--lateral-resolution``) that ``swarm`` and ``cacc`` need, or when the CAVs are
+        named twice.
     """
     if connection is None:
         connection = importlib.import_module("libsumo")
@@ -236,11 +240,32 @@ def attach(
     ctrl = make_controller(controller) if isinstance(controller, str) else controller
     step_s = connection.simulation.getDeltaT()
     check_step_length(step_s, getattr(ctrl, "name", ""), "attach: SUMO's --step-length")
+    check_sublane_model(connection, getattr(ctrl, "name", ""))
     warn_if_sumo_teleports(connection)
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     return SwarmHandle(connection, ctrl, settings, is_cav, cruising_speed_mps, out)
+
+
+# The controllers that move CAVs across lanes by sublane moves (lcAccelLat, changeSublane).
+SUBLANE_CONTROLLERS = frozenset({"swarm", "cacc"})
+
+
+def check_sublane_model(api: Any, controller: str) -> None:
+    """ConfigError when ``controller`` needs SUMO's sublane model and the simulation was started
+    without it (without ``--lateral-resolution``, every CAV command fails at every step)."""
+    if controller not in SUBLANE_CONTROLLERS:
+        return
+    try:
+        resolution_m = float(api.simulation.getOption("lateral-resolution"))
+    except Exception:  # a SUMO too old to tell: the controller reports what fails
+        return
+    if resolution_m <= 0:
+        raise ConfigError(
+            f"attach: SUMO runs without the sublane model, which the {controller} controller "
+            "needs: start SUMO with --lateral-resolution 0.5"
+        )
 
 
 def warn_if_sumo_teleports(api: Any) -> bool:
