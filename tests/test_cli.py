@@ -167,3 +167,25 @@ def test_run_sumocfg_records_the_sumo_configuration_as_run(tmp_path):
     assert options["lateral-resolution"] == "0.5"  # added: the configuration lacks it
     assert options["collision.action"] == "warn" and options["seed"] == "7"
     assert options["step-length"] == "0.1" and "fcd-output" not in options
+
+
+@pytest.mark.parametrize(
+    ("argv", "module", "name", "where"),
+    [
+        (["reproduce", "--out", "{tmp}/rep"], "sumo_swarm.study.reproduce", "reproduce",
+         "{tmp}/rep/report.md"),
+        (["impact", "{tmp}/batch"], "sumo_swarm.study.impact", "impact", "{tmp}/batch/impact"),
+    ],
+)  # fmt: skip
+def test_commands_that_write_outputs_end_by_saying_where(
+    argv, module, name, where, tmp_path, monkeypatch, capsys
+):
+    """The last line a command prints names where its outputs are (the study itself is
+    replaced: this checks the command's wiring, tests/test_reproduce.py and test_batch.py the
+    studies)."""
+    import importlib
+
+    monkeypatch.setattr(importlib.import_module(module), name, lambda *a, **k: "table")
+    assert main([a.format(tmp=tmp_path) for a in argv]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert where.format(tmp=tmp_path) in last
