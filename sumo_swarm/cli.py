@@ -9,14 +9,16 @@ from __future__ import annotations
 import argparse
 import importlib.resources
 import logging
+import signal
 import sys
 import textwrap
+import threading
 from pathlib import Path
 
 from sumo_swarm import __version__
 from sumo_swarm.checks import SEED_MAX
 from sumo_swarm.controllers import CONTROLLERS
-from sumo_swarm.errors import ConfigError, SimulationError
+from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -64,7 +66,10 @@ the swarm, and --config sets the swarm's settings.
 
 Outputs in --out: summary.json, trajectories.parquet (one row per vehicle per step),
 events.jsonl, plans.jsonl (swarm), sumo/ (the SUMO configuration as run: open
-sumo/scenario.sumocfg in sumo-gui) and, with --fcd, fcd.xml.
+sumo/scenario.sumocfg in sumo-gui), run.json (what the folder holds) and, with --fcd, fcd.xml.
+They are written beside --out (DIR.partial-PID) and moved into place at the end. Ctrl-C or
+SIGTERM stops the run after the step under way; what was gathered is written, summary.json
+saying "complete": false and why.
 """
 
 BATCH_EPILOG = """\
@@ -183,7 +188,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=Path("out"),
         metavar="DIR",
-        help="output folder, created if needed; files in it are overwritten (default: %(default)s)",
+        help="output folder: new or empty, or with --force one holding an earlier run "
+        "(default: %(default)s)",
+    )
+    run.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the earlier run --out holds (default: off, such a folder is refused)",
     )
     run.add_argument(
         "--fcd", action="store_true", help="also write SUMO's fcd-output, fcd.xml (default: off)"
@@ -318,13 +329,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
             fcd=args.fcd,
             gui=args.gui,
             notify=lambda line: print(line, file=sys.stderr),
+            force=args.force,
         )
     else:
         if args.scenario is None:
             raise ConfigError("run: give a scenario file (or --sumocfg FILE --cav-type TYPE)")
         scenario = load_scenario(args.scenario)
         summary = run_scenario(
-            scenario, args.controller, args.out, seed=args.seed, fcd=args.fcd, gui=args.gui
+            scenario,
+            args.controller,
+            args.out,
+            seed=args.seed,
+            fcd=args.fcd,
+            gui=args.gui,
+            force=args.force,
         )
     cav = summary["cav"]
     ot = summary["overtake"]
@@ -370,7 +388,27 @@ def _cmd_impact(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _raise_interrupted(signum: int, frame) -> None:
+    """SIGTERM as Ctrl-C: the commands' cleanup runs and one line says so."""
+    name = signal.Signals(signum).name
+    raise RunInterrupted(f"interrupted by {name}", 128 + signum)
+
+
+def _interrupted_line(exc: KeyboardInterrupt, command: str | None, out: Path | None) -> str:
+    """One line for an interrupted command: what it kept and how to go on."""
+    text = exc.message if isinstance(exc, RunInterrupted) else "interrupted by SIGINT"
+    if command == "batch" and out is not None:
+        text += f": finished runs are kept in {out}; run the same command again to resume"
+    elif command == "reproduce" and out is not None:
+        text += f': the report so far is in {out} (report.json: "complete": false)'
+    return " ".join(text.split())
+
+
 def main(argv: list[str] | None = None) -> int:
+    args = None
+    previous_term = None
+    if threading.current_thread() is threading.main_thread():
+        previous_term = signal.signal(signal.SIGTERM, _raise_interrupted)
     try:
         args = build_parser().parse_args(argv)
         logging.basicConfig(
@@ -394,15 +432,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sumo-swarm: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except SimulationError as exc:
-        print(f"sumo-swarm: simulation failed: {exc}", file=sys.stderr)
+        print(f"sumo-swarm: simulation failed: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_FAILURE
-    except KeyboardInterrupt:
-        print("sumo-swarm: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        command, out = getattr(args, "command", None), getattr(args, "out", None)
+        print(f"sumo-swarm: {_interrupted_line(exc, command, out)}", file=sys.stderr)
+        return exc.exit_status if isinstance(exc, RunInterrupted) else 130
     except Exception as exc:  # one line, not a traceback; --verbose logs the traceback
         logging.getLogger("sumo_swarm").debug("unexpected error", exc_info=True)
         print(f"sumo-swarm: unexpected error: {type(exc).__name__}: {exc}", file=sys.stderr)
         return EXIT_FAILURE
+    finally:
+        if previous_term is not None:
+            signal.signal(signal.SIGTERM, previous_term)
 
 
 if __name__ == "__main__":

@@ -14,3 +14,17 @@ class ConfigError(SwarmError, ValueError):
 
 class SimulationError(SwarmError, RuntimeError):
     """SUMO failed or exited while a run was under way."""
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """A run stopped by a signal (SIGINT, SIGTERM) or Ctrl-C.
+
+    A KeyboardInterrupt, so that code catching ``Exception`` (a batch worker recording a failed
+    run) lets it through. ``message`` says what was kept (one line); ``exit_status`` is the
+    shell's for the signal (128 + its number).
+    """
+
+    def __init__(self, message: str, exit_status: int = 130) -> None:
+        super().__init__(message)
+        self.message = message
+        self.exit_status = exit_status

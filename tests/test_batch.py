@@ -368,6 +368,66 @@ def test_failed_run_is_recorded_and_the_batch_goes_on(sweep_file, tmp_path, caps
 
 
 @pytest.mark.sumo
+def test_bad_records_are_redone_with_a_warning_naming_the_file(sweep_file, tmp_path, caplog):
+    path = sweep_file(
+        'controllers = ["cacc", "sumo-cacc"]\n[grid]\n"scene.initial_speed_mps" = [16.0, 17.5]\n'
+        + short(4.0)
+    )
+    out = tmp_path / "out"
+    run_batch(path, out, workers=2, progress=False, impact=False)
+    ids = sorted(finished_runs(out))
+    assert len(ids) == 4
+    records = {i: out / "runs" / i / "record.json" for i in ids}
+    good = records[ids[3]].read_text()
+    records[ids[0]].write_text(records[ids[1]].read_text())  # another run's record
+    records[ids[1]].write_text("{}")
+    records[ids[2]].write_text("[]")
+    before = finished_runs(out)
+
+    with caplog.at_level("WARNING", logger="sumo_swarm.study.batch.store"):
+        report = run_batch(path, out, workers=2, progress=False, impact=False)
+    assert (report.ran, report.skipped, report.failed) == (3, 1, 0)
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    for i in ids[:3]:
+        assert any(str(records[i]) in w and "redone" in w for w in warned), (i, warned)
+    assert "another run's record" in next(w for w in warned if str(records[ids[0]]) in w)
+    df = pd.read_parquet(out / "results.parquet")
+    assert sorted(df["run_id"]) == ids  # each run once, none missing
+    assert set(df["status"]) == {"ok"} and df["cav.mean_speed_mps"].notna().all()
+    for i in ids:
+        assert json.loads(records[i].read_text())["run_id"] == i
+    assert records[ids[3]].read_text() == good and finished_runs(out)[ids[3]] == before[ids[3]]
+
+
+def test_record_problems_are_named():
+    from sumo_swarm.study.batch.store import RECORD_SCHEMA, record_problem
+    from sumo_swarm.study.batch.sweep import RunSpec
+
+    spec = RunSpec("cacc-s1-x", "/base.toml", {}, {}, 1, "cacc")
+    summary = {"schema": "sumo-swarm/summary/1", "controller": "cacc"}
+    ok = {"schema": RECORD_SCHEMA, "run_id": "cacc-s1-x", "status": "ok", "error": None,
+          "controller": "cacc", "seed": 1, "params": {}, "summary": summary, "run": {}}  # fmt: skip
+    assert record_problem(ok, "cacc-s1-x", spec) is None
+    assert record_problem({**ok, "status": "failed", "summary": None}, "cacc-s1-x", spec) is None
+    cases = [
+        ([], "a JSON list"),
+        ({}, "schema None"),
+        ({**ok, "run_id": "swarm-s1-y"}, "another run's record (run_id"),
+        ({**ok, "seed": 2}, "another run's record (seed"),
+        ({**ok, "controller": "swarm"}, "another run's record (controller"),
+        ({**ok, "status": "done"}, "status 'done'"),
+        ({**ok, "summary": None}, "without a summary"),
+        ({**ok, "summary": []}, "not a sumo-swarm summary"),
+        ({**ok, "summary": {**summary, "controller": "swarm"}}, "controller 'swarm'"),
+        ({**ok, "error": 3}, "error is not a text"),
+        ({**ok, "params": [1]}, "params is not"),
+    ]
+    for record, fragment in cases:
+        problem = record_problem(record, "cacc-s1-x", spec)
+        assert problem is not None and fragment in problem, (record, problem)
+
+
+@pytest.mark.sumo
 def test_worker_killed_mid_run_is_a_failed_run(sweep_file, tmp_path):
     path = sweep_file('controllers = ["cacc", "sumo-cacc"]\n' + short(60.0))
     out = tmp_path / "out"

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from sumo_swarm.cli import build_parser, main
@@ -189,3 +192,160 @@ def test_commands_that_write_outputs_end_by_saying_where(
     assert main([a.format(tmp=tmp_path) for a in argv]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert where.format(tmp=tmp_path) in last
+
+
+# --------------------------------------------------------------------------- the output folder
+
+
+def paper_variant(tmp_path: Path, paper_path: Path, duration_s: float) -> Path:
+    """The paper scenario lasting ``duration_s``, its network by absolute path."""
+    text = paper_path.read_text(encoding="utf-8")
+    net = (paper_path.parent.parent / "networks" / "highway3.net.xml").as_posix()
+    text = text.replace('"../networks/highway3.net.xml"', f'"{net}"')
+    text = text.replace("duration_s = 80.0", f"duration_s = {duration_s}")
+    text = text.replace("end_s = 60.0", f"end_s = {duration_s}")
+    path = tmp_path / f"paper{duration_s:g}.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def one_line_on_stderr(proc: subprocess.CompletedProcess, *fragments: str) -> str:
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+    return lines[0]
+
+
+def folder_says(out: Path) -> tuple[dict, dict]:
+    """run.json and summary.json of a run folder; they agree on whether it is complete."""
+    manifest = json.loads((out / "run.json").read_text())
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is (manifest["state"] == "complete")
+    assert summary["incomplete_reason"] == manifest["reason"]
+    assert set(manifest["files"]) == {p.name for p in out.iterdir()} - {"run.json"}
+    return manifest, summary
+
+
+def staged(out: Path) -> list[Path]:
+    return sorted(out.parent.glob(f"{out.name}.partial-*"))
+
+
+@pytest.mark.sumo
+def test_out_holding_a_run_is_refused_unless_forced(paper_path, tmp_path):
+    scenario = paper_variant(tmp_path, paper_path, 5.0)
+    out = tmp_path / "o"
+    first = sumo_swarm("run", str(scenario), "--controller", "swarm", "--out", str(out))
+    assert first.returncode == 0, first.stderr
+    assert (out / "plans.jsonl").is_file()
+    (out / "replay.mp4").write_bytes(b"an earlier replay")
+    before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+
+    again = sumo_swarm("run", str(scenario), "--controller", "cacc", "--out", str(out))
+    assert_bad_input(again, str(out), "holds an earlier run", "--force")
+    assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before  # untouched
+
+    forced = sumo_swarm("run", str(scenario), "--controller", "cacc", "--out", str(out), "--force")
+    assert forced.returncode == 0, forced.stderr
+    manifest, summary = folder_says(out)
+    assert summary["controller"] == "cacc" and manifest["state"] == "complete"
+    # nothing of the swarm run is left beside the cacc run's files
+    assert not (out / "plans.jsonl").exists() and not (out / "replay.mp4").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o", scenario.name]
+
+
+def test_out_holding_other_files_is_refused_even_forced(paper_path, tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    proc = sumo_swarm("run", str(paper_path), "--out", str(out), "--force")
+    assert_bad_input(proc, str(out), "not a sumo-swarm run", "notes.txt")
+    assert [p.name for p in out.iterdir()] == ["notes.txt"] and not staged(out)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert_bad_input(sumo_swarm("run", str(paper_path), "--out", str(blocker)), "not a folder")
+
+
+def start_run(scenario: Path, out: Path, controller: str = "cacc") -> subprocess.Popen:
+    """``run`` in a process of its own, writing SUMO's fcd-output (it grows step by step)."""
+    cmd = [sys.executable, "-m", "sumo_swarm", "run", str(scenario), "--controller", controller,
+           "--out", str(out), "--fcd"]  # fmt: skip
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_until(proc: subprocess.Popen, ready, timeout_s: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not ready():
+        assert proc.poll() is None, "the run ended before the signal"
+        assert time.monotonic() < deadline, "the moment never came"
+        time.sleep(0.002)
+
+
+def finished(proc: subprocess.Popen) -> subprocess.CompletedProcess:
+    stdout, stderr = proc.communicate(timeout=300)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_run_keeps_what_was_gathered(paper_path, tmp_path, sig):
+    scenario = paper_variant(tmp_path, paper_path, 600.0)  # far longer than the test waits
+    out = tmp_path / "o"
+    proc = start_run(scenario, out)
+
+    def mid_run() -> bool:  # SUMO has written a few steps of fcd-output
+        return any((s / "fcd.xml").is_file() and (s / "fcd.xml").stat().st_size > 200_000
+                   for s in staged(out))  # fmt: skip
+
+    wait_until(proc, mid_run)
+    proc.send_signal(sig)
+    done = finished(proc)
+    assert done.returncode == 128 + sig
+    one_line_on_stderr(done, f"interrupted by {sig.name} at t = ", str(out), '"complete": false')
+    manifest, summary = folder_says(out)
+    assert manifest["state"] == "incomplete" and sig.name in summary["incomplete_reason"]
+    assert 0.0 < summary["sim_end_s"] < 600.0
+    df = pd.read_parquet(out / "trajectories.parquet")
+    assert df["time_s"].max() == pytest.approx(summary["sim_end_s"])
+    last = json.loads((out / "events.jsonl").read_text().splitlines()[-1])
+    assert last["event"] == "interrupted" and last["signal"] == sig.name
+    assert not staged(out)
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("moment", ["sumo", "finishing"])
+def test_a_signal_at_any_moment_leaves_a_folder_that_says_what_it_holds(
+    paper_path, tmp_path, moment
+):
+    # sumo: as soon as the staging folder is there (SUMO's inputs being written, SUMO
+    # starting); finishing: two SIGTERMs once the last step is made and the outputs are being
+    # written. Whatever the exact moment, the folder is either untouched (nothing written) or
+    # one whole run saying whether it is complete.
+    duration = 600.0 if moment != "finishing" else 60.0
+    scenario = paper_variant(tmp_path, paper_path, duration)
+    out = tmp_path / "o"
+    proc = start_run(scenario, out)
+    if moment == "sumo":
+        wait_until(proc, lambda: bool(staged(out)))
+    elif moment == "finishing":
+        wait_until(proc, lambda: any((s / "events.jsonl").exists() for s in staged(out)))
+    proc.send_signal(signal.SIGTERM)
+    if moment == "finishing":
+        time.sleep(0.005)
+        proc.send_signal(signal.SIGTERM)
+    done = finished(proc)
+    assert done.returncode == 128 + signal.SIGTERM
+    line = one_line_on_stderr(done, "interrupted by SIGTERM")
+    assert not staged(out)
+    if not out.exists():
+        assert "nothing written" in line
+        assert moment != "finishing"
+        return
+    _, summary = folder_says(out)
+    pd.read_parquet(out / "trajectories.parquet")  # whole, readable
+    if moment == "finishing":
+        assert summary["complete"] is True and summary["sim_end_s"] == pytest.approx(duration)
+        assert "the run is complete" in line
+    else:
+        assert summary["complete"] is False and '"complete": false' in line

@@ -4,6 +4,8 @@ braking beyond -4 m/s^2, and every fault leaves a trace in the run's outputs."""
 from __future__ import annotations
 
 import json
+import os
+import signal
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -15,8 +17,9 @@ from sumo_swarm.config import HvPlacement, load_scenario
 from sumo_swarm.controllers.base import RunContext
 from sumo_swarm.controllers.swarm import SwarmController
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.errors import SimulationError
+from sumo_swarm.errors import RunInterrupted, SimulationError
 from sumo_swarm.sim.metrics import hard_brake_events
+from sumo_swarm.sim.runfolder import StopRequest
 from sumo_swarm.sim.runner import run_scenario
 from tests.conftest import PAPER
 
@@ -175,3 +178,115 @@ def test_a_run_that_records_nothing_still_writes_its_outputs(tmp_path):
     assert df.empty and list(df.columns) == list(RECORD_COLUMNS)
     assert summary["safety"]["collisions"] == 0
     assert json.loads((tmp_path / "summary.json").read_text())["controller"] == "cacc"
+
+
+# --------------------------------------------------------------------------- ends before the end
+
+
+def read_folder(out) -> tuple[dict, dict, pd.DataFrame, list[dict]]:
+    """run.json, summary.json, the trajectories and the events of a run folder."""
+    manifest = json.loads((out / "run.json").read_text())
+    summary = json.loads((out / "summary.json").read_text())
+    df = pd.read_parquet(out / "trajectories.parquet")
+    events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    return manifest, summary, df, events
+
+
+def no_staging_left(out) -> bool:
+    return not [p for p in out.parent.iterdir() if p.name.startswith(f"{out.name}.partial-")]
+
+
+def send(sig: signal.Signals, times: int = 1) -> Callable[[RunContext], None]:
+    def action(ctx: RunContext) -> None:
+        for _ in range(times):
+            os.kill(os.getpid(), sig)
+
+    return action
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_run_writes_what_was_gathered_marked_incomplete(tmp_path, sig):
+    out = tmp_path / "run"
+    with pytest.raises(RunInterrupted) as stopped:
+        run_scenario(paper(), "swarm", out, progress=False,
+                     controller=Injector(SwarmController(), 5.0, send(sig, times=2)))  # fmt: skip
+    assert stopped.value.exit_status == 128 + sig
+    assert f"interrupted by {sig.name} at t = 5.0" in stopped.value.message
+    assert str(out) in stopped.value.message and "\n" not in stopped.value.message
+    manifest, summary, df, events = read_folder(out)
+    assert manifest["state"] == "incomplete" and sig.name in manifest["reason"]
+    assert summary["complete"] is False
+    assert summary["incomplete_reason"] == manifest["reason"]
+    assert list(summary)[4:6] == ["complete", "incomplete_reason"]  # the contract's place
+    # the steps up to the signal (the step under way ends first), nothing after
+    assert df["time_s"].max() == pytest.approx(5.0, abs=0.05)
+    assert summary["sim_end_s"] == pytest.approx(df["time_s"].max())
+    assert events[-1]["event"] == "interrupted" and events[-1]["signal"] == sig.name
+    assert (out / "plans.jsonl").read_text().strip()  # the swarm's plans so far
+    assert no_staging_left(out)
+
+
+def test_a_signal_before_the_first_step_leaves_an_empty_incomplete_run(tmp_path):
+    class SignalOnAttach(Injector):
+        def attach(self, ctx: RunContext) -> None:  # SUMO has started, no step made yet
+            super().attach(ctx)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    out = tmp_path / "run"
+    controller = SignalOnAttach(SwarmController(), 1e9, send(signal.SIGTERM))
+    with pytest.raises(RunInterrupted, match=r"at t = 0\.00 s"):
+        run_scenario(paper(5.0), "cacc", out, progress=False, controller=controller)
+    manifest, summary, df, _ = read_folder(out)
+    assert manifest["state"] == "incomplete" and summary["complete"] is False
+    assert df.empty
+
+
+def test_a_stop_asked_before_sumo_starts_writes_nothing(tmp_path):
+    stop = StopRequest()
+    stop.request(signal.SIGINT)
+    out = tmp_path / "run"
+    with pytest.raises(RunInterrupted, match="nothing written"):
+        run_scenario(paper(5.0), "cacc", out, progress=False, stop=stop)
+    assert not out.exists() and no_staging_left(out)
+
+
+def test_signals_while_the_outputs_are_written_leave_the_run_complete(tmp_path):
+    class SignalAtSummary(Injector):
+        def summary(self):  # asked for when the run's outputs are being written
+            send(signal.SIGTERM, times=2)(self.ctx)
+            return super().summary()
+
+    out = tmp_path / "run"
+    controller = SignalAtSummary(SwarmController(), 1e9, send(signal.SIGTERM))
+    with pytest.raises(RunInterrupted, match="after the last step: the run is complete"):
+        run_scenario(paper(5.0), "swarm", out, progress=False, controller=controller)
+    manifest, summary, df, _ = read_folder(out)
+    assert manifest["state"] == "complete" and summary["complete"] is True
+    assert summary["incomplete_reason"] is None
+    assert df["time_s"].max() == pytest.approx(5.0, abs=0.05)
+    assert no_staging_left(out)
+
+
+def test_a_controller_failure_mid_run_is_written_marked_incomplete(tmp_path):
+    def fail(ctx):
+        raise RuntimeError("the controller broke")
+
+    out = tmp_path / "run"
+    with pytest.raises(SimulationError, match="the controller broke") as failed:
+        run_scenario(paper(), "swarm", out, progress=False,
+                     controller=Injector(SwarmController(), 4.0, fail))  # fmt: skip
+    assert str(out) in str(failed.value)
+    manifest, summary, df, events = read_folder(out)
+    assert summary["complete"] is False
+    assert summary["incomplete_reason"].startswith("RuntimeError at t = 4.0")
+    assert manifest["state"] == "incomplete"
+    assert df["time_s"].max() == pytest.approx(4.0, abs=0.05)
+    assert events[-1]["event"] == "run_failed"
+
+
+def test_a_complete_run_says_so(tmp_path):
+    summary = run_scenario(paper(3.0), "cacc", tmp_path, progress=False)
+    assert summary["complete"] is True and summary["incomplete_reason"] is None
+    manifest = json.loads((tmp_path / "run.json").read_text())
+    assert manifest["state"] == "complete" and manifest["reason"] is None
+    assert "summary.json" in manifest["files"] and "trajectories.parquet" in manifest["files"]

@@ -48,7 +48,7 @@ def main() -> int:
         for name, values in scenes.items():
             scenario = base.scenario(base.overrides({**values, "simulation.step_length_s": step}))
             out = args.out / f"{name}-{step:g}-{args.controller}"
-            s = run_scenario(scenario, args.controller, out, progress=False)
+            s = run_scenario(scenario, args.controller, out, progress=False, force=True)
             row = {
                 "scene": name,
                 "step_s": step,

@@ -160,6 +160,16 @@ def _near_cavs(
     return np.flatnonzero(d2 <= range_m * range_m).tolist()
 
 
+def with_completeness(summary: dict[str, Any], incomplete_reason: str | None) -> dict[str, Any]:
+    """``summary`` with ``complete`` and ``incomplete_reason`` after ``seed`` (the contract's
+    order): complete unless a reason is given."""
+    marks = {"complete": incomplete_reason is None, "incomplete_reason": incomplete_reason}
+    keys = [k for k in summary if k not in marks]
+    at = keys.index("seed") + 1 if "seed" in keys else len(keys)
+    order = [*keys[:at], *marks, *keys[at:]]
+    return {k: marks[k] if k in marks else summary[k] for k in order}
+
+
 def write_events(path: Path, events: list[dict[str, Any]]) -> None:
     """The run's events, one JSON object a line."""
     with path.open("w", encoding="utf-8") as fh:
@@ -388,9 +398,13 @@ class RunRecorder:
         events: list[dict[str, Any]],
         controller_summary: dict[str, Any] | None = None,
         network_files: Mapping[str, Path] | None = None,
+        incomplete_reason: str | None = None,
     ) -> dict[str, Any]:
         """End the run: close the controller, write trajectories.parquet, events.jsonl and
         summary.json into ``out``; return the summary. The run's wall time ends here.
+
+        ``incomplete_reason``: why the run ended before its end (interrupted, or SUMO or the
+        controller failed); the summary says ``"complete": false`` and the reason.
 
         ``network_files``: SUMO's outputs of a finished simulation
         (:func:`~sumo_swarm.sim.network.network_options`), read into the ``network`` block and
@@ -418,6 +432,7 @@ class RunRecorder:
 
         wanted = field_of if network_files is not None else None
         summary, fields = self._summary(scenario, df, controller_summary, wanted)
+        summary = with_completeness(summary, incomplete_reason)
         write_json_atomic(out / "summary.json", summary)
         if network_files is not None:
 

@@ -7,7 +7,8 @@ import os
 import subprocess
 import tempfile
 import time
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -17,11 +18,12 @@ from sumo_swarm.checks import require_number
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext
-from sumo_swarm.errors import ConfigError, SimulationError
+from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
 from sumo_swarm.sim.bridge import SumoSession, is_of_type, sumo_binary
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.network import network_options
 from sumo_swarm.sim.recorder import RunRecorder
+from sumo_swarm.sim.runfolder import RunFolder, StopRequest, stop_on_signals
 from sumo_swarm.sim.scene import (
     CAV_TYPE,
     LiveScene,
@@ -58,46 +60,62 @@ def run_scenario(
     progress: bool | None = None,
     gui: bool = False,
     controller: Controller | None = None,
+    force: bool = False,
+    in_place: bool = False,
+    stop: StopRequest | None = None,
 ) -> dict[str, Any]:
     """Run ``scenario`` under ``controller_name`` headless; write and return the summary.
 
     Outputs in ``out_dir``: ``summary.json``, ``trajectories.parquet``, ``events.jsonl``, the
-    SUMO inputs under ``sumo/`` (open ``sumo/scenario.sumocfg`` in sumo-gui to watch the scene)
-    and, with ``fcd``, SUMO's own ``fcd.xml``. ``controller`` replaces the named controller
-    with an object of one's own (e.g. a swarm with another planner); ``controller_name`` still
-    selects the CAVs' vehicle type.
+    SUMO inputs under ``sumo/`` (open ``sumo/scenario.sumocfg`` in sumo-gui to watch the scene),
+    ``run.json`` (what the folder holds) and, with ``fcd``, SUMO's own ``fcd.xml``.
+    ``controller`` replaces the named controller with an object of one's own (e.g. a swarm with
+    another planner); ``controller_name`` still selects the CAVs' vehicle type.
+
+    The outputs are written into a staging folder beside ``out_dir`` and moved into place at the
+    end (:mod:`sumo_swarm.sim.runfolder`): ``out_dir`` must be new or empty, or hold an earlier
+    run and ``force`` be given (the earlier run is then replaced). ``in_place``: write straight
+    into ``out_dir`` (a folder the caller stages itself, as a batch does; no signal handling).
+    SIGINT and SIGTERM (or ``stop``, set by the caller's own handlers) stop the run after the
+    step under way: what was gathered is written, ``"complete": false``, and
+    :class:`~sumo_swarm.errors.RunInterrupted` raised. A failure in SUMO or the controller is
+    written the same way, then raised as SimulationError.
     """
     controller = controller or make_controller(controller_name)
     where = f"{scenario.path}: simulation.step_length_s" if scenario.path else "step_length_s"
     check_step_length(
         scenario.simulation.step_length_s, getattr(controller, "name", controller_name), where
     )
-    out = prepare_out_dir(out_dir)
     if seed is not None:
         scenario = replace(scenario, simulation=replace(scenario.simulation, seed=seed))
-    cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo")
-    net_args, net_files = _network_args(scenario, out / "sumo")
-    args = ["-c", str(cfg), *sumo_options(scenario), *_fcd_args(out, fcd), *net_args]
-    sim = scenario.simulation
-    session = SumoSession(
-        args,
-        route_edges=route_edges(scenario),
-        is_cav=lambda vid, type_id: is_of_type(type_id, CAV_TYPE),
-        gui=gui,
-    )
-    if scene is None:  # a corridor: the CAVs are those SUMO inserts, as on a user's sumocfg
-        scene = LiveScene(session, controller)
-    return _drive(
-        session,
-        scenario,
-        controller,
-        controller_name,
-        out,
-        scene,
-        max_steps=round(sim.duration_s / sim.step_length_s),
-        progress=progress,
-        network_files=net_files,
-    )
+
+    def run(out: Path, stop: StopRequest) -> _Ending:
+        cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo")
+        net_args, net_files = _network_args(scenario, out / "sumo")
+        args = ["-c", str(cfg), *sumo_options(scenario), *_fcd_args(out, fcd), *net_args]
+        sim = scenario.simulation
+        session = SumoSession(
+            args,
+            route_edges=route_edges(scenario),
+            is_cav=lambda vid, type_id: is_of_type(type_id, CAV_TYPE),
+            gui=gui,
+        )
+        if scene is None:  # a corridor: the CAVs are those SUMO inserts, as on a user's sumocfg
+            scene = LiveScene(session, controller)
+        return _drive(
+            session,
+            scenario,
+            controller,
+            controller_name,
+            out,
+            scene,
+            max_steps=round(sim.duration_s / sim.step_length_s),
+            progress=progress,
+            network_files=net_files,
+            stop=stop,
+        )
+
+    return _in_run_folder(out_dir, run, force=force, in_place=in_place, stop=stop)
 
 
 def run_sumocfg(
@@ -113,11 +131,15 @@ def run_sumocfg(
     gui: bool = False,
     max_duration_s: float = 3600.0,
     notify=print,
+    force: bool = False,
+    in_place: bool = False,
+    stop: StopRequest | None = None,
 ) -> dict[str, Any]:
     """Run a user's SUMO configuration as it is, the vehicles of vType ``cav_type`` forming the
     swarm. Options the swarm needs that the configuration lacks are added and reported in one
-    line through ``notify``. Outputs as for :func:`run_scenario`. The run ends when SUMO has no
-    vehicle left or at the configuration's end, and after ``max_duration_s`` at the latest.
+    line through ``notify``. Outputs, ``force``, ``in_place`` and ``stop`` as for
+    :func:`run_scenario`. The run ends when SUMO has no vehicle left or at the configuration's
+    end, and after ``max_duration_s`` at the latest.
     """
     cfg = Path(sumocfg)
     options = normalized_sumocfg_options(cfg)
@@ -131,7 +153,6 @@ def run_sumocfg(
     if end <= begin:
         raise ConfigError(f"{cfg}: end ({end:g} s) must be after begin ({begin:g} s)")
     end = min(end, max_duration_s)
-    out = prepare_out_dir(out_dir)
     settings = default_settings(config)
     settings = replace(
         settings,
@@ -146,17 +167,7 @@ def run_sumocfg(
     forced = ["--collision.mingap-factor", "0", "--collision.action", "warn"]
     if seed is not None:
         forced += ["--seed", str(seed)]
-    net_args, net_files = _network_args(settings, out / "sumo", options)
-    args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true", *net_args]
-    # The record of what ran, in SUMO's own words: the user's inputs by absolute path and every
-    # option, so sumo-gui -c sumo/scenario.sumocfg shows the same scene.
-    save_sumo_configuration(cfg, args, out / "sumo" / "scenario.sumocfg")
     controller = make_controller(controller_name)
-    session = SumoSession(
-        [*args, *_fcd_args(out, fcd)],
-        is_cav=lambda vid, type_id: is_of_type(type_id, cav_type),
-        gui=gui,
-    )
 
     def check_types(sess: SumoSession) -> None:
         if cav_type not in sess.api.vehicletype.getIDList():
@@ -166,19 +177,33 @@ def run_sumocfg(
                 f"sumo-swarm: {cfg}: added {' '.join(added)} (the swarm needs SUMO's sublane model)"
             )
 
-    return _drive(
-        session,
-        settings,
-        controller,
-        controller_name,
-        out,
-        LiveScene(session, controller),
-        max_steps=round((end - begin) / step),
-        progress=progress,
-        on_start=check_types,
-        require_cavs=cav_type,
-        network_files=net_files,
-    )
+    def run(out: Path, stop: StopRequest) -> _Ending:
+        net_args, net_files = _network_args(settings, out / "sumo", options)
+        args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true", *net_args]
+        # The record of what ran, in SUMO's own words: the user's inputs by absolute path and
+        # every option, so sumo-gui -c sumo/scenario.sumocfg shows the same scene.
+        save_sumo_configuration(cfg, args, out / "sumo" / "scenario.sumocfg")
+        session = SumoSession(
+            [*args, *_fcd_args(out, fcd)],
+            is_cav=lambda vid, type_id: is_of_type(type_id, cav_type),
+            gui=gui,
+        )
+        return _drive(
+            session,
+            settings,
+            controller,
+            controller_name,
+            out,
+            LiveScene(session, controller),
+            max_steps=round((end - begin) / step),
+            progress=progress,
+            on_start=check_types,
+            require_cavs=cav_type,
+            network_files=net_files,
+            stop=stop,
+        )
+
+    return _in_run_folder(out_dir, run, force=force, in_place=in_place, stop=stop)
 
 
 def read_sumocfg_options(path: Path) -> dict[str, str]:
@@ -257,7 +282,9 @@ def save_sumo_configuration(cfg: Path, args: list[str], path: Path) -> None:
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     cmd = [sumo_binary(), *args, "--save-configuration", str(path)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    # A session of its own: Ctrl-C at the terminal stops the run, not this short call (its
+    # failure would read as SUMO refusing the user's configuration).
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, start_new_session=True)
     if proc.returncode != 0:
         lines = [line.strip() for line in proc.stderr.splitlines() if line.strip()]
         reason = next((line for line in lines if line.startswith("Error")), None)
@@ -281,6 +308,71 @@ def _fcd_args(out: Path, fcd: bool) -> list[str]:
     return ["--fcd-output", str(out / "fcd.xml"), "--fcd-output.acceleration", "true"]
 
 
+@dataclass
+class _Ending:
+    """How a run ended, told once its outputs are in place."""
+
+    summary: dict[str, Any]
+    failure: str | None = None  # SUMO or the controller failed mid-run
+    cause: BaseException | None = None
+    stopped: str | None = None  # why the run stopped early on a signal
+    no_cavs: str | None = None  # the --cav-type whose vehicles never departed
+
+
+def _in_run_folder(
+    out_dir: str | Path,
+    run: Callable[[Path, StopRequest], _Ending],
+    *,
+    force: bool,
+    in_place: bool,
+    stop: StopRequest | None,
+) -> dict[str, Any]:
+    """``run(folder, stop)`` into a staging folder moved into ``out_dir`` at the end (or, with
+    ``in_place``, into ``out_dir`` itself); then the run's summary, or how it ended raised.
+
+    Staging is discarded when the run wrote no output (bad input, a stop before SUMO started),
+    so ``out_dir`` stays as it was; once the outputs are being written, the folder is moved into
+    place whatever happens, marked incomplete with the reason when the run did not finish."""
+    if in_place:
+        return _ended(run(prepare_out_dir(out_dir), stop or StopRequest()), Path(out_dir), stop)
+    with stop_on_signals(stop) as stop:
+        if stop.requested:
+            raise stop.interrupted(f"interrupted by {stop.name}: nothing written to {out_dir}")
+        folder = RunFolder(out_dir, force)
+        try:
+            ending = run(folder.staging, stop)
+        except BaseException as exc:
+            if (folder.staging / "events.jsonl").is_file():  # outputs half written: keep them
+                folder.commit(f"the outputs could not all be written: {type(exc).__name__}: {exc}")
+            else:
+                folder.discard()
+            if isinstance(exc, RunInterrupted):
+                raise stop.interrupted(
+                    f"interrupted by {stop.name} before SUMO ran: nothing written to {out_dir}"
+                ) from None
+            raise
+        final = folder.commit(ending.summary.get("incomplete_reason"))
+    return _ended(ending, final, stop)
+
+
+def _ended(ending: _Ending, out: Path, stop: StopRequest | None) -> dict[str, Any]:
+    """The summary of a run that ended as asked; otherwise how it ended, raised."""
+    if ending.failure is not None:
+        raise SimulationError(f"{ending.failure} (outputs so far kept in {out})") from ending.cause
+    if ending.stopped is not None and stop is not None:
+        raise stop.interrupted(
+            f"{ending.stopped}: the outputs gathered so far are in {out} "
+            '(summary.json: "complete": false)'
+        )
+    if ending.no_cavs is not None:
+        raise ConfigError(f"--cav-type: no vehicle of vType '{ending.no_cavs}' ever departed")
+    if stop is not None and stop.requested:  # the signal came while the outputs were written
+        raise stop.interrupted(
+            f"interrupted by {stop.name} after the last step: the run is complete in {out}"
+        )
+    return ending.summary
+
+
 def _drive(
     session: SumoSession,
     scenario: Scenario,
@@ -294,17 +386,23 @@ def _drive(
     on_start=None,
     require_cavs: str | None = None,
     network_files: dict[str, Path] | None = None,
-) -> dict[str, Any]:
+    stop: StopRequest,
+) -> _Ending:
     """Step SUMO, record, call the controller after every step, then write every output.
 
-    Whatever happens during the run, the trajectories and events gathered so far are written
-    and the summary is built from them; a SUMO failure is raised after that.
+    Whatever happens during the run (a failure in SUMO or the controller, a ``stop`` request),
+    the trajectories and events gathered so far are written and the summary is built from them,
+    marked ``"complete": false`` with the reason; how the run ended is returned with it.
     """
     recorder = RunRecorder(
         session, controller, controller_name, scene, scenario.outputs, out_dir=out
     )
     recorder.sumo_s = 0.0
     failure: str | None = None
+    cause: BaseException | None = None
+    stopped: str | None = None
+    if stop.requested:  # before SUMO starts: nothing to keep
+        raise stop.interrupted("interrupted before SUMO started")
     with session:
         if on_start is not None:
             on_start(session)
@@ -320,6 +418,10 @@ def _drive(
         )
         try:
             for _ in range(max_steps):
+                if stop.requested:  # checked between steps: the step's rows are whole
+                    stopped = f"interrupted by {stop.name} at t = {session.time_s:.2f} s"
+                    ctx.event("interrupted", signal=stop.name, message=stopped)
+                    break
                 t0 = time.perf_counter()
                 session.step()
                 recorder.record()
@@ -331,18 +433,23 @@ def _drive(
                 if not session.has_vehicles_to_come():
                     break
         except SimulationError as exc:
-            failure = str(exc)
+            failure, cause = str(exc), exc
+            if stop.requested:  # sumo-gui got the terminal's Ctrl-C too
+                failure = f"interrupted by {stop.name} at t = {session.time_s:.2f} s"
             ctx.event("sumo_failed", message=failure)
         except Exception as exc:  # a controller bug: keep what was gathered, then report it
-            log.exception("run failed at t = %.2f s", session.time_s)
+            # The traceback with --verbose (and in a batch run's worker.log, by the chained
+            # SimulationError): one line on the command line.
+            log.debug("run failed at t = %.2f s", session.time_s, exc_info=True)
             failure = f"{type(exc).__name__} at t = {session.time_s:.2f} s: {exc}"
+            cause = exc
             ctx.event("run_failed", message=failure)
         finally:
             bar.close()
             recorder.close_controller()
-    summary = recorder.finish(out, scenario, ctx.events, network_files=network_files)
-    if failure is not None:
-        raise SimulationError(f"{failure} (outputs so far kept in {out})")
-    if require_cavs is not None and not session.cav_ids:
-        raise ConfigError(f"--cav-type: no vehicle of vType '{require_cavs}' ever departed")
-    return summary
+    reason = failure or stopped
+    summary = recorder.finish(
+        out, scenario, ctx.events, network_files=network_files, incomplete_reason=reason
+    )
+    no_cavs = require_cavs if require_cavs is not None and not session.cav_ids else None
+    return _Ending(summary, failure, cause, stopped, no_cavs)

@@ -125,7 +125,7 @@ def run_batch(
         records: dict[str, dict[str, Any]] = {}
         pending: list[RunSpec] = []
         for spec in sweep.runs:
-            record = store.finished(spec.run_id)
+            record = store.finished(spec.run_id, spec)
             if record is not None and retry_failed and record["status"] == STATUS_FAILED:
                 store.discard(spec.run_id)
                 record = None

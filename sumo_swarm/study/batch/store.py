@@ -136,8 +136,8 @@ def execute_run(spec: RunSpec, batch_dir: str | Path) -> dict[str, Any]:
     with output_to(staging / "worker.log"):
         try:
             scenario = spec.scenario()
-            summary = run_scenario(
-                scenario, spec.controller, staging, seed=spec.seed, progress=False
+            summary = run_scenario(  # in place: this staging folder is renamed at the end
+                scenario, spec.controller, staging, seed=spec.seed, progress=False, in_place=True
             )
         except Exception as exc:
             traceback.print_exc()
@@ -199,6 +199,38 @@ def read_record(folder: Path) -> dict[str, Any]:
     return json.loads((folder / RECORD).read_text(encoding="utf-8"))
 
 
+def record_problem(record: Any, run_id: str, spec: RunSpec | None = None) -> str | None:
+    """Why ``record`` is not a well-formed record of run ``run_id`` (of ``spec``, if given:
+    its controller and seed too); None if it is one."""
+    if not isinstance(record, dict):
+        return f"not a record (a JSON {type(record).__name__}, not an object)"
+    if record.get("schema") != RECORD_SCHEMA:
+        return f"not a record (schema {record.get('schema')!r}, not {RECORD_SCHEMA!r})"
+    own = {"run_id": run_id}
+    if spec is not None:
+        own.update(controller=spec.controller, seed=spec.seed)
+    for key, value in own.items():
+        if record.get(key) != value:
+            return f"another run's record ({key} {record.get(key)!r}, this run's {value!r})"
+    status, summary = record.get("status"), record.get("summary")
+    if status not in (STATUS_OK, STATUS_FAILED):
+        return f"status {status!r} is neither {STATUS_OK!r} nor {STATUS_FAILED!r}"
+    if not isinstance(record.get("error"), str | None):
+        return "error is not a text"
+    for key in ("params", "run"):
+        if not isinstance(record.get(key), dict | None):
+            return f"{key} is not a JSON object"
+    if summary is None:
+        return "status 'ok' without a summary" if status == STATUS_OK else None
+    if not isinstance(summary, dict) or not str(summary.get("schema")).startswith(
+        "sumo-swarm/summary/"
+    ):
+        return "its summary is not a sumo-swarm summary"
+    if summary.get("controller") != record["controller"]:
+        return f"its summary is of controller {summary.get('controller')!r}, not the run's"
+    return None
+
+
 def _discard(folder: Path) -> None:
     """Remove a folder: renamed out of the way first, so a crash never leaves half of it."""
     trash = folder.parent / f".{folder.name}.trash.{uuid.uuid4().hex[:8]}"
@@ -244,17 +276,26 @@ class BatchStore:
     def write_sweep(self, sweep: Sweep) -> None:
         write_json_atomic(self.out / SWEEP, sweep.to_json())
 
-    def finished(self, run_id: str) -> dict[str, Any] | None:
-        """The record of a finished run, None if it has not finished (or its record is bad)."""
+    def finished(self, run_id: str, spec: RunSpec | None = None) -> dict[str, Any] | None:
+        """The record of a finished run, None if it has not finished.
+
+        A record that cannot be read, is not well formed or is another run's (``spec``, when
+        given, says whose it must be) is discarded with a warning naming the file: the run is
+        redone, never listed under another run's name or as an empty row."""
         folder = self.runs / run_id
         if not (folder / DONE).is_file():
             return None
         try:
-            return read_record(folder)
+            record = read_record(folder)
         except (OSError, ValueError) as exc:
-            log.warning("run %s: unreadable record (%s); it will run again", run_id, exc)
-            _discard(folder)
-            return None
+            problem = f"unreadable ({type(exc).__name__}: {' '.join(str(exc).split())})"
+        else:
+            problem = record_problem(record, run_id, spec)
+            if problem is None:
+                return record
+        log.warning("%s: %s; the run will be redone", folder / RECORD, problem)
+        _discard(folder)
+        return None
 
     def discard(self, run_id: str) -> None:
         folder = self.runs / run_id
@@ -288,7 +329,7 @@ class BatchStore:
         }
         record = _record(spec, STATUS_FAILED, one_line(error), None, run)
         self.keep(record)
-        return self.finished(spec.run_id) or record
+        return self.finished(spec.run_id, spec) or record
 
     def write_results(self, sweep: Sweep, records: Mapping[str, dict[str, Any]]) -> pd.DataFrame:
         """Rebuild results.parquet and upstream.parquet (tmp file + rename) from ``records``."""
