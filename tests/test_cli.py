@@ -170,6 +170,10 @@ def test_run_sumocfg_records_the_sumo_configuration_as_run(tmp_path):
     assert options["lateral-resolution"] == "0.5"  # added: the configuration lacks it
     assert options["collision.action"] == "warn" and options["seed"] == "7"
     assert options["step-length"] == "0.1" and "fcd-output" not in options
+    # written in a staging folder, then moved: the outputs named where they are now
+    assert options["tripinfo-output"] == str((out / "sumo" / "tripinfo.xml").resolve())
+    for name in ("scenario.sumocfg", "network.add.xml"):
+        assert ".partial-" not in (out / "sumo" / name).read_text()
 
 
 @pytest.mark.parametrize(
@@ -210,7 +214,9 @@ def paper_variant(tmp_path: Path, paper_path: Path, duration_s: float) -> Path:
 
 
 def one_line_on_stderr(proc: subprocess.CompletedProcess, *fragments: str) -> str:
-    lines = proc.stderr.strip().splitlines()
+    # reproduce and batch draw their progress bars on stderr
+    bars = ("reproduce:", "batch ")
+    lines = [x for x in proc.stderr.strip().splitlines() if not x.startswith(bars)]
     assert len(lines) == 1, proc.stderr
     assert "Traceback" not in proc.stderr
     for fragment in fragments:
@@ -349,3 +355,32 @@ def test_a_signal_at_any_moment_leaves_a_folder_that_says_what_it_holds(
         assert "the run is complete" in line
     else:
         assert summary["complete"] is False and '"complete": false' in line
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("command", ["reproduce", "batch"])
+def test_sigterm_during_reproduce_or_batch_says_what_is_kept(paper_path, tmp_path, command):
+    scenario = paper_variant(tmp_path, paper_path, 20.0)
+    out = tmp_path / "o"
+    if command == "reproduce":
+        args = ["reproduce", "--scenario", str(scenario), "--out", str(out)]
+    else:
+        sweep = tmp_path / "sweep.toml"
+        sweep.write_text(f'base = "{scenario.as_posix()}"\ncontrollers = ["cacc", "sumo-cacc"]\n'
+                         'seeds = [1, 2, 3]\n', encoding="utf-8")  # fmt: skip
+        args = ["batch", str(sweep), "--out", str(out), "--workers", "1"]
+    proc = subprocess.Popen([sys.executable, "-m", "sumo_swarm", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+    wait_until(proc, lambda: (out / "runs").is_dir() and any(out.glob("runs/*/done")))
+    proc.send_signal(signal.SIGTERM)
+    done = finished(proc)
+    assert done.returncode == 128 + signal.SIGTERM
+    kept = len(list(out.glob("runs/*/done")))
+    if command == "reproduce":
+        one_line_on_stderr(done, "interrupted by SIGTERM", str(out), '"complete": false')
+        report = json.loads((out / "report.json").read_text())
+        assert report["complete"] is False
+        assert report["incomplete_reason"] == f"interrupted by SIGTERM: {kept} of 5 runs finished"
+    else:
+        one_line_on_stderr(done, "interrupted by SIGTERM", str(out), "again to resume")
+        assert len(pd.read_parquet(out / "results.parquet")) == kept < 6

@@ -290,3 +290,36 @@ def test_a_complete_run_says_so(tmp_path):
     manifest = json.loads((tmp_path / "run.json").read_text())
     assert manifest["state"] == "complete" and manifest["reason"] is None
     assert "summary.json" in manifest["files"] and "trajectories.parquet" in manifest["files"]
+
+
+def test_a_failure_while_the_outputs_are_written_leaves_them_marked_incomplete(tmp_path):
+    class BrokenSummary(Injector):
+        def summary(self):
+            raise ValueError("no summary today")
+
+    out = tmp_path / "run"
+    controller = BrokenSummary(SwarmController(), 1e9, send(signal.SIGTERM))
+    with pytest.raises(ValueError, match="no summary today"):
+        run_scenario(paper(3.0), "swarm", out, progress=False, controller=controller)
+    manifest = json.loads((out / "run.json").read_text())
+    assert manifest["state"] == "incomplete"
+    assert manifest["reason"].endswith("could not all be written: ValueError: no summary today")
+    assert (out / "trajectories.parquet").is_file() and not (out / "summary.json").exists()
+    assert no_staging_left(out)
+
+
+def test_bad_input_found_once_sumo_runs_leaves_the_folder_as_it_was(tmp_path):
+    from sumo_swarm.errors import ConfigError
+
+    class BadAttach(Injector):
+        def attach(self, ctx: RunContext) -> None:
+            raise ConfigError("a setting the controller refuses")
+
+    first = run_scenario(paper(2.0), "cacc", tmp_path / "run", progress=False)
+    before = (tmp_path / "run" / "summary.json").read_text()
+    controller = BadAttach(SwarmController(), 1e9, send(signal.SIGTERM))
+    with pytest.raises(ConfigError):
+        run_scenario(paper(2.0), "swarm", tmp_path / "run", progress=False, force=True,
+                     controller=controller)  # fmt: skip
+    assert (tmp_path / "run" / "summary.json").read_text() == before
+    assert first["controller"] == "cacc" and no_staging_left(tmp_path / "run")

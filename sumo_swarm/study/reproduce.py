@@ -28,7 +28,7 @@ from tqdm import tqdm
 from sumo_swarm.config import Scenario, load_scenario
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.core.planner import PlannerSettings
-from sumo_swarm.errors import ConfigError
+from sumo_swarm.errors import ConfigError, RunInterrupted
 from sumo_swarm.files import write_json_atomic
 from sumo_swarm.sim import metrics
 from sumo_swarm.sim.runner import prepare_out_dir
@@ -251,7 +251,10 @@ class _Reproduction:
         figures: Mapping[str, str] | None = None,
         figure_errors: Mapping[str, str] | None = None,
         complete: bool = False,
+        reason: str | None = None,
     ) -> dict[str, Any]:
+        """Write report.json and report.md of the runs so far; ``reason``: why the report is
+        not complete (default: the runs still to come)."""
         sc, ev = self.scenario, self.scenario.evaluation
         summaries = self.summaries()
         w = self.window()
@@ -265,6 +268,9 @@ class _Reproduction:
             "seed": sc.simulation.seed,
             "created_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
             "complete": complete,
+            "incomplete_reason": None
+            if complete
+            else reason or f"under way: {len(self.records)} of {len(self.runs)} runs finished",
             "wall_s": wall_s,
             "controllers": self.columns,  # the report's run columns (named after the runs)
             "columns": ["measure", "paper", *self.columns],
@@ -362,6 +368,17 @@ def reproduce(
         try:
             backend = make_backend(out, workers=workers, runs=len(specs))
             run_specs(backend, store, sorted(specs, key=lambda s: -s.cost), on_record)
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM on the command line
+            said = exc.message if isinstance(exc, RunInterrupted) else "interrupted by SIGINT"
+            for spec in specs:  # finished on disk, not yet told to this process
+                if (
+                    spec.run_id not in rep.records
+                    and (record := store.finished(spec.run_id, spec)) is not None
+                ):
+                    rep.records[spec.run_id] = record
+            done = f"{len(rep.records)} of {len(specs)} runs finished"
+            rep.write(reason=f"{said}: {done}")
+            raise
         finally:
             bar.close()
 

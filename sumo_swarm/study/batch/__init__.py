@@ -217,6 +217,12 @@ def _run_all(
         run_specs(backend, store, pending, finished)
     finally:
         bar.close()
+        for spec in pending:  # an interrupted batch: runs finished on disk, not yet told here
+            if (
+                spec.run_id not in records
+                and (record := store.finished(spec.run_id, spec)) is not None
+            ):
+                records[spec.run_id] = record
         results = store.write_results(sweep, records)
     return results
 
