@@ -416,11 +416,16 @@ def _drive(
             disable=(not progress) if progress is not None else None,
             leave=False,
         )
+
+        def stopped_now() -> str:
+            why = f"interrupted by {stop.name} at t = {session.time_s:.2f} s"
+            ctx.event("interrupted", signal=stop.name, message=why)
+            return why
+
         try:
             for _ in range(max_steps):
                 if stop.requested:  # checked between steps: the step's rows are whole
-                    stopped = f"interrupted by {stop.name} at t = {session.time_s:.2f} s"
-                    ctx.event("interrupted", signal=stop.name, message=stopped)
+                    stopped = stopped_now()
                     break
                 t0 = time.perf_counter()
                 session.step()
@@ -433,14 +438,15 @@ def _drive(
                 if not session.has_vehicles_to_come():
                     break
         except SimulationError as exc:
-            failure, cause = str(exc), exc
-            if stop.requested:  # sumo-gui got the terminal's Ctrl-C too
-                failure = f"interrupted by {stop.name} at t = {session.time_s:.2f} s"
-            ctx.event("sumo_failed", message=failure)
+            if stop.requested:  # sumo-gui got the terminal's Ctrl-C too: a stop, not a failure
+                stopped = stopped_now()
+            else:
+                failure, cause = str(exc), exc
+                ctx.event("sumo_failed", message=failure)
         except Exception as exc:  # a controller bug: keep what was gathered, then report it
-            # The traceback with --verbose (and in a batch run's worker.log, by the chained
-            # SimulationError): one line on the command line.
-            log.debug("run failed at t = %.2f s", session.time_s, exc_info=True)
+            # One line on the command line; the traceback with --verbose and in a batch run's
+            # worker.log.
+            log.info("run failed at t = %.2f s", session.time_s, exc_info=True)
             failure = f"{type(exc).__name__} at t = {session.time_s:.2f} s: {exc}"
             cause = exc
             ctx.event("run_failed", message=failure)
