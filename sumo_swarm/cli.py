@@ -389,7 +389,7 @@ def _cmd_impact(args: argparse.Namespace) -> int:
 
 
 def _raise_interrupted(signum: int, frame) -> None:
-    """SIGTERM as Ctrl-C: the commands' cleanup runs and one line says so."""
+    """SIGTERM (and SIGHUP) as Ctrl-C: the commands' cleanup runs and one line says so."""
     name = signal.Signals(signum).name
     raise RunInterrupted(f"interrupted by {name}", 128 + signum)
 
@@ -406,9 +406,12 @@ def _interrupted_line(exc: KeyboardInterrupt, command: str | None, out: Path | N
 
 def main(argv: list[str] | None = None) -> int:
     args = None
-    previous_term = None
+    previous = {}
     if threading.current_thread() is threading.main_thread():
-        previous_term = signal.signal(signal.SIGTERM, _raise_interrupted)
+        for name in ("SIGTERM", "SIGHUP"):
+            if hasattr(signal, name):
+                sig = getattr(signal, name)
+                previous[sig] = signal.signal(sig, _raise_interrupted)
     try:
         args = build_parser().parse_args(argv)
         logging.basicConfig(
@@ -443,8 +446,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sumo-swarm: unexpected error: {type(exc).__name__}: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     finally:
-        if previous_term is not None:
-            signal.signal(signal.SIGTERM, previous_term)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 if __name__ == "__main__":

@@ -164,6 +164,8 @@ def test_sumo_exiting_mid_run_keeps_the_outputs(tmp_path):
     assert summary["sim_end_s"] == pytest.approx(5.0, abs=0.05)
     events = (tmp_path / "events.jsonl").read_text()
     assert "sumo_failed" in events or "run_failed" in events
+    assert summary["complete"] is False and summary["incomplete_reason"]
+    assert json.loads((tmp_path / "run.json").read_text())["state"] == "incomplete"
 
 
 def test_a_run_that_records_nothing_still_writes_its_outputs(tmp_path):
@@ -204,7 +206,7 @@ def send(sig: signal.Signals, times: int = 1) -> Callable[[RunContext], None]:
     return action
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_a_signal_mid_run_writes_what_was_gathered_marked_incomplete(tmp_path, sig):
     out = tmp_path / "run"
     with pytest.raises(RunInterrupted) as stopped:

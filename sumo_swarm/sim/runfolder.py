@@ -7,7 +7,7 @@ it holds: ``state`` is ``running`` (a run under way, or one killed with SIGKILL:
 staging folder is left), ``complete`` or ``incomplete`` (interrupted, or a failure in SUMO or
 the controller: ``reason`` says which; the outputs are what was gathered until then).
 
-A signal (SIGINT, SIGTERM) during a run is a request to stop (:class:`StopRequest`): the run
+A signal (SIGINT, SIGTERM, SIGHUP) during a run is a request to stop (:class:`StopRequest`): the run
 stops after the step under way, writes what it gathered marked ``"complete": false`` and ends
 with :class:`~sumo_swarm.errors.RunInterrupted`. A second signal while the outputs are written
 changes nothing: the outputs are written whole first.
@@ -191,10 +191,15 @@ class StopRequest:
         return RunInterrupted(message, self.exit_status)
 
 
+# Ctrl-C, kill's default, and the terminal closing (not on Windows).
+STOP_SIGNALS = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
+
+
 @contextlib.contextmanager
 def stop_on_signals(
-    stop: StopRequest | None = None,
-    signals: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM),
+    stop: StopRequest | None = None, signals: tuple[signal.Signals, ...] = STOP_SIGNALS
 ) -> Iterator[StopRequest]:
     """While inside, ``signals`` only set ``stop`` (a new one unless given); the handlers in
     place before are restored at the end. Outside the main thread (where Python cannot
