@@ -384,3 +384,28 @@ def test_sigterm_during_reproduce_or_batch_says_what_is_kept(paper_path, tmp_pat
     else:
         one_line_on_stderr(done, "interrupted by SIGTERM", str(out), "again to resume")
         assert len(pd.read_parquet(out / "results.parquet")) == kept < 6
+
+
+@pytest.mark.sumo
+def test_kill_9_mid_run_never_leaves_a_mixed_folder(paper_path, tmp_path):
+    out = tmp_path / "o"
+    short = paper_variant(tmp_path, paper_path, 3.0)
+    assert sumo_swarm("run", str(short), "--controller", "cacc", "--out", str(out)).returncode == 0
+    before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sumo_swarm", "run", str(paper_variant(tmp_path, paper_path, 600.0)),
+         "--controller", "sumo-cacc", "--out", str(out), "--force", "--fcd"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    wait_until(proc, lambda: any((s / "fcd.xml").is_file() for s in staged(out)))
+    proc.kill()
+    proc.wait()
+    # the earlier run as it was; the killed one aside, saying what it is
+    assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before
+    (left,) = staged(out)
+    manifest = json.loads((left / "run.json").read_text())
+    assert manifest["state"] == "running" and manifest["pid"] == proc.pid
+    assert manifest["out"] == str(out.resolve()) and not (left / "summary.json").exists()
+    forced = sumo_swarm("run", str(short), "--controller", "sumo-lc", "--out", str(out), "--force")
+    assert forced.returncode == 0, forced.stderr
+    assert json.loads((out / "summary.json").read_text())["controller"] == "sumo-lc"

@@ -28,8 +28,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from sumo_swarm.errors import ConfigError, RunInterrupted
-from sumo_swarm.files import write_json_atomic
+from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
+from sumo_swarm.files import fsync_folder, write_json_atomic
 
 MANIFEST = "run.json"
 MANIFEST_SCHEMA = "sumo-swarm/run-folder/1"
@@ -121,8 +121,6 @@ class RunFolder:
         """Mark the run complete (``reason`` None) or incomplete (why), and move it into
         place; returns ``out``. If ``out`` was filled by someone else meanwhile, the run stays in
         its staging folder and SimulationError says where."""
-        from sumo_swarm.errors import SimulationError
-
         self.manifest.update(
             state=STATE_COMPLETE if reason is None else STATE_INCOMPLETE,
             reason=reason,
@@ -143,6 +141,7 @@ class RunFolder:
                 f"output folder {self.out} was filled by something else during the run "
                 f"({exc.strerror or exc}); this run's outputs are in {self.staging}"
             ) from None
+        fsync_folder(target.parent)  # the rename itself survives a crash
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
         return self.out
