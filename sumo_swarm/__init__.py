@@ -5,8 +5,23 @@ and regroup into a platoon (Hu et al., "Vehicles Swarm Intelligence: Cooperation
 both Longitudinal and Lateral Dimensions").
 """
 
+from typing import TYPE_CHECKING
+
 __version__ = "0.1.0"
 
-from sumo_swarm.sim.plugin import SwarmHandle, attach, detach
+if TYPE_CHECKING:
+    from sumo_swarm.sim.plugin import SwarmHandle, attach, detach
 
 __all__ = ["SwarmHandle", "__version__", "attach", "detach"]
+
+_PLUGIN_API = ("SwarmHandle", "attach", "detach")
+
+
+def __getattr__(name: str):
+    # The plugin API is imported when first asked for (PEP 562): the command line starts, and
+    # can answer Ctrl-C or SIGTERM in one line, before pandas and SUMO's bindings are loaded.
+    if name in _PLUGIN_API:
+        from sumo_swarm.sim import plugin
+
+        return getattr(plugin, name)
+    raise AttributeError(f"module 'sumo_swarm' has no attribute {name!r}")

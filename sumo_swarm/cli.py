@@ -388,19 +388,27 @@ def _cmd_impact(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+class _Signalled(RunInterrupted):
+    """A command stopped by SIGTERM or SIGHUP where it was (its message says only that)."""
+
+
 def _raise_interrupted(signum: int, frame) -> None:
     """SIGTERM (and SIGHUP) as Ctrl-C: the commands' cleanup runs and one line says so."""
     name = signal.Signals(signum).name
-    raise RunInterrupted(f"interrupted by {name}", 128 + signum)
+    raise _Signalled(f"interrupted by {name}", 128 + signum)
 
 
 def _interrupted_line(exc: KeyboardInterrupt, command: str | None, out: Path | None) -> str:
     """One line for an interrupted command: what it kept and how to go on."""
+    if isinstance(exc, RunInterrupted) and not isinstance(exc, _Signalled):
+        return " ".join(exc.message.split())  # a run's own account of what it kept
     text = exc.message if isinstance(exc, RunInterrupted) else "interrupted by SIGINT"
     if command == "batch" and out is not None:
         text += f": finished runs are kept in {out}; run the same command again to resume"
     elif command == "reproduce" and out is not None:
         text += f': the report so far is in {out} (report.json: "complete": false)'
+    elif command == "run" and out is not None:  # before the run began
+        text += f": nothing written to {out}"
     return " ".join(text.split())
 
 
@@ -409,8 +417,8 @@ def main(argv: list[str] | None = None) -> int:
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for name in ("SIGTERM", "SIGHUP"):
-            if hasattr(signal, name):
-                sig = getattr(signal, name)
+            sig = getattr(signal, name, None)
+            if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:  # nohup: ignored
                 previous[sig] = signal.signal(sig, _raise_interrupted)
     try:
         args = build_parser().parse_args(argv)

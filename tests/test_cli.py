@@ -409,3 +409,18 @@ def test_kill_9_mid_run_never_leaves_a_mixed_folder(paper_path, tmp_path):
     forced = sumo_swarm("run", str(short), "--controller", "sumo-lc", "--out", str(out), "--force")
     assert forced.returncode == 0, forced.stderr
     assert json.loads((out / "summary.json").read_text())["controller"] == "sumo-lc"
+
+
+def test_an_interrupted_command_says_what_it_kept_in_one_line():
+    from sumo_swarm.cli import _interrupted_line, _Signalled
+    from sumo_swarm.errors import RunInterrupted
+
+    out = Path("o")
+    term = _Signalled("interrupted by SIGTERM", 143)
+    assert _interrupted_line(term, "run", out) == "interrupted by SIGTERM: nothing written to o"
+    assert _interrupted_line(KeyboardInterrupt(), "batch", out) == (
+        "interrupted by SIGINT: finished runs are kept in o; run the same command again to resume"
+    )
+    assert "report.json" in _interrupted_line(term, "reproduce", out)
+    kept = RunInterrupted("interrupted by SIGINT at t = 3.00 s:\nkept in o", 130)
+    assert _interrupted_line(kept, "run", out) == "interrupted by SIGINT at t = 3.00 s: kept in o"

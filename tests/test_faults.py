@@ -325,3 +325,16 @@ def test_bad_input_found_once_sumo_runs_leaves_the_folder_as_it_was(tmp_path):
                      controller=controller)  # fmt: skip
     assert (tmp_path / "run" / "summary.json").read_text() == before
     assert first["controller"] == "cacc" and no_staging_left(tmp_path / "run")
+
+
+def test_a_signal_ignored_before_the_run_stays_ignored(tmp_path):
+    # nohup ignores SIGHUP: a run under it goes on when the terminal closes
+    controller = Injector(SwarmController(), 1.0, send(signal.SIGHUP))
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        summary = run_scenario(paper(3.0), "cacc", tmp_path / "run", progress=False,
+                               controller=controller)  # fmt: skip
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+    assert summary["complete"] is True and summary["sim_end_s"] == pytest.approx(3.0)

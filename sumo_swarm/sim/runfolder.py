@@ -201,8 +201,9 @@ def stop_on_signals(
     stop: StopRequest | None = None, signals: tuple[signal.Signals, ...] = STOP_SIGNALS
 ) -> Iterator[StopRequest]:
     """While inside, ``signals`` only set ``stop`` (a new one unless given); the handlers in
-    place before are restored at the end. Outside the main thread (where Python cannot
-    handle signals) nothing is installed."""
+    place before are restored at the end. A signal ignored when entering (SIGHUP under nohup)
+    stays ignored; outside the main thread (where Python cannot handle signals) nothing is
+    installed."""
     stop = stop if stop is not None else StopRequest()
     if threading.current_thread() is not threading.main_thread():
         yield stop
@@ -210,6 +211,8 @@ def stop_on_signals(
     previous = {}
     try:
         for sig in signals:
+            if signal.getsignal(sig) is signal.SIG_IGN:  # ignored on purpose (nohup, a & job)
+                continue
             previous[sig] = signal.signal(sig, lambda signum, frame: stop.request(signum))
         yield stop
     finally:
