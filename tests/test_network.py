@@ -502,7 +502,8 @@ def test_network_outputs_that_cannot_be_read_cost_the_block_not_the_run(
         raise ValueError("damaged")
 
     monkeypatch.setattr(network, "read_trips", broken)
-    summary = run_scenario(sc, "cacc", tmp_path / "run", progress=False)  # the same folder
+    # the same folder, the earlier run replaced (refused without force)
+    summary = run_scenario(sc, "cacc", tmp_path / "run", progress=False, force=True)
     assert summary["network"] is None and summary["network_error"] == "ValueError: damaged"
     written = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert written["network_error"] == "ValueError: damaged" and written["cav"]["count"] == 6
