@@ -25,3 +25,7 @@ def __getattr__(name: str):
 
         return getattr(plugin, name)
     raise AttributeError(f"module 'sumo_swarm' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_PLUGIN_API})
