@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib.resources
 import logging
+import math
 import signal
 import sys
 import textwrap
@@ -96,6 +97,15 @@ file: section.key (cav.count), a key of a nested table (planner.weights.w_tar), 
 one item of a list of tables picked by its id (scene.hv.hv_target.speed_mps). Every run is
 checked before any starts.
 
+Your own SUMO configuration instead of a base scenario:
+
+  sumocfg = "road.sumocfg"           # relative to the sweep file
+  cav_type = "cav"                   # the CAVs' vType (as run --cav-type)
+  cav_share_of = "distribution"      # or "passenger" (of all passenger vehicles)
+  [grid]
+  cav_share = [0.1, 0.3, 0.6]        # the CAV share, 0 to 1
+  scale = [1.0, 1.5]                 # SUMO's --scale (demand); seeds are SUMO's --seed
+
 --out DIR holds sweep.json, results.parquet (one row per run: parameters, run_id, status,
 error and every summary field, flattened with dots), upstream.parquet, runs/<run_id>/ (each
 run's outputs) and impact/ (tables and plots). Stop it at any moment and run the same command
@@ -125,6 +135,24 @@ def _int_at_least(minimum: int, maximum: int | None = None):
         if value < minimum or (maximum is not None and value > maximum):
             upper = f" and <= {maximum}" if maximum is not None else ""
             raise argparse.ArgumentTypeError(f"must be >= {minimum}{upper}, got {value}")
+        return value
+
+    return parse
+
+
+def _float_in(low: float, high: float | None = None, *, low_open: bool = False):
+    """An argparse type: a finite number in [low, high] ((low, high] with ``low_open``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        too_low = value <= low if low_open else value < low
+        if not math.isfinite(value) or too_low or (high is not None and value > high):
+            lower = f"> {low:g}" if low_open else f">= {low:g}"
+            upper = f" and <= {high:g}" if high is not None else ""
+            raise argparse.ArgumentTypeError(f"must be {lower}{upper}, got {text}")
         return value
 
     return parse
@@ -174,6 +202,26 @@ def build_parser() -> argparse.ArgumentParser:
         "vType's maxSpeed)",
     )
     run.add_argument(
+        "--scale",
+        type=_float_in(0.0, low_open=True),
+        metavar="X",
+        help="with --sumocfg: SUMO's --scale, the demand factor (default: the configuration's)",
+    )
+    run.add_argument(
+        "--cav-share",
+        type=_float_in(0.0, 1.0),
+        metavar="P",
+        help="with --sumocfg: the share of CAVs, 0 to 1, of --cav-share-of, drawn by SUMO "
+        "with the seed (default: the configuration's own)",
+    )
+    run.add_argument(
+        "--cav-share-of",
+        choices=("distribution", "passenger"),
+        default="distribution",
+        help="what --cav-share is a share of: the vTypeDistributions holding --cav-type, or all "
+        "passenger vehicles (default: %(default)s)",
+    )
+    run.add_argument(
         "--controller", default="swarm", choices=CONTROLLERS, metavar="NAME", help=CONTROLLER_HELP
     )
     run.add_argument(
@@ -181,7 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_int_at_least(0, SEED_MAX),
         metavar="N",
         help="SUMO's random seed, 0 or more (default: the scenario's [simulation] seed; with "
-        "--sumocfg, the configuration's)",
+        "--sumocfg, the configuration's, else SUMO's default 23423)",
     )
     run.add_argument(
         "--out",
@@ -330,8 +378,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
             gui=args.gui,
             notify=lambda line: print(line, file=sys.stderr),
             force=args.force,
+            scale=args.scale,
+            cav_share=args.cav_share,
+            cav_share_of=args.cav_share_of,
+            require_cavs=args.cav_share is None,  # a share may give no CAV (0, or by chance)
         )
     else:
+        if args.scale is not None or args.cav_share is not None:
+            raise ConfigError("run: --scale and --cav-share go with --sumocfg")
         if args.scenario is None:
             raise ConfigError("run: give a scenario file (or --sumocfg FILE --cav-type TYPE)")
         scenario = load_scenario(args.scenario)

@@ -120,3 +120,52 @@ def write_exit_case(
         encoding="utf-8",
     )
     return cfg
+
+
+def write_mixed_case(
+    folder: Path,
+    *,
+    length_m: float = 1500.0,
+    lanes: int = 2,
+    rate_vph: float = 1800.0,
+    flow_end_s: float = 40.0,
+    end_s: float = 60.0,
+    cav_probability: float = 0.2,
+    extra: str = "",
+) -> Path:
+    """A sumocfg as a corridor study would have it: a slow truck ahead, and a flow that draws
+    its vehicles from the vTypeDistribution ``traffic`` (cars of vType ``car``, with SUMO's
+    driver imperfection, so that the seed shows; CAVs of vType ``cav`` with probability
+    ``cav_probability``), departing at random (``probability``) on the first edge; a flow of
+    ``lorry`` trucks (vClass truck) now and then. ``extra`` is added to the routes file.
+    Returns the sumocfg (``road.sumocfg``)."""
+    spec = HighwaySpec(length_m=length_m, lanes=lanes)
+    net = build_highway(spec, folder)
+    edges = " ".join(edge_ids(spec))
+    per_step = rate_vph / 3600.0
+    routes = f"""<routes>
+    <vType id="car" length="4.5" maxSpeed="25" sigma="0.5" speedFactor="1" speedDev="0.1"/>
+    <vType id="cav" length="5" maxSpeed="25" accel="3" decel="4" sigma="0" color="0,160,255"/>
+    <vType id="lorry" vClass="truck" length="12" maxSpeed="14" speedDev="0"/>
+    <vTypeDistribution id="traffic" vTypes="car cav"
+        probabilities="{1.0 - cav_probability:g} {cav_probability:g}"/>
+    <route id="r" edges="{edges}"/>
+    <vehicle id="slow" type="lorry" route="r" depart="0" departLane="0" departPos="200"
+        departSpeed="14"/>
+    <flow id="main" type="traffic" route="r" begin="0" end="{flow_end_s:g}"
+        probability="{per_step:.6f}" departLane="random" departSpeed="max"/>
+    <flow id="lorries" type="lorry" route="r" begin="0" end="{flow_end_s:g}" number="2"
+        departLane="0" departSpeed="max"/>
+{extra}</routes>
+"""
+    (folder / "routes.rou.xml").write_text(routes, encoding="utf-8")
+    cfg = folder / "road.sumocfg"
+    cfg.write_text(
+        "<configuration>\n  <input>\n"
+        f'    <net-file value="{net.name}"/>\n    <route-files value="routes.rou.xml"/>\n'
+        "  </input>\n  <time>\n"
+        f'    <step-length value="0.1"/>\n    <end value="{end_s:g}"/>\n'
+        "  </time>\n</configuration>\n",
+        encoding="utf-8",
+    )
+    return cfg

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import secrets
 import subprocess
 import tempfile
 import time
@@ -14,12 +15,18 @@ from typing import Any
 
 from tqdm import tqdm
 
-from sumo_swarm.checks import require_number
+from sumo_swarm.checks import SEED_MAX, require_number
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
 from sumo_swarm.sim.bridge import SumoSession, is_of_type, sumo_binary
+from sumo_swarm.sim.demand import (
+    Demand,
+    check_share_applies,
+    read_demand,
+    write_shared_demand,
+)
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.network import network_options
 from sumo_swarm.sim.recorder import RunRecorder
@@ -134,16 +141,33 @@ def run_sumocfg(
     force: bool = False,
     in_place: bool = False,
     stop: StopRequest | None = None,
+    scale: float | None = None,
+    cav_share: float | None = None,
+    cav_share_of: str = "distribution",
+    require_cavs: bool = True,
 ) -> dict[str, Any]:
     """Run a user's SUMO configuration as it is, the vehicles of vType ``cav_type`` forming the
     swarm. Options the swarm needs that the configuration lacks are added and reported in one
     line through ``notify``. Outputs, ``force``, ``in_place`` and ``stop`` as for
     :func:`run_scenario`. The run ends when SUMO has no vehicle left or at the configuration's
     end, and after ``max_duration_s`` at the latest.
+
+    ``seed``: SUMO's ``--seed`` (default: the configuration's, else SUMO's own default); the
+    summary's ``seed`` is the one SUMO ran with. ``scale``: SUMO's ``--scale`` (demand factor).
+    ``cav_share``: the share of CAVs, of the ``vTypeDistribution`` s holding ``cav_type`` or of
+    all passenger vehicles (``cav_share_of``), in copies of the demand files written into
+    ``sumo/demand/`` of the run's folder (:mod:`sumo_swarm.sim.demand`). ``require_cavs``: a
+    run in which no CAV departs is bad input (a wrong ``cav_type``); a study, whose draws may
+    give none (share 0), says False.
     """
     cfg = Path(sumocfg)
     options = normalized_sumocfg_options(cfg)
     check_sumocfg_inputs(cfg, options)
+    if scale is not None:
+        require_number("scale", scale, gt=0.0)
+    if cav_share is not None:
+        require_number("cav_share", cav_share, ge=0.0, le=1.0)
+    seed = sumocfg_seed(cfg, options) if seed is None else seed
     step = sumocfg_time_s(cfg, options, "step-length", 1.0)
     begin = sumocfg_time_s(cfg, options, "begin", 0.0)
     end = sumocfg_time_s(cfg, options, "end", max_duration_s)
@@ -157,16 +181,22 @@ def run_sumocfg(
     settings = replace(
         settings,
         name=cfg.stem,
-        simulation=replace(settings.simulation, step_length_s=step),
+        simulation=replace(settings.simulation, step_length_s=step, seed=seed),
         evaluation=replace(settings.evaluation, start_s=begin, end_s=end),
     )
     added = []
     if "lateral-resolution" not in options:
         added += ["--lateral-resolution", "0.5"]
     # Collisions are physical overlaps, counted and never teleported away (our safety measure).
+    # The seed is always given, so the one in the summary is the one SUMO ran with.
     forced = ["--collision.mingap-factor", "0", "--collision.action", "warn"]
-    if seed is not None:
-        forced += ["--seed", str(seed)]
+    forced += ["--seed", str(seed), "--random", "false"]
+    if scale is not None:
+        forced += ["--scale", f"{scale!r}"]
+    demand = None
+    if cav_share is not None:  # checked before the run's folder is made: bad input changes nothing
+        demand = read_demand(demand_files(options))
+        check_share_applies(demand, cav_type, cav_share_of, cfg)
     controller = make_controller(controller_name)
 
     def check_types(sess: SumoSession) -> None:
@@ -178,8 +208,17 @@ def run_sumocfg(
             )
 
     def run(out: Path, stop: StopRequest) -> _Ending:
-        net_args, net_files = _network_args(settings, out / "sumo", options)
-        args = ["-c", str(cfg.resolve()), *added, *forced, "--no-step-log", "true", *net_args]
+        given, sumo_args = options, list(forced)
+        if cav_share is not None:
+            given, demand_args = _shared_demand(
+                given, out / "sumo" / "demand", cav_type, cav_share, cav_share_of, demand
+            )
+            sumo_args += demand_args
+        net_args, net_files = _network_args(settings, out / "sumo", given)
+        if "--additional-files" in net_args and "--additional-files" in sumo_args:
+            at = sumo_args.index("--additional-files")  # the network outputs' option lists them
+            del sumo_args[at : at + 2]
+        args = ["-c", str(cfg.resolve()), *added, *sumo_args, "--no-step-log", "true", *net_args]
         # The record of what ran, in SUMO's own words: the user's inputs by absolute path and
         # every option, so sumo-gui -c sumo/scenario.sumocfg shows the same scene.
         save_sumo_configuration(cfg, args, out / "sumo" / "scenario.sumocfg")
@@ -198,12 +237,66 @@ def run_sumocfg(
             max_steps=round((end - begin) / step),
             progress=progress,
             on_start=check_types,
-            require_cavs=cav_type,
+            require_cavs=cav_type if require_cavs else None,
             network_files=net_files,
             stop=stop,
         )
 
     return _in_run_folder(out_dir, run, force=force, in_place=in_place, stop=stop)
+
+
+# SUMO's --seed when neither the command line nor the configuration gives one
+# (``sumo --save-template``; tests/test_sumocfg_sweep.py checks it against SUMO).
+SUMO_DEFAULT_SEED = 23423
+
+
+def sumocfg_seed(cfg: Path, options: dict[str, str]) -> int:
+    """The seed a configuration runs with: its own ``seed``, else SUMO's default. One that asks
+    for a seed from the clock (``random``) gets one drawn here, so the run can be repeated."""
+    if options.get("random", "false").lower() in ("true", "1", "yes", "on", "x"):
+        return secrets.randbelow(SEED_MAX + 1)
+    text = options.get("seed")
+    if text is None:
+        return SUMO_DEFAULT_SEED
+    try:
+        seed = int(text)
+    except ValueError:
+        raise ConfigError(f"{cfg}: seed: expected an integer, got {text!r}") from None
+    require_number(f"{cfg}: seed", seed, ge=0, le=SEED_MAX, integer=True)
+    return seed
+
+
+def demand_files(options: dict[str, str]) -> list[Path]:
+    """The files of a configuration that may hold vehicle types and vehicles, in the order SUMO
+    loads them (additional files, then route files); paths as ``options`` give them."""
+    return [
+        Path(name.strip())
+        for option in ("additional-files", "route-files")
+        for name in options.get(option, "").split(",")
+        if name.strip()
+    ]
+
+
+def _shared_demand(
+    options: dict[str, str],
+    folder: Path,
+    cav_type: str,
+    share: float,
+    share_of: str,
+    demand: Demand,
+) -> tuple[dict[str, str], list[str]]:
+    """The configuration's options with the CAV share applied (copies of the demand files that
+    change, in ``folder``), and the SUMO options that load the copies; ``demand``: what the
+    files hold (:func:`~sumo_swarm.sim.demand.read_demand`)."""
+    copies = write_shared_demand(demand_files(options), folder, cav_type, share, share_of, demand)
+    options = dict(options)
+    args: list[str] = []
+    for option in ("additional-files", "route-files"):
+        names = [n.strip() for n in options.get(option, "").split(",") if n.strip()]
+        if any(Path(n) in copies for n in names):
+            options[option] = ",".join(str(copies.get(Path(n), Path(n))) for n in names)
+            args += [f"--{option}", options[option]]
+    return options, args
 
 
 def read_sumocfg_options(path: Path) -> dict[str, str]:

@@ -41,7 +41,6 @@ from sumo_swarm.checks import finite_or_none
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.files import write_json_atomic, write_parquet_atomic
 from sumo_swarm.sim.metrics import INFLUENCE_THRESHOLD_PCT
-from sumo_swarm.sim.runner import run_scenario
 from sumo_swarm.study.batch.sweep import RunSpec, Sweep
 
 log = logging.getLogger(__name__)
@@ -135,10 +134,7 @@ def execute_run(spec: RunSpec, batch_dir: str | Path) -> dict[str, Any]:
     status, error, summary = STATUS_OK, None, None
     with output_to(staging / "worker.log"):
         try:
-            scenario = spec.scenario()
-            summary = run_scenario(  # in place: this staging folder is renamed at the end
-                scenario, spec.controller, staging, seed=spec.seed, progress=False, in_place=True
-            )
+            summary = spec.run(staging)
         except Exception as exc:
             traceback.print_exc()
             status = STATUS_FAILED

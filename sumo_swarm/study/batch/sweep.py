@@ -17,6 +17,17 @@ A sweep file (TOML)::
     "scene.hv.hv_target.speed_mps" = 15.0
     "scene.hv.hv_target.desired_speed_mps" = 15.0
 
+A sweep over a user's own SUMO configuration names it instead of a base::
+
+    sumocfg = "road.sumocfg"           # relative to this file
+    cav_type = "cav"                   # the CAVs' vType
+    cav_share_of = "distribution"      # or "passenger" (see sumo_swarm.sim.demand)
+    config = "swarm.toml"              # optional: the swarm's settings
+
+    [grid]                             # [fixed] and [[cases]] as above
+    cav_share = [0.1, 0.3]             # the CAV share
+    scale = [1.0, 1.5]                 # SUMO's --scale
+
 Runs = cases x grid x seeds x controllers. A parameter is a dotted key of the scenario file:
 ``section.key`` (``cav.count``), a key of a nested table (``planner.weights.w_tar``) or a key of
 one item of a list of tables picked by its ``id`` (``scene.hv.hv_target.speed_mps``). Bare
@@ -49,8 +60,28 @@ from sumo_swarm.config import (
 )
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.demand import SHARE_OF, check_share_applies, read_demand
+from sumo_swarm.sim.runner import (
+    SUMO_DEFAULT_SEED,
+    check_sumocfg_inputs,
+    demand_files,
+    normalized_sumocfg_options,
+    run_scenario,
+    run_sumocfg,
+    sumocfg_seed,
+    sumocfg_time_s,
+)
+from sumo_swarm.sim.scene import default_settings
+from sumo_swarm.sim.steplimit import check_step_length
 
 SWEEP_KEYS = ("name", "description", "base", "controllers", "seeds", "fixed", "grid", "cases")
+# A sweep over a user's SUMO configuration names it (``sumocfg``) instead of a ``base``.
+SUMOCFG_SWEEP_KEYS = (
+    "name", "description", "sumocfg", "cav_type", "cav_share_of", "config", "controllers",
+    "seeds", "fixed", "grid", "cases",
+)  # fmt: skip
+# Its parameters: SUMO's --scale (the demand factor) and the CAV share (sumo_swarm.sim.demand).
+SUMOCFG_PARAMETERS = ("scale", "cav_share")
 DEFAULT_CONTROLLERS = ("swarm", "cacc")
 # Rough CPU cost per simulated step of each controller, relative to the baselines (measured on
 # the paper's scene: a swarm run takes 3-10x a cacc run). Only the order of the runs uses it:
@@ -180,10 +211,7 @@ def read_value(scenario: Scenario, path: ParamPath) -> Any:
 
 class TomlBase:
     """A scenario TOML file as the base of a sweep; parameters are overrides of its keys.
-
-    (A ``.sumocfg`` base, with parameters of the user's own SUMO configuration, would be a
-    second class with the same three methods.)
-    """
+    (:class:`SumocfgBase`: a user's SUMO configuration.)"""
 
     kind = "toml"
 
@@ -218,7 +246,9 @@ class TomlBase:
 
 def load_base(path: Path) -> TomlBase:
     if path.suffix == ".sumocfg":
-        raise ConfigError(f"{path}: a .sumocfg base is not available yet; use a scenario TOML")
+        raise ConfigError(
+            f'{path}: a SUMO configuration is named by sumocfg = "..." (with cav_type), not base'
+        )
     if path.suffix != ".toml":
         raise ConfigError(f"{path}: the base must be a scenario .toml file")
     if not path.is_file():
@@ -226,7 +256,104 @@ def load_base(path: Path) -> TomlBase:
     return TomlBase(path)
 
 
+class SumocfgBase:
+    """A user's SUMO configuration as the base of a sweep, its vehicles of vType ``cav_type``
+    the swarm; parameters: :data:`SUMOCFG_PARAMETERS`. Checked when loaded: the configuration
+    and its files (SUMO reads it), the CAV type among its vTypes, the swarm's settings file."""
+
+    kind = "sumocfg"
+
+    def __init__(
+        self, path: Path, cav_type: str, share_of: str | None, config: Path | None
+    ) -> None:
+        self.path = path.resolve()
+        self.options = normalized_sumocfg_options(path)
+        check_sumocfg_inputs(path, self.options)
+        self.demand = read_demand(demand_files(self.options))
+        if cav_type not in self.demand.vtypes():
+            vtypes = ", ".join(self.demand.vtypes()) or "none"
+            raise ConfigError(f"cav_type: no vType '{cav_type}' in {path} (its vTypes: {vtypes})")
+        self.cav_type = cav_type
+        self.share_of = share_of
+        self.config = str(config.resolve()) if config is not None else None
+        self.settings = default_settings(config)  # the settings file must load on its own
+        self.step_s = sumocfg_time_s(path, self.options, "step-length", 1.0)
+        begin = sumocfg_time_s(path, self.options, "begin", 0.0)
+        self.steps = (sumocfg_time_s(path, self.options, "end", 3600.0) - begin) / self.step_s
+        # A configuration that asks for a seed from the clock gets SUMO's default here: the
+        # seeds are part of the run ids, which must not change between two loads.
+        clock = "random" in self.options and self.options["random"].lower() != "false"
+        self.seed = SUMO_DEFAULT_SEED if clock else sumocfg_seed(path, self.options)
+        self.scale = float(self.options.get("scale", "1"))
+
+    @property
+    def name(self) -> str:
+        return self.path.stem
+
+    def identity(self) -> dict[str, Any]:
+        """What makes the runs of this base what they are, beside the parameters."""
+        return {"cav_type": self.cav_type, "cav_share_of": self.share_of, "config": self.config}
+
+    def value(self, key: str, value: Any, where: str) -> float:
+        """A parameter's value, checked, as a canonical number (``1`` and ``1.0`` alike)."""
+        try:
+            if key == "scale":
+                require_number(key, value, gt=0.0)
+            else:
+                require_number(key, value, ge=0.0, le=1.0)
+        except ConfigError as exc:
+            raise ConfigError(f'{where}."{key}" = {value!r}: {exc}') from None
+        return float(value)
+
+    def default(self, key: str) -> float | None:
+        """A parameter's value where a run does not set it: the configuration's."""
+        return self.scale if key == "scale" else None
+
+    def job(self, values: Mapping[str, Any]) -> SumocfgRun:
+        return SumocfgRun(
+            cav_type=self.cav_type,
+            config=self.config,
+            scale=values.get("scale"),
+            cav_share=values.get("cav_share"),
+            cav_share_of=self.share_of or "distribution",
+        )
+
+
+def load_sumocfg_base(sweep: Path, data: Mapping[str, Any]) -> SumocfgBase:
+    """The ``sumocfg`` of a sweep file's ``data``, its CAV type, share and settings checked."""
+    for key in ("sumocfg", "cav_type"):
+        if key not in data:
+            raise ConfigError(f"{key}: missing (a sumocfg sweep names sumocfg and cav_type)")
+        if not isinstance(data[key], str) or not data[key]:
+            raise ConfigError(f"{key}: expected a non-empty string, got {data[key]!r}")
+    path = sweep.parent / data["sumocfg"]
+    if not path.is_file():
+        raise ConfigError(f"sumocfg: file not found: {path}")
+    share_of = data.get("cav_share_of")
+    if share_of is not None and share_of not in SHARE_OF:
+        raise ConfigError(f"cav_share_of: expected one of {', '.join(SHARE_OF)}, got {share_of!r}")
+    config = data.get("config")
+    if config is not None:
+        if not isinstance(config, str) or not config:
+            raise ConfigError(f"config: expected a file name, got {config!r}")
+        config = sweep.parent / config
+        if not config.is_file():
+            raise ConfigError(f"config: file not found: {config}")
+    return SumocfgBase(path, data["cav_type"], share_of, config)
+
+
 # --------------------------------------------------------------------------- runs
+
+
+@dataclass(frozen=True)
+class SumocfgRun:
+    """How a run of a user's SUMO configuration differs from the configuration as it is."""
+
+    cav_type: str
+    config: str | None  # the swarm's settings file (absolute), None for the defaults
+    scale: float | None  # SUMO's --scale; None: the configuration's
+    cav_share: float | None  # the CAV share; None: the configuration's own
+    cav_share_of: str  # "distribution" or "passenger" (sumo_swarm.sim.demand)
 
 
 @dataclass(frozen=True)
@@ -234,15 +361,33 @@ class RunSpec:
     """One run of a sweep: everything a worker needs (picklable, no open resources)."""
 
     run_id: str
-    base_path: str  # absolute path of the base scenario file
+    base_path: str  # absolute path of the base scenario file (or of the user's sumocfg)
     overrides: dict[str, dict[str, Any]]  # load_scenario overrides, fixed values included
     params: dict[str, Any]  # the swept parameters of this run (dotted key -> value)
     seed: int
     controller: str
     cost: float = 1.0  # a rough relative run time, to start long runs first
+    sumocfg: SumocfgRun | None = None  # set when the base is a user's SUMO configuration
 
     def scenario(self) -> Scenario:
+        if self.sumocfg is not None:
+            raise ConfigError(f"{self.base_path}: a SUMO configuration, not a scenario file")
         return load_scenario(self.base_path, overrides=copy.deepcopy(self.overrides))
+
+    def run(self, out_dir: Path) -> dict[str, Any]:
+        """Run it into ``out_dir`` (headless, no progress bar); the summary."""
+        job = self.sumocfg
+        # in place: ``out_dir`` is the batch's own staging folder, renamed at the end
+        if job is None:
+            return run_scenario(
+                self.scenario(), self.controller, out_dir, seed=self.seed, progress=False,
+                in_place=True,
+            )  # fmt: skip
+        return run_sumocfg(
+            self.base_path, job.cav_type, self.controller, out_dir, config=job.config,
+            seed=self.seed, progress=False, scale=job.scale, cav_share=job.cav_share,
+            cav_share_of=job.cav_share_of, require_cavs=False, in_place=True,
+        )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -252,7 +397,7 @@ class Sweep:
     path: Path
     name: str
     description: str
-    base: TomlBase
+    base: TomlBase | SumocfgBase
     fixed: dict[str, Any]
     parameters: tuple[str, ...]  # swept keys, grid first, in file order
     controllers: tuple[str, ...]
@@ -266,6 +411,7 @@ class Sweep:
             "name": self.name,
             "description": self.description,
             "base": str(self.base.path),
+            "base_kind": self.base.kind,
             "base_name": self.base.name,
             "fixed": self.fixed,
             "parameters": list(self.parameters),
@@ -388,6 +534,10 @@ def find_case(path: str | Path, index: int, controller: str = "swarm") -> RunSpe
 
 
 def _build(path: Path, data: dict[str, Any]) -> Sweep:
+    if "sumocfg" in data:
+        if "base" in data:
+            raise ConfigError("base and sumocfg: give one (a scenario file or a sumocfg)")
+        return _build_sumocfg(path, data)
     if "base" not in data and set(data) & set(SECTIONS):
         raise ConfigError(
             "this is a scenario file, not a sweep: run it with 'sumo-swarm run FILE', or write a "
@@ -410,11 +560,7 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
         base = load_base(path.parent / data["base"])
     except ConfigError as exc:
         raise ConfigError(f"base: {exc}") from None
-    controllers = _str_list(data.get("controllers", list(DEFAULT_CONTROLLERS)), "controllers")
-    for c in controllers:
-        if c not in CONTROLLERS:
-            known = ", ".join(CONTROLLERS)
-            raise ConfigError(f"controllers: unknown controller '{c}' (known: {known})")
+    controllers = _controllers(data)
     seeds = _seed_list(data.get("seeds", [base.default.simulation.seed]), "seeds")
 
     fixed = _table(data.get("fixed", {}), "fixed")
@@ -477,6 +623,106 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
         description=description,
         base=base,
         fixed={key: read_value(fixed_scenario, paths[key]) for key in fixed},
+        parameters=parameters,
+        controllers=tuple(controllers),
+        seeds=tuple(seeds),
+        runs=tuple(runs),
+    )
+
+
+def _controllers(data: Mapping[str, Any]) -> list[str]:
+    controllers = _str_list(data.get("controllers", list(DEFAULT_CONTROLLERS)), "controllers")
+    for c in controllers:
+        if c not in CONTROLLERS:
+            known = ", ".join(CONTROLLERS)
+            raise ConfigError(f"controllers: unknown controller '{c}' (known: {known})")
+    return controllers
+
+
+def _build_sumocfg(path: Path, data: dict[str, Any]) -> Sweep:
+    """A sweep over a user's SUMO configuration: seeds, controllers, ``scale``, ``cav_share``."""
+    unknown = sorted(set(data) - set(SUMOCFG_SWEEP_KEYS))
+    if unknown:
+        known = ", ".join(SUMOCFG_SWEEP_KEYS)
+        raise ConfigError(f"unknown key '{unknown[0]}' (a sumocfg sweep has: {known})")
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"name: expected a non-empty string, got {name!r}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ConfigError(f"description: expected a string, got {description!r}")
+    controllers = _controllers(data)
+    base = load_sumocfg_base(path, data)
+    for controller in controllers:
+        check_step_length(base.step_s, controller, f"{base.path}: step-length")
+    seeds = _seed_list(data.get("seeds", [base.seed]), "seeds")
+
+    fixed = _table(data.get("fixed", {}), "fixed")
+    grid = _table(data.get("grid", {}), "grid")
+    raw_cases = data.get("cases", [{}])
+    if not isinstance(raw_cases, list) or not raw_cases:
+        raise ConfigError("cases: expected a non-empty array of tables ([[cases]])")
+    cases = [_table(c, f"cases[{i}]") for i, c in enumerate(raw_cases)]
+    tables = [("fixed", fixed), ("grid", grid), *((f"cases[{i}]", c) for i, c in enumerate(cases))]
+    for where, table in tables:
+        for key in table:
+            if key not in SUMOCFG_PARAMETERS:
+                known = ", ".join(SUMOCFG_PARAMETERS)
+                raise ConfigError(
+                    f"{where}: unknown parameter '{key}' (a sumocfg sweep varies: {known})"
+                )
+    for key, values in grid.items():
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f'grid."{key}": expected a non-empty list of values, got {values!r}')
+    both = sorted(set(fixed) & {k for _, t in tables[1:] for k in t})
+    if both:
+        raise ConfigError(f'fixed."{both[0]}": also swept in [grid] or [[cases]]')
+    both = sorted(set(grid) & {k for _, t in tables[2:] for k in t})
+    if both:
+        raise ConfigError(f'grid."{both[0]}": also set in [[cases]]')
+    shared = any("cav_share" in t for _, t in tables)
+    if shared and base.share_of is None:
+        raise ConfigError(
+            'cav_share_of: missing: say what cav_share is a share of: "distribution" (the CAV '
+            'type\'s probability in the vTypeDistributions holding it) or "passenger" (of all '
+            "passenger vehicles)"
+        )
+    if base.share_of is not None and not shared:
+        raise ConfigError("cav_share_of: no cav_share in [fixed], [grid] or [[cases]] to apply to")
+    if shared:
+        check_share_applies(base.demand, base.cav_type, base.share_of or "", base.path)
+
+    parameters = tuple(dict.fromkeys([*grid, *(k for c in cases for k in c)]))
+    runs: list[RunSpec] = []
+    seen: dict[str, dict[str, Any]] = {}
+    points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
+    for i, case in enumerate(cases):
+        for point in points:
+            raw = {**fixed, **case, **point}
+            places = {**dict.fromkeys(fixed, "fixed"), **dict.fromkeys(case, f"cases[{i}]")}
+            places.update(dict.fromkeys(point, "grid"))
+            values = {key: base.value(key, value, places[key]) for key, value in raw.items()}
+            params = {key: values.get(key, base.default(key)) for key in parameters}
+            job = base.job(values)
+            identity = {**base.identity(), **values}
+            for seed in seeds:
+                for controller in controllers:
+                    run_id = make_run_id(base.name, identity, params, seed, controller)
+                    if run_id in seen:
+                        raise ConfigError(
+                            f"cases[{i}]: the runs of {raw} repeat those of {seen[run_id]}"
+                        )
+                    seen[run_id] = raw
+                    cost = base.steps * CONTROLLER_COST.get(controller, 1.0)
+                    overrides = {"sumocfg": dataclasses.asdict(job)}
+                    spec = RunSpec(run_id, str(base.path), overrides, params, seed, controller)
+                    runs.append(dataclasses.replace(spec, cost=cost, sumocfg=job))
+    return Sweep(
+        path=path.resolve(),
+        name=name,
+        description=description,
+        base=base,
+        fixed={key: base.value(key, value, "fixed") for key, value in fixed.items()},
         parameters=parameters,
         controllers=tuple(controllers),
         seeds=tuple(seeds),
