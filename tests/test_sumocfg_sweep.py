@@ -462,6 +462,15 @@ def test_run_share_and_scale_options_refuse_bad_values(road, tmp_path, capsys, a
     assert not (tmp_path / "o").exists()
 
 
+def test_run_share_that_cannot_apply_exits_2_before_any_folder(road, tmp_path, capsys):
+    out = tmp_path / "o"
+    cmd = ["run", "--sumocfg", str(road), "--cav-type", "lorry", "--cav-share", "0.5"]
+    assert main([*cmd, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "vTypeDistribution holding 'lorry'" in err[0] and str(road) in err[0]
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
 def test_run_share_options_go_with_sumocfg(capsys, tmp_path):
     assert main(["run", "paper.toml", "--cav-share", "0.5", "--out", str(tmp_path)]) == 2
     assert "--cav-share go with --sumocfg" in capsys.readouterr().err
