@@ -38,3 +38,5 @@ def assert_summary_contract(summary: dict) -> None:
         assert not lacking, f"summary.network lacks {lacking}"
     for row in summary["upstream"]:
         assert set(row) >= UPSTREAM_KEYS
+    # every measure was taken (sim/measured.py: a failed one is None, its reason here)
+    assert summary["errors"] == {}, f"summary measures failed: {summary['errors']}"

@@ -215,7 +215,7 @@ def travel_times_s(
     cav = cav[cav["kind"] == kind].sort_values(["vehicle", "time_s"], kind="mergesort")
     tracks = {
         str(v): (g["time_s"].to_numpy(dtype=float), g["s_m"].to_numpy(dtype=float))
-        for v, g in cav.groupby("vehicle", sort=True)
+        for v, g in cav.groupby("vehicle", sort=True, observed=True)
     }
     if not tracks:
         return {}
@@ -714,16 +714,16 @@ def upstream_impact(
     else:  # the pairing is step by step: the window's rows of a larger table are the same
         followed = gap_table[gap_table.index.isin(in_window.index)]
     ids = behind["vehicle"].to_numpy()
-    speeds = in_window[in_window["vehicle"].isin(ids)].groupby("vehicle")["speed_mps"].min()
+    speeds = _smallest_by_vehicle(in_window[in_window["vehicle"].isin(ids)], "speed_mps")
     mine = followed[followed["vehicle"].isin(ids) & followed["gap_m"].notna()]
-    min_gap = mine.groupby("vehicle")["gap_m"].min()
-    min_headway = mine.groupby("vehicle")["headway_s"].min()
+    min_gap = _smallest_by_vehicle(mine, "gap_m")
+    min_headway = _smallest_by_vehicle(mine, "headway_s")
     undisturbed = undisturbed or {}
 
     rows: list[dict[str, object]] = []
     for row in behind.itertuples(index=False):
-        vid = row.vehicle
-        reference = finite_or_none(undisturbed.get(str(vid), row.speed_mps))
+        vid = str(row.vehicle)
+        reference = finite_or_none(undisturbed.get(vid, row.speed_mps))
         slowest = finite_or_none(speeds.get(vid))
         if reference is None or slowest is None or reference <= 0:
             reduction = 0.0 if reference is not None and slowest is not None else None
@@ -733,7 +733,7 @@ def upstream_impact(
             {
                 "lane": int(row.lane),
                 "rank": int(row.rank),
-                "vehicle": str(vid),
+                "vehicle": vid,
                 "undisturbed_speed_mps": reference,
                 "min_speed_mps": slowest,
                 "speed_reduction_pct": reduction,
@@ -742,6 +742,27 @@ def upstream_impact(
             }
         )
     return rows
+
+
+def upstream_window(ref_time_s: float, end_s: float) -> EvaluationWindow | None:
+    """The window of a summary's upstream block: from the reference time (the manoeuvre's
+    start) to the end of the evaluation window [s]; None when the manoeuvre began after that
+    end (a run evaluated over its first minute, a swarm that overtook later): no block."""
+    return EvaluationWindow(ref_time_s, end_s) if ref_time_s <= end_s else None
+
+
+def _smallest_by_vehicle(rows: pd.DataFrame, column: str) -> dict[str, float]:
+    """Each vehicle's smallest ``column`` in ``rows`` (NaN skipped), keyed by its name as text.
+
+    Grouped on the names as text and looked up in a dict, never in a categorical index: in
+    pandas 3.1 an empty group-by of a categorical column gives an index with int8 codes however
+    many categories it has, and looking up a name beyond the 127th raises OverflowError instead
+    of missing (a busy road whose upstream vehicles never follow anyone)."""
+    if rows.empty:
+        return {}
+    values = pd.Series(rows[column].to_numpy(dtype=float))
+    smallest = values.groupby(rows["vehicle"].astype(str).to_numpy(dtype=object)).min()
+    return {str(v): float(x) for v, x in smallest.items()}
 
 
 def influenced_count(

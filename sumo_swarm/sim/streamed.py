@@ -25,6 +25,7 @@ sample), the upstream vehicles' rows and the speed field's cells. An hour of the
 
 from __future__ import annotations
 
+import functools
 import os
 import shutil
 from collections.abc import Callable, Iterable, Iterator
@@ -39,6 +40,7 @@ import pyarrow.parquet as pq
 from sumo_swarm.core.swarming.decision import REGROUPED_GAP_FACTOR
 from sumo_swarm.files import dictionary_columns
 from sumo_swarm.sim import metrics
+from sumo_swarm.sim.measured import MeasureErrors
 from sumo_swarm.sim.metrics import EvaluationWindow
 from sumo_swarm.sim.summary import TableMeasures, overtake_times_s, pass_times_s
 
@@ -154,79 +156,132 @@ def streamed_measures(
     ev = scenario.evaluation
     w = EvaluationWindow(ev.start_s, ev.end_s)
     ref_time = t_start_s if t_start_s is not None else ev.start_s
-    ref_w = EvaluationWindow(ref_time, ev.end_s)
+    ref_w = metrics.upstream_window(ref_time, ev.end_s)  # None: no upstream block
     paired_w = EvaluationWindow(min(ev.start_s, ref_time), ev.end_s)
-    tol = metrics.TIME_TOLERANCE_S
     followed = set(cav_ids) | ({target} if target else set())
     excluded = {target} if target else set()
 
     cav = _CavSamples(ev.travel_distance_m)
     passed: dict[str, float | None] = dict.fromkeys(cav_ids)
     fields: list[pd.DataFrame] = []
-    ttc_min = np.inf
-    up_rows, up_pairs = [], []
-    up_ids: set[str] | None = None  # the upstream vehicles, once the reference step is read
+    ttc_min = [np.inf]
+    up = _UpstreamRows(ref_time, ref_w, ev.upstream_ranks, excluded)
+    m = MeasureErrors()  # each measure on its own: one that fails stops there, the rest go on
     for part in slices():
         if speed_field is not None:
-            fields.append(speed_field(part))
+            fields.append(m.take("network.speed_field", speed_field, part))
         names = part["vehicle"].astype(str)
-        _first_passes(passed, part.loc[names.isin(followed).to_numpy(), TRACK_COLUMNS], target)
+        m.take("overtake.times", _first_passes, passed,
+               part.loc[names.isin(followed).to_numpy(), TRACK_COLUMNS], target)  # fmt: skip
         windowed = _in(part, w)
-        cav.add_rows(windowed.loc[windowed["kind"] == metrics.CAV, CAV_COLUMNS])
-        pairs = metrics.gaps(_in(part, paired_w))
-        in_w = pairs.loc[pairs.index.isin(windowed.index)]
-        cav.add_pairs(in_w.loc[in_w["kind"] == metrics.CAV])
-        ttc = in_w["ttc_s"].to_numpy(dtype=float)
-        ttc = ttc[np.isfinite(ttc)]
-        if ttc.size:
-            ttc_min = min(ttc_min, float(ttc.min()))
-        # The upstream block: its vehicles are chosen at the first step at or after ref_time
-        # (metrics.upstream_impact, which then measures them over ref_w).
-        if up_ids is None:
-            times = part["time_s"].to_numpy(dtype=float)
-            later = times[times >= ref_time - tol]
-            if later.size:
-                at_ref = part[times == later.min()]
-                up_rows.append(at_ref)
-                up_pairs.append(pairs.loc[pairs.index.isin(at_ref.index)])
-                up_ids = _upstream_ids(at_ref, ev.upstream_ranks, excluded)
-        if up_ids:
-            in_ref = _in(part, ref_w)
-            mine = in_ref[in_ref["vehicle"].astype(str).isin(up_ids)]
-            up_rows.append(mine)
-            up_pairs.append(pairs.loc[pairs.index.isin(mine.index)])
+        cav_rows = windowed.loc[windowed["kind"] == metrics.CAV, CAV_COLUMNS]
+        m.take("cav.speed", cav.add_speeds, cav_rows)
+        m.take("cav.travel_time_s", cav.add_travel, cav_rows)
 
-    upstream_df = _first_of_each_row(_concat(up_rows))  # the reference step's rows: once
-    upstream: list = []
-    if up_ids:
-        upstream = metrics.upstream_impact(
-            upstream_df,
-            ref_time,
-            n_rank=ev.upstream_ranks,
-            window=ref_w,
-            behind_of="front",
-            exclude=[target] if target else [],
-            gap_table=_first_of_each_row(_concat(up_pairs)),
-        )
+        @functools.cache
+        def pairs(part: pd.DataFrame = part) -> pd.DataFrame:
+            """The slice's pairs, made by the first measure that needs them (again by the next
+            if that failed: each measure of the pairs fails with its own reason)."""
+            return metrics.gaps(_in(part, paired_w))
+
+        @functools.cache
+        def in_window(windowed: pd.DataFrame = windowed) -> pd.DataFrame:
+            return pairs().loc[pairs().index.isin(windowed.index)]
+
+        m.take("cav.gap", lambda: cav.add_pairs(_of_kind(in_window(), metrics.CAV)))
+        m.take("safety.min_ttc_s", lambda: _smallest_ttc(ttc_min, in_window()))
+        m.take("upstream", up.add, part, pairs)
+
+    upstream = m.take("upstream", up.measure, target)
     t_end = t_regroup = None
-    if target is not None and passed and all(t is not None for t in passed.values()):
+    if (
+        not m.failed("overtake.times")
+        and target is not None
+        and passed
+        and all(t is not None for t in passed.values())
+    ):
         # Every CAV got past the target: the regrouping needs the vehicles between the CAVs.
-        t_end, t_regroup = overtake_times_s(
-            _between_cavs(slices(), cav_ids, followed),
-            cav_ids,
-            target,
-            REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m,
+        t_end, t_regroup = m.take(
+            "overtake.times",
+            lambda: overtake_times_s(
+                _between_cavs(slices(), cav_ids, followed),
+                cav_ids,
+                target,
+                REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m,
+            ),
+            default=(None, None),
         )
+    ttc_known = not m.failed("safety.min_ttc_s") and bool(np.isfinite(ttc_min[0]))
     measures = TableMeasures(
-        speed=cav.speed(),
-        gap=cav.gap(),
-        travel_time_s=metrics.mean_travel_time_s(cav.clock.times()),
+        speed=m.take("cav.speed", cav.speed, default={}),
+        gap=m.take("cav.gap", cav.gap, default={}),
+        travel_time_s=m.take(
+            "cav.travel_time_s", lambda: metrics.mean_travel_time_s(cav.clock.times())
+        ),
         t_end_s=t_end,
         t_regrouped_s=t_regroup,
         upstream=upstream,
-        min_ttc_s=float(ttc_min) if np.isfinite(ttc_min) else None,
+        min_ttc_s=float(ttc_min[0]) if ttc_known else None,
+        errors=m.reasons,
     )
+    fields = [f for f in fields if f is not None] if not m.failed("network.speed_field") else []
     return measures, fields
+
+
+def _of_kind(rows: pd.DataFrame, kind: str) -> pd.DataFrame:
+    return rows.loc[rows["kind"] == kind]
+
+
+def _smallest_ttc(smallest: list[float], pairs: pd.DataFrame) -> None:
+    """``smallest[0]``: the smallest finite time to collision [s] of ``pairs`` and itself."""
+    ttc = pairs["ttc_s"].to_numpy(dtype=float)
+    ttc = ttc[np.isfinite(ttc)]
+    if ttc.size:
+        smallest[0] = min(smallest[0], float(ttc.min()))
+
+
+class _UpstreamRows:
+    """The rows and pairs the upstream block reads, gathered slice by slice: every vehicle at
+    the reference step (the first at or after ``ref_time``), then the rows of the vehicles
+    :func:`~sumo_swarm.sim.metrics.upstream_impact` selects there, over ``ref_w``."""
+
+    def __init__(
+        self, ref_time: float, ref_w: EvaluationWindow | None, n_rank: int, excluded: set[str]
+    ) -> None:
+        self.ref_time, self.ref_w, self.n_rank, self.excluded = ref_time, ref_w, n_rank, excluded
+        self.rows: list[pd.DataFrame] = []
+        self.pairs: list[pd.DataFrame] = []
+        self.ids: set[str] | None = None  # the upstream vehicles, once the reference step is read
+
+    def add(self, part: pd.DataFrame, pairs: Callable[[], pd.DataFrame]) -> None:
+        if self.ref_w is None:
+            return
+        if self.ids is None:
+            times = part["time_s"].to_numpy(dtype=float)
+            later = times[times >= self.ref_time - metrics.TIME_TOLERANCE_S]
+            if later.size:
+                at_ref = part[times == later.min()]
+                self.rows.append(at_ref)
+                self.pairs.append(pairs().loc[pairs().index.isin(at_ref.index)])
+                self.ids = _upstream_ids(at_ref, self.n_rank, self.excluded)
+        if self.ids:
+            in_ref = _in(part, self.ref_w)
+            mine = in_ref[in_ref["vehicle"].astype(str).isin(self.ids)]
+            self.rows.append(mine)
+            self.pairs.append(pairs().loc[pairs().index.isin(mine.index)])
+
+    def measure(self, target: str | None) -> list:
+        if not self.ids:
+            return []
+        return metrics.upstream_impact(
+            _first_of_each_row(_concat(self.rows)),  # the reference step's rows: once
+            self.ref_time,
+            n_rank=self.n_rank,
+            window=self.ref_w,
+            behind_of="front",
+            exclude=[target] if target else [],
+            gap_table=_first_of_each_row(_concat(self.pairs)),
+        )
 
 
 class _CavSamples:
@@ -241,13 +296,18 @@ class _CavSamples:
         self.gaps: list[np.ndarray] = []
         self.behind_cav: list[np.ndarray] = []
 
-    def add_rows(self, rows: pd.DataFrame) -> None:
-        """CAV rows of a slice (whole steps, in time order)."""
+    def add_speeds(self, rows: pd.DataFrame) -> None:
+        """CAV rows of a slice (whole steps, in time order): their speeds."""
         if rows.empty:
             return
         self.speeds.append(rows["speed_mps"].to_numpy(dtype=float))
+        self.vehicles.update(rows["vehicle"].astype(str).unique())
+
+    def add_travel(self, rows: pd.DataFrame) -> None:
+        """CAV rows of a slice (whole steps, in time order): each CAV's travel clock."""
+        if rows.empty:
+            return
         rows = _as_text(rows)
-        self.vehicles.update(rows["vehicle"].unique())
         t, s = rows["time_s"].to_numpy(dtype=float), rows["s_m"].to_numpy(dtype=float)
         for vehicle, at in rows.groupby("vehicle", sort=False).indices.items():
             self.clock.add(str(vehicle), t[at], s[at])

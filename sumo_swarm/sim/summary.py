@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -11,6 +11,7 @@ import pandas as pd
 from sumo_swarm.checks import finite_or_none
 from sumo_swarm.core.swarming.decision import REGROUPED_GAP_FACTOR
 from sumo_swarm.sim import metrics
+from sumo_swarm.sim.measured import MeasureErrors
 from sumo_swarm.sim.metrics import EvaluationWindow
 
 if TYPE_CHECKING:
@@ -167,8 +168,9 @@ class TableMeasures:
     travel_time_s: float | None
     t_end_s: float | None  # overtake_times_s
     t_regrouped_s: float | None
-    upstream: list[dict[str, Any]]  # metrics.upstream_impact
+    upstream: list[dict[str, Any]] | None  # metrics.upstream_impact
     min_ttc_s: float | None
+    errors: dict[str, str] = field(default_factory=dict)  # the measures that failed, and why
 
 
 def table_measures(
@@ -179,34 +181,48 @@ def table_measures(
     t_start_s: float | None,
 ) -> TableMeasures:
     """The summary's measures of the trajectory table ``df`` over the scenario's evaluation
-    window; ``target`` and ``t_start_s``: the overtake's, as the controller reports them."""
+    window; ``target`` and ``t_start_s``: the overtake's, as the controller reports them.
+    Each measure is taken on its own (:mod:`~sumo_swarm.sim.measured`): one that fails is None
+    and its reason is in ``errors``."""
     ev = scenario.evaluation
     w = EvaluationWindow(ev.start_s, ev.end_s)
-    pairs = metrics.gaps(metrics.window(df, w))  # every follower and leader, once
-    t_end, t_regroup = overtake_times_s(
-        df, cav_ids, target, REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m
-    )
+    m = MeasureErrors()
+    # every follower and leader, once (None if the pairing fails: each measure of the pairs
+    # then tries it on its own and fails with its reason)
+    pairs = m.take("cav.gap", lambda: metrics.gaps(metrics.window(df, w)))
+    t_end, t_regroup = m.take(
+        "overtake.times", overtake_times_s, df, cav_ids, target,
+        REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m, default=(None, None),
+    )  # fmt: skip
     ref_time = t_start_s if t_start_s is not None else ev.start_s
     # The HVs behind the swarm's front at the decision: those beside the platoon, which the
     # swarm blocks, rank first in their lanes; the slow vehicle itself is left out.
-    upstream = metrics.upstream_impact(
-        df,
-        ref_time,
-        n_rank=ev.upstream_ranks,
-        window=EvaluationWindow(ref_time, ev.end_s),
-        behind_of="front",
-        exclude=[target] if target else [],
-        # the pairs of the evaluation window hold this window's rows when it starts inside it
-        gap_table=pairs if ref_time >= ev.start_s else None,
-    )
+    ref_w = metrics.upstream_window(ref_time, ev.end_s)
+    upstream: list[dict[str, Any]] | None = []  # none: the manoeuvre began after the window
+    if ref_w is not None:
+        upstream = m.take(
+            "upstream",
+            metrics.upstream_impact,
+            df,
+            ref_time,
+            n_rank=ev.upstream_ranks,
+            window=ref_w,
+            behind_of="front",
+            exclude=[target] if target else [],
+            # the pairs of the evaluation window hold this window's rows when it starts inside it
+            gap_table=pairs if ref_time >= ev.start_s else None,
+        )
     return TableMeasures(
-        speed=metrics.cav_speed_stats(df, w),
-        gap=metrics.cav_gap_stats(df, w, gap_table=pairs),
-        travel_time_s=metrics.travel_time_s(df, w, ev.travel_distance_m),
+        speed=m.take("cav.speed", metrics.cav_speed_stats, df, w, default={}),
+        gap=m.take("cav.gap", metrics.cav_gap_stats, df, w, gap_table=pairs, default={}),
+        travel_time_s=m.take(
+            "cav.travel_time_s", metrics.travel_time_s, df, w, ev.travel_distance_m
+        ),
         t_end_s=t_end,
         t_regrouped_s=t_regroup,
         upstream=upstream,
-        min_ttc_s=metrics.min_ttc_s(df, w, gap_table=pairs),
+        min_ttc_s=m.take("safety.min_ttc_s", metrics.min_ttc_s, df, w, gap_table=pairs),
+        errors=m.reasons,
     )
 
 
@@ -272,13 +288,19 @@ def build_summary(
         "statuses",
         "fallbacks",
     )
+    errors = MeasureErrors()
+    errors.reasons.update(m.errors)
     if hard_brakes is not None:
         brakes = (hard_brakes.count(), hard_brakes.count("cav"), hard_brakes.count("hv"))
     elif df is None:
         raise ValueError("build_summary: without the table, the hard brakes must be counted")
     else:
         by_kind = [df[df["kind"] == k] if len(df) else df for k in ("cav", "hv")]
-        brakes = (metrics.hard_brakes(df), *(metrics.hard_brakes(d) for d in by_kind))
+        brakes = errors.take(
+            "safety.hard_brakes",
+            lambda: (metrics.hard_brakes(df), *(metrics.hard_brakes(d) for d in by_kind)),
+            default=(None, None, None),
+        )
     planner = {k: None for k in planner_keys}
     planner.update(controller_summary.get("planner", {}))
     return {
@@ -321,4 +343,6 @@ def build_summary(
         # Extra: the speeds the swarm used and where they came from.
         "speeds": controller_summary.get("speeds"),
         "timing": {k: finite_or_none(v) for k, v in timing.items()},
+        # Extra: the measures that failed (each None in its block), measure -> reason.
+        "errors": errors.reasons,
     }
