@@ -132,3 +132,28 @@ def test_random_traffic_up_to_capacity_writes_every_summary(seed, tmp_path):
         summary = run_sumocfg(cfg, "cav", controller, tmp_path / controller, notify=lambda _: None)
         assert (tmp_path / controller / "summary.json").is_file()
         assert_whole(summary)
+
+
+def test_a_measure_failing_on_a_real_run_costs_that_measure_only(monkeypatch, tmp_path):
+    # Whatever a measure meets, the run keeps its summary.json: the measure None, the reason
+    # in "errors", the other blocks whole (here the upstream block, as on the busy road).
+    from sumo_swarm.sim import metrics
+
+    cfg = write_busy_road(tmp_path / "road", end_s=15.0, length_m=600.0)
+    plain = run_sumocfg(cfg, "cav", "sumo-lc", tmp_path / "plain", notify=lambda _: None)
+
+    def broken(*args, **kwargs):
+        raise OverflowError("Python integer 140 out of bounds for int8")
+
+    monkeypatch.setattr(metrics, "upstream_impact", broken)
+    out = tmp_path / "broken"
+    run_sumocfg(cfg, "cav", "sumo-lc", out, notify=lambda _: None)
+    written = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    assert written["upstream"] is None
+    assert written["errors"] == {
+        "upstream": "OverflowError: Python integer 140 out of bounds for int8"
+    }
+    for block in ("cav", "safety", "network"):
+        assert written[block].keys() == plain[block].keys()
+    assert written["cav"]["mean_speed_mps"] == plain["cav"]["mean_speed_mps"]
+    assert written["safety"]["collisions"] == plain["safety"]["collisions"] == 0

@@ -130,6 +130,55 @@ def test_upstream_vehicles_that_never_follow_anyone_among_many_names():
         assert measures.upstream == upstream and measures.errors == {}
 
 
+def test_no_upstream_block_when_the_manoeuvre_began_after_the_evaluation_window():
+    # A run evaluated over its first 5 s whose swarm began to overtake at 8 s: the block is
+    # empty (it raised a ConfigError, a window ending before it starts, and lost the summary).
+    rows = [(t, v, k, 0, s0 + 20.0 * t, 20.0) for t in range(10)
+            for v, k, s0 in (("c0", "cav", 100.0), ("h0", "hv", 50.0))]  # fmt: skip
+    df = pd.DataFrame(rows, columns=["time_s", "vehicle", "kind", "lane", "s_m", "speed_mps"])
+    df = as_recorded(df.assign(edge="e0", x_m=0.0, y_m=0.0, lat_m=0.0, accel_mps2=0.0,
+                               length_m=5.0))  # fmt: skip
+    sc = scenario(end_s=5.0)
+    for measures in (
+        summary.table_measures(df, sc, ("c0",), None, 8.0),
+        streamed.streamed_measures(in_slices(df, 3), sc, ("c0",), None, 8.0)[0],
+    ):
+        assert measures.upstream == [] and measures.errors == {}
+    # inside the window, the HV behind the CAV is measured
+    assert [u["vehicle"] for u in summary.table_measures(df, sc, ("c0",), None, 2.0).upstream] == [
+        "h0"
+    ]
+
+
+def test_a_step_with_a_position_on_the_lane_unknown_is_paired_on_the_route_alone():
+    # Two vehicles in one lane whose route coordinate and position on the lane disagree (5 m
+    # apart on the lane, 15 m on the route). At t = 1 one position on the lane is unknown:
+    # that step is paired on the route, t = 0 still on the lane, whether the table holds both
+    # steps or one (the streamed summary pairs a slice of steps at a time).
+    df = pd.DataFrame(
+        {
+            "time_s": [0.0, 0.0, 1.0, 1.0],
+            "vehicle": ["a", "b", "a", "b"],
+            "kind": "hv",
+            "edge": "e0",
+            "lane": 0,
+            "s_m": [10.0, 30.0, 10.0, 30.0],
+            "lane_pos_m": [50.0, 60.0, np.nan, 60.0],
+            "speed_mps": 10.0,
+            "length_m": 5.0,
+        }
+    )
+    whole = metrics.gaps(df)
+    assert whole["gap_m"].tolist()[::2] == [5.0, 15.0]  # a behind b at t = 0 and t = 1
+    assert metrics.gaps(df[df["time_s"] == 0.0])["gap_m"].tolist()[0] == 5.0
+
+
+def test_travel_times_of_positions_unknown_are_none():
+    df = pd.DataFrame({"time_s": [0.0, 1.0], "vehicle": "c0", "kind": "cav", "s_m": [np.nan, 20.0]})
+    assert metrics.travel_times_s(df) == {"c0": None}  # no distance covered is known
+    assert metrics.travel_time_s(df) is None
+
+
 # ------------------------------------------------------------------------------------------
 # a busy network: thousands of vehicles on hundreds of edges and lanes
 

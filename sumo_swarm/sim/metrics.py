@@ -26,6 +26,7 @@ Conventions shared by every function here:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -221,7 +222,7 @@ def travel_times_s(
         return {}
     if distance_m is None:
         distance_m = min(s[-1] - s[0] for _, s in tracks.values())
-        if distance_m <= 0:
+        if not distance_m > 0 or not math.isfinite(distance_m):  # NaN too: nothing covered
             return {v: None for v in tracks}
     clock = TravelClock(distance_m)
     for v, (t, s) in tracks.items():
@@ -302,7 +303,8 @@ def gaps(df: pd.DataFrame) -> pd.DataFrame:
 
     The leader is the nearest such vehicle ahead (ties in position broken by vehicle id, so an
     overlapping pair still gets a leader). Positions are ``lane_pos_m`` when the table has it
-    for every row (SUMO's own position on the lane, exact on any edge), else ``s_m``. Without
+    for every row of the step (SUMO's own position on the lane, exact on any edge), else
+    ``s_m``. Without
     ``width_m``/``lane_width_m`` every vehicle fills its lane and pairs are by lane alone.
     Vectorised: rows are sorted by (time, edge, lane, position, vehicle) once and each row's
     leader is among the next ``LEADER_LOOKAHEAD`` rows of the same lane.
@@ -358,9 +360,15 @@ def _gaps(df: pd.DataFrame) -> pd.DataFrame:
     n = len(df)
     edge = _sorted_codes(df["edge"]) if "edge" in df.columns else np.zeros(n, dtype=np.int64)
     lane = df["lane"].to_numpy(dtype=np.int64)
+    t = df["time_s"].to_numpy(dtype=float)
     pos = _finite_column(df, LANE_POS)
-    if pos is None or not np.isfinite(pos).all():
+    if pos is None:
         pos = df["s_m"].to_numpy(dtype=float)
+    elif not np.isfinite(pos).all():
+        # Step by step (so that a slice of steps is paired as the whole table): a step with a
+        # position on the lane unknown is paired on the route coordinate, all of its rows.
+        unknown = np.isin(t, t[~np.isfinite(pos)])
+        pos = np.where(unknown, df["s_m"].to_numpy(dtype=float), pos)
     lat = _finite_column(df, "lat_m")
     lat = np.zeros(n) if lat is None else np.nan_to_num(lat)
     width = _finite_column(df, WIDTH)
@@ -377,7 +385,6 @@ def _gaps(df: pd.DataFrame) -> pd.DataFrame:
     # One entry per lane a vehicle is in: its own, and the neighbour it reaches into.
     rows = np.concatenate([np.arange(n), np.flatnonzero(into_left), np.flatnonzero(into_right)])
     occ_lane = np.concatenate([lane, lane[into_left] + 1, lane[into_right] - 1])
-    t = df["time_s"].to_numpy(dtype=float)
     vid_code = _sorted_codes(df["vehicle"])
     order = np.lexsort((vid_code[rows], pos[rows], occ_lane, edge[rows], t[rows]))
     rows = rows[order]

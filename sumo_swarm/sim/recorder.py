@@ -486,6 +486,7 @@ class RunRecorder:
             log.warning("network measures not read: %s", exc)
             summary["network"] = None
             summary["network_error"] = f"{type(exc).__name__}: {exc}"
+            summary.setdefault("errors", {})["network"] = summary["network_error"]
 
     def timing_simulated_s(self) -> float:
         """Simulated time since recording began [s]."""
