@@ -144,6 +144,15 @@ def test_no_upstream_block_when_the_manoeuvre_began_after_the_evaluation_window(
         streamed.streamed_measures(in_slices(df, 3), sc, ("c0",), None, 8.0)[0],
     ):
         assert measures.upstream == [] and measures.errors == {}
+    # Nothing recorded before 7 s (the CAVs entered late): the first step, the reference, is
+    # after the window too. (The streamed summary raised a KeyError; the one in memory
+    # measured the vehicles outside the window: speeds None.)
+    late = df[df["time_s"] >= 7.0]
+    for measures in (
+        summary.table_measures(late, sc, ("c0",), None, None),
+        streamed.streamed_measures(in_slices(late, 3), sc, ("c0",), None, None)[0],
+    ):
+        assert measures.upstream == [] and measures.errors == {}
     # inside the window, the HV behind the CAV is measured
     assert [u["vehicle"] for u in summary.table_measures(df, sc, ("c0",), None, 2.0).upstream] == [
         "h0"
@@ -378,3 +387,63 @@ def test_a_measure_taken_slice_by_slice_stops_at_its_first_failure():
     assert calls == [1, 2]  # the third slice was not measured: the measure is already lost
     assert errors.reasons == {"m": "ValueError: bad slice"}
     assert errors.take("other", measure, 3) == 3 and errors.failed("m")
+
+
+# ------------------------------------------------------------------------------------------
+# the network block, from SUMO's own outputs
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    trips=st.integers(0, 3000),
+    seed=st.integers(0, 2**32 - 1),
+    duration_s=st.sampled_from([0.0, 1.0, 3600.0]),
+    conflicts=st.booleans(),
+)
+def test_the_network_block_of_any_trips_is_plain(trips, seed, duration_s, conflicts):
+    # Thousands of trips of any class, departed or not, finished or not, with SUMO's values
+    # unknown (NaN) here and there; the speed field of a table of thousands of vehicles.
+    from sumo_swarm.sim import network
+
+    rng = np.random.default_rng(seed)
+    departed = rng.random(trips) < 0.9
+    finished = departed & (rng.random(trips) < 0.7)
+
+    def values(scale: float) -> np.ndarray:
+        v = rng.uniform(0.0, scale, size=trips)
+        v[rng.random(trips) < 0.05] = np.nan
+        return v
+
+    table = pd.DataFrame(
+        {
+            "vehicle": [f"v{i}" for i in range(trips)],
+            "vtype": "DEFAULT_VEHTYPE",
+            "vehicle_class": rng.choice(["cav", "hv", "truck", "bus"], size=trips),
+            "departed": departed,
+            "depart_s": np.where(departed, values(3600.0), np.nan),
+            "depart_delay_s": values(60.0),
+            "arrival_s": np.where(finished, values(3600.0), np.nan),
+            "finished": finished,
+            "duration_s": values(600.0),
+            "route_length_m": np.where(rng.random(trips) < 0.1, 0.0, values(5000.0)),
+            "time_loss_s": values(300.0),
+            "waiting_time_s": values(100.0),
+            "co2_mg": values(1e6),
+            "fuel_mg": values(1e5),
+        },
+        columns=list(network.TRIP_COLUMNS),
+    )
+    ssm = None
+    if conflicts:
+        ssm = pd.DataFrame({c: [] for c in network.CONFLICT_COLUMNS})
+    tables = network.NetworkTables(table, ssm, None)
+    block = network.network_block(
+        tables, hard_brake_events=int(rng.integers(0, 50)), duration_s=duration_s,
+        ttc_threshold_s=1.5,
+    )  # fmt: skip
+    assert_plain(block)
+    json.dumps(block, allow_nan=False)
+    assert block["vehicles"] == int(departed.sum())
+    df = busy_network(vehicles=max(1, trips), edges=30, steps=3, seed=seed % 1000)
+    field = network.mean_speed_field([network.speed_field(df), network.speed_field(df.iloc[:0])])
+    assert np.isfinite(field["speed_mps"].to_numpy(dtype=float)).all()

@@ -23,13 +23,16 @@ import venv
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-# What the floors are tested on: every summary measure (in memory and streamed), the bridge to
-# SUMO and the properties of the measures on random tables.
+# What the floors are tested on: every summary measure (in memory and streamed, on random
+# tables), the bridge to SUMO, the recorder's Parquet round trip, and the busy roads under all
+# four controllers (OR-Tools, OSQP and SciPy at their floors).
 DEFAULT_TESTS = [
     "tests/test_metrics.py",
     "tests/test_summary.py",
-    "tests/test_bridge_reads.py",
     "tests/test_measures_robust.py",
+    "tests/test_bridge_reads.py",
+    "tests/test_recorder.py",
+    "tests/test_busy_roads.py",
 ]
 # Extras whose floors are installed with the project's own (ray, of "cluster", is left out:
 # only the batch runner on a cluster uses it, and it weighs more than the rest together).

@@ -681,7 +681,8 @@ def upstream_impact(
     list of dict
         Keys ``lane, rank, vehicle, undisturbed_speed_mps, min_speed_mps, speed_reduction_pct,
         min_gap_m, min_headway_s``, ordered by lane then rank. Empty when the table has no step
-        at or after ``ref_time_s`` or no vehicle of ``swarm_kind`` at that step.
+        at or after ``ref_time_s`` (before the end of ``window``, when given) or no vehicle of
+        ``swarm_kind`` at that step.
     """
     if n_rank < 1:
         raise ConfigError(f"n_rank must be at least 1, got {n_rank}")
@@ -691,6 +692,8 @@ def upstream_impact(
     if later.size == 0:
         return []
     t_ref = float(later.min())
+    if window is not None and window.end_s is not None and t_ref > window.end_s + TIME_TOLERANCE_S:
+        return []  # the reference step comes after the window: nothing of it to measure
     at_ref = df[times == t_ref]
     swarm = at_ref[at_ref["kind"] == swarm_kind]
     if swarm.empty:

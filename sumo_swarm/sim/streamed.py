@@ -258,8 +258,11 @@ class _UpstreamRows:
             return
         if self.ids is None:
             times = part["time_s"].to_numpy(dtype=float)
-            later = times[times >= self.ref_time - metrics.TIME_TOLERANCE_S]
-            if later.size:
+            tol = metrics.TIME_TOLERANCE_S
+            later = times[times >= self.ref_time - tol]
+            if later.size and self.ref_w.end_s is not None and later.min() > self.ref_w.end_s + tol:
+                self.ids = set()  # the reference step comes after the window: no block
+            elif later.size:
                 at_ref = part[times == later.min()]
                 self.rows.append(at_ref)
                 self.pairs.append(pairs().loc[pairs().index.isin(at_ref.index)])
