@@ -24,8 +24,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 # What the floors are tested on: every summary measure (in memory and streamed, on random
-# tables), the bridge to SUMO, the recorder's Parquet round trip, and the busy roads under all
-# four controllers (OR-Tools, OSQP and SciPy at their floors).
+# tables), the bridge to SUMO, the recorder's Parquet round trip (PyArrow), the busy roads under
+# all four controllers (OR-Tools, OSQP, SciPy, defusedxml), the figures and the replay
+# (Matplotlib, imageio, imageio-ffmpeg) and a markdown table (tabulate).
 DEFAULT_TESTS = [
     "tests/test_metrics.py",
     "tests/test_summary.py",
@@ -33,6 +34,9 @@ DEFAULT_TESTS = [
     "tests/test_bridge_reads.py",
     "tests/test_recorder.py",
     "tests/test_busy_roads.py",
+    "tests/test_plots.py",
+    "tests/test_replay.py",
+    "tests/test_batch.py::test_markdown_table_formats_numbers_flags_and_missing_values",
 ]
 # Extras whose floors are installed with the project's own (ray, of "cluster", is left out:
 # only the batch runner on a cluster uses it, and it weighs more than the rest together).
