@@ -18,6 +18,9 @@ functions on the few rows each needs:
   platoon's intruders);
 - the network's space-time speed field, cell sums merged over slices.
 
+Each measure is taken on its own (:mod:`~sumo_swarm.sim.measured`): one that fails on a slice
+stops there and is None in the summary, with its reason; the others go on.
+
 Held in memory: a slice at a time, the CAVs' speeds and gaps as arrays (16 bytes per CAV
 sample), the upstream vehicles' rows and the speed field's cells. An hour of the corridor
 (5.6 million rows, 1.1 million CAV samples) is read with 61 MB more than the process held.
@@ -164,7 +167,7 @@ def streamed_measures(
     cav = _CavSamples(ev.travel_distance_m)
     passed: dict[str, float | None] = dict.fromkeys(cav_ids)
     fields: list[pd.DataFrame] = []
-    ttc_min = [np.inf]
+    ttc = _SmallestTtc()
     up = _UpstreamRows(ref_time, ref_w, ev.upstream_ranks, excluded)
     m = MeasureErrors()  # each measure on its own: one that fails stops there, the rest go on
     for part in slices():
@@ -189,7 +192,7 @@ def streamed_measures(
             return pairs().loc[pairs().index.isin(windowed.index)]
 
         m.take("cav.gap", lambda: cav.add_pairs(_of_kind(in_window(), metrics.CAV)))
-        m.take("safety.min_ttc_s", lambda: _smallest_ttc(ttc_min, in_window()))
+        m.take("safety.min_ttc_s", lambda: ttc.add(in_window()))
         m.take("upstream", up.add, part, pairs)
 
     upstream = m.take("upstream", up.measure, target)
@@ -211,7 +214,6 @@ def streamed_measures(
             ),
             default=(None, None),
         )
-    ttc_known = not m.failed("safety.min_ttc_s") and bool(np.isfinite(ttc_min[0]))
     measures = TableMeasures(
         speed=m.take("cav.speed", cav.speed, default={}),
         gap=m.take("cav.gap", cav.gap, default={}),
@@ -221,7 +223,7 @@ def streamed_measures(
         t_end_s=t_end,
         t_regrouped_s=t_regroup,
         upstream=upstream,
-        min_ttc_s=float(ttc_min[0]) if ttc_known else None,
+        min_ttc_s=None if m.failed("safety.min_ttc_s") else ttc.value(),
         errors=m.reasons,
     )
     fields = [f for f in fields if f is not None] if not m.failed("network.speed_field") else []
@@ -232,12 +234,20 @@ def _of_kind(rows: pd.DataFrame, kind: str) -> pd.DataFrame:
     return rows.loc[rows["kind"] == kind]
 
 
-def _smallest_ttc(smallest: list[float], pairs: pd.DataFrame) -> None:
-    """``smallest[0]``: the smallest finite time to collision [s] of ``pairs`` and itself."""
-    ttc = pairs["ttc_s"].to_numpy(dtype=float)
-    ttc = ttc[np.isfinite(ttc)]
-    if ttc.size:
-        smallest[0] = min(smallest[0], float(ttc.min()))
+class _SmallestTtc:
+    """The smallest finite time to collision [s] of the pairs of every slice (None: none)."""
+
+    def __init__(self) -> None:
+        self.smallest = np.inf
+
+    def add(self, pairs: pd.DataFrame) -> None:
+        ttc = pairs["ttc_s"].to_numpy(dtype=float)
+        ttc = ttc[np.isfinite(ttc)]
+        if ttc.size:
+            self.smallest = min(self.smallest, float(ttc.min()))
+
+    def value(self) -> float | None:
+        return float(self.smallest) if np.isfinite(self.smallest) else None
 
 
 class _UpstreamRows:
