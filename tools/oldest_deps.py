@@ -41,8 +41,9 @@ DEFAULT_TESTS = [
 # Extras whose floors are installed with the project's own (ray, of "cluster", is left out:
 # only the batch runner on a cluster uses it, and it weighs more than the rest together).
 EXTRAS = ("test",)
-NOT_NEEDED = {"ruff"}  # the linter: no test imports it
-_FLOOR = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*>=\s*([0-9][0-9A-Za-z.]*)")
+# The linter and the documentation site's tools: none of the tests run here uses them.
+NOT_NEEDED = {"ruff", "mkdocs", "mkdocstrings"}
+_FLOOR = re.compile(r"^\s*([A-Za-z0-9_.\-]+(?:\[[^\]]*\])?)\s*>=\s*([0-9][0-9A-Za-z.]*)")
 
 
 def floor_pin(requirement: str) -> str:
