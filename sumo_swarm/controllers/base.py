@@ -65,8 +65,9 @@ class RunContext:
     def dt_s(self) -> float:
         return self.session.step_length_s
 
-    def event(self, kind: str, **data: Any) -> None:
-        """Record a notable event (fallbacks, vanished vehicles, ...) for the run's outputs."""
+    def event(self, kind: str, /, **data: Any) -> None:
+        """Record a notable event (fallbacks, vanished vehicles, ...) for the run's outputs
+        (``kind`` positional only: a manoeuvre's events have a ``kind`` of their own)."""
         if self.platoon_id is not None:
             data = {"platoon": self.platoon_id, **data}
         self.events.append({"time_s": self.session.time_s, "event": kind, **data})

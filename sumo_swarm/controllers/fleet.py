@@ -47,6 +47,11 @@ from sumo_swarm.controllers.base import Controller, RunContext, close_controller
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.neighbours import ordered_platoon
+from sumo_swarm.core.swarming.account import (
+    manoeuvres_from_events,
+    overtake_counts,
+    overtake_outcome,
+)
 from sumo_swarm.core.swarming.planlog import PlanLog
 
 __all__ = ["Fleet", "PlatoonSession", "in_lane_neighbours", "strung_out"]
@@ -157,9 +162,6 @@ class FleetCounts:
     joins: int = 0
     merges: int = 0
     splits: int = 0
-    started: int = 0  # the overtakes of swarms that ended (the live ones are added)
-    completed: int = 0
-    aborted: int = 0
     # (swarm, target) of overtakes held back by another swarm's manoeuvre nearby
     deferred_for: set[tuple[int | None, str]] = field(default_factory=set)
     blocked_min: dict[str, float] = field(default_factory=dict)
@@ -514,10 +516,10 @@ class Fleet:
 
     def _retire(self, platoon: Platoon) -> None:
         counts = self.counts
-        block = _swarms_of(platoon.controller)
-        counts.started += block.get("overtakes_started", 0)
-        counts.completed += block.get("overtakes_completed", 0)
-        counts.aborted += block.get("overtakes_aborted", 0)
+        self._note_first()  # before it goes: the summary's overtake block may be its
+        dissolve = getattr(platoon.controller, "dissolve", None)
+        if dissolve is not None:  # what it had under way ends with it
+            dissolve(self.ctx.session.time_s)
         _merge_min(counts.blocked_min, _blocked_of(platoon.controller))
         if platoon is self._first:
             self._first_summary = platoon.controller.summary()
@@ -552,16 +554,18 @@ class Fleet:
                     self._first = platoon
                     break
 
+    def manoeuvres(self) -> list[dict[str, Any]]:
+        """Every swarm's manoeuvres, in order of start (the summary's list, of the events)."""
+        if self._single is not None:
+            return self._single.manoeuvres()
+        return manoeuvres_from_events(self.ctx.events) if self.ctx is not None else []
+
     def swarms_block(self) -> dict[str, int]:
         counts = self.counts
-        live = [_swarms_of(p.controller) for p in self.platoons]
         return {
             "platoons_formed": counts.formed,
             "max_concurrent": counts.max_concurrent,
-            "overtakes_started": counts.started + sum(b.get("overtakes_started", 0) for b in live),
-            "overtakes_completed": counts.completed
-            + sum(b.get("overtakes_completed", 0) for b in live),
-            "overtakes_aborted": counts.aborted + sum(b.get("overtakes_aborted", 0) for b in live),
+            **overtake_counts(self.manoeuvres()),
             "swarms": counts.swarms,
             "joins": counts.joins,
             "merges": counts.merges,
@@ -583,8 +587,16 @@ class Fleet:
         else:
             out = dict(self._kind.summary())
         out["swarms"] = self.swarms_block()
+        manoeuvres = self.manoeuvres()
+        out["manoeuvres"] = manoeuvres
         overtake = out.get("overtake")
         if isinstance(overtake, dict):
+            interval = overtake.get("behaving_interval_s") or (
+                self.ctx.scenario.planner.behaving_interval_s if self.ctx is not None else 3.0
+            )
+            overtake = {**overtake, **overtake_outcome(manoeuvres, interval)}
+            overtake["targets"] = [m["target"] for m in manoeuvres]
+            overtake["manoeuvres"] = len(manoeuvres)
             strongest = dict(self.counts.blocked_min)
             for platoon in self.platoons:
                 _merge_min(strongest, _blocked_of(platoon.controller))
@@ -618,11 +630,6 @@ def _forget(controller: Controller, vid: str) -> None:
     forget = getattr(controller, "forget", None)
     if forget is not None:
         forget(vid)
-
-
-def _swarms_of(controller: Controller) -> dict[str, int]:
-    block = getattr(controller, "swarms_counts", None)
-    return block() if block is not None else {}
 
 
 def _blocked_of(controller: Controller) -> dict[str, float]:

@@ -100,6 +100,7 @@ class Reformer:
     # vehicle, the CAVs past it wait for the others in its lane ahead of it (see split_by)
     waiting: tuple[str, float, float] | None = None
     wait_ends: Counter[str] = field(default_factory=Counter)  # why the waits ended, counted
+    last_wait_end: str | None = None  # why the last wait ended
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
@@ -155,6 +156,7 @@ class Reformer:
         self.waiting = None
         self.lane_id = None  # chosen afresh from where the CAVs are
         self.wait_ends[how] += 1
+        self.last_wait_end = how
         self.event("wait_end", slow=slow_id, reason=how)
         return None
 

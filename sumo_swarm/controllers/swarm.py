@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import Counter
 from collections.abc import Iterable
 from dataclasses import replace
 from typing import Any
@@ -46,6 +45,12 @@ from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.neighbours import ordered_platoon
 from sumo_swarm.core.planner import CellPlanner, Plan, make_planner
 from sumo_swarm.core.stats import lateral_rms, summarise_ms
+from sumo_swarm.core.swarming.account import (
+    ManoeuvreBook,
+    manoeuvres_from_events,
+    overtake_counts,
+    overtake_outcome,
+)
 from sumo_swarm.core.swarming.decision import (
     REGROUPED_GAP_FACTOR,
     LanePass,
@@ -88,8 +93,7 @@ class SwarmController:
         self.t_start_s: float | None = None
         self.t_done_s: float | None = None
         self.targets: list[str] = []  # the target of each manoeuvre, in order
-        self.aborts: Counter[str] = Counter()
-        self.completions = 0  # manoeuvres that got every CAV past their target
+        self.book: ManoeuvreBook | None = None  # every manoeuvre, as events (made by attach)
         self.regroup_lane_used: int | None = None
         self.regroup_edge: str | None = None
         self.progress: Progress | None = None
@@ -105,6 +109,7 @@ class SwarmController:
     def attach(self, ctx: RunContext) -> None:
         self.ctx = ctx
         sc = ctx.scenario
+        self.book = ManoeuvreBook(ctx.event, sc.cav.min_gap_m)
         self.planner_settings = sc.planner
         if sc.swarm.regroup_lane is not None:
             self.planner_settings = replace(sc.planner, regroup_lane=sc.swarm.regroup_lane)
@@ -200,13 +205,21 @@ class SwarmController:
             lo, hi = min(lo, origin), max(hi, origin + grid.n_rows * grid.cell_length_m)
         return lo, hi
 
+    def manoeuvres(self) -> list[dict[str, Any]]:
+        """This swarm's manoeuvres (the summary's list, of its own events)."""
+        if self.ctx is None:
+            return []
+        own = self.ctx.platoon_id
+        return manoeuvres_from_events(e for e in self.ctx.events if e.get("platoon") == own)
+
     def swarms_counts(self) -> dict[str, int]:
-        """This swarm's overtakes: started, completed, given up."""
-        return {
-            "overtakes_started": len(self.targets),
-            "overtakes_completed": self.completions,
-            "overtakes_aborted": sum(self.aborts.values()),
-        }
+        """This swarm's overtakes: started, completed, given up (of :meth:`manoeuvres`)."""
+        return overtake_counts(self.manoeuvres())
+
+    def dissolve(self, t_s: float) -> None:
+        """The swarm has no CAV left (controllers.fleet): what it had under way ends."""
+        if self.book is not None:
+            self.book.end_all(t_s, "platoon_dissolved")
 
     @property
     def planner(self) -> CellPlanner:
@@ -283,6 +296,7 @@ class SwarmController:
             # yet count their lane one higher, and the reformer sent them to the wrong lane.
             states = in_lanes(platoon[0])
         self.blocks.watch(t_s, states, self.replanner.interval())
+        self.book.watch(t_s, states, platoon)
         if self.drawer is not None and self.mode is Mode.OVERTAKE:
             self.drawer.update(t_s)
         if self.mode is Mode.CRUISE:
@@ -294,6 +308,7 @@ class SwarmController:
                                 self.decider.cap_mps)  # fmt: skip
         else:
             self.cruiser.step(t_s, states, platoon)
+            self._wait_over(t_s)
 
     def _cruise_decision(self, t_s: float, states, platoon: list[str]) -> None:
         """Follow a lane pass under way; else decide on a target: a lane pass or the cells."""
@@ -306,7 +321,7 @@ class SwarmController:
                     self._start_lane_pass(t_s, target, lane, platoon)
                 target = None
         if target is not None and self._may_start(t_s, target, platoon):
-            self._start_overtake(t_s, target)
+            self._start_overtake(t_s, target, platoon)
 
     def _may_start(self, t_s: float, target: VehicleState, platoon: list[str]) -> bool:
         """Whether no other swarm's manoeuvre takes the road from this platoon's last CAV to
@@ -333,9 +348,10 @@ class SwarmController:
             self._finish(t_s, completed=False, reason=stop)
         elif self.decider.passing_in_lane(target, cavs, states, self.replanner.grid,
                                           self.replanner.interval_s):  # fmt: skip
-            # One platoon in a faster lane: the cruise takes it past at that lane's pace.
+            # One platoon in a faster lane: the cruise takes it past at that lane's pace. The
+            # manoeuvre goes on until every CAV is past (the book watches it).
             done = all_past(target, cavs, sc.cav.min_gap_m)
-            self._finish(t_s, completed=done, reason="passing_lane", abort=False)
+            self._finish(t_s, completed=done, reason="passing_lane", handover=not done)
         elif self._overtake_done(target, cavs, states.values()):
             self._finish(t_s, completed=True)
         else:
@@ -356,11 +372,20 @@ class SwarmController:
                 return
             self._finish(t_s, completed=False, reason=give_up)
             self.decider.watch.cool_down(t_s + sc.swarm.cooldown_s)
+            waits = self.cruiser.waits_started
             self.cruiser.wait_if_split(t_s, target, cavs)
-            if sc.swarm.pass_singly_s > 0.0 and give_up in PASS_SINGLY_AFTER:
+            if self.cruiser.waits_started > waits:
+                # The CAVs past it wait ahead for the others: the wait ends it (_wait_over).
+                self.book.start(t_s, "wait", self.target_id, platoon)
+            singly = sc.swarm.pass_singly_s > 0.0 and give_up in PASS_SINGLY_AFTER
+            if singly:
                 # No way past together: the CAVs pass it one by one, as SUMO's drivers do,
                 # through the guards, and re-form the platoon ahead.
-                self.reformer.singly = (self.target_id, t_s + sc.swarm.pass_singly_s)
+                until_s = t_s + sc.swarm.pass_singly_s
+                self.reformer.singly = (self.target_id, until_s)
+                if self.book.current("wait") is None:
+                    self.book.start(t_s, "one_by_one", self.target_id, platoon, watched=True,
+                                    until_s=until_s)  # fmt: skip
 
     def _lane_kept_free(
         self, vehicle: VehicleState, states: dict[str, VehicleState], t_s: float
@@ -386,7 +411,17 @@ class SwarmController:
         if self.t_start_s is None:
             self.t_start_s = t_s
 
-    def _start_overtake(self, t_s: float, target: VehicleState) -> None:
+    def _wait_over(self, t_s: float) -> None:
+        """A wait the reformer ended (:meth:`Reformer.split_by`) ends its manoeuvre: completed
+        once every CAV is past and in one lane (``rejoined``)."""
+        wait = self.book.current("wait")
+        if wait is None or self.reformer.waiting is not None:
+            return
+        how = self.reformer.last_wait_end or "reset"
+        self.book.end(t_s, wait, completed=how == "rejoined", reason=how,
+                      states=self.ctx.session.states)  # fmt: skip
+
+    def _start_overtake(self, t_s: float, target: VehicleState, platoon: list[str]) -> None:
         self.mode = Mode.OVERTAKE
         self._count_manoeuvre(t_s, target.vehicle_id)
         self.replanner.start()
@@ -397,12 +432,15 @@ class SwarmController:
         self.regroup_edge = self.reformer.edge  # whose lane numbering that lane is in
         self.reformer.prefer = None
         self.decider.new_target()
-        self.ctx.event("overtake_start", target=target.vehicle_id,
-                       speed_cap_mps=self.decider.cap_mps)  # fmt: skip
+        self.book.start(t_s, "cells", target.vehicle_id, platoon,
+                        speed_cap_mps=self.decider.cap_mps)  # fmt: skip
 
     def _finish(
-        self, t_s: float, completed: bool, reason: str = "completed", abort: bool = True
+        self, t_s: float, completed: bool, reason: str = "completed", handover: bool = False
     ) -> None:
+        """The cell plan ends: ``completed`` (every CAV past), given up or stopped
+        (``reason``), or ``handover`` to the cruise passing in one faster lane, its manoeuvre
+        going on until every CAV is past (watched by the book)."""
         self.mode = Mode.CRUISE
         self.reformer.reset()  # the platoon's lane chosen afresh from where the CAVs are now
         if self.drawer is not None:
@@ -411,12 +449,16 @@ class SwarmController:
         self.decider.watch.candidate_id = self.decider.watch.since_s = None
         if completed and self.t_done_s is None:
             self.t_done_s = t_s
-        self.completions += completed
         if completed and reason == "completed" and self.regroup_lane_used is not None:
             self.reformer.prefer = (self.regroup_lane_used, self.regroup_edge)
-        if not completed and abort:
-            self.aborts[reason] += 1
-        self.ctx.event("overtake_end", target=self.target_id, completed=completed, reason=reason)
+        cells = self.book.current("cells")
+        if handover and cells is not None:
+            cells.watched = True
+            self.ctx.event("overtake_handover", target=self.target_id, kind="cells",
+                           manoeuvre=cells.number, reason=reason)  # fmt: skip
+            return
+        self.book.end(t_s, cells, completed=completed, reason=reason,
+                      states=self.ctx.session.states)  # fmt: skip
 
     def _overtake_done(
         self,
@@ -449,8 +491,8 @@ class SwarmController:
         self.lane_pass = LanePass(target.vehicle_id, lane, t_s)
         self.decider.new_target()
         self.reformer.move_to = (lane, self.lanes.edge_of(platoon[0]))
-        self.ctx.event("overtake_start", target=target.vehicle_id,
-                       speed_cap_mps=self.decider.cap_mps, how="lane", lane=lane)  # fmt: skip
+        self.book.start(t_s, "lane_pass", target.vehicle_id, platoon,
+                        speed_cap_mps=self.decider.cap_mps, how="lane", lane=lane)  # fmt: skip
 
     def _lane_pass_target(self, t_s: float, states, platoon: list[str]) -> VehicleState | None:
         """Follow a lane pass (:class:`LanePass`): its end once every CAV is past, the target
@@ -482,9 +524,8 @@ class SwarmController:
         self.reformer.move_to = None
         if completed and self.t_done_s is None:
             self.t_done_s = t_s
-        self.completions += completed
-        self.ctx.event("overtake_end", target=self.target_id, completed=completed,
-                       reason=reason, how="lane")  # fmt: skip
+        self.book.end(t_s, self.book.current("lane_pass"), completed=completed, reason=reason,
+                      states=self.ctx.session.states, how="lane")  # fmt: skip
 
     # ------------------------------------------------------------------ outputs
     def _swarms_block(self) -> dict[str, int]:
@@ -514,21 +555,15 @@ class SwarmController:
             follower = self.follower
             waits = {"started": self.cruiser.waits_started, "ended": dict(self.reformer.wait_ends)}
             mpc_ms = self.tracker.solve_ms
-        steps = None
-        if self.t_start_s is not None and self.t_done_s is not None:
-            steps = math.ceil((self.t_done_s - self.t_start_s) / unit - 1e-9)
+        manoeuvres = self.manoeuvres()
         return {
+            "manoeuvres": manoeuvres,  # the one account; the outcome fields below are of it
             "overtake": {
+                **overtake_outcome(manoeuvres, unit),
                 "regroup_lane": self.regroup_lane_used,
-                "triggered": self.t_start_s is not None,
-                "target": self.targets[0] if self.targets else None,
-                "targets": list(self.targets),
-                "t_start_s": self.t_start_s,
-                "behaving_steps": steps,
+                "targets": [m["target"] for m in manoeuvres],
                 "behaving_interval_s": interval,
-                "manoeuvres": len(self.targets),
-                "aborted": sum(self.aborts.values()),
-                "abort_reasons": dict(self.aborts),
+                "manoeuvres": len(manoeuvres),
                 "lateral_holds": follower.holds,
                 "lateral_yields": follower.yields,
                 # waits ahead of a target that split the platoon at a give-up (wait_ahead_s)

@@ -28,7 +28,7 @@ from sumo_swarm.controllers.base import Controller, close_controller
 from sumo_swarm.files import write_json_atomic, write_parquet_atomic
 from sumo_swarm.sim.metrics import HardBrakeCounter
 from sumo_swarm.sim.network import mean_speed_field, speed_field
-from sumo_swarm.sim.streamed import TrajectoryFile, streamed_measures
+from sumo_swarm.sim.streamed import TrajectoryFile, rows_between_cavs, streamed_measures
 from sumo_swarm.sim.summary import build_summary
 
 log = logging.getLogger(__name__)
@@ -360,7 +360,7 @@ class RunRecorder:
             end = max(end, ev.start_s + EMPTY_WINDOW_S)
             scenario = replace(scenario, evaluation=replace(ev, end_s=end))
         own = self.controller.summary() if controller_summary is None else controller_summary
-        measures, fields = None, []
+        measures, fields, rows_of = None, [], None
         if streamed:
             self._pack()
             overtake = own.get("overtake", {})
@@ -372,6 +372,7 @@ class RunRecorder:
                 overtake.get("t_start_s"),
                 speed_field=field_of,
             )
+            rows_of = rows_between_cavs(self._slices)
         summary = build_summary(
             scenario=scenario,
             controller=self.controller_name,
@@ -382,6 +383,7 @@ class RunRecorder:
             timing=self.timing(),
             hard_brakes=self.hard_brakes,
             measures=measures,
+            rows_of=rows_of,
         )
         return summary, fields
 

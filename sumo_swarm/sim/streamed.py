@@ -390,6 +390,24 @@ def _as_text(df: pd.DataFrame) -> pd.DataFrame:
     return df.astype(dict.fromkeys(cats, object)) if cats else df
 
 
+def rows_between_cavs(slices: Callable[[], Iterator[pd.DataFrame]]):
+    """``rows_of`` (:data:`sumo_swarm.sim.summary.RowsOf`) of a table on disk: a reading of
+    the slices for the rows :func:`overtake_times_s` needs of one manoeuvre, in its span."""
+    tol = metrics.TIME_TOLERANCE_S
+
+    def rows_of(cav_ids: tuple[str, ...], target: str, t_from_s: float, t_to_s: float):
+        def spans() -> Iterator[pd.DataFrame]:
+            for part in slices():
+                times = part["time_s"].to_numpy(dtype=float)
+                if times.size and (times[-1] < t_from_s - tol or times[0] > t_to_s + tol):
+                    continue
+                yield part[(times >= t_from_s - tol) & (times <= t_to_s + tol)]
+
+        return _between_cavs(spans(), cav_ids, set(cav_ids) | {target})
+
+    return rows_of
+
+
 def _between_cavs(
     slices: Iterator[pd.DataFrame], cav_ids: tuple[str, ...], followed: set[str]
 ) -> pd.DataFrame:

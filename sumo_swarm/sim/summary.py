@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -9,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from sumo_swarm.checks import finite_or_none
+from sumo_swarm.core.swarming.account import COMPLETED, overtake_counts, overtake_outcome
 from sumo_swarm.core.swarming.decision import REGROUPED_GAP_FACTOR
 from sumo_swarm.sim import metrics
 from sumo_swarm.sim.measured import MeasureErrors
@@ -21,6 +23,12 @@ if TYPE_CHECKING:
 
 SCHEMA = "sumo-swarm/summary/1"
 REGROUP_LAT_TOL_M = 0.5  # a CAV counts as "in" its lane when its centre is this close [m]
+# How long after a manoeuvre's end [s] its regrouping is watched at most (sooner: the platoon's
+# next manoeuvre, or the end of the run): the regrouped platoon must hold to the watch's end.
+REGROUP_WATCH_S = 120.0
+# rows_of(cav_ids, target, t_from_s, t_to_s): the trajectory rows overtake_times_s needs of one
+# manoeuvre, from t_from_s to t_to_s [s]
+RowsOf = Callable[[tuple[str, ...], str, float, float], pd.DataFrame]
 
 
 def overtake_progress(
@@ -140,6 +148,63 @@ def _first_time_holding(flags: pd.Series) -> float | None:
     return float(flags.index[start])
 
 
+def measure_manoeuvres(
+    manoeuvres: Sequence[dict[str, Any]],
+    rows_of: RowsOf,
+    max_gap_m: float,
+    errors: MeasureErrors | None = None,
+) -> list[dict[str, Any]]:
+    """The manoeuvres (the controller's account, :mod:`sumo_swarm.core.swarming.account`)
+    with what the trajectories say of each completed one (:func:`overtake_times_s`, on its
+    CAVs that got past and its target): ``t_past_s``, when every one of them had been past the
+    target; ``regrouped`` and ``t_regrouped_s``, when they formed one platoon ahead of it and
+    held it to the end of the watch (:data:`REGROUP_WATCH_S`, the platoon's next manoeuvre,
+    or the run's end). Others: not measured (None, not regrouped). A measure that fails
+    leaves its manoeuvre unmeasured, the reason in ``errors`` (``manoeuvres[i].times``)."""
+    errors = errors if errors is not None else MeasureErrors()
+    out = []
+    for i, m in enumerate(manoeuvres):
+        m = {**m, "t_past_s": None, "regrouped": False, "t_regrouped_s": None}
+        cav_ids = tuple(m.get("past_ids") or ())
+        if m["outcome"] == COMPLETED and m["target"] is not None and cav_ids:
+            t_to = m["t_end_s"] + REGROUP_WATCH_S
+            for later in manoeuvres[i + 1 :]:
+                if later["platoon"] == m["platoon"]:
+                    t_to = min(t_to, later["t_start_s"])
+                    break
+            span = (m["t_start_s"], t_to)
+            t_past, t_regroup = errors.take(
+                f"manoeuvres[{i}].times", _times_of, rows_of, cav_ids, m["target"], span,
+                max_gap_m, default=(None, None),
+            )  # fmt: skip
+            m.update(t_past_s=finite_or_none(t_past), regrouped=t_regroup is not None,
+                     t_regrouped_s=finite_or_none(t_regroup))  # fmt: skip
+        out.append(m)
+    return out
+
+
+def _times_of(
+    rows_of: RowsOf,
+    cav_ids: tuple[str, ...],
+    target: str,
+    span_s: tuple[float, float],
+    max_gap_m: float,
+) -> tuple[float | None, float | None]:
+    """:func:`overtake_times_s` of one manoeuvre, on its rows of ``span_s`` [s]."""
+    return overtake_times_s(rows_of(cav_ids, target, *span_s), cav_ids, target, max_gap_m)
+
+
+def rows_between(df: pd.DataFrame) -> RowsOf:
+    """``rows_of`` (:data:`RowsOf`) on a table in memory: its rows in the time span."""
+    tol = metrics.TIME_TOLERANCE_S
+
+    def rows_of(cav_ids: tuple[str, ...], target: str, t_from_s: float, t_to_s: float):
+        times = df["time_s"].to_numpy(dtype=float)
+        return df[(times >= t_from_s - tol) & (times <= t_to_s + tol)]
+
+    return rows_of
+
+
 SWARM_KEYS = (
     "platoons_formed",
     "max_concurrent",
@@ -237,30 +302,53 @@ def build_summary(
     timing: dict[str, Any],
     hard_brakes: metrics.HardBrakeCounter | None = None,
     measures: TableMeasures | None = None,
+    rows_of: RowsOf | None = None,
 ) -> dict[str, Any]:
     """Assemble every key of the contract's summary.json (None where a key does not apply).
 
     ``hard_brakes``: counted during the run, of every vehicle whether recorded or not; without
     it they are counted on ``df``. ``measures``: the table's measures when the caller has them
-    (a run whose table is on disk); else they are taken on ``df``."""
+    (a run whose table is on disk); else they are taken on ``df``. ``rows_of``: the rows of
+    each manoeuvre (:data:`RowsOf`) when the table is not ``df``.
+
+    ``manoeuvres`` is the controller's list (a controller that keeps none: empty), measured
+    on the trajectories (:func:`measure_manoeuvres`); ``overtake``'s outcome fields and
+    ``swarms``' overtake counts are derived from it. A controller without manoeuvres of its
+    own (the baselines) has its ``overtake`` block measured on the scene's slow vehicle: not
+    triggered, completed when every CAV got past it."""
     own = controller_summary.get("overtake", {})
-    target = own.get("target") or scene.target_id
-    t_start = own.get("t_start_s")
+    listed = controller_summary.get("manoeuvres")
+    first = listed[0] if listed else None
+    target = first["target"] if first else scene.target_id
+    t_start = first["t_start_s"] if first else None
     if measures is None:
         measures = table_measures(df, scenario, scene.cav_ids, target, t_start)
     m = measures
-    speed, gap, t_end, t_regroup, upstream = m.speed, m.gap, m.t_end_s, m.t_regrouped_s, m.upstream
+    speed, gap, upstream = m.speed, m.gap, m.upstream
+    max_gap_m = REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m
+    errors = MeasureErrors()
+    errors.reasons.update(m.errors)
+    manoeuvres = measure_manoeuvres(
+        listed or [], rows_of or rows_between(df), max_gap_m, errors=errors
+    )
+    if listed is None:  # no account of its own: what the table says of the scene's slow vehicle
+        outcome = {
+            "triggered": False,
+            "completed": m.t_end_s is not None,
+            "regrouped": m.t_regrouped_s is not None,
+            "target": target,
+            "t_start_s": None,
+            "t_end_s": finite_or_none(m.t_end_s),
+            "t_regrouped_s": finite_or_none(m.t_regrouped_s),
+            "behaving_steps": None,
+            "aborted": 0,
+            "abort_reasons": {},
+        }
+    else:
+        interval = own.get("behaving_interval_s") or scenario.planner.behaving_interval_s
+        outcome = overtake_outcome(manoeuvres, interval)
     overtake = {
-        "triggered": bool(own.get("triggered", t_end is not None)),
-        "completed": t_end is not None,
-        "regrouped": t_regroup is not None,
-        "target": own.get("target", target),
-        "t_start_s": finite_or_none(t_start),
-        "t_end_s": finite_or_none(t_end),
-        "t_regrouped_s": finite_or_none(t_regroup),
-        "behaving_steps": own.get("behaving_steps"),
-        "aborted": int(own.get("aborted", 0)),
-        "abort_reasons": dict(own.get("abort_reasons", {})),
+        **outcome,
         "lateral_holds": int(own.get("lateral_holds", 0)),
         "blocked_hv_min_accel_mps2": finite_or_none(own.get("blocked_hv_min_accel_mps2")),
     }
@@ -288,8 +376,6 @@ def build_summary(
         "statuses",
         "fallbacks",
     )
-    errors = MeasureErrors()
-    errors.reasons.update(m.errors)
     if hard_brakes is not None:
         brakes = (hard_brakes.count(), hard_brakes.count("cav"), hard_brakes.count("hv"))
     elif df is None:
@@ -324,6 +410,7 @@ def build_summary(
             "lat_error_rms_m": finite_or_none(controller_summary.get("lat_error_rms_m")),
         },
         "overtake": overtake,
+        "manoeuvres": manoeuvres,
         "safety": {
             "collisions": len(collisions),
             "hard_brakes": brakes[0],
@@ -333,7 +420,7 @@ def build_summary(
             "teleports": int(session.teleports),
             "min_ttc_s": finite_or_none(m.min_ttc_s),
         },
-        "swarms": swarms_block(controller_summary.get("swarms")),
+        "swarms": {**swarms_block(controller_summary.get("swarms")), **overtake_counts(manoeuvres)},
         # From SUMO's own outputs, filled once the simulation has ended (RunRecorder.finish).
         "network": None,
         "upstream": upstream,
