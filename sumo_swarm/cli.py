@@ -398,12 +398,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
             gui=args.gui,
             force=args.force,
         )
+    from sumo_swarm.sim.summary import manoeuvre_line
+
     cav = summary["cav"]
-    ot = summary["overtake"]
     print(
         f"{summary['scenario']}/{summary['controller']}: CAV mean speed "
         f"{_num(cav['mean_speed_mps'])} m/s, min gap {_num(cav['gap_min_m'])} m, "
-        f"overtake completed={ot['completed']} regrouped={ot['regrouped']}, "
+        f"{manoeuvre_line(summary)}, "
         f"collisions={summary['safety']['collisions']}, "
         f"hard brakes={summary['safety']['hard_brakes']}, "
         f"wall {summary['timing']['wall_s']:.1f} s -> {args.out}"

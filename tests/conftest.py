@@ -1,10 +1,15 @@
-"""Shared fixtures: the repository's paper scenario and a writer of variant scenario files."""
+"""Shared fixtures: the repository's paper scenario and a writer of variant scenario files; and a
+check, after every test, that each run it wrote has a summary that agrees with its events."""
 
 from __future__ import annotations
 
+import json
+import os
 from pathlib import Path
 
 import pytest
+
+from tests.contract import manoeuvre_problems
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper.toml"
@@ -30,3 +35,48 @@ def scenario_file(tmp_path: Path):
         return path
 
     return write
+
+
+# (path, modification time) of every run folder's summary.json already checked
+_checked: set[tuple[str, int]] = set()
+
+
+def written_runs(root: Path) -> list[Path]:
+    """The run folders under ``root`` written since the last call: a ``summary.json`` of the
+    contract's schema beside an ``events.jsonl``."""
+    found = []
+    for folder, _, files in os.walk(root):
+        if "summary.json" not in files or "events.jsonl" not in files:
+            continue
+        path = Path(folder) / "summary.json"
+        stamp = (str(path), path.stat().st_mtime_ns)
+        if stamp not in _checked:
+            _checked.add(stamp)
+            found.append(Path(folder))
+    return found
+
+
+def run_problems(folder: Path) -> list[str]:
+    """:func:`tests.contract.manoeuvre_problems` of the run in ``folder`` (a summary of another
+    schema, or one without a manoeuvres list written by hand for a test: none)."""
+    try:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+        lines = (folder / "events.jsonl").read_text(encoding="utf-8").splitlines()
+        events = [json.loads(line) for line in lines if line.strip()]
+    except (OSError, ValueError):
+        return []  # a file a test damaged on purpose
+    if not isinstance(summary, dict) or summary.get("schema") != "sumo-swarm/summary/1":
+        return []
+    if "manoeuvres" not in summary or not isinstance(summary.get("overtake"), dict):
+        return []
+    return [f"{folder}: {p}" for p in manoeuvre_problems(summary, events)]
+
+
+@pytest.fixture(autouse=True)
+def _runs_agree_with_their_events(request, tmp_path_factory):
+    """After each test: every run it wrote (under the session's temporary folders) has
+    ``overtake``, ``swarms`` and ``manoeuvres`` that agree with its events.jsonl."""
+    yield
+    problems = [p for f in written_runs(tmp_path_factory.getbasetemp()) for p in run_problems(f)]
+    if problems:
+        pytest.fail("summary.json disagrees with events.jsonl:\n" + "\n".join(problems))

@@ -178,12 +178,26 @@ def test_the_platoon_splitting_again_before_the_end_is_not_regrouped():
 
 def test_the_overtake_block_describes_the_first_manoeuvre_and_lists_all_targets():
     # A second overtake, of a car met past the truck: the run is judged on the truck (the
-    # first target, with the first decision time); every manoeuvre's target is listed.
-    from sumo_swarm.controllers.swarm import SwarmController
+    # first target, with the first decision time); every manoeuvre is listed.
+    from sumo_swarm.core.swarming.account import (
+        ManoeuvreBook,
+        manoeuvres_from_events,
+        overtake_outcome,
+    )
 
-    swarm = SwarmController()
-    swarm._count_manoeuvre(3.0, "truck")
-    swarm._count_manoeuvre(38.0, "car")
-    overtake = swarm.summary()["overtake"]
+    events, clock = [], [0.0]
+
+    def event(name: str, /, **data) -> None:  # as RunContext.event: stamped with the time
+        events.append({"time_s": clock[0], "event": name, **data})
+
+    book = ManoeuvreBook(event, 1.0)
+    for t_s, target in ((3.0, "truck"), (38.0, "car")):
+        clock[0] = t_s
+        book.start(t_s, "cells", target, ["c0", "c1"])
+    listed = manoeuvres_from_events(events)
+    overtake = overtake_outcome(listed, 3.0)
     assert overtake["target"] == "truck" and overtake["t_start_s"] == 3.0
-    assert overtake["targets"] == ["truck", "car"] and overtake["manoeuvres"] == 2
+    assert [m["target"] for m in listed] == ["truck", "car"]
+    # the first was superseded by the second: not completed, and said why
+    assert listed[0]["outcome"] == "aborted:superseded" and listed[0]["t_end_s"] == 38.0
+    assert not overtake["completed"] and overtake["abort_reasons"] == {"superseded": 1}

@@ -205,6 +205,42 @@ def rows_between(df: pd.DataFrame) -> RowsOf:
     return rows_of
 
 
+def manoeuvre_line(summary: dict[str, Any]) -> str:
+    """What a person reads of a run's manoeuvres, in one line: how the first one went (its
+    kind, target, CAVs past, regrouped or not, the controller's own word for why it ended
+    without every CAV past), and how many more there were."""
+    listed = summary.get("manoeuvres") or []
+    ot = summary.get("overtake") or {}
+    if not listed:
+        if ot.get("target") is None:
+            return "no manoeuvre"
+        past = "every CAV got past" if ot.get("completed") else "not every CAV got past"
+        return f"no manoeuvre of the controller; {past} {ot['target']}"
+    first = listed[0]
+    kind = str(first["kind"]).replace("_", " ")
+    text = (
+        f"overtake of {first['target']} ({kind}) from {first['t_start_s']:.1f} s: "
+        f"{first['cavs_past']} of {first['cavs']} CAVs past"
+    )
+    if first["outcome"] == COMPLETED:
+        text += (
+            f", regrouped at {first['t_regrouped_s']:.1f} s"
+            if first["regrouped"]
+            else ", not regrouped"
+        )
+    elif first["outcome"] == "running":
+        text += ", still under way at the end"
+    else:
+        text += f", stopped at {first['t_end_s']:.1f} s: {first.get('reason')}"
+    if len(listed) > 1:
+        counts = overtake_counts(listed)
+        text += (
+            f"; {len(listed)} manoeuvres: {counts['overtakes_completed']} completed, "
+            f"{counts['overtakes_aborted']} stopped, {counts['overtakes_running']} running"
+        )
+    return text
+
+
 SWARM_KEYS = (
     "platoons_formed",
     "max_concurrent",
