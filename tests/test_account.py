@@ -154,15 +154,16 @@ def test_the_check_after_each_test_reads_a_run_folder_and_fails_an_inconsistent_
 def test_the_printed_line_says_how_far_the_first_manoeuvre_got_and_why_it_stopped():
     summary, _ = consistent_pair()
     assert manoeuvre_line(summary) == (
-        "overtake of truck (lane pass) from 5.0 s: 2 of 2 CAVs past, regrouped at 30.0 s"
+        "overtake of truck (lane pass from 5.0 s: 2 of 2 CAVs past, regrouped at 30.0 s)"
     )
     first = summary["manoeuvres"][0]
     first.update(outcome="aborted:target_changed_lane", reason="target_changed_lane",
                  cavs_past=1, regrouped=False)  # fmt: skip
     summary["manoeuvres"].append({**first, "outcome": "running", "kind": "one_by_one"})
     assert manoeuvre_line(summary) == (
-        "overtake of truck (lane pass) from 5.0 s: 1 of 2 CAVs past, stopped at 20.0 s: "
-        "target_changed_lane; 2 manoeuvres: 0 completed, 1 stopped, 1 running"
+        "overtake of truck (lane pass from 5.0 s: 1 of 2 CAVs past, stopped at 20.0 s: "
+        "target_changed_lane), then (one by one from 5.0 s: 1 of 2 CAVs past, still under way "
+        "at the end); 2 manoeuvres: 0 completed, 1 stopped, 1 running"
     )
     baseline = {"manoeuvres": [], "overtake": {"target": "truck", "completed": True}}
     assert manoeuvre_line(baseline) == "no manoeuvre of the controller; every CAV got past truck"

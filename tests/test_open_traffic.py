@@ -16,6 +16,7 @@ import sumo_swarm
 from sumo_swarm.sim.bridge import sumo_binary
 from sumo_swarm.sim.netbuild import HighwaySpec
 from sumo_swarm.sim.runner import run_scenario, run_sumocfg
+from sumo_swarm.sim.summary import pass_times_s
 from sumo_swarm.study.batch import load_sweep
 from tests.toolload import load_tool
 from tests.usercases import write_exit_case, write_user_case
@@ -114,7 +115,12 @@ def test_after_a_give_up_the_cavs_past_the_truck_wait_for_the_one_behind_it(tmp_
     starts = [e for e in events if e["event"] == "wait_start"]
     assert [(e["slow"], e["past"], e["behind"]) for e in starts] == [("hv_target", 4, 1)]
     assert swarm["overtake"]["waits_ahead"] == {"started": 1, "ended": {"rejoined": 1}}
-    assert swarm["overtake"]["regrouped"] is True
+    # Two manoeuvres: the cells given up with four CAVs past, then the wait, which regroups
+    give_up, wait = swarm["manoeuvres"]
+    assert (give_up["kind"], give_up["cavs_past"]) == ("cells", 4)
+    assert give_up["outcome"].startswith("aborted:") and not swarm["overtake"]["completed"]
+    assert (wait["kind"], wait["outcome"], wait["cavs_past"]) == ("wait", "completed", 5)
+    assert wait["regrouped"] is True
     assert len(_cav_lanes_at_end(tmp_path)) == 1
     assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
     assert swarm["cav"]["gap_min_cav_m"] >= 5.0
@@ -146,7 +152,12 @@ def test_cavs_passing_on_their_own_do_not_pass_into_the_trucks_lane_just_behind_
                          progress=False)  # fmt: skip
     cacc = run_scenario(spec.scenario(), "cacc", tmp_path / "cacc", seed=spec.seed,
                         progress=False)  # fmt: skip
-    assert swarm["overtake"]["completed"] is True and swarm["overtake"]["regrouped"] is True
+    # The truck left the lane: the overtake ended there (target_changed_lane), and the swarm
+    # drove past it as a platoon; every CAV ends ahead of it, in one lane.
+    assert swarm["manoeuvres"][0]["outcome"] == "aborted:target_changed_lane"
+    df = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    cavs = tuple(df.loc[df["kind"] == "cav", "vehicle"].astype(str).unique())
+    assert None not in pass_times_s(df, cavs, "hv_target").values()
     assert len(_cav_lanes_at_end(tmp_path / "swarm")) == 1
     assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"] + 2.0
     assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes_cav"] == 0
@@ -427,9 +438,10 @@ def test_the_swarm_passes_at_the_lanes_pace_once_in_one_faster_lane(tmp_path, se
                           notify=lambda _: None)  # fmt: skip
     assert summary["safety"]["collisions"] == 0
     assert summary["cav"]["gap_min_m"] >= 5.0
-    ends = [e for e in _events(out) if e["event"] == "overtake_end"]
-    handed = [e for e in ends if e["reason"] == "passing_lane"]
-    assert bool(handed) == hand_over, ends
+    handed = [e for e in _events(out) if e["event"] == "overtake_handover"]
+    assert bool(handed) == hand_over, handed
+    # the manoeuvre goes on past the hand-over, until every CAV is past the truck
+    assert summary["manoeuvres"][0]["outcome"] == "completed"
     df = pd.read_parquet(out / "trajectories.parquet")
     truck = df[df["vehicle"] == "truck"].set_index("time_s")["speed_mps"]
     cav = df[df["kind"] == "cav"]
@@ -498,7 +510,10 @@ def test_a_lane_pass_that_stalls_hands_the_target_to_the_cells(tmp_path):
     assert "overtake_start:lane" in ends and "overtake_end:lane_pass_stalled" in ends
     starts = [e for e in _events(tmp_path) if e["event"] == "overtake_start"]
     assert [e.get("how", "cells") for e in starts[:2]] == ["lane", "cells"]
-    assert summary["overtake"]["completed"]
+    stalled, cells = summary["manoeuvres"][:2]
+    assert (stalled["kind"], stalled["outcome"]) == ("lane_pass", "aborted:lane_pass_stalled")
+    assert (cells["kind"], cells["outcome"], cells["cavs_past"]) == ("cells", "completed", 3)
+    assert not summary["overtake"]["completed"]  # the first manoeuvre's, the lane pass's
     assert summary["safety"]["collisions"] == 0 and summary["safety"]["hard_brakes_cav"] == 0
     assert summary["cav"]["gap_min_m"] >= 5.0
 

@@ -42,7 +42,10 @@ def test_user_configuration_overtakes_safely_and_beats_sumo_cacc(tmp_path, name)
     )
     assert swarm["cav"]["count"] == 6
     assert swarm["overtake"]["target"] == "truck"  # found on its own, not configured
-    assert swarm["overtake"]["completed"] and swarm["overtake"]["regrouped"]
+    # past it and regrouped, at the first try or later (lane-drop-ahead: the truck moves over
+    # at the lane drop, the first overtake ends there, the second passes it)
+    passed = [m for m in swarm["manoeuvres"] if m["target"] == "truck"]
+    assert any(m["outcome"] == "completed" and m["regrouped"] for m in passed), passed
     assert swarm["safety"]["collisions"] == 0
     assert swarm["safety"]["hard_brakes"] == 0
     assert swarm["cav"]["gap_min_m"] >= 5.0

@@ -207,8 +207,9 @@ def rows_between(df: pd.DataFrame) -> RowsOf:
 
 def manoeuvre_line(summary: dict[str, Any]) -> str:
     """What a person reads of a run's manoeuvres, in one line: how the first one went (its
-    kind, target, CAVs past, regrouped or not, the controller's own word for why it ended
-    without every CAV past), and how many more there were."""
+    kind, target, CAVs past, regrouped or not, or the controller's own word for why it ended
+    without every CAV past), how the last one on the same target went if there were more, and
+    how many there were in all."""
     listed = summary.get("manoeuvres") or []
     ot = summary.get("overtake") or {}
     if not listed:
@@ -217,21 +218,12 @@ def manoeuvre_line(summary: dict[str, Any]) -> str:
         past = "every CAV got past" if ot.get("completed") else "not every CAV got past"
         return f"no manoeuvre of the controller; {past} {ot['target']}"
     first = listed[0]
-    kind = str(first["kind"]).replace("_", " ")
-    text = (
-        f"overtake of {first['target']} ({kind}) from {first['t_start_s']:.1f} s: "
-        f"{first['cavs_past']} of {first['cavs']} CAVs past"
-    )
-    if first["outcome"] == COMPLETED:
-        text += (
-            f", regrouped at {first['t_regrouped_s']:.1f} s"
-            if first["regrouped"]
-            else ", not regrouped"
-        )
-    elif first["outcome"] == "running":
-        text += ", still under way at the end"
-    else:
-        text += f", stopped at {first['t_end_s']:.1f} s: {first.get('reason')}"
+    text = f"overtake of {first['target']} ({_how_it_went(first)})"
+    again = [
+        m for m in listed[1:] if m["target"] == first["target"] and m["platoon"] == first["platoon"]
+    ]
+    if again:
+        text += f", then ({_how_it_went(again[-1])})"
     if len(listed) > 1:
         counts = overtake_counts(listed)
         text += (
@@ -239,6 +231,18 @@ def manoeuvre_line(summary: dict[str, Any]) -> str:
             f"{counts['overtakes_aborted']} stopped, {counts['overtakes_running']} running"
         )
     return text
+
+
+def _how_it_went(m: dict[str, Any]) -> str:
+    kind = str(m["kind"]).replace("_", " ")
+    text = f"{kind} from {m['t_start_s']:.1f} s: {m['cavs_past']} of {m['cavs']} CAVs past"
+    if m["outcome"] == COMPLETED:
+        if m["regrouped"] and m["t_regrouped_s"] is not None:
+            return text + f", regrouped at {m['t_regrouped_s']:.1f} s"
+        return text + ", not regrouped"
+    if m["outcome"] == "running":
+        return text + ", still under way at the end"
+    return text + f", stopped at {m['t_end_s']:.1f} s: {m.get('reason')}"
 
 
 SWARM_KEYS = (

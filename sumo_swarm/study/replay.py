@@ -250,7 +250,8 @@ def load_run(folder: Path) -> RunRecord:
     ends = sorted(
         float(e["time_s"])
         for e in _read_jsonl(folder / "events.jsonl")
-        if e.get("event") in ("overtake_end", "target_left")
+        # a cell plan handed over to the cruise (its manoeuvre goes on): no plan in force
+        if e.get("event") in ("overtake_end", "overtake_handover", "target_left")
     )
     records = [r for r in _read_jsonl(folder / "plans.jsonl") if PlanRecord.is_valid(r)]
     plans = []
