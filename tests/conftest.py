@@ -45,7 +45,8 @@ def written_runs(root: Path) -> list[Path]:
     """The run folders under ``root`` written since the last call: a ``summary.json`` of the
     contract's schema beside an ``events.jsonl``."""
     found = []
-    for folder, _, files in os.walk(root):
+    for folder, dirs, files in os.walk(root):
+        dirs[:] = [d for d in dirs if d != "sumo" and not d.startswith(".")]  # SUMO's inputs
         if "summary.json" not in files or "events.jsonl" not in files:
             continue
         path = Path(folder) / "summary.json"
@@ -72,11 +73,26 @@ def run_problems(folder: Path) -> list[str]:
     return [f"{folder}: {p}" for p in manoeuvre_problems(summary, events)]
 
 
-@pytest.fixture(autouse=True)
-def _runs_agree_with_their_events(request, tmp_path_factory):
-    """After each test: every run it wrote (under the session's temporary folders) has
-    ``overtake``, ``swarms`` and ``manoeuvres`` that agree with its events.jsonl."""
-    yield
-    problems = [p for f in written_runs(tmp_path_factory.getbasetemp()) for p in run_problems(f)]
+def _fail_on_disagreement(root: Path) -> None:
+    problems = [p for folder in written_runs(root) for p in run_problems(folder)]
     if problems:
         pytest.fail("summary.json disagrees with events.jsonl:\n" + "\n".join(problems))
+
+
+@pytest.fixture(autouse=True)
+def _runs_agree_with_their_events(request):
+    """After each test: every run it wrote into its ``tmp_path`` has ``overtake``, ``swarms``
+    and ``manoeuvres`` that agree with its events.jsonl (the test fails if not)."""
+    own = request.getfixturevalue("tmp_path") if "tmp_path" in request.fixturenames else None
+    yield
+    if own is not None:
+        _fail_on_disagreement(own)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _module_runs_agree_with_their_events(tmp_path_factory):
+    """After each test module: the same of every run written anywhere under the session's
+    temporary folders (module fixtures' runs, ``tmp_path_factory``): one walk a module, not
+    one a test."""
+    yield
+    _fail_on_disagreement(tmp_path_factory.getbasetemp())
