@@ -163,7 +163,7 @@ def test_the_printed_line_says_how_far_the_first_manoeuvre_got_and_why_it_stoppe
     assert manoeuvre_line(summary) == (
         "overtake of truck (lane pass from 5.0 s: 1 of 2 CAVs past, stopped at 20.0 s: "
         "target_changed_lane), then (one by one from 5.0 s: 1 of 2 CAVs past, still under way "
-        "at the end); 2 manoeuvres: 0 completed, 1 stopped, 1 running"
+        "at the end), 2 manoeuvres in all (0 completed, 1 stopped, 1 running)"
     )
     baseline = {"manoeuvres": [], "overtake": {"target": "truck", "completed": True}}
     assert manoeuvre_line(baseline) == "no manoeuvre of the controller; every CAV got past truck"
@@ -172,9 +172,9 @@ def test_the_printed_line_says_how_far_the_first_manoeuvre_got_and_why_it_stoppe
 @pytest.mark.sumo
 def test_a_lane_pass_on_a_users_road_says_every_cav_passed_and_regrouped(tmp_path):
     """The lane-drop road: the swarm passes the truck in the lane beside it and drives on as
-    one platoon. The summary said not triggered, not completed, not regrouped before (the
-    first swarm's account was lost when its platoon dissolved at the road's end)."""
-    cfg = write_road("lane-drop", tmp_path / "road", end_s=35.0)
+    one platoon to the road's end. The summary said not triggered, not completed, not
+    regrouped before (the first swarm's account was lost when its platoon dissolved there)."""
+    cfg = write_road("lane-drop", tmp_path / "road", end_s=60.0)
     out = tmp_path / "swarm"
     cmd = [
         sys.executable, "-m", "sumo_swarm", "run", "--sumocfg", str(cfg), "--cav-type", "cav",
@@ -188,7 +188,8 @@ def test_a_lane_pass_on_a_users_road_says_every_cav_passed_and_regrouped(tmp_pat
     assert first["cavs"] == first["cavs_past"] == CAV_COUNT and first["regrouped"]
     ot = summary["overtake"]
     assert ot["triggered"] and ot["completed"] and ot["regrouped"] and ot["target"] == "truck"
-    assert ot["t_start_s"] < ot["t_end_s"] <= first["t_end_s"] < ot["t_regrouped_s"] < 35.0
+    assert ot["t_start_s"] < ot["t_end_s"] <= first["t_end_s"] < ot["t_regrouped_s"] < 60.0
     assert summary["swarms"]["overtakes_completed"] == 1
+    assert summary["swarms"]["platoons_now"] == 0  # the CAVs left at the road's end
     assert f"{CAV_COUNT} of {CAV_COUNT} CAVs past, regrouped at" in proc.stdout, proc.stdout
     assert summary["safety"]["collisions"] == 0

@@ -227,8 +227,8 @@ def manoeuvre_line(summary: dict[str, Any]) -> str:
     if len(listed) > 1:
         counts = overtake_counts(listed)
         text += (
-            f"; {len(listed)} manoeuvres: {counts['overtakes_completed']} completed, "
-            f"{counts['overtakes_aborted']} stopped, {counts['overtakes_running']} running"
+            f", {len(listed)} manoeuvres in all ({counts['overtakes_completed']} completed, "
+            f"{counts['overtakes_aborted']} stopped, {counts['overtakes_running']} running)"
         )
     return text
 
