@@ -91,7 +91,6 @@ class SwarmController:
         self.stats = PlanStats()
         self.blocks = BlockWatch()
         self.t_start_s: float | None = None
-        self.t_done_s: float | None = None
         self.targets: list[str] = []  # the target of each manoeuvre, in order
         self.book: ManoeuvreBook | None = None  # every manoeuvre, as events (made by attach)
         self.regroup_lane_used: int | None = None
@@ -447,8 +446,6 @@ class SwarmController:
             self.drawer.clear()
         self.replanner.clear()
         self.decider.watch.candidate_id = self.decider.watch.since_s = None
-        if completed and self.t_done_s is None:
-            self.t_done_s = t_s
         if completed and reason == "completed" and self.regroup_lane_used is not None:
             self.reformer.prefer = (self.regroup_lane_used, self.regroup_edge)
         cells = self.book.current("cells")
@@ -522,8 +519,6 @@ class SwarmController:
     def _end_lane_pass(self, t_s: float, *, completed: bool, reason: str) -> None:
         self.lane_pass = None
         self.reformer.move_to = None
-        if completed and self.t_done_s is None:
-            self.t_done_s = t_s
         self.book.end(t_s, self.book.current("lane_pass"), completed=completed, reason=reason,
                       states=self.ctx.session.states, how="lane")  # fmt: skip
 
