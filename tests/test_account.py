@@ -165,6 +165,12 @@ def test_the_printed_line_says_how_far_the_first_manoeuvre_got_and_why_it_stoppe
         "target_changed_lane), then (one by one from 5.0 s: 1 of 2 CAVs past, still under way "
         "at the end), 2 manoeuvres in all (0 completed, 1 stopped, 1 running)"
     )
+    summary["overtake"].update(all_past=True, all_past_regrouped=False)
+    assert manoeuvre_line(summary).endswith(
+        "running); at the end every CAV past truck, not one platoon"
+    )
+    summary["overtake"]["all_past"] = False
+    assert manoeuvre_line(summary).endswith("running); at the end not every CAV past truck")
     baseline = {"manoeuvres": [], "overtake": {"target": "truck", "completed": True}}
     assert manoeuvre_line(baseline) == "no manoeuvre of the controller; every CAV got past truck"
 

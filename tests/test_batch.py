@@ -233,6 +233,7 @@ def test_local_sweep_results_impact_and_rerun(sweep_file, tmp_path, capsys):
         "cav.mean_speed_mps",
         "safety.collisions",
         "overtake.completed",
+        "overtake.all_past",
         "upstream.first_follower_reduction_pct",
         "upstream.hv_influenced",
         "timing.wall_s",

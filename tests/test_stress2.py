@@ -116,7 +116,7 @@ def _run(case: int, controller: str, lane_changes: bool, **fields) -> dict:
         "case": case, "cav.count": 3, "simulation.network": "h3", "hv.lane_changes": lane_changes,
         "controller": controller, "run_id": f"{controller}-{case}", "status": "ok",
         "safety.collisions": 0, "safety.hard_brakes_cav": 0, "safety.hard_brakes_hv": 0,
-        "overtake.completed": True, "overtake.regrouped": True, "cav.gap_min_m": 6.0,
+        "overtake.all_past": True, "overtake.all_past_regrouped": True, "cav.gap_min_m": 6.0,
         "cav.gap_min_cav_m": 6.0, "cav.gap_min_hv_m": 9.0, "cav.mean_speed_mps": 20.0,
         "lateral_holds": 0.0, "planner.solve_ms_p95": 10.0, "planner.solve_ms_max": 20.0,
     }  # fmt: skip
@@ -138,11 +138,11 @@ def _results() -> pd.DataFrame:
         _scene(0, False, {"cav.mean_speed_mps": 22.0})
         # 1: 0.9 % slower than cacc (allowed); sumo-lc did not pass, nor did the swarm (fine);
         # its CAV-to-CAV gap unknown, the gap of any CAV (4.9 m) stands in
-        + _scene(1, True, {"cav.mean_speed_mps": 19.82, "overtake.completed": False,
-                           "overtake.regrouped": False, "cav.gap_min_cav_m": None,
+        + _scene(1, True, {"cav.mean_speed_mps": 19.82, "overtake.all_past": False,
+                           "overtake.all_past_regrouped": False, "cav.gap_min_cav_m": None,
                            "cav.gap_min_m": 4.9, "cav.gap_min_hv_m": 3.0})
         # 2: 1.1 % slower; sumo-lc passed but the swarm did not regroup; a collision
-        + _scene(2, True, {"cav.mean_speed_mps": 19.78, "overtake.regrouped": False,
+        + _scene(2, True, {"cav.mean_speed_mps": 19.78, "overtake.all_past_regrouped": False,
                            "safety.collisions": 2})
         # 3: sumo-lc's trajectories unknown; a CAV gap of 4.0 m behind an HV only
         + _scene(3, False, {"cav.mean_speed_mps": 24.0, "cav.gap_min_m": 4.0,

@@ -93,6 +93,7 @@ def _summary(**changes: object) -> dict:
         "cav": {"gap_min_m": 6.0, "max_speed_mps": 24.0, "mean_speed_mps": 19.0},
         "overtake": {
             "triggered": True, "completed": True, "regrouped": True, "aborted": 0,
+            "all_past": True, "all_past_regrouped": True,
             "lateral_holds": 0, "blocked_hv_min_accel_mps2": -1.5,
         },
         "safety": {"collisions": 0, "hard_brakes_cav": 0, "hard_brakes_hv": 1},
@@ -136,7 +137,7 @@ def test_a_good_scene_passes_every_check():
         ({"planner__solve_ms_p95": 50.5}, "planner_p95"),
         ({"planner__solve_ms_max": 251.0}, "planner_max"),
         ({"safety__collisions": 1}, "no_collision"),
-        ({"overtake__regrouped": False}, "overtake"),
+        ({"overtake__all_past_regrouped": False}, "overtake"),
     ],
 )
 def test_each_check_fails_on_its_own(change, check):
@@ -162,7 +163,7 @@ def test_bounds_themselves_pass():
         ({"timing__wall_s": None}, "run_cost"),
         ({"safety__hard_brakes_hv": None}, "hard_brakes"),
         ({"planner__solve_ms_p95": None}, "planner_p95"),
-        ({"overtake__completed": None, "overtake__aborted": None}, "overtake"),
+        ({"overtake__all_past": None, "overtake__aborted": None}, "overtake"),
     ],
 )
 def test_a_missing_field_is_not_a_pass(change, check):
@@ -192,10 +193,10 @@ def test_null_means_none_happened():
     ],
 )
 def test_give_up_is_clean_only_with_the_platoon_intact(platoon, verdict):
-    gave_up = _summary(overtake__completed=False, overtake__regrouped=False, overtake__aborted=1)
+    gave_up = _summary(overtake__all_past=False, overtake__all_past_regrouped=False, overtake__aborted=1)
     assert _judge(gave_up, platoon)["overtake"] == verdict
     # Not completed and no give-up: a failure, whatever the platoon looks like.
-    stuck = _summary(overtake__completed=False, overtake__regrouped=False)
+    stuck = _summary(overtake__all_past=False, overtake__all_past_regrouped=False)
     assert _judge(stuck, (1, 7.0, 0))["overtake"] == vr.FAIL
     assert _judge(stuck, (1, 7.0, 0), status="failed")["ran"] == vr.FAIL
     assert _judge(_summary(), cacc=None)["ran"] == vr.NA  # its cacc run has not finished

@@ -129,8 +129,8 @@ def scene_table(
     out["hv_hard_brakes"] = swarm["safety.hard_brakes_hv"]
     out["hv_hard_brakes_cacc"] = cacc["safety.hard_brakes_hv"].reindex(out.index)
     out["cacc_collisions"] = cacc["safety.collisions"].reindex(out.index)
-    out["completed"] = swarm["overtake.completed"].astype("boolean")
-    out["regrouped"] = swarm["overtake.regrouped"].astype("boolean")
+    out["completed"] = swarm["overtake.all_past"].astype("boolean")
+    out["regrouped"] = swarm["overtake.all_past_regrouped"].astype("boolean")
     out["gap_min_m"] = swarm["cav.gap_min_m"]
     out["mean_speed_mps"] = swarm["cav.mean_speed_mps"]
     out["mean_speed_cacc_mps"] = cacc["cav.mean_speed_mps"].reindex(out.index)

@@ -180,8 +180,8 @@ def judge_overtake(
     summary: Mapping[str, Any], platoon: tuple[int, float | None, int] | None
 ) -> tuple[str, str]:
     """Completed and regrouped, or a clean give-up. Returns (verdict, how)."""
-    completed = field(summary, "overtake.completed")
-    regrouped = field(summary, "overtake.regrouped")
+    completed = field(summary, "overtake.all_past")
+    regrouped = field(summary, "overtake.all_past_regrouped")
     if completed is True and regrouped is True:
         return PASS, "regrouped"
     aborted = _number(field(summary, "overtake.aborted"))

@@ -208,8 +208,8 @@ def rows_between(df: pd.DataFrame) -> RowsOf:
 def manoeuvre_line(summary: dict[str, Any]) -> str:
     """What a person reads of a run's manoeuvres, in one line: how the first one went (its
     kind, target, CAVs past, regrouped or not, or the controller's own word for why it ended
-    without every CAV past), how the last one on the same target went if there were more, and
-    how many there were in all."""
+    without every CAV past), how the last one on the same target went if there were more, how
+    many there were in all, and where the CAVs stood at the end (``overtake.all_past``)."""
     listed = summary.get("manoeuvres") or []
     ot = summary.get("overtake") or {}
     if not listed:
@@ -230,6 +230,12 @@ def manoeuvre_line(summary: dict[str, Any]) -> str:
             f", {len(listed)} manoeuvres in all ({counts['overtakes_completed']} completed, "
             f"{counts['overtakes_aborted']} stopped, {counts['overtakes_running']} running)"
         )
+    if "all_past" in ot:  # where the run ended, whatever the manoeuvres: the table's word
+        if not ot["all_past"]:
+            text += f"; at the end not every CAV past {first['target']}"
+        else:
+            platoon = "one platoon" if ot.get("all_past_regrouped") else "not one platoon"
+            text += f"; at the end every CAV past {first['target']}, {platoon}"
     return text
 
 
@@ -391,6 +397,11 @@ def build_summary(
         **outcome,
         "lateral_holds": int(own.get("lateral_holds", 0)),
         "blocked_hv_min_accel_mps2": finite_or_none(own.get("blocked_hv_min_accel_mps2")),
+        # Extra (not in the contract), measured alike for every controller on the trajectories:
+        # every CAV got past the first target by the run's end, by whatever manoeuvres (the
+        # first manoeuvre's own outcome is "completed"), and formed one platoon ahead of it.
+        "all_past": m.t_end_s is not None,
+        "all_past_regrouped": m.t_regrouped_s is not None,
     }
     extra = (
         "manoeuvres",

@@ -57,7 +57,7 @@ GAIN_SPEED, GAIN_TRAVEL = "gain.mean_speed_pct", "gain.travel_time_pct"
 MOBILITY = (
     (SPEED, "mean", "CAV mean speed [m/s]", True),
     (TRAVEL, "mean", "CAV travel time [s]", False),
-    ("overtake.completed", "mean", "overtaken (share of runs)", False),
+    ("overtake.all_past", "mean", "all CAVs got past (share of runs)", False),
     (GAIN_SPEED, "mean", "mobility gain, speed [%]", True),
     (GAIN_TRAVEL, "mean", "mobility gain, travel time [%]", False),
 )

@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 KEY_MEASURES = (
     ("cav.mean_speed_mps", "CAV speed [m/s]"),
     ("cav.travel_time_s", "travel time [s]"),
-    ("overtake.completed", "overtaken"),
+    ("overtake.all_past", "all past"),
     ("safety.collisions", "collisions"),
     ("safety.hard_brakes", "hard brakes"),
     ("upstream.first_follower_reduction_pct", "1st follower slowed [%]"),
