@@ -7,12 +7,23 @@ both Longitudinal and Lateral Dimensions").
 
 from typing import TYPE_CHECKING
 
+from sumo_swarm.errors import ConfigError, SessionError, SimulationError, SwarmError
+
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
     from sumo_swarm.sim.plugin import SwarmHandle, attach, detach
 
-__all__ = ["SwarmHandle", "__version__", "attach", "detach"]
+__all__ = [
+    "ConfigError",
+    "SessionError",
+    "SimulationError",
+    "SwarmError",
+    "SwarmHandle",
+    "__version__",
+    "attach",
+    "detach",
+]
 
 _PLUGIN_API = ("SwarmHandle", "attach", "detach")
 

@@ -3,8 +3,10 @@ finite-or-None. Pure (no SUMO import); errors are :class:`~sumo_swarm.errors.Con
 
 from __future__ import annotations
 
+import difflib
 import math
 import operator
+from collections.abc import Iterable
 from typing import Any
 
 from sumo_swarm.errors import ConfigError
@@ -101,3 +103,37 @@ def finite_or_none(value: object) -> float | None:
         return None
     x = float(value)  # type: ignore[arg-type]
     return x if math.isfinite(x) else None
+
+
+def did_you_mean(name: str, known: Iterable[str]) -> str | None:
+    """The known name nearest to a mistyped ``name`` (difflib's ratio, at least 0.6), or None.
+
+    Case is ignored (``Cav`` for ``cav``); for a dotted name the last part is matched too, so
+    ``cav.lenght_m`` finds ``cav.length_m`` among other sections' keys.
+    """
+    names = [str(k) for k in known]
+    by_lower = {k.lower(): k for k in names}
+    if name.lower() in by_lower:
+        return by_lower[name.lower()]
+    close = difflib.get_close_matches(name.lower(), list(by_lower), n=1, cutoff=0.6)
+    return by_lower[close[0]] if close else None
+
+
+def unknown_name(
+    kind: str,
+    name: str,
+    known: Iterable[str],
+    *,
+    prefix: str = "",
+    listed_as: str = "known",
+    shown: str = "{}",
+) -> str:
+    """The message for an unknown ``kind`` (key, section, controller, vType, ...) called
+    ``name``: the nearest known one first, then all of them (``listed_as`` heads the list).
+    ``prefix`` (``"cav."``) is put before ``name`` and the suggestion, not the listed names;
+    ``shown`` formats every name shown (``"[{}]"`` for a section)."""
+    names = [str(k) for k in known]
+    near = did_you_mean(name, names)
+    hint = f": did you mean '{prefix}{shown.format(near)}'?" if near is not None else ""
+    listed = ", ".join(shown.format(k) for k in names) or "none"
+    return f"unknown {kind} '{prefix}{shown.format(name)}'{hint} ({listed_as}: {listed})"

@@ -10,6 +10,7 @@ import argparse
 import importlib.resources
 import logging
 import math
+import re
 import signal
 import sys
 import textwrap
@@ -17,7 +18,7 @@ import threading
 from pathlib import Path
 
 from sumo_swarm import __version__
-from sumo_swarm.checks import SEED_MAX
+from sumo_swarm.checks import SEED_MAX, did_you_mean
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
 
@@ -121,7 +122,32 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise ConfigError(f"{self.prog}: {message}")
+        raise ConfigError(f"{self.prog}: {message}{self._nearest(message)}")
+
+    def _nearest(self, message: str) -> str:
+        """'; did you mean ...?' for a mistyped choice or option, else ''."""
+        choice = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if choice:
+            wanted, known = choice[1], re.findall(r"'([^']*)'", choice[2])
+        else:
+            given = re.search(r"unrecognized arguments: (.*)", message)
+            words = [w for w in (given[1].split() if given else []) if w.startswith("--")]
+            if not words:
+                return ""
+            wanted, known = words[0].split("=")[0], _option_strings(self)
+        near = did_you_mean(wanted, known)
+        return f"; did you mean '{near}'?" if near and near != wanted else ""
+
+
+def _option_strings(parser: argparse.ArgumentParser) -> list[str]:
+    """Every long option of ``parser`` and of its commands."""
+    found = []
+    for action in parser._actions:
+        found += [o for o in action.option_strings if o.startswith("--")]
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found += _option_strings(sub)
+    return list(dict.fromkeys(found))
 
 
 def _int_at_least(minimum: int, maximum: int | None = None):
@@ -358,7 +384,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from sumo_swarm.config import load_scenario
+    from sumo_swarm.sim.bridge import require_display
     from sumo_swarm.sim.runner import run_scenario
+
+    if args.gui:
+        require_display()  # before anything is read or written
 
     if args.sumocfg is not None:
         if args.scenario is not None:
@@ -409,7 +439,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         f"hard brakes={summary['safety']['hard_brakes']}, "
         f"wall {summary['timing']['wall_s']:.1f} s -> {args.out}"
     )
-    return EXIT_OK
+    # The controller failed and handed its CAVs back to SUMO (one warning said so): the outputs
+    # are whole, but not a run of this controller to its end.
+    return EXIT_FAILURE if summary.get("stood_down") else EXIT_OK
 
 
 def _num(value: float | None) -> str:
@@ -426,6 +458,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 def _cmd_batch(args: argparse.Namespace) -> int:
     from sumo_swarm.study.batch import run_batch
+    from sumo_swarm.userfiles import check_sumo_path
+
+    check_sumo_path(args.out.resolve(), "batch folder")  # every run's SUMO writes there
 
     report = run_batch(
         args.sweep, args.out, workers=args.workers, ray=args.ray, retry_failed=args.retry_failed

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from sumo_swarm.checks import SEED_MAX, check_fields, is_number, require_number
+from sumo_swarm.checks import SEED_MAX, check_fields, is_number, require_number, unknown_name
 from sumo_swarm.core.grid import GridSettings
 from sumo_swarm.core.planner import PlannerSettings
 from sumo_swarm.core.swarming.guards import GuardSettings
@@ -179,6 +179,11 @@ class OutputSettings:
             )
 
 
+# The most CAVs a scene may place: 10000 CAVs of 5 m at 10 m gaps are 150 km of platoon, more
+# than any road a scene departs on; a count of 10**11 allocated before SUMO started.
+MAX_CAVS = 10_000
+
+
 @dataclass(frozen=True)
 class CavSettings:
     """The CAVs and the swarm's set points (paper IV-C).
@@ -237,7 +242,7 @@ class CavSettings:
     wheelbase_m: float = 2.8
 
     def __post_init__(self) -> None:
-        check_fields(self, "count", ge=1)
+        check_fields(self, "count", ge=1, le=MAX_CAVS)
         check_positive(
             self,
             "length_m",
@@ -1251,8 +1256,7 @@ def from_mapping(cls: type[T], data: dict[str, Any], prefix: str = "") -> T:
     dotted = f"{prefix}." if prefix else ""
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        known = ", ".join(sorted(fields))
-        raise ConfigError(f"unknown key '{dotted}{unknown[0]}' (known: {known})")
+        raise ConfigError(unknown_name("key", unknown[0], sorted(fields), prefix=dotted))
     kwargs = {name: _convert(value, hints[name], f"{dotted}{name}") for name, value in data.items()}
     try:
         return cls(**kwargs)
@@ -1264,12 +1268,9 @@ def from_mapping(cls: type[T], data: dict[str, Any], prefix: str = "") -> T:
 
 def read_toml(path: Path, what: str) -> dict[str, Any]:
     """The tables of a TOML file; ConfigError naming the file when missing, unreadable, bad."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{what} not found: {path}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"cannot read {what} {path}: {exc}") from None
+    from sumo_swarm.userfiles import read_user_text
+
+    text = read_user_text(path, what)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -1298,9 +1299,12 @@ def load_scenario(
             raise ConfigError("name: expected a non-empty string")
         unknown = sorted(set(data) - set(SECTIONS))
         if unknown:
-            raise ConfigError(
-                f"unknown section '[{unknown[0]}]' (known: {', '.join(sorted(SECTIONS))})"
-            )
+            if "base" in unknown:
+                raise ConfigError(
+                    "this is a sweep file, not a scenario: run it with 'sumo-swarm batch FILE "
+                    "--out DIR'"
+                )
+            raise ConfigError(unknown_name("section", unknown[0], sorted(SECTIONS), shown="[{}]"))
         for section, keys in DERIVED_KEYS.items():
             for key, source in keys.items():
                 if key in data.get(section, {}):
@@ -1316,7 +1320,7 @@ def load_scenario(
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     if require_network and scenario.corridor is None:  # a corridor builds its network
-        if not scenario.network_path.is_file():
+        if not scenario.network_path.exists():  # anything else: refused by parse_xml
             raise ConfigError(
                 f"{path}: simulation.network: file not found: {scenario.network_path}"
             )
@@ -1374,6 +1378,89 @@ def _check_network(sc: Scenario, path: Path) -> None:
     for key, lane in used:
         if lane >= first:
             raise ConfigError(f"{path}: {key} = {lane}, but the road has lanes 0..{first - 1}")
+    edge = sc.simulation.route_edges[0]
+    lengths = {}
+    for e in root.iter("edge"):
+        if e.get("id") == edge:
+            for lane in e.findall("lane"):
+                try:
+                    lengths[int(lane.get("index", "0"))] = float(lane.get("length", "nan"))
+                except ValueError:
+                    raise ConfigError(
+                        f"{path}: simulation.network: {net}: malformed lane of edge '{edge}'"
+                    ) from None
+    try:
+        check_scene_geometry(sc, edge, lengths)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def check_scene_geometry(sc: Scenario, edge: str, lane_lengths_m: dict[int, float]) -> None:
+    """The scene's vehicles where SUMO can put them at t = 0, checked before any is made (a
+    count of 10**11 CAVs would otherwise fill the memory first): every one on its lane of the
+    first route edge ``edge`` (``lane_lengths_m``: lane index -> length [m]), front bumper not
+    beyond its end, rear not before its start, and no two overlapping in a lane. ConfigError
+    naming the key."""
+    scene, cav, hv = sc.scene, sc.cav, sc.hv
+
+    def length_of(lane: int) -> float:
+        length_m = lane_lengths_m.get(lane, math.nan)
+        return length_m if math.isfinite(length_m) else math.inf
+
+    road = f"lane {scene.platoon_lane} of edge '{edge}'"
+    lane_m = length_of(scene.platoon_lane)
+    if cav.length_m > lane_m:
+        raise ConfigError(
+            f"cav.length_m = {cav.length_m:g}: a CAV longer than {road} ({lane_m:g} m)"
+        )
+    if scene.leader_front_m > lane_m:
+        raise ConfigError(
+            f"scene.leader_front_m = {scene.leader_front_m:g}: beyond the end of {road} "
+            f"({lane_m:g} m), where the CAVs depart"
+        )
+    step_m = cav.length_m + scene.initial_gap_m
+    platoon_m = cav.count * step_m - scene.initial_gap_m  # leader's front to last one's rear
+    if platoon_m > scene.leader_front_m + 1e-9:
+        fits = int((scene.leader_front_m + scene.initial_gap_m) // step_m)
+        raise ConfigError(
+            f"cav.count = {cav.count}: {cav.count} CAVs {cav.length_m:g} m long, "
+            f"{scene.initial_gap_m:g} m apart need {platoon_m:g} m behind scene.leader_front_m "
+            f"= {scene.leader_front_m:g} m; {fits} fit"
+        )
+    # (lane, rear, front, key) of everything placed: the platoon as one block
+    placed = [(scene.platoon_lane, scene.leader_front_m - platoon_m, scene.leader_front_m,
+               "scene.leader_front_m", "the CAVs")]  # fmt: skip
+    if not any(h.role == "target" for h in scene.hv):  # build_scene puts one ahead of the CAVs
+        front = scene.leader_front_m + scene.initial_gap_m + hv.length_m
+        if front > lane_m:
+            raise ConfigError(
+                f"scene.leader_front_m = {scene.leader_front_m:g}: the slow HV placed ahead "
+                f"of the CAVs would be beyond the end of {road} ({lane_m:g} m)"
+            )
+        placed.append((scene.platoon_lane, front - hv.length_m, front, "scene.leader_front_m",
+                       "the slow HV ahead"))  # fmt: skip
+    for h in scene.hv:
+        key, length_m = f"scene.hv '{h.id}'.front_m", h.length_m or hv.length_m
+        end_m = length_of(h.lane)
+        if h.front_m > end_m:
+            raise ConfigError(
+                f"{key} = {h.front_m:g}: beyond the end of lane {h.lane} of edge '{edge}' "
+                f"({end_m:g} m)"
+            )
+        if h.front_m - length_m < 0.0:
+            raise ConfigError(
+                f"{key} = {h.front_m:g}: its rear ({length_m:g} m long) would be before the "
+                f"start of edge '{edge}'"
+            )
+        placed.append((h.lane, h.front_m - length_m, h.front_m, key, f"'{h.id}'"))
+    placed.sort(key=lambda p: (p[0], -p[2]))
+    for ahead, behind in itertools.pairwise(placed):
+        if ahead[0] == behind[0] and behind[2] > ahead[1] + 1e-9:
+            later = behind if behind[3] != "scene.leader_front_m" else ahead
+            raise ConfigError(
+                f"{later[3]}: {behind[4]} ({behind[1]:g}-{behind[2]:g} m) and {ahead[4]} "
+                f"({ahead[1]:g}-{ahead[2]:g} m) overlap in lane {ahead[0]}"
+            )
 
 
 def _check_consistency(sc: Scenario, *, step_given: bool = True) -> None:

@@ -28,3 +28,8 @@ class RunInterrupted(KeyboardInterrupt):
         super().__init__(message)
         self.message = message
         self.exit_status = exit_status
+
+
+class SessionError(SwarmError, RuntimeError):
+    """The plugin API used on a simulation it cannot work with: none is running, or a swarm is
+    attached to it already."""

@@ -12,6 +12,22 @@ from typing import Any
 
 import pandas as pd
 
+from sumo_swarm.errors import ConfigError
+
+
+def writable_folder(path: str | Path, what: str = "output folder") -> Path:
+    """Create folder ``path`` (and its parents) and check a file can be written in it;
+    ConfigError naming it otherwise."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write-test"
+        probe.write_text("", encoding="utf-8")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"{what} {out} cannot be written: {exc.strerror or exc}") from None
+    return out
+
 
 def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
     """Write ``path`` by ``write(tmp)`` into a hidden temporary file beside it, flush that to disk

@@ -11,16 +11,13 @@ from defusedxml import DefusedXmlException
 from defusedxml.ElementTree import fromstring
 
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.userfiles import MAX_DATA_BYTES, read_user_bytes
 
 
-def parse_xml(path: Path, what: str = "XML file") -> ET.Element:
-    """The root element of ``path``; ConfigError if missing, unreadable, malformed or with a DTD."""
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise ConfigError(f"{what} not found: {path}") from None
-    except OSError as exc:
-        raise ConfigError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+def parse_xml(path: Path, what: str = "XML file", max_bytes: int = MAX_DATA_BYTES) -> ET.Element:
+    """The root element of ``path``; ConfigError if missing, no regular file, larger than
+    ``max_bytes``, unreadable, malformed or with a DTD."""
+    data = read_user_bytes(path, what, max_bytes)
     try:
         # The parser sees the document after decoding (UTF-8, UTF-16, ...), so a DTD is found
         # in any encoding; forbid_dtd refuses even a DTD without entities.

@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import re
+import subprocess
+import sys
+import time
+
 import pytest
 
 from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
+from sumo_swarm.userfiles import MAX_TEXT_BYTES
 from tests.test_cli import assert_bad_input, sumo_swarm
 from tests.usercases import write_user_case
 
@@ -172,3 +179,499 @@ def test_cav_type_no_vehicle_has(tmp_path):
         "robotaxi",
         str(cfg),
     )
+
+
+# ------------------------------------------------------------------------------------------
+# Paths with spaces and non-ASCII letters, everywhere a user names one
+
+SPACED = "my road ü é"  # a space, non-ASCII letters
+
+
+def _short_scenario(folder, net: str = "../net/highway3.net.xml", *, duration_s: float = 2.0):
+    """The paper's scenario, ``duration_s`` long, its network relative to the file."""
+    from tests.conftest import PAPER, ROOT
+
+    (folder / "net").mkdir(parents=True, exist_ok=True)
+    (folder / "net" / "highway3.net.xml").write_bytes(
+        (ROOT / "networks" / "highway3.net.xml").read_bytes()
+    )
+    (folder / "scen").mkdir(exist_ok=True)
+    text = PAPER.read_text(encoding="utf-8")
+    text = text.replace('network = "../networks/highway3.net.xml"', f'network = "{net}"')
+    text = text.replace("duration_s = 80.0", f"duration_s = {duration_s}")
+    text = text.replace("end_s = 60.0", f"end_s = {duration_s}")
+    path = folder / "scen" / "paper é.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+@pytest.mark.sumo
+def test_a_sumocfg_in_a_folder_with_spaces_and_non_ascii_letters_runs(tmp_path):
+    # SUMO's saved configuration writes such a path percent-encoded (my%20road%20ü): read back
+    # as it was, it named a file that does not exist.
+    folder = tmp_path / SPACED
+    cfg = write_user_case(folder, HighwaySpec(length_m=800, lanes=3), end_s=3.0)
+    out = tmp_path / "out ä"
+    proc = sumo_swarm(
+        "run", "--sumocfg", str(cfg), "--cav-type", "cav", "--controller", "cacc",
+        "--out", str(out),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (out / "summary.json").is_file()
+    # replay reads the network from the configuration SUMO saved, its paths percent-encoded
+    proc = sumo_swarm("replay", str(out), "--to", "1", "--fps", "2", "--out", str(out / "r ü.gif"))
+    assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.sumo
+def test_scenario_batch_replay_and_impact_in_folders_with_spaces(tmp_path):
+    folder = tmp_path / SPACED
+    scenario_path = _short_scenario(folder)
+    run_dir = folder / "run é"
+    proc = sumo_swarm("run", str(scenario_path), "--controller", "cacc", "--out", str(run_dir))
+    assert proc.returncode == 0, proc.stderr
+    movie = run_dir / "replay ü.gif"
+    proc = sumo_swarm("replay", str(run_dir), "--out", str(movie), "--to", "1", "--fps", "2")
+    assert proc.returncode == 0, proc.stderr
+    assert movie.stat().st_size > 0
+    sweep = folder / "scen" / "sweep ü.toml"
+    sweep.write_text(
+        f'base = "{scenario_path.name}"\ncontrollers = ["cacc"]\nseeds = [1]\n', encoding="utf-8"
+    )
+    batch_dir = folder / "batch é"
+    proc = sumo_swarm("batch", str(sweep), "--out", str(batch_dir), "--workers", "1")
+    assert proc.returncode == 0, proc.stderr
+    proc = sumo_swarm("impact", str(batch_dir))
+    assert proc.returncode == 0, proc.stderr
+    assert (batch_dir / "impact" / "impact.md").is_file()
+
+
+# ------------------------------------------------------------------------------------------
+# Every file a user names: a regular file of bounded size, checked before it is read
+
+
+def _special(tmp_path, kind: str):
+    """A path that is no regular file: a FIFO (a reader would wait for ever), a character
+    device (endless), a folder; or a regular file larger than any scenario may be (sparse)."""
+    path = tmp_path / f"special-{kind}"
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "device":
+        path.symlink_to("/dev/zero")
+    elif kind == "folder":
+        path.mkdir()
+    else:
+        with path.open("wb") as fh:
+            fh.truncate(MAX_TEXT_BYTES + 1)
+    return path
+
+
+SPECIAL = {
+    "fifo": "not a regular file (a FIFO)",
+    "device": "not a regular file (a character device)",
+    "folder": "a folder, not a file",
+    "huge": "more than the 64 MiB",
+}
+
+
+@pytest.mark.parametrize("kind", sorted(SPECIAL))
+@pytest.mark.parametrize("role", ["scenario", "sumocfg", "config", "sweep"])
+def test_a_special_or_huge_file_is_refused_at_once(tmp_path, kind, role):
+    path = _special(tmp_path, kind)
+    cfg = write_user_case(tmp_path / "case", HighwaySpec(length_m=500, lanes=3), end_s=2.0)
+    args = {
+        "scenario": ["run", str(path)],
+        "sumocfg": ["run", "--sumocfg", str(path), "--cav-type", "cav"],
+        "config": ["run", "--sumocfg", str(cfg), "--cav-type", "cav", "--config", str(path)],
+        "sweep": ["batch", str(path), "--out", str(tmp_path / "b")],
+    }[role]
+    proc = sumo_swarm(*args, "--out", str(tmp_path / "o")) if role != "sweep" else sumo_swarm(*args)
+    assert_bad_input(proc, SPECIAL[kind], str(path))
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+@pytest.mark.parametrize("named", ["route-files", "net-file"])
+def test_a_special_file_a_sumocfg_names_is_refused(tmp_path, kind, named):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=2.0)
+    target = tmp_path / ("routes.rou.xml" if named == "route-files" else "highway.net.xml")
+    target.unlink()
+    special = _special(tmp_path, kind)
+    special.rename(target)
+    proc = sumo_swarm(
+        "run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")
+    )
+    assert_bad_input(proc, named, SPECIAL[kind], str(target), str(cfg))
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_a_special_file_as_the_scenario_network_is_refused(tmp_path, scenario_file, kind):
+    special = _special(tmp_path, kind)
+    path = scenario_file(f'[simulation]\nnetwork = "{special.as_posix()}"\n')
+    # the network's path is resolved: the device a link points to is named
+    assert_bad_input(sumo_swarm("run", str(path)), SPECIAL[kind], str(special.resolve()), str(path))
+
+
+# ------------------------------------------------------------------------------------------
+# A mistyped key, section, option or type: the nearest one suggested
+
+
+@pytest.mark.parametrize(
+    ("body", "fragment"),
+    [
+        ("[cav]\nlenght_m = 4.0\n", "unknown key 'cav.lenght_m': did you mean 'cav.length_m'?"),
+        ("[simulaton]\n", "unknown section '[simulaton]': did you mean '[simulation]'?"),
+        ("[planner.weights]\nw_tarr = 1.0\n", "did you mean 'planner.weights.w_tar'?"),
+        (
+            "[[scene.hv]]\nid='a'\nlane=0\nfront_m=30.0\nspeedmps=3.0\n",
+            "did you mean 'scene.hv[0].speed_mps'?",
+        ),
+    ],
+)
+def test_a_mistyped_key_in_a_scenario_suggests_the_nearest(scenario_file, body, fragment):
+    path = scenario(scenario_file, body)
+    assert_bad_input(sumo_swarm("run", str(path)), fragment, str(path))
+
+
+@pytest.mark.parametrize(
+    ("body", "fragment"),
+    [
+        ('controler = ["cacc"]\n', "unknown key 'controler': did you mean 'controllers'?"),
+        ('controllers = ["cac"]\n', "unknown controller 'cac': did you mean 'cacc'?"),
+        ('[grid]\n"cav.cuont" = [4, 6]\n', "unknown key 'cav.cuont': did you mean 'cav.count'?"),
+        ('[fixed]\n"simulaton.duration_s" = 5.0\n', "did you mean 'simulation'?"),
+    ],
+)
+def test_a_mistyped_key_in_a_sweep_suggests_the_nearest(tmp_path, paper_path, body, fragment):
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(f'base = "{paper_path.as_posix()}"\n{body}', encoding="utf-8")
+    proc = sumo_swarm("batch", str(sweep), "--out", str(tmp_path / "b"))
+    assert_bad_input(proc, fragment, str(sweep))
+
+
+def test_a_mistyped_key_in_a_config_file_suggests_the_nearest(tmp_path):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=2.0)
+    settings = tmp_path / "swarm settings.toml"
+    settings.write_text("[swarm]\nkeep_rigth_wait_s = 2.0\n", encoding="utf-8")
+    proc = sumo_swarm(
+        "run", "--sumocfg", str(cfg), "--cav-type", "cav", "--config", str(settings),
+        "--out", str(tmp_path / "o"),
+    )  # fmt: skip
+    assert_bad_input(proc, "did you mean 'swarm.keep_right_wait_s'?", str(settings))
+
+
+def test_a_sweep_given_to_run_says_it_is_a_sweep(tmp_path, paper_path):
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(f'base = "{paper_path.as_posix()}"\n', encoding="utf-8")
+    assert_bad_input(sumo_swarm("run", str(sweep)), "this is a sweep file", "batch", str(sweep))
+
+
+@pytest.mark.sumo
+def test_a_wrong_cav_type_lists_the_types_present(tmp_path):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=2.0)
+    proc = sumo_swarm(
+        "run", "--sumocfg", str(cfg), "--cav-type", "CAV_", "--out", str(tmp_path / "o")
+    )
+    assert_bad_input(
+        proc, "unknown vType 'CAV_': did you mean 'cav'?", "(vTypes in the simulation: car, cav, "
+        "truck)", str(cfg),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------------
+# --gui where no window can open
+
+
+@pytest.mark.parametrize(
+    ("display", "fragment"),
+    [(None, "DISPLAY is not set"), (":97", "no X server answers at DISPLAY=:97")],
+)
+def test_gui_without_a_display_fails_at_once(tmp_path, scenario_file, display, fragment):
+    path = scenario_file('[simulation]\nnetwork = "@NET@"\n')
+    env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
+    if display is not None:
+        env["DISPLAY"] = display
+    t0 = time.monotonic()
+    proc = subprocess.run(
+        [sys.executable, "-m", "sumo_swarm", "run", str(path), "--gui", "--out",
+         str(tmp_path / "o")],
+        capture_output=True, text=True, env=env, timeout=120,
+    )  # fmt: skip
+    assert_bad_input(proc, "--gui", fragment)
+    assert time.monotonic() - t0 < 20.0  # traci retried for about a minute
+    assert not (tmp_path / "o").exists()  # refused before anything was written
+
+
+# ------------------------------------------------------------------------------------------
+# Geometry and counts against the road, before SUMO starts (or anything is allocated)
+
+
+@pytest.mark.parametrize(
+    ("body", "fragments"),
+    [
+        ("[scene]\nleader_front_m = 5000.0\n", ["scene.leader_front_m = 5000", "beyond the end"]),
+        ("[scene]\nleader_front_m = 2995.0\n", ["the slow HV placed ahead", "beyond the end"]),
+        ("[cav]\ncount = 1000\n", ["cav.count = 1000", "20 fit"]),
+        ("[cav]\ncount = 100000000000\n", ["count must be >= 1 and <= 10000"]),
+        ("[planner]\nn_steps = 1000000000\n", ["n_steps must be an integer >= 2 and <= 1000"]),
+        ("[grid]\nrows_ahead = 1000000000\n", ["rows_ahead must be an integer >= 0 and <= 1000"]),
+        ("[cav]\nlength_m = 5000.0\n", ["cav.length_m = 5000", "longer than lane 1"]),
+        (
+            "[[scene.hv]]\nid = 'x'\nlane = 1\nfront_m = 280.0\n",
+            ["scene.hv 'x'.front_m", "overlap in lane 1"],
+        ),
+        (
+            "[[scene.hv]]\nid = 'x'\nlane = 0\nfront_m = 3.0\n",
+            ["scene.hv 'x'.front_m = 3", "before the start"],
+        ),
+        (
+            "[[scene.hv]]\nid = 'x'\nlane = 2\nfront_m = 3300.0\n",
+            ["scene.hv 'x'.front_m = 3300", "beyond the end of lane 2"],
+        ),
+        (
+            "[[scene.hv]]\nid = 'x'\nlane = 0\nfront_m = 30.0\n"
+            "[[scene.hv]]\nid = 'y'\nlane = 0\nfront_m = 33.0\n",
+            ["'x' (25-30 m) and 'y' (28-33 m) overlap in lane 0"],
+        ),
+    ],
+)
+def test_geometry_and_counts_are_checked_against_the_road(scenario_file, tmp_path, body, fragments):
+    path = scenario(scenario_file, body)
+    t0 = time.monotonic()
+    proc = sumo_swarm("run", str(path), "--out", str(tmp_path / "o"))
+    assert_bad_input(proc, *fragments, str(path))
+    assert time.monotonic() - t0 < 30.0
+
+
+# ------------------------------------------------------------------------------------------
+# SUMO refusing the user's files: exit 2, one line, the file named
+
+
+def _break(tmp_path, case: str):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=800, lanes=3), end_s=3.0)
+    routes, net = tmp_path / "routes.rou.xml", tmp_path / "highway.net.xml"
+    if case == "no lane for its vClass":
+        net.write_text(net.read_text().replace("<lane id=", '<lane allow="passenger truck" id='))
+        routes.write_text(
+            routes.read_text().replace('<vType id="cav" ', '<vType id="cav" vClass="bus" ')
+        )
+    elif case == "route over an unknown edge":
+        routes.write_text(routes.read_text().replace('edges="e0"', 'edges="e0 nowhere"'))
+    else:
+        routes.write_text(
+            routes.read_text().replace(
+                'id="cav" length="5" maxSpeed="20"', 'id="cav" length="5" maxSpeed="0"'
+            )
+        )
+    return cfg, routes
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize(
+    ("case", "fragment"),
+    [
+        ("no lane for its vClass", "Invalid departLane definition for vehicle 'c0'"),
+        ("route over an unknown edge", "The edge 'nowhere' within the route 'r' is not known."),
+        ("vType maxSpeed 0", "maxSpeed must be greater than 0"),
+    ],
+)
+def test_sumo_refusing_a_users_file_names_the_file(tmp_path, case, fragment):
+    cfg, routes = _break(tmp_path, case)
+    proc = sumo_swarm(
+        "run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")
+    )
+    assert_bad_input(proc, f"{routes}: SUMO refuses it: {fragment}", str(cfg))
+
+
+# ------------------------------------------------------------------------------------------
+# Corrupt outputs read back: exit 2 in replay and impact alike
+
+
+@pytest.mark.sumo
+def test_corrupt_files_exit_2_in_replay_and_impact_alike(tmp_path):
+    folder = tmp_path / "case"
+    scenario_path = _short_scenario(folder)
+    sweep = folder / "scen" / "sweep.toml"
+    sweep.write_text(f'base = "{scenario_path.name}"\ncontrollers = ["cacc"]\nseeds = [1]\n')
+    batch_dir = tmp_path / "batch"
+    assert (
+        sumo_swarm("batch", str(sweep), "--out", str(batch_dir), "--workers", "1").returncode == 0
+    )
+    run_dir = next((batch_dir / "runs").iterdir())
+    garbage = b"PAR1 not parquet at all"
+    for name, command in [
+        ("trajectories.parquet", ["replay", str(run_dir)]),
+        ("summary.json", ["replay", str(run_dir)]),
+        ("events.jsonl", ["replay", str(run_dir)]),
+        ("results.parquet", ["impact", str(batch_dir)]),
+        ("sweep.json", ["impact", str(batch_dir)]),
+    ]:
+        path = (batch_dir if command[0] == "impact" else run_dir) / name
+        kept = path.read_bytes()
+        path.write_bytes(garbage if name.endswith("parquet") else b"[1, 2")
+        assert_bad_input(sumo_swarm(*command), str(path))
+        path.write_bytes(b"[1]\n" if name == "events.jsonl" else b"[]")  # JSON, wrong shape
+        if not name.endswith("parquet"):
+            assert_bad_input(sumo_swarm(*command), str(path))
+        path.write_bytes(kept)
+
+
+# ------------------------------------------------------------------------------------------
+# attach(): its arguments checked as the command line checks them, with typed exceptions
+
+
+@pytest.fixture
+def running(tmp_path):
+    """libsumo running a user's case with the sublane model; closed after the test."""
+    import libsumo
+
+    from sumo_swarm.sim.bridge import sumo_binary
+
+    def start(*extra: str):
+        cfg = write_user_case(tmp_path / "case", HighwaySpec(length_m=800, lanes=3), end_s=20.0)
+        libsumo.start([sumo_binary(), "-c", str(cfg), "--no-step-log", "true", *extra])
+        return libsumo
+
+    yield start
+    libsumo_module = sys.modules.get("libsumo")
+    if libsumo_module is not None and libsumo_module.simulation.isLoaded():
+        libsumo_module.close()
+
+
+def test_attach_before_any_simulation_runs():
+    import libsumo
+
+    import sumo_swarm
+
+    with pytest.raises(sumo_swarm.SessionError, match="no simulation is running: start SUMO"):
+        sumo_swarm.attach(libsumo, cav_type="cav")
+    with pytest.raises(RuntimeError):  # a SessionError is a RuntimeError
+        sumo_swarm.attach(libsumo, cav_type="cav")
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"cav_ids": "c0"}, "cav_ids must be a list of vehicle ids, got str 'c0'"),
+        ({"cav_ids": 7}, "cav_ids must be a list of vehicle ids, got int"),
+        ({"cav_ids": []}, "cav_ids is empty"),
+        ({"cav_ids": ["c0", 3]}, "a vehicle id must be a non-empty string, got 3"),
+        ({"cav_type": ""}, "cav_type must be a vType id"),
+        ({"cav_type": "cav", "controller": "swam"}, "did you mean 'swarm'?"),
+        ({"cav_type": "cav", "controller": object()}, "controller must be a name"),
+        ({"cav_type": "cav", "config": 3}, "config must be a settings file or a Scenario"),
+        ({"cav_type": "cav", "out_dir": 3}, "out_dir must be a folder path"),
+    ],
+)
+def test_attach_refuses_bad_arguments(running, kwargs, message):
+    import sumo_swarm
+
+    api = running("--lateral-resolution", "0.5")
+    with pytest.raises(sumo_swarm.ConfigError, match=re.escape(message)):
+        sumo_swarm.attach(api, **kwargs)
+    assert api.simulation.isLoaded()
+
+
+def test_attach_with_a_wrong_cav_type_lists_the_types_present(running):
+    import sumo_swarm
+
+    api = running("--lateral-resolution", "0.5")
+    with pytest.raises(ValueError, match=re.escape(
+        "unknown vType 'cva': did you mean 'cav'? (vTypes in the simulation: car, cav, truck)"
+    )):  # fmt: skip
+        sumo_swarm.attach(api, cav_type="cva")
+
+
+def test_attach_without_the_sublane_model_raises_at_once_with_the_fix(running):
+    import sumo_swarm
+
+    api = running()  # no --lateral-resolution: every sublane move of the swarm would fail
+    with pytest.raises(sumo_swarm.ConfigError, match=re.escape("--lateral-resolution 0.5")):
+        sumo_swarm.attach(api, cav_type="cav")
+    sumo_swarm.attach(api, cav_type="cav", controller="sumo-lc").detach()  # SUMO changes lanes
+
+
+def test_attach_to_an_unwritable_out_dir(running, tmp_path):
+    import sumo_swarm
+
+    api = running("--lateral-resolution", "0.5")
+    blocker = tmp_path / "a file"
+    blocker.write_text("")
+    with pytest.raises(sumo_swarm.ConfigError, match="cannot be written"):
+        sumo_swarm.attach(api, cav_type="cav", out_dir=blocker / "out")
+
+
+def test_attach_twice_to_one_simulation(running):
+    import sumo_swarm
+
+    api = running("--lateral-resolution", "0.5")
+    first = sumo_swarm.attach(api, cav_type="cav", controller="cacc")
+    api.simulation.step()
+    with pytest.raises(sumo_swarm.SessionError, match=r"already \(since t = 0 s\)"):
+        sumo_swarm.attach(api, cav_ids=["c0"], controller="cacc")
+    first.detach()
+    again = sumo_swarm.attach(api, cav_type="cav", controller="cacc")  # after detach: fine
+    api.close()
+    api = running("--lateral-resolution", "0.5")  # a new simulation: the old swarm is gone
+    sumo_swarm.attach(api, cav_type="cav", controller="cacc").detach()
+    again.detach()
+
+
+@pytest.mark.sumo
+def test_sumo_refusing_a_scenarios_road_names_the_scenario(tmp_path):
+    # The network lets no passenger car drive: SUMO refuses the scene written from the file.
+    from tests.conftest import ROOT
+
+    net = tmp_path / "trucks only.net.xml"
+    text = (ROOT / "networks" / "highway3.net.xml").read_text(encoding="utf-8")
+    net.write_text(text.replace("<lane id=", '<lane allow="truck" id='), encoding="utf-8")
+    path = tmp_path / "s.toml"
+    path.write_text(
+        f'[simulation]\nnetwork = "{net.name}"\nduration_s = 2.0\n[evaluation]\nend_s = 2.0\n'
+    )
+    proc = sumo_swarm("run", str(path), "--controller", "cacc", "--out", str(tmp_path / "o"))
+    assert_bad_input(proc, f"{path}: SUMO stopped: Invalid departLane")
+
+
+@pytest.mark.sumo
+def test_a_special_file_as_a_sumocfg_weight_file_is_refused(tmp_path):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=2.0)
+    weights = _special(tmp_path, "fifo")
+    text = cfg.read_text(encoding="utf-8")
+    cfg.write_text(text.replace("</input>", f'<weight-files value="{weights.name}"/></input>'))
+    proc = sumo_swarm(
+        "run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")
+    )
+    assert_bad_input(proc, "weight-files", SPECIAL["fifo"], str(weights))
+
+
+@pytest.mark.parametrize("where", ["sumocfg", "out", "batch"])
+def test_a_path_sumo_would_read_as_escaped_is_refused_in_one_line(tmp_path, paper_path, where):
+    # SUMO reads "%41" in a path as "A" (plain SUMO fails on it too): refused, not a
+    # "Process Error" after SUMO's own line.
+    folder = tmp_path / ("odd%41name" if where == "sumocfg" else "case")
+    cfg = write_user_case(folder, HighwaySpec(length_m=500, lanes=3), end_s=2.0)
+    out = tmp_path / ("o%41x" if where != "sumocfg" else "o")
+    if where == "batch":
+        sweep = tmp_path / "sweep.toml"
+        sweep.write_text(f'base = "{paper_path.as_posix()}"\ncontrollers = ["cacc"]\n')
+        proc = sumo_swarm("batch", str(sweep), "--out", str(out))
+    else:
+        proc = sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(out))
+    assert_bad_input(proc, "SUMO reads '%41' in a path as an escaped character", "%41")
+
+
+@pytest.mark.sumo
+def test_sumo_printing_its_own_errors_at_the_start_is_still_one_line(tmp_path, scenario_file):
+    # A network SUMO cannot build: SUMO prints four "Error:" lines itself and libsumo raises
+    # only "Process Error". One line, SUMO's first reason, on the network file.
+    from tests.conftest import ROOT
+
+    text = (ROOT / "networks" / "highway3.net.xml").read_text(encoding="utf-8")
+    net = tmp_path / "no shapes.net.xml"
+    net.write_text(re.sub(r' shape="[^"]*"', "", text), encoding="utf-8")
+    path = scenario_file(f'[simulation]\nnetwork = "{net.as_posix()}"\n')
+    proc = sumo_swarm("run", str(path), "--controller", "cacc", "--out", str(tmp_path / "o"))
+    assert_bad_input(
+        proc, f"{net}: SUMO refuses it: Attribute 'shape' is missing in definition of lane",
+        str(path),
+    )  # fmt: skip

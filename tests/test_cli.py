@@ -424,3 +424,25 @@ def test_an_interrupted_command_says_what_it_kept_in_one_line():
     assert "report.json" in _interrupted_line(term, "reproduce", out)
     kept = RunInterrupted("interrupted by SIGINT at t = 3.00 s:\nkept in o", 130)
     assert _interrupted_line(kept, "run", out) == "interrupted by SIGINT at t = 3.00 s: kept in o"
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [
+        (["run", "x.toml", "--controller", "swam"], "did you mean 'swarm'?"),
+        (["run", "x.toml", "--sumcfg", "a.sumocfg"], "did you mean '--sumocfg'?"),
+        (["run", "x.toml", "--cav_type", "cav"], "did you mean '--cav-type'?"),
+        (["bach", "sweep.toml"], "did you mean 'batch'?"),
+        (["batch", "s.toml", "--out", "o", "--wrokers", "2"], "did you mean '--workers'?"),
+    ],
+)
+def test_a_mistyped_command_option_or_choice_suggests_the_nearest(argv, fragment, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and fragment in err[0], err
+
+
+def test_an_unknown_option_far_from_any_gets_no_suggestion(capsys):
+    assert main(["run", "x.toml", "--zzzzzz"]) == 2
+    err = capsys.readouterr().err
+    assert "unrecognized arguments: --zzzzzz" in err and "did you mean" not in err

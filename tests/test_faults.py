@@ -4,6 +4,7 @@ braking beyond -4 m/s^2, and every fault leaves a trace in the run's outputs."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 from collections.abc import Callable
@@ -269,12 +270,17 @@ def test_signals_while_the_outputs_are_written_leave_the_run_complete(tmp_path):
     assert no_staging_left(out)
 
 
-def test_a_controller_failure_mid_run_is_written_marked_incomplete(tmp_path):
+def test_a_failure_mid_run_is_written_marked_incomplete(tmp_path):
+    # A failure outside the controller: reading SUMO breaks. (A controller's own error stands
+    # the swarm down and the run goes on: the tests of StandDown below.)
     def fail(ctx):
-        raise RuntimeError("the controller broke")
+        def broken() -> None:
+            raise RuntimeError("the reading broke")
+
+        ctx.session.refresh = broken
 
     out = tmp_path / "run"
-    with pytest.raises(SimulationError, match="the controller broke") as failed:
+    with pytest.raises(SimulationError, match="the reading broke") as failed:
         run_scenario(paper(), "swarm", out, progress=False,
                      controller=Injector(SwarmController(), 4.0, fail))  # fmt: skip
     assert str(out) in str(failed.value)
@@ -338,3 +344,155 @@ def test_a_signal_ignored_before_the_run_stays_ignored(tmp_path):
     finally:
         signal.signal(signal.SIGHUP, previous)
     assert summary["complete"] is True and summary["sim_end_s"] == pytest.approx(3.0)
+
+
+# ------------------------------------------------------------------------------------------
+# A controller's error mid-run: one event, one warning, the swarm stands down
+
+
+class _Broken:
+    """A controller whose every step fails; with ``fallback``, its fallback fails too."""
+
+    name = "broken"
+
+    def __init__(self, fallback: bool = False) -> None:
+        self.steps = 0
+        if fallback:
+            self.fallback = self._fallback
+        self.fallbacks = 0
+
+    def attach(self, ctx: RunContext) -> None:
+        self.ctx = ctx
+
+    def control(self, t_s: float) -> None:
+        self.steps += 1
+        raise KeyError("a bug")
+
+    def _fallback(self, t_s: float) -> None:
+        self.fallbacks += 1
+        raise ZeroDivisionError("the fallback too")
+
+    def summary(self):
+        return {}
+
+
+def _events(folder) -> list[dict]:
+    return [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]
+
+
+def test_a_controller_error_is_one_warning_and_one_event_and_the_swarm_stands_down(
+    tmp_path, caplog
+):
+    from tests.test_swarm_sumo import _BrokenTracker
+
+    with caplog.at_level(logging.DEBUG, logger="sumo_swarm"):
+        summary = run_scenario(paper(12.0), "swarm", tmp_path, progress=False,
+                               controller=SwarmController(tracker=_BrokenTracker()))  # fmt: skip
+    warnings = [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(warnings) == 1, [r.getMessage() for r in warnings]
+    assert (
+        "stood down" in warnings[0].getMessage() and "ZeroDivisionError" in warnings[0].getMessage()
+    )
+    assert not any(r.exc_info for r in caplog.records if r.levelno >= logging.INFO)
+    errors = [e for e in _events(tmp_path) if e["event"] == "controller_error"]
+    assert len(errors) == 1 and errors[0]["action"] == "stood_down"
+    stood = summary["stood_down"]
+    assert stood["t_s"] == pytest.approx(errors[0]["time_s"]) and stood["then"] == "fallback"
+    assert "ZeroDivisionError: a bug" in stood["reason"]
+    assert json.loads((tmp_path / "summary.json").read_text())["stood_down"] == stood
+    assert summary["overtake"]["abort_reasons"] == {"controller_error": 1}
+    assert_safe(summary, tmp_path)  # the CAVs drove on as a CACC platoon, to the end
+    assert summary["sim_end_s"] == pytest.approx(12.0, abs=0.05)
+
+
+def test_a_run_without_error_has_not_stood_down(tmp_path):
+    summary = run_scenario(paper(2.0), "cacc", tmp_path, progress=False)
+    assert summary["stood_down"] is None
+
+
+@pytest.mark.parametrize("fallback", [False, True])
+def test_without_a_working_fallback_the_cavs_are_handed_back_to_sumo(tmp_path, fallback):
+    broken = _Broken(fallback=fallback)
+    summary = run_scenario(paper(6.0), "cacc", tmp_path, progress=False, controller=broken)
+    assert broken.steps == 1  # called once, never again
+    assert broken.fallbacks == (1 if fallback else 0)
+    assert summary["stood_down"]["then"] == "sumo"
+    assert "KeyError" in summary["stood_down"]["reason"]
+    assert len([e for e in _events(tmp_path) if e["event"] == "controller_error"]) == 1
+    assert summary["sim_end_s"] == pytest.approx(6.0, abs=0.05)
+    assert summary["safety"]["collisions"] == 0
+    df = pd.read_parquet(tmp_path / "trajectories.parquet")
+    late = df[(df["kind"] == "cav") & (df["time_s"] > 3.0)]
+    assert late["speed_mps"].min() > 10.0  # SUMO drove them on; nobody stopped
+
+
+CLI_WITH_A_BUG = """
+import sys
+import sumo_swarm.sim.runner as runner
+from sumo_swarm.cli import main
+from sumo_swarm.controllers.swarm import SwarmController
+from tests.test_swarm_sumo import _BrokenTracker
+
+runner.make_controller = lambda name: SwarmController(tracker=_BrokenTracker())
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_controller_error_in_the_command_line_run_is_one_line_and_exit_1(tmp_path):
+    import subprocess
+    import sys
+
+    from tests.conftest import ROOT
+
+    scenario = tmp_path / "short.toml"
+    scenario.write_text(
+        PAPER.read_text().replace("duration_s = 80.0", "duration_s = 6.0")
+        .replace("end_s = 60.0", "end_s = 6.0")
+        .replace('"../networks/', f'"{(ROOT / "networks").as_posix()}/')
+    )  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-c", CLI_WITH_A_BUG, "run", str(scenario), "--out", str(tmp_path / "o")],
+        capture_output=True, text=True, timeout=300, cwd=ROOT,
+    )  # fmt: skip
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "the swarm controller failed at t = " in lines[0] and "stood down" in lines[0]
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["stood_down"]["reason"] == "ZeroDivisionError: a bug"
+
+
+def test_attach_a_controller_error_is_one_warning_not_one_per_step(tmp_path, caplog, capfd):
+    import libsumo
+
+    import sumo_swarm
+    from sumo_swarm.sim.bridge import sumo_binary
+    from sumo_swarm.sim.netbuild import HighwaySpec
+    from tests.test_swarm_sumo import _BrokenTracker
+    from tests.usercases import write_user_case
+
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=1500, lanes=3), end_s=30.0)
+    libsumo.start([sumo_binary(), "-c", str(cfg), "--lateral-resolution", "0.5",
+                   "--no-step-log", "true", "--collision.action", "warn"])  # fmt: skip
+    try:
+        with caplog.at_level(logging.DEBUG, logger="sumo_swarm"):
+            handle = sumo_swarm.attach(
+                libsumo, cav_type="cav", controller=SwarmController(tracker=_BrokenTracker()),
+                out_dir=tmp_path / "out",
+            )  # fmt: skip
+            while libsumo.simulation.getTime() < 30.0:
+                libsumo.simulation.step()
+            summary = handle.summary()
+            handle.detach()
+    finally:
+        libsumo.close()
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    warnings = [w for w in warnings if "teleports" not in w]  # SUMO's jam teleports: 300 s
+    assert len(warnings) == 1 and "stood down" in warnings[0], warnings
+    assert "Traceback" not in capfd.readouterr().err
+    assert summary["stood_down"]["then"] == "fallback"
+    assert 0.0 < summary["stood_down"]["t_s"] < 30.0
+    errors = [e for e in _events(tmp_path / "out") if e["event"] == "controller_error"]
+    assert len(errors) == 1
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["stood_down"] is not None
+    assert summary["safety"]["collisions"] == 0

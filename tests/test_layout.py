@@ -147,7 +147,7 @@ def test_the_route_frame_needs_no_sumo():
 
 # The folders tell the pipeline's story; each layer imports only itself and the layers below.
 LAYERS = {
-    "foundation": 0,  # errors, checks, files, safexml
+    "foundation": 0,  # errors, checks, files, safexml, userfiles
     "core": 1,  # the pure pipeline: model, grid, planner, trajectory, tracking, swarming, ...
     "config": 2,  # the scenario's settings, built from core's settings classes
     "controllers": 3,  # swarm, cacc and SUMO's baselines over the core
@@ -155,7 +155,7 @@ LAYERS = {
     "study": 5,  # across runs: batch, impact, reproduce, plots, replay
     "top": 6,  # the CLI and the package's own entry points
 }
-FOUNDATION = {"errors", "checks", "files", "safexml"}
+FOUNDATION = {"errors", "checks", "files", "safexml", "userfiles"}
 
 
 def layer_of(module: str) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from sumo_swarm.checks import unknown_name
 from sumo_swarm.controllers.base import Controller, RunContext
 from sumo_swarm.errors import ConfigError
 
@@ -24,7 +25,7 @@ def make_controller(name: str) -> Controller:
         from sumo_swarm.controllers.swarm import SwarmController
 
         return Fleet(SwarmController, name="swarm")
-    raise ConfigError(f"unknown controller '{name}' (known: {', '.join(CONTROLLERS)})")
+    raise ConfigError(unknown_name("controller", str(name), CONTROLLERS))
 
 
 __all__ = ["CONTROLLERS", "Controller", "RunContext", "make_controller"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
@@ -10,10 +11,13 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.guards import lateral_refusal
+from sumo_swarm.errors import ConfigError
 
 if TYPE_CHECKING:
     from sumo_swarm.config import Scenario
     from sumo_swarm.sim.bridge import SumoSession
+
+log = logging.getLogger(__name__)
 
 # Lane-change mode 0: no autonomous lane changes and no safety vetoes of our own sublane moves;
 # the planner and its validator own lateral safety (SUMO's safe-speed check stays on, below).
@@ -188,6 +192,108 @@ class RouteWatch:
                 session.release(vid)
                 ctx.event("cav_leaves", vehicle=vid, reason="route_parts",
                           parting_in_m=round(distance, 1))  # fmt: skip
+
+
+class StandDown:
+    """Calls a controller until its first error; then the swarm stands down for the rest of
+    the simulation: one warning (the traceback only at debug level) and one
+    ``controller_error`` event. From then on the controller's ``fallback(t_s)``, if it has one
+    (the swarm: a CACC platoon in its lanes), drives the CAVs; without one, or once that fails
+    too, every CAV is handed back to SUMO (:func:`hand_back`). A bug of ours never crashes the
+    user's simulation, and never repeats at every step (it did: 2,753 tracebacks in one run).
+
+    :attr:`block` is the summary's ``stood_down``: None, or when, why and what drove on.
+    """
+
+    def __init__(self, controller: Controller) -> None:
+        self.controller = controller
+        self.ctx: RunContext | None = None
+        self.at_s: float | None = None
+        self.reason: str | None = None
+        self.then: str | None = None  # "fallback" or "sumo": what drives the CAVs after
+
+    @property
+    def block(self) -> dict[str, Any] | None:
+        if self.at_s is None:
+            return None
+        return {"t_s": self.at_s, "reason": self.reason, "then": self.then}
+
+    def attach(self, ctx: RunContext) -> None:
+        self.ctx = ctx
+        try:
+            self.controller.attach(ctx)
+        except ConfigError:  # the controller refuses its settings: bad input, not a bug
+            raise
+        except Exception as exc:
+            self.stand_down(ctx.session.time_s, exc, attached=False)
+
+    def control(self, t_s: float) -> None:
+        if self.at_s is None:
+            try:
+                self.controller.control(t_s)
+            except Exception as exc:
+                self.stand_down(t_s, exc)
+        elif self.then == "fallback":
+            try:
+                self.controller.fallback(t_s)  # type: ignore[attr-defined]
+            except Exception as exc:
+                log.debug("the fallback failed at t = %.2f s: %s", t_s, exc)
+                self._hand_back_all()
+
+    def stand_down(self, t_s: float, exc: Exception, *, attached: bool = True) -> None:
+        """Stop calling the controller (at ``t_s`` [s], for ``exc``); ``attached``: whether
+        its attach succeeded (else it has no fallback to run)."""
+        if self.at_s is not None:
+            return
+        name = getattr(self.controller, "name", type(self.controller).__name__)
+        self.at_s, self.reason = float(t_s), " ".join(f"{type(exc).__name__}: {exc}".split())
+        has_fallback = attached and callable(getattr(self.controller, "fallback", None))
+        self.then = "fallback" if has_fallback else "sumo"
+        drive_on = "as a CACC platoon in their lanes" if has_fallback else "as SUMO drives them"
+        log.warning(
+            "the %s controller failed at t = %.2f s and stood down; its CAVs drive on %s (%s)",
+            name, t_s, drive_on, self.reason,
+        )  # fmt: skip
+        log.debug("the controller's error", exc_info=exc)
+        if self.ctx is None:
+            return
+        self.ctx.event("controller_error", message=self.reason, action="stood_down")
+        if has_fallback:
+            self.control(t_s)  # this step's commands, from the fallback
+        else:
+            self._hand_back_all()
+
+    def _hand_back_all(self) -> None:
+        self.then = "sumo"
+        if self.ctx is None:
+            return
+        for vid in list(self.ctx.session.cav_ids):
+            try:
+                hand_back(self.ctx.session, vid)
+            except Exception as exc:  # SUMO itself failed: nothing left to hand back
+                log.debug("handing %s back to SUMO: %s", vid, exc)
+
+
+def hand_back(session: SumoSession, vid: str) -> None:
+    """CAV ``vid`` driven by SUMO again: the lane changes its route needs, SUMO's speed mode,
+    its speed left to SUMO's car-following, braking within RELEASED_DECEL_MPS2
+    (:meth:`SumoSession.release`).
+    Its minGap is its vType's again; its tau stays the short one of :func:`configure_cav`:
+    with its vType's (1 s), SUMO braked the CAVs hard to open the gaps at once. A vehicle that
+    vanished is left alone."""
+    if not session.exists(vid):
+        return
+    session.release(vid)
+    # Only the lane changes its route needs: SUMO's speed-gain changes at the short tau cut in
+    # and braked CAVs beyond 4 m/s^2 (the paper scene, the swarm stood down at 3 s).
+    session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_STRATEGIC)
+    session.release_speed(vid)
+    try:  # its vType's tau and minGap back (the user's vType, not SUMO's copy: cav@vid)
+        type_id = session.api.vehicle.getTypeID(vid).split("@")[0]
+        session.api.vehicle.setTau(vid, session.api.vehicletype.getTau(type_id))
+        session.api.vehicle.setMinGap(vid, session.api.vehicletype.getMinGap(type_id))
+    except Exception as exc:  # vanished meanwhile
+        log.debug("handing %s back to SUMO: %s", vid, exc)
 
 
 def close_controller(controller: Controller) -> None:

@@ -238,14 +238,21 @@ class Fleet:
         new = any(vid in states and self._platoon_of(vid) is None for vid in session.departed)
         if new or t_s - self._reviewed_s >= self.settings.review_every_s - 1e-9:
             self._reviewed_s = t_s
-            try:
-                self._review(t_s, states)
-            except Exception as exc:  # never let the grouping crash the user's simulation
-                log.exception("reviewing the platoons failed at t = %.2f s", t_s)
-                self.ctx.event("controller_error", message=f"{type(exc).__name__}: {exc}")
+            # An error goes on to the run loop's StandDown (one warning, the CAVs back to SUMO)
+            self._review(t_s, states)
         for platoon in list(self.platoons):
             platoon.controller.control(t_s)
         self._drive_free(states)
+
+    def fallback(self, t_s: float) -> None:
+        """The step after the swarms stood down: each platoon's fallback (CACC in its lane),
+        and the CAVs of no platoon as before."""
+        if self._single is not None:
+            self._single.fallback(t_s)
+            return
+        for platoon in list(self.platoons):
+            platoon.controller.fallback(t_s)
+        self._drive_free(self.ctx.session.states)
 
     # ------------------------------------------------------------------ views
     def view(

@@ -263,19 +263,24 @@ class SwarmController:
     def control(self, t_s: float) -> None:
         try:
             self._control(t_s)
-        except Exception as exc:  # never let a bug of ours crash the user's simulation
-            log.exception("swarm controller failed at t = %.2f s", t_s)
-            self.ctx.event("controller_error", message=f"{type(exc).__name__}: {exc}")
+        except Exception:
+            # A bug of ours: the manoeuvre ends in the books (abort reason controller_error),
+            # then the error goes on to the run loop's StandDown: one warning, and from then
+            # on only fallback() (a retry every step had logged a traceback each).
             if self.mode is Mode.OVERTAKE:
                 try:
                     self._finish(t_s, completed=False, reason="controller_error")
-                except Exception:  # the bookkeeping failed too: the CACC step below is safe
-                    log.exception("ending the manoeuvre failed at t = %.2f s", t_s)
+                except Exception as exc:  # the bookkeeping failed too
+                    log.debug("ending the manoeuvre failed at t = %.2f s: %s", t_s, exc)
                     self.mode = Mode.CRUISE
-            # The safe behaviour, with the least of our code: every CAV follows what drives
-            # ahead of it in its lane (CACC), no lateral move.
-            states = self.ctx.session.states
-            command_cacc(self.ctx, ordered_platoon(states, self.ctx.cav_ids))
+            raise
+
+    def fallback(self, t_s: float) -> None:
+        """The step after the swarm stood down (:class:`~sumo_swarm.controllers.base.StandDown`),
+        with the least of our code: every CAV follows what drives ahead of it in its lane
+        (CACC), no lateral move."""
+        states = self.ctx.session.states
+        command_cacc(self.ctx, ordered_platoon(states, self.ctx.cav_ids))
 
     def _control(self, t_s: float) -> None:
         ctx = self.ctx

@@ -23,6 +23,11 @@ from sumo_swarm.errors import ConfigError
 Cell = tuple[int, int]  # (row, column)
 
 
+# The most rows a grid may add ahead of the target (15 km of 15 m cells): every row is cells
+# the planner's model holds at every step.
+MAX_ROWS_AHEAD = 1000
+
+
 @dataclass(frozen=True)
 class GridSettings:
     """How the road is cut into cells and how much room an HV claims.
@@ -70,7 +75,7 @@ class GridSettings:
         _require_non_negative("headway_s", self.headway_s)
         _require_non_negative("gap_behind_m", self.gap_behind_m)
         _require_non_negative("lateral_overlap_m", self.lateral_overlap_m)
-        check_fields(self, "rows_ahead", ge=0, integer=True)
+        check_fields(self, "rows_ahead", ge=0, le=MAX_ROWS_AHEAD, integer=True)
 
 
 def _require_positive(name: str, value: float) -> None:

@@ -11,17 +11,21 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable, Iterable, Sequence
+import os
+import socket
+import sys
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
 from types import ModuleType
 
+from sumo_swarm.checks import unknown_name
 from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.routeframe import RouteFrame
 from sumo_swarm.core.swarming.decision import keep_right_due_s
-from sumo_swarm.errors import SimulationError
+from sumo_swarm.errors import ConfigError, SimulationError
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +51,52 @@ def sumo_binary(gui: bool = False) -> str:
 
     name = "sumo-gui" if gui else "sumo"
     return str(Path(sumo.SUMO_HOME) / "bin" / name)
+
+
+def require_display(env: Mapping[str, str] | None = None, platform: str | None = None) -> None:
+    """ConfigError, at once, when sumo-gui could not open a window: on X11 systems (Linux,
+    BSD) without DISPLAY, or with a DISPLAY no X server answers at. (traci would start
+    sumo-gui about 60 times over a minute before it gave up.) ``env`` and ``platform``:
+    os.environ and sys.platform unless given."""
+    env = os.environ if env is None else env
+    platform = sys.platform if platform is None else platform
+    if platform.startswith(("win", "darwin", "cygwin")):
+        return  # sumo-gui draws without an X display there (or XQuartz starts on demand)
+    display = env.get("DISPLAY", "")
+    if not display:
+        raise ConfigError(
+            "--gui: no display to show sumo-gui on (DISPLAY is not set); run without --gui, "
+            "or under a display (e.g. xvfb-run sumo-swarm ...)"
+        )
+    if not _x_server_answers(display):
+        raise ConfigError(
+            f"--gui: no X server answers at DISPLAY={display}; run without --gui, or set "
+            "DISPLAY to a running display (e.g. xvfb-run sumo-swarm ...)"
+        )
+
+
+def _x_server_answers(display: str, timeout_s: float = 2.0) -> bool:
+    """Whether an X server listens at ``display`` (``[host]:N[.screen]``): its socket
+    ``/tmp/.X11-unix/XN`` (or Linux's abstract one), or TCP port 6000 + N of ``host``."""
+    host, _, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        return True  # a form we do not know (a launchd path, ...): let sumo-gui try
+    if host in ("", "unix"):
+        for address in (f"/tmp/.X11-unix/X{number}", f"\0/tmp/.X11-unix/X{number}"):
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+                sock.settimeout(timeout_s)
+                try:
+                    sock.connect(address)
+                    return True
+                except OSError:
+                    continue
+        return False
+    try:
+        with socket.create_connection((host, 6000 + int(number)), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
 
 
 def _api(use_traci: bool) -> ModuleType:
@@ -75,6 +125,17 @@ def is_of_type(type_id: str, vtype: str) -> bool:
     (e.g. ``cav@cav0``): the copy still belongs to ``vtype``.
     """
     return type_id == vtype or type_id.startswith(vtype + "@")
+
+
+def unknown_vtype(vtype: str, present: Iterable[str]) -> str | None:
+    """None if ``vtype`` is among the vType ids ``present`` in a simulation; else the message
+    naming the nearest and listing them (without SUMO's per-vehicle copies, ``cav@c0``, and
+    its built-in ``DEFAULT_...`` types, which are accepted all the same)."""
+    present = list(present)
+    if vtype in present:
+        return None
+    own = [t for t in present if "@" not in t and not t.startswith("DEFAULT_")]
+    return unknown_name("vType", vtype, own, listed_as="vTypes in the simulation")
 
 
 @dataclass(slots=True)
@@ -253,6 +314,11 @@ class SumoSession:
         self.close()
 
     def start(self) -> None:
+        """Start SUMO (once: a session started before its ``with`` block is not restarted)."""
+        if self._open:
+            return
+        if self.gui:
+            require_display()
         cmd = [sumo_binary(self.gui), *self.args]
         try:
             if self.use_traci:

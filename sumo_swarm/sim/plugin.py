@@ -25,7 +25,10 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
 import time
+import weakref
+from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 from types import ModuleType
@@ -33,10 +36,11 @@ from typing import Any
 
 from sumo_swarm.checks import require_number
 from sumo_swarm.config import Scenario
-from sumo_swarm.controllers import make_controller
-from sumo_swarm.controllers.base import Controller, RunContext
-from sumo_swarm.errors import ConfigError
-from sumo_swarm.sim.bridge import SumoSession, is_of_type
+from sumo_swarm.controllers import CONTROLLERS, make_controller
+from sumo_swarm.controllers.base import Controller, RunContext, StandDown
+from sumo_swarm.errors import ConfigError, SessionError
+from sumo_swarm.files import writable_folder
+from sumo_swarm.sim.bridge import SumoSession, is_of_type, unknown_vtype
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.recorder import EMPTY_WINDOW_S, RunRecorder
 from sumo_swarm.sim.scene import LiveScene, default_settings
@@ -78,6 +82,10 @@ class SwarmHandle:
         )
         self._attached = False
         self._controller_attached = False
+        self.guard = self.recorder.stand_down = StandDown(controller)  # an error: once
+        self.attached_at_s = self.session.time_s
+        self.token = f"{os.getpid()}:{id(self)}"  # names it in the simulation's parameters
+        self._failed = False  # reading SUMO failed: the swarm stood down, nothing more is read
         base = _step_listener_base(api)
         handle = self
 
@@ -91,17 +99,29 @@ class SwarmHandle:
         self._attached = True
 
     def _on_step(self) -> None:
+        if self._failed:
+            return
         t0 = time.perf_counter()
-        self.session.refresh()
-        self.recorder.record()
-        if not self._controller_attached and self.session.cav_ids:
-            self._adopt_cav_settings()
-            self.controller.attach(self.ctx)
-            attach_plan_drawer(self.controller, self.ctx.session)
-            self._controller_attached = True
+        try:
+            self.session.refresh()
+            self.recorder.record()
+            if not self._controller_attached and self.session.cav_ids:
+                self._adopt_cav_settings()
+                self.guard.attach(self.ctx)
+                attach_plan_drawer(self.controller, self.ctx.session)
+                self._controller_attached = True
+        except Exception as exc:  # raised into SUMO's step it would repeat at every step
+            self._failed = True
+            self.guard.stand_down(self.session.time_s, exc, attached=False)
+            return
         if self._controller_attached:
-            self.controller.control(self.session.time_s)
+            self.guard.control(self.session.time_s)
         self.recorder.controller_s += time.perf_counter() - t0
+
+    @property
+    def attached(self) -> bool:
+        """Whether the swarm still listens to its simulation (:meth:`detach` not called)."""
+        return self._attached
 
     def _adopt_cav_settings(self) -> None:
         """Take the CAVs' length and cruising speed from their vType where config is silent."""
@@ -152,6 +172,9 @@ class SwarmHandle:
         if not self._attached:
             return
         self._attached = False
+        _ATTACHED.pop(self.token, None)
+        if _attached_to(self.api) is None:  # the mark is ours (or gone with the simulation)
+            _mark(self.api, "")
         self.recorder.close_controller()
         try:
             self.api.removeStepListener(self._listener_id)
@@ -211,17 +234,52 @@ def attach(
     Raises
     ------
     ConfigError
-        When the swarm controller is asked to run at a SUMO step longer than
-        :data:`~sumo_swarm.sim.steplimit.MAX_SWARM_STEP_S`, when SUMO runs without the sublane
-        model (``--lateral-resolution``) that ``swarm`` and ``cacc`` need, or when the CAVs are
-        named twice.
+        (a ValueError) for an argument the command line would refuse too: not exactly one of
+        ``cav_type`` and ``cav_ids``, ``cav_ids`` not a collection of ids (a string is one id,
+        not a swarm of its characters), a ``cav_type`` the simulation has no vType of (the
+        message lists those it has), an unknown controller, an unwritable ``out_dir``; and
+        for a simulation the controller cannot drive: the swarm without SUMO's sublane model
+        (``--lateral-resolution``) or at a SUMO step longer than
+        :data:`~sumo_swarm.sim.steplimit.MAX_SWARM_STEP_S`.
+    SessionError
+        (a RuntimeError) when no simulation runs on ``connection`` yet, or a swarm is
+        attached to it already (:meth:`SwarmHandle.detach` it first).
+
+    A controller's error later, at a step, is not raised into SUMO's step: the swarm stands
+    down (one warning; ``summary()["stood_down"]`` says when and why).
     """
     if connection is None:
         connection = importlib.import_module("libsumo")
+    # The arguments first, then the simulation they are for.
     if (cav_type is None) == (cav_ids is None):
         raise ConfigError("attach: give exactly one of cav_type or cav_ids")
+    if cav_ids is not None:
+        cav_ids = _id_list(cav_ids)
+    elif not isinstance(cav_type, str) or not cav_type:
+        raise ConfigError(f"attach: cav_type must be a vType id (a string), got {cav_type!r}")
     if cruising_speed_mps is not None:
         require_number("attach: cruising_speed_mps", cruising_speed_mps, gt=0.0)
+    if not (config is None or isinstance(config, str | os.PathLike | Scenario)):
+        raise ConfigError(
+            f"attach: config must be a settings file or a Scenario, got {type(config).__name__}"
+        )
+    if not isinstance(controller, str):
+        missing = [
+            m
+            for m in ("attach", "control", "summary")
+            if not callable(getattr(controller, m, None))
+        ]
+        if missing:
+            raise ConfigError(
+                f"attach: controller must be a name ({', '.join(CONTROLLERS)}) or an object "
+                f"with attach, control and summary methods; {type(controller).__name__} has "
+                f"no {missing[0]}"
+            )
+    _check_running(connection)
+    if cav_type is not None:
+        message = unknown_vtype(cav_type, connection.vehicletype.getIDList())
+        if message is not None:
+            raise ConfigError(f"attach: cav_type: {message}")
     settings = default_settings(config)
     if cruising_speed_mps is not None:  # the caller's speed, not the world's
         settings = replace(settings, cav=replace(settings.cav, speeds="config"))
@@ -237,15 +295,91 @@ def attach(
         def is_cav(vid: str, type_id: str) -> bool:
             return is_of_type(type_id, cav_type)
 
-    ctrl = make_controller(controller) if isinstance(controller, str) else controller
+    try:
+        ctrl = make_controller(controller) if isinstance(controller, str) else controller
+    except ConfigError as exc:
+        raise ConfigError(f"attach: controller: {exc}") from None
     step_s = connection.simulation.getDeltaT()
-    check_step_length(step_s, getattr(ctrl, "name", ""), "attach: SUMO's --step-length")
-    check_sublane_model(connection, getattr(ctrl, "name", ""))
+    name = getattr(ctrl, "name", "")
+    check_step_length(step_s, name, "attach: SUMO's --step-length")
+    check_sublane_model(connection, name)
+    held = _attached_to(connection)
+    if held is not None:
+        raise SessionError(
+            f"attach: a swarm is attached to this simulation already (since t = "
+            f"{held.attached_at_s:g} s): call detach() on it first"
+        )
+    if out_dir is not None and not isinstance(out_dir, str | os.PathLike):
+        raise ConfigError(f"attach: out_dir must be a folder path, got {type(out_dir).__name__}")
+    out = writable_folder(out_dir) if out_dir is not None else None
     warn_if_sumo_teleports(connection)
-    out = Path(out_dir) if out_dir is not None else None
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-    return SwarmHandle(connection, ctrl, settings, is_cav, cruising_speed_mps, out)
+    handle = SwarmHandle(connection, ctrl, settings, is_cav, cruising_speed_mps, out)
+    _mark(connection, handle.token)
+    _ATTACHED[handle.token] = handle
+    return handle
+
+
+# A simulation's own parameter naming the swarm attached to it: a new simulation (after
+# close and start) has none, whatever connection object reaches it.
+ATTACHED_PARAMETER = "sumo_swarm.attached"
+_ATTACHED: weakref.WeakValueDictionary[str, SwarmHandle] = weakref.WeakValueDictionary()
+
+
+def _mark(connection: Any, token: str) -> None:
+    try:
+        connection.simulation.setParameter("", ATTACHED_PARAMETER, token)
+    except Exception as exc:  # a SUMO without simulation parameters: attaching twice passes
+        log.debug("cannot mark the simulation as attached: %s", exc)
+
+
+def _attached_to(connection: Any) -> SwarmHandle | None:
+    """The swarm attached to the simulation ``connection`` runs and not detached, or None."""
+    try:
+        token = connection.simulation.getParameter("", ATTACHED_PARAMETER)
+    except Exception:
+        return None
+    handle = _ATTACHED.get(token) if token else None
+    return handle if handle is not None and handle.attached else None
+
+
+def _check_running(connection: Any) -> None:
+    """SessionError unless ``connection`` has a simulation running; ConfigError if it is no
+    connection at all."""
+    simulation = getattr(connection, "simulation", None)
+    if simulation is None or not callable(getattr(simulation, "getTime", None)):
+        raise ConfigError(
+            "attach: connection must be libsumo, the traci module or a traci connection, got "
+            f"{type(connection).__name__}"
+        )
+    is_loaded = getattr(simulation, "isLoaded", None)  # libsumo; traci raises when unconnected
+    try:
+        running = bool(is_loaded()) if is_loaded is not None else simulation.getTime() >= 0.0
+    except Exception:
+        running = False
+    if not running:
+        raise SessionError(
+            "attach: no simulation is running: start SUMO first (libsumo.start([...]) or "
+            "traci.start([...])), then attach"
+        )
+
+
+def _id_list(cav_ids: Any) -> tuple[str, ...]:
+    """``cav_ids`` as a tuple of vehicle ids; ConfigError for a string (it would be a swarm of
+    its characters), a non-collection, an id that is no string, or none at all."""
+    if isinstance(cav_ids, str | bytes) or not isinstance(cav_ids, Iterable):
+        raise ConfigError(
+            f"attach: cav_ids must be a list of vehicle ids, got {type(cav_ids).__name__} "
+            f"{cav_ids!r}" + (f" (write cav_ids=[{cav_ids!r}])" if isinstance(cav_ids, str) else "")
+        )
+    ids = tuple(cav_ids)
+    bad = [v for v in ids if not isinstance(v, str) or not v]
+    if bad:
+        raise ConfigError(
+            f"attach: cav_ids: a vehicle id must be a non-empty string, got {bad[0]!r}"
+        )
+    if not ids:
+        raise ConfigError("attach: cav_ids is empty: name at least one vehicle")
+    return ids
 
 
 # The controllers that move CAVs across lanes by sublane moves (lcAccelLat, changeSublane).
@@ -264,7 +398,8 @@ def check_sublane_model(api: Any, controller: str) -> None:
     if resolution_m <= 0:
         raise ConfigError(
             f"attach: SUMO runs without the sublane model, which the {controller} controller "
-            "needs: start SUMO with --lateral-resolution 0.5"
+            "needs: start SUMO with --lateral-resolution 0.5 (or <lateral-resolution "
+            'value="0.5"/> in the sumocfg\'s <processing>)'
         )
 
 

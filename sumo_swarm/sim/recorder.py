@@ -24,7 +24,7 @@ import pandas as pd
 from pandas.api.types import union_categoricals
 
 from sumo_swarm.config import OutputSettings
-from sumo_swarm.controllers.base import Controller, close_controller
+from sumo_swarm.controllers.base import Controller, StandDown, close_controller
 from sumo_swarm.files import write_json_atomic, write_parquet_atomic
 from sumo_swarm.sim.metrics import HardBrakeCounter
 from sumo_swarm.sim.network import mean_speed_field, speed_field
@@ -200,6 +200,8 @@ class RunRecorder:
         self.controller = controller
         self.controller_name = controller_name
         self.scene = scene
+        # The run loop's guard of the controller (StandDown): the summary's stood_down
+        self.stand_down: StandDown | None = None
         self._steps = _Steps()  # rows recorded, not packed yet
         # Kind, length and width are taken per vehicle when rows are packed: rows of a vehicle
         # id that departs again are packed before the new one's values replace the old.
@@ -385,6 +387,9 @@ class RunRecorder:
             measures=measures,
             rows_of=rows_of,
         )
+        # Extra (not in the contract): None, or when the controller failed and stood down,
+        # handing its CAVs back to SUMO, and why ({"t_s", "reason"}).
+        summary["stood_down"] = None if self.stand_down is None else self.stand_down.block
         return summary, fields
 
     def close_controller(self) -> None:

@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from defusedxml import ElementTree as SafeElementTree
 
 from sumo_swarm.core.planner.problem import PlanningProblem
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.safexml import parse_xml
 
 DEFAULT_LANE_WIDTH_M = 3.2  # SUMO's lane width when the network gives none [m]
 # Plan records carry no behaving interval unless the controller adds one: the planner's default
@@ -187,26 +187,22 @@ def _shape(text: str | None) -> np.ndarray:
 
 def read_net_lanes(net_path: Path) -> tuple[dict[str, list[LaneGeometry]], Any]:
     """Lanes of every edge of a ``.net.xml`` (internal edges too) and the parsed root element."""
-    try:
-        root = SafeElementTree.parse(str(net_path)).getroot()
-    except FileNotFoundError:
-        raise ConfigError(f"network file not found: {net_path}") from None
-    except (OSError, SafeElementTree.ParseError) as exc:
-        raise ConfigError(f"cannot read network {net_path}: {exc}") from None
-    except Exception as exc:  # defusedxml refuses DTDs and entities
-        raise ConfigError(f"{net_path}: unsafe or malformed network: {exc}") from None
+    root = parse_xml(net_path, "SUMO network")
     lanes: dict[str, list[LaneGeometry]] = {}
-    for edge in root.iter("edge"):
-        found = sorted(edge.iter("lane"), key=lambda ln: int(ln.get("index", "0")))
-        lanes[edge.get("id", "")] = [
-            LaneGeometry(
-                _shape(ln.get("shape")),
-                float(ln.get("width", DEFAULT_LANE_WIDTH_M)),
-                float(ln.get("length", "0")),
-            )
-            for ln in found
-            if ln.get("shape")
-        ]
+    try:
+        for edge in root.iter("edge"):
+            found = sorted(edge.iter("lane"), key=lambda ln: int(ln.get("index", "0")))
+            lanes[edge.get("id", "")] = [
+                LaneGeometry(
+                    _shape(ln.get("shape")),
+                    float(ln.get("width", DEFAULT_LANE_WIDTH_M)),
+                    float(ln.get("length", "0")),
+                )
+                for ln in found
+                if ln.get("shape")
+            ]
+    except ValueError as exc:  # a lane's index, width, length or shape is no number
+        raise ConfigError(f"{net_path}: malformed SUMO network: {exc}") from None
     return lanes, root
 
 

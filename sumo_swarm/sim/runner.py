@@ -6,6 +6,7 @@ import logging
 import os
 import secrets
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -18,9 +19,10 @@ from tqdm import tqdm
 from sumo_swarm.checks import SEED_MAX, require_number
 from sumo_swarm.config import Scenario
 from sumo_swarm.controllers import make_controller
-from sumo_swarm.controllers.base import Controller, RunContext
+from sumo_swarm.controllers.base import Controller, RunContext, StandDown
 from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
-from sumo_swarm.sim.bridge import SumoSession, is_of_type, sumo_binary
+from sumo_swarm.files import writable_folder
+from sumo_swarm.sim.bridge import SumoSession, is_of_type, sumo_binary, unknown_vtype
 from sumo_swarm.sim.demand import (
     Demand,
     check_share_applies,
@@ -40,21 +42,21 @@ from sumo_swarm.sim.scene import (
     write_sumo_inputs,
 )
 from sumo_swarm.sim.steplimit import check_step_length
+from sumo_swarm.sim.sumoerrors import first_error, input_error, sumo_stderr
+from sumo_swarm.userfiles import (
+    MAX_DATA_BYTES,
+    MAX_TEXT_BYTES,
+    check_sumo_path,
+    check_user_file,
+    sumo_saved_path,
+)
 
 log = logging.getLogger(__name__)
 
 
 def prepare_out_dir(out_dir: str | Path) -> Path:
     """Create ``out_dir`` (and parents) and check it is writable; ConfigError otherwise."""
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".write-test"
-        probe.write_text("", encoding="utf-8")
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigError(f"output folder {out} cannot be written: {exc.strerror or exc}") from None
-    return out
+    return writable_folder(out_dir)
 
 
 def run_scenario(
@@ -93,6 +95,9 @@ def run_scenario(
     check_step_length(
         scenario.simulation.step_length_s, getattr(controller, "name", controller_name), where
     )
+    check_sumo_path(Path(out_dir).resolve(), "output folder")
+    if scenario.corridor is None:
+        check_sumo_path(scenario.network_path, f"{scenario.path}: simulation.network")
     if seed is not None:
         scenario = replace(scenario, simulation=replace(scenario.simulation, seed=seed))
 
@@ -120,9 +125,20 @@ def run_scenario(
             progress=progress,
             network_files=net_files,
             stop=stop,
+            user_files=_scenario_files(scenario, out / "sumo"),
         )
 
     return _in_run_folder(out_dir, run, force=force, in_place=in_place, stop=stop)
+
+
+def _scenario_files(scenario: Scenario, folder: Path) -> UserFiles | None:
+    """A scenario file, the network it names (a corridor builds its own) and the SUMO inputs
+    written from it into ``folder``, for SUMO's errors about them; None for a scenario not
+    read from a file."""
+    if not scenario.path:
+        return None
+    network = [] if scenario.corridor is not None else [scenario.network_path]
+    return scenario.path, network, sorted(folder.glob("*.xml"))
 
 
 def run_sumocfg(
@@ -161,6 +177,8 @@ def run_sumocfg(
     give none (share 0), says False.
     """
     cfg = Path(sumocfg)
+    check_sumo_path(cfg.resolve(), "SUMO configuration")
+    check_sumo_path(Path(out_dir).resolve(), "output folder")
     options = normalized_sumocfg_options(cfg)
     check_sumocfg_inputs(cfg, options)
     if scale is not None:
@@ -200,12 +218,9 @@ def run_sumocfg(
     controller = make_controller(controller_name)
 
     def check_types(sess: SumoSession) -> None:
-        if cav_type not in sess.api.vehicletype.getIDList():
-            raise ConfigError(f"{cfg}: --cav-type: no vType '{cav_type}' in the configuration")
-        if added:  # reported once SUMO has accepted the run, so bad input stays one line
-            notify(
-                f"sumo-swarm: {cfg}: added {' '.join(added)} (the swarm needs SUMO's sublane model)"
-            )
+        message = unknown_vtype(cav_type, sess.api.vehicletype.getIDList())
+        if message is not None:
+            raise ConfigError(f"{cfg}: --cav-type: {message}")
 
     def run(out: Path, stop: StopRequest) -> _Ending:
         given, sumo_args = options, list(forced)
@@ -240,9 +255,25 @@ def run_sumocfg(
             require_cavs=cav_type if require_cavs else None,
             network_files=net_files,
             stop=stop,
+            user_files=_user_files(cfg, options),
         )
 
-    return _in_run_folder(out_dir, run, force=force, in_place=in_place, stop=stop)
+    summary = _in_run_folder(out_dir, run, force=force, in_place=in_place, stop=stop)
+    if added:  # said once the run went through, so that bad input stays one line
+        notify(f"sumo-swarm: {cfg}: added {' '.join(added)} (the swarm needs SUMO's sublane model)")
+    return summary
+
+
+# A user's configuration, the files of theirs SUMO reads, and those sumo-swarm wrote from it
+UserFiles = tuple[Path, list[Path], list[Path]]
+
+
+def _user_files(cfg: Path, options: dict[str, str]) -> UserFiles:
+    """The configuration and the files SUMO reads of it (route and additional files before
+    the network: SUMO's errors are more often about them)."""
+    names = ("route-files", "additional-files", "net-file")
+    files = [Path(p.strip()) for n in names for p in options.get(n, "").split(",") if p.strip()]
+    return cfg, files, []
 
 
 # SUMO's --seed when neither the command line nor the configuration gives one
@@ -303,7 +334,7 @@ def read_sumocfg_options(path: Path) -> dict[str, str]:
     """The options of a SUMO configuration file (``{name: value}``); ConfigError if unusable."""
     from sumo_swarm.safexml import parse_xml
 
-    root = parse_xml(path, what="SUMO configuration")
+    root = parse_xml(path, what="SUMO configuration", max_bytes=MAX_TEXT_BYTES)
     options = {}
     for section in root:
         for opt in section:
@@ -314,7 +345,7 @@ def read_sumocfg_options(path: Path) -> dict[str, str]:
 
 # Options of a SUMO configuration that name input files (comma-separated lists), relative to
 # the configuration's folder.
-SUMOCFG_INPUTS = ("net-file", "route-files", "additional-files")
+SUMOCFG_INPUTS = ("net-file", "route-files", "additional-files", "weight-files", "load-state")
 # Options that name files sumo-swarm reads or adds to: made absolute by
 # normalized_sumocfg_options.
 SUMOCFG_PATHS = (*SUMOCFG_INPUTS, "tripinfo-output", "device.ssm.file")
@@ -332,21 +363,25 @@ def normalized_sumocfg_options(cfg: Path) -> dict[str, str]:
         options = read_sumocfg_options(saved)
         for name in SUMOCFG_PATHS:
             if name in options:
-                paths = [p.strip() for p in options[name].split(",") if p.strip()]
+                paths = [sumo_saved_path(p.strip()) for p in options[name].split(",") if p.strip()]
                 options[name] = ",".join(os.path.abspath(Path(tmp) / p) for p in paths)
     return options
 
 
 def check_sumocfg_inputs(cfg: Path, options: dict[str, str]) -> None:
-    """ConfigError naming the first input file of ``cfg`` that is missing (SUMO's own message
-    would be a "Process Error" with exit status 1)."""
+    """ConfigError naming the first input file of ``cfg`` that is missing, or no regular file
+    of bounded size (SUMO's own message would be a "Process Error" with exit status 1; a FIFO
+    would hang it)."""
     if not options.get("net-file"):
         raise ConfigError(f"{cfg}: no net-file in the SUMO configuration")
     for option in SUMOCFG_INPUTS:
         for name in options.get(option, "").split(","):
-            path = cfg.parent / name.strip()
-            if name.strip() and not path.is_file():
-                raise ConfigError(f"{cfg}: {option}: file not found: {path}")
+            if name.strip():
+                try:
+                    check_user_file(cfg.parent / name.strip(), "file", MAX_DATA_BYTES)
+                    check_sumo_path(cfg.parent / name.strip(), "file")
+                except ConfigError as exc:
+                    raise ConfigError(f"{cfg}: {option}: {exc}") from None
 
 
 def sumocfg_time_s(cfg: Path, options: dict[str, str], name: str, default_s: float) -> float:
@@ -401,6 +436,29 @@ def _fcd_args(out: Path, fcd: bool) -> list[str]:
     return ["--fcd-output", str(out / "fcd.xml"), "--fcd-output.acceleration", "true"]
 
 
+def _start(session: SumoSession) -> None:
+    """Start SUMO; SimulationError with SUMO's own first error when it refuses (libsumo says
+    "Process Error" and SUMO prints the reason itself: held here, so bad input stays one
+    line). What SUMO says at a start that succeeds (its warnings) is passed on as it is."""
+    if session.use_traci:  # sumo-gui is a process of its own: its output stays its own
+        session.start()
+        return
+    with sumo_stderr() as said:
+        try:
+            session.start()
+        except SimulationError as exc:
+            failure = exc
+        else:
+            failure = None
+    if failure is None:
+        sys.stderr.write(said[0])
+        return
+    reason = first_error(said[0])
+    if reason is None or reason in str(failure):
+        raise failure
+    raise SimulationError(f"SUMO did not start: {reason}") from None
+
+
 @dataclass
 class _Ending:
     """How a run ended, told once its outputs are in place."""
@@ -410,6 +468,8 @@ class _Ending:
     cause: BaseException | None = None
     stopped: str | None = None  # why the run stopped early on a signal
     no_cavs: str | None = None  # the --cav-type whose vehicles never departed
+    bad_input: ConfigError | None = None  # SUMO refused a user's file mid-run
+    configuration: Path | None = None  # the user's file the run is of (a sumocfg, a scenario)
 
 
 def _in_run_folder(
@@ -450,6 +510,8 @@ def _in_run_folder(
 
 def _ended(ending: _Ending, out: Path, stop: StopRequest | None) -> dict[str, Any]:
     """The summary of a run that ended as asked; otherwise how it ended, raised."""
+    if ending.bad_input is not None:
+        raise ending.bad_input
     if ending.failure is not None:
         raise SimulationError(f"{ending.failure} (outputs so far kept in {out})") from ending.cause
     if ending.stopped is not None and stop is not None:
@@ -458,7 +520,10 @@ def _ended(ending: _Ending, out: Path, stop: StopRequest | None) -> dict[str, An
             '(summary.json: "complete": false)'
         )
     if ending.no_cavs is not None:
-        raise ConfigError(f"--cav-type: no vehicle of vType '{ending.no_cavs}' ever departed")
+        where = f"{ending.configuration}: " if ending.configuration is not None else ""
+        raise ConfigError(
+            f"{where}--cav-type: no vehicle of vType '{ending.no_cavs}' ever departed"
+        )
     if stop is not None and stop.requested:  # the signal came while the outputs were written
         raise stop.interrupted(
             f"interrupted by {stop.name} after the last step: the run is complete in {out}"
@@ -480,12 +545,16 @@ def _drive(
     require_cavs: str | None = None,
     network_files: dict[str, Path] | None = None,
     stop: StopRequest,
+    user_files: UserFiles | None = None,
 ) -> _Ending:
     """Step SUMO, record, call the controller after every step, then write every output.
 
     Whatever happens during the run (a failure in SUMO or the controller, a ``stop`` request),
     the trajectories and events gathered so far are written and the summary is built from them,
     marked ``"complete": false`` with the reason; how the run ended is returned with it.
+    ``user_files``: the user's configuration and the files it names; SUMO refusing them, at
+    the start or over a vehicle, route or type of theirs later, is bad input naming the file.
+    A controller's error stands the swarm down (:class:`StandDown`): the run goes on.
     """
     recorder = RunRecorder(
         session, controller, controller_name, scene, scenario.outputs, out_dir=out
@@ -494,13 +563,22 @@ def _drive(
     failure: str | None = None
     cause: BaseException | None = None
     stopped: str | None = None
+    sumo_failed = False
     if stop.requested:  # before SUMO starts: nothing to keep
         raise stop.interrupted("interrupted before SUMO started")
+    try:
+        _start(session)
+    except SimulationError as exc:
+        if user_files is None:
+            raise
+        configuration, files, generated = user_files
+        raise input_error(str(exc), files, configuration, generated=generated) from None
     with session:
         if on_start is not None:
             on_start(session)
         ctx = RunContext(session, scenario, session.cav_ids, session.first_road(), out_dir=out)
-        controller.attach(ctx)
+        guard = recorder.stand_down = StandDown(controller)  # a controller's error: once
+        guard.attach(ctx)
         attach_plan_drawer(controller, ctx.session)
         bar = tqdm(
             total=max_steps,
@@ -524,7 +602,7 @@ def _drive(
                 session.step()
                 recorder.record()
                 t1 = time.perf_counter()
-                controller.control(session.time_s)
+                guard.control(session.time_s)
                 recorder.controller_s += time.perf_counter() - t1
                 recorder.sumo_s += t1 - t0
                 bar.update()
@@ -534,9 +612,9 @@ def _drive(
             if stop.requested:  # sumo-gui got the terminal's Ctrl-C too: a stop, not a failure
                 stopped = stopped_now()
             else:
-                failure, cause = str(exc), exc
+                failure, cause, sumo_failed = str(exc), exc, True
                 ctx.event("sumo_failed", message=failure)
-        except Exception as exc:  # a controller bug: keep what was gathered, then report it
+        except Exception as exc:  # a bug of ours: keep what was gathered, then report it
             # One line on the command line; the traceback with --verbose and in a batch run's
             # worker.log.
             log.info("run failed at t = %.2f s", session.time_s, exc_info=True)
@@ -551,4 +629,9 @@ def _drive(
         out, scenario, ctx.events, network_files=network_files, incomplete_reason=reason
     )
     no_cavs = require_cavs if require_cavs is not None and not session.cav_ids else None
-    return _Ending(summary, failure, cause, stopped, no_cavs)
+    bad = None
+    if sumo_failed and user_files is not None:
+        configuration, files, generated = user_files
+        bad = input_error(failure or "", files, configuration, strict=True, generated=generated)
+    where = user_files[0] if user_files is not None else None
+    return _Ending(summary, failure, cause, stopped, no_cavs, bad, where)

@@ -33,7 +33,6 @@ Means are over the runs of a group (seeds, and the other parameters' values).
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from pathlib import Path
@@ -45,7 +44,13 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.sim.network import EDGES_FILE, SPEED_FIELD_FILE, mean_speed_field
+from sumo_swarm.sim.network import (
+    EDGES_FILE,
+    SPEED_FIELD_COLUMNS,
+    SPEED_FIELD_FILE,
+    mean_speed_field,
+)
+from sumo_swarm.userfiles import read_user_json, read_user_parquet
 
 REFERENCE = "cacc"
 ALL = "(all)"  # the parameter name of the one group of a sweep that varies nothing
@@ -134,14 +139,34 @@ def read_batch(batch_dir: str | Path) -> tuple[pd.DataFrame, list[str]]:
     """``results.parquet`` and the sweep's parameter names; ConfigError if it is no batch."""
     d = Path(batch_dir)
     path = d / "results.parquet"
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"{d}: no results.parquet (is it the --out folder of a batch?)")
-    df = pd.read_parquet(path)
+    df = read_table(path, "batch results", ("run_id", "status", "controller", "seed"))
     parameters: list[str] = []
     sweep = d / "sweep.json"
-    if sweep.is_file():
-        parameters = [p for p in json.loads(sweep.read_text())["parameters"] if p in df.columns]
+    if sweep.exists():
+        named = read_user_json(sweep, "sweep record")
+        named = named.get("parameters") if isinstance(named, dict) else None
+        if not isinstance(named, list) or not all(isinstance(p, str) for p in named):
+            raise ConfigError(f"{sweep}: malformed sweep record: no list of parameters")
+        parameters = [p for p in named if p in df.columns]
     return df, parameters
+
+
+# The columns of a run's edge data that flow_density reads.
+EDGE_COLUMNS = (
+    "edge", "begin_s", "density_veh_per_km", "lane_density_veh_per_km", "flow_veh_per_h",
+    "speed_mps",
+)  # fmt: skip
+
+
+def read_table(path: Path, what: str, columns: tuple[str, ...] = ()) -> pd.DataFrame:
+    """A table of the batch folder with ``columns``; ConfigError naming the file otherwise."""
+    df = read_user_parquet(path, what)
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise ConfigError(f"{path}: malformed {what}: no column '{missing[0]}'")
+    return df
 
 
 def with_gains(ok: pd.DataFrame, parameters: list[str], reference: str = REFERENCE) -> pd.DataFrame:
@@ -295,7 +320,9 @@ def speed_fields(
         key = key if isinstance(key, tuple) else (key,)
         value, controller = (str(key[0]), str(key[1])) if parameter else (ALL, str(key[0]))
         paths = [batch_dir / "runs" / str(r) / SPEED_FIELD_FILE for r in group["run_id"]]
-        field = mean_speed_field(pd.read_parquet(p) for p in paths if p.is_file())
+        field = mean_speed_field(
+            read_table(p, "speed field", SPEED_FIELD_COLUMNS) for p in paths if p.exists()
+        )
         if not field.empty:
             fields[(value, controller)] = field
     return fields
@@ -351,9 +378,9 @@ def flow_density(batch_dir: Path, runs: pd.DataFrame, parameter: str | None = No
     frames = []
     for row in runs.to_dict("records"):
         path = batch_dir / "runs" / str(row["run_id"]) / EDGES_FILE
-        if not path.is_file():
+        if not path.exists():
             continue
-        edges = pd.read_parquet(path)
+        edges = read_table(path, "edge data", EDGE_COLUMNS)
         edges = edges[(edges["density_veh_per_km"] > 0) & edges["flow_veh_per_h"].notna()]
         lanes = edges["density_veh_per_km"] / edges["lane_density_veh_per_km"]
         frames.append(

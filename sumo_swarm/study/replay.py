@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from defusedxml import ElementTree as SafeElementTree
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import to_rgba
@@ -35,12 +34,20 @@ from matplotlib.patches import Patch, Rectangle
 from matplotlib.transforms import Affine2D
 
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.safexml import parse_xml
 from sumo_swarm.sim.routeshape import (
     LaneGeometry,
     PlanRecord,
     RouteGeometry,
     read_net_lanes,
     route_from_net,
+)
+from sumo_swarm.userfiles import (
+    MAX_DATA_BYTES,
+    read_user_json,
+    read_user_parquet,
+    read_user_text,
+    sumo_saved_path,
 )
 
 FORMATS = (".mp4", ".gif")
@@ -126,15 +133,20 @@ class RunRecord:
 
 
 def _read_jsonl(path: Path) -> list[dict[str, Any]]:
-    if not path.is_file():
+    """The records of a JSON-lines file of the run (none when it has no such file)."""
+    if not path.exists():
         return []
     out = []
-    for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    text = read_user_text(path, "run output", MAX_DATA_BYTES)
+    for n, line in enumerate(text.splitlines(), 1):
         if line.strip():
             try:
-                out.append(json.loads(line))
+                record = json.loads(line)
             except json.JSONDecodeError as exc:
                 raise ConfigError(f"{path}:{n}: not JSON: {exc.msg}") from None
+            if not isinstance(record, dict):
+                raise ConfigError(f"{path}:{n}: not a JSON object")
+            out.append(record)
     return out
 
 
@@ -144,22 +156,19 @@ def _sumo_inputs(folder: Path) -> tuple[Path, list[Path]]:
     if not cfgs:
         raise ConfigError(f"no SUMO configuration in {folder / 'sumo'}: the network is needed")
     cfg = cfgs[0]
-    try:
-        root = SafeElementTree.parse(str(cfg)).getroot()
-    except Exception as exc:  # malformed, unreadable or unsafe (DTD)
-        raise ConfigError(f"cannot read {cfg}: {exc}") from None
+    root = parse_xml(cfg, "SUMO configuration")
 
     def files(key: str) -> list[Path]:
         node = root.find(f".//{key}")
         names = (node.get("value", "") if node is not None else "").split(",")
-        return [(cfg.parent / n.strip()).resolve() for n in names if n.strip()]
+        return [(cfg.parent / sumo_saved_path(n.strip())).resolve() for n in names if n.strip()]
 
     nets = files("net-file")
     if not nets:
         raise ConfigError(f"{cfg} names no net-file")
-    if not nets[0].is_file():
+    if not nets[0].exists():
         raise ConfigError(f"network file not found: {nets[0]} (named in {cfg})")
-    return nets[0], [p for p in files("route-files") if p.is_file()]
+    return nets[0], [p for p in files("route-files") if p.exists()]
 
 
 def _widths(route_files: list[Path]) -> dict[str, float]:
@@ -167,12 +176,13 @@ def _widths(route_files: list[Path]) -> dict[str, float]:
     type_width: dict[str, float] = {}
     vehicle_type: dict[str, str] = {}
     for path in route_files:
-        try:
-            root = SafeElementTree.parse(str(path)).getroot()
-        except Exception as exc:
-            raise ConfigError(f"cannot read routes {path}: {exc}") from None
+        root = parse_xml(path, "route file")
         for vt in root.iter("vType"):
-            type_width[vt.get("id", "")] = float(vt.get("width", DEFAULT_WIDTH_M))
+            try:
+                width_m = float(vt.get("width", DEFAULT_WIDTH_M))
+            except ValueError:
+                raise ConfigError(f"{path}: vType '{vt.get('id')}': width is no number") from None
+            type_width[vt.get("id", "")] = width_m
         for tag in ("vehicle", "flow", "trip"):
             for v in root.iter(tag):
                 vehicle_type[v.get("id", "")] = v.get("type", "")
@@ -221,12 +231,9 @@ def load_run(folder: Path) -> RunRecord:
     if not folder.is_dir():
         raise ConfigError(f"run folder not found: {folder}")
     traj = folder / "trajectories.parquet"
-    if not traj.is_file():
+    if not traj.exists():
         raise ConfigError(f"no trajectories.parquet in {folder} (not a finished run?)")
-    try:
-        df = pd.read_parquet(traj)
-    except Exception as exc:
-        raise ConfigError(f"cannot read {traj}: {exc}") from None
+    df = read_user_parquet(traj, "trajectory table")
     needed = {"time_s", "vehicle", "kind", "edge", "lane", "x_m", "y_m", "s_m", "speed_mps"}
     if needed - set(df.columns) or df.empty:
         missing = ", ".join(sorted(needed - set(df.columns))) or "rows"
@@ -245,14 +252,23 @@ def load_run(folder: Path) -> RunRecord:
     times, starts = np.unique(df["time_s"].to_numpy(), return_index=True)
 
     summary_path = folder / "summary.json"
-    summary = json.loads(summary_path.read_text(encoding="utf-8")) if summary_path.is_file() else {}
-    target, targets = manoeuvre_targets(summary)
-    ends = sorted(
-        float(e["time_s"])
-        for e in _read_jsonl(folder / "events.jsonl")
-        # a cell plan handed over to the cruise (its manoeuvre goes on): no plan in force
-        if e.get("event") in ("overtake_end", "overtake_handover", "target_left")
-    )
+    summary = read_user_json(summary_path, "run summary") if summary_path.exists() else {}
+    if not isinstance(summary, dict):
+        raise ConfigError(f"{summary_path}: malformed run summary: not a JSON object")
+    try:
+        target, targets = manoeuvre_targets(summary)
+    except (AttributeError, TypeError):  # a block that is no JSON object
+        raise ConfigError(f"{summary_path}: malformed run summary: its overtake block") from None
+    events = folder / "events.jsonl"
+    try:
+        ends = sorted(
+            float(e["time_s"])
+            for e in _read_jsonl(events)
+            # a cell plan handed over to the cruise (its manoeuvre goes on): no plan in force
+            if e.get("event") in ("overtake_end", "overtake_handover", "target_left")
+        )
+    except (KeyError, TypeError, ValueError):
+        raise ConfigError(f"{events}: an overtake's end without a time_s number") from None
     records = [r for r in _read_jsonl(folder / "plans.jsonl") if PlanRecord.is_valid(r)]
     plans = []
     for i, r in enumerate(records):

@@ -224,7 +224,7 @@ class PlannerSettings:
                 f"PlannerSettings.weights must be PlannerWeights or a mapping, "
                 f"got {type(self.weights).__name__}"
             )
-        _require_int("n_steps", self.n_steps, minimum=2)
+        _require_int("n_steps", self.n_steps, minimum=2, maximum=MAX_PLAN_STEPS)
         if self.block_steps != "auto":
             _require_int("block_steps", self.block_steps, minimum=1)
         _require_int("max_blockers", self.max_blockers, minimum=0)
@@ -266,8 +266,14 @@ class PlannerSettings:
         check_fields(self, "regroup_lane", ge=0, integer=True)
 
 
-def _require_int(name: str, value: object, minimum: int) -> None:
-    require_number(f"PlannerSettings.{name}", value, ge=minimum, integer=True)
+def _require_int(name: str, value: object, minimum: int, maximum: int | None = None) -> None:
+    require_number(f"PlannerSettings.{name}", value, ge=minimum, le=maximum, integer=True)
+
+
+# The most behaving steps a plan may span: the model grows with them (cells x steps x CAVs),
+# and a count of 10**9 would fill the memory at the first plan. 14 plan the paper's overtake;
+# 1000 steps of 3 s are 50 minutes.
+MAX_PLAN_STEPS = 1000
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sumo_swarm.checks import SEED_MAX, require_number
+from sumo_swarm.checks import SEED_MAX, require_number, unknown_name
 from sumo_swarm.config import (
     SECTIONS,
     Scenario,
@@ -124,7 +124,7 @@ def compile_key(key: str) -> ParamPath:
         raise ConfigError(f"'{key}': a parameter is a dotted key 'section.key'")
     section = parts[0]
     if section not in SECTIONS:
-        raise ConfigError(f"'{key}': unknown section '{section}' (known: {', '.join(SECTIONS)})")
+        raise ConfigError(f"'{key}': {unknown_name('section', section, SECTIONS)}")
     cls: type = SECTIONS[section]
     steps: list[tuple[str, str]] = []
     i = 1
@@ -132,8 +132,8 @@ def compile_key(key: str) -> ParamPath:
         name = parts[i]
         known = _init_fields(cls)
         if name not in known:
-            where = ".".join(parts[:i])
-            raise ConfigError(f"unknown key '{key}' ({where} has: {', '.join(known)})")
+            where = ".".join(parts[:i]) + "."
+            raise ConfigError(unknown_name("key", name, known, prefix=where))
         steps.append(("field", name))
         i += 1
         if i == len(parts):
@@ -545,7 +545,7 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
         )
     unknown = sorted(set(data) - set(SWEEP_KEYS))
     if unknown:
-        raise ConfigError(f"unknown key '{unknown[0]}' (known: {', '.join(SWEEP_KEYS)})")
+        raise ConfigError(unknown_name("key", unknown[0], SWEEP_KEYS))
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise ConfigError(f"name: expected a non-empty string, got {name!r}")
@@ -634,8 +634,7 @@ def _controllers(data: Mapping[str, Any]) -> list[str]:
     controllers = _str_list(data.get("controllers", list(DEFAULT_CONTROLLERS)), "controllers")
     for c in controllers:
         if c not in CONTROLLERS:
-            known = ", ".join(CONTROLLERS)
-            raise ConfigError(f"controllers: unknown controller '{c}' (known: {known})")
+            raise ConfigError(f"controllers: {unknown_name('controller', c, CONTROLLERS)}")
     return controllers
 
 
@@ -643,8 +642,8 @@ def _build_sumocfg(path: Path, data: dict[str, Any]) -> Sweep:
     """A sweep over a user's SUMO configuration: seeds, controllers, ``scale``, ``cav_share``."""
     unknown = sorted(set(data) - set(SUMOCFG_SWEEP_KEYS))
     if unknown:
-        known = ", ".join(SUMOCFG_SWEEP_KEYS)
-        raise ConfigError(f"unknown key '{unknown[0]}' (a sumocfg sweep has: {known})")
+        listed = "a sumocfg sweep has"
+        raise ConfigError(unknown_name("key", unknown[0], SUMOCFG_SWEEP_KEYS, listed_as=listed))
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise ConfigError(f"name: expected a non-empty string, got {name!r}")
