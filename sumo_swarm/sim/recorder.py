@@ -388,7 +388,7 @@ class RunRecorder:
             rows_of=rows_of,
         )
         # Extra (not in the contract): None, or when the controller failed and stood down,
-        # handing its CAVs back to SUMO, and why ({"t_s", "reason"}).
+        # and why, and what drove the CAVs on ({"t_s", "reason", "then"}).
         summary["stood_down"] = None if self.stand_down is None else self.stand_down.block
         return summary, fields
 
