@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -380,7 +381,12 @@ def test_sigterm_during_reproduce_or_batch_says_what_is_kept(paper_path, tmp_pat
         one_line_on_stderr(done, "interrupted by SIGTERM", str(out), '"complete": false')
         report = json.loads((out / "report.json").read_text())
         assert report["complete"] is False
-        assert report["incomplete_reason"] == f"interrupted by SIGTERM: {kept} of 5 runs finished"
+        # A run in its last writes when the signal came may still finish as the workers are
+        # stopped, after the report counted: the report never claims more than the disk holds.
+        said = re.fullmatch(r"interrupted by SIGTERM: (\d) of 5 runs finished",
+                            report["incomplete_reason"])  # fmt: skip
+        assert said is not None, report["incomplete_reason"]
+        assert 1 <= int(said.group(1)) <= kept
     else:
         one_line_on_stderr(done, "interrupted by SIGTERM", str(out), "again to resume")
         assert len(pd.read_parquet(out / "results.parquet")) == kept < 6

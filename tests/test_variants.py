@@ -193,7 +193,9 @@ def test_null_means_none_happened():
     ],
 )
 def test_give_up_is_clean_only_with_the_platoon_intact(platoon, verdict):
-    gave_up = _summary(overtake__all_past=False, overtake__all_past_regrouped=False, overtake__aborted=1)
+    gave_up = _summary(
+        overtake__all_past=False, overtake__all_past_regrouped=False, overtake__aborted=1
+    )
     assert _judge(gave_up, platoon)["overtake"] == verdict
     # Not completed and no give-up: a failure, whatever the platoon looks like.
     stuck = _summary(overtake__all_past=False, overtake__all_past_regrouped=False)
