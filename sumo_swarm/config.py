@@ -127,8 +127,10 @@ class OutputSettings:
     ssm_range_m
         How far SUMO's SSM device looks for encounters [m].
     ssm
-        Run SUMO's SSM device (TTC conflicts) at all; it holds open encounters in memory, which
-        grows in a jam.
+        Also run SUMO's SSM device and keep its conflicts (network_conflicts.parquet). Off by
+        default: it holds every step of every open encounter in memory, which grows with a
+        jam's length (11.6-12 GB over the corridor's hour); the summary's TTC conflicts are
+        counted from the run's own steps either way (sim/conflicts.py).
     speed_field_cell_m
         Cell length of the space-time speed field along the route [m].
     speed_field_period_s
@@ -151,7 +153,7 @@ class OutputSettings:
     edge_data_period_s: float = 60.0
     ttc_threshold_s: float = 1.5
     ssm_range_m: float = 50.0
-    ssm: bool = True
+    ssm: bool = False
     speed_field_cell_m: float = 100.0
     speed_field_period_s: float = 10.0
     trajectories: Literal["all", "cavs"] = "all"

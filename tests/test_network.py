@@ -14,6 +14,8 @@ import pytest
 
 from sumo_swarm.config import OutputSettings, load_scenario
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.conflicts import TtcConflictCounter
+from sumo_swarm.sim.metrics import gaps
 from sumo_swarm.sim.network import (
     ADDITIONAL,
     EDGE_COLUMNS,
@@ -158,6 +160,11 @@ def test_network_block_from_hand_made_trips(sumo_files):
     assert block["vehicles_per_class"] == {"cav": 1, "hv": 2, "truck": 1}
     stricter = network_block(tables, hard_brake_events=0, duration_s=180.0, ttc_threshold_s=1.0)
     assert stricter["ttc_below_1_5s_events"] == 1
+    # the run's own count, when given, is the field; SSM's stays beside it
+    counted = network_block(tables, hard_brake_events=0, duration_s=180.0, ttc_threshold_s=1.5,
+                            ttc_events=7)  # fmt: skip
+    assert counted["ttc_below_1_5s_events"] == 7 and counted["ttc_below_1_5s_events_ssm"] == 2
+    assert "ttc_below_1_5s_events_ssm" not in block
 
 
 def test_outputs_sumo_did_not_write_are_errors_not_zeros(sumo_files, tmp_path):
@@ -191,7 +198,7 @@ def test_network_block_of_nothing(tmp_path):
 
 
 def test_options_ask_for_every_output(tmp_path):
-    settings = OutputSettings(edge_data_period_s=30.0, ttc_threshold_s=2.0)
+    settings = OutputSettings(edge_data_period_s=30.0, ttc_threshold_s=2.0, ssm=True)
     opts, files = network_options(tmp_path / "sumo", settings)
     pairs = dict(zip(opts[::2], opts[1::2], strict=True))
     assert pairs["--tripinfo-output"] == str(files["tripinfo"])
@@ -207,10 +214,10 @@ def test_options_ask_for_every_output(tmp_path):
     assert files["edgedata"].is_absolute()  # SUMO reads it from the additional file's folder
 
 
-def test_the_ssm_device_can_be_left_out(tmp_path):
+def test_the_ssm_device_is_left_out_by_default(tmp_path):
     # SUMO's SSM device keeps every open encounter in memory (a jam's, for the jam's length):
-    # [outputs] ssm = false leaves it out and keeps the other outputs.
-    opts, files = network_options(tmp_path / "sumo", OutputSettings(ssm=False))
+    # left out unless [outputs] ssm = true, the other outputs kept.
+    opts, files = network_options(tmp_path / "sumo", OutputSettings())
     assert not any(o.startswith("--device.ssm") for o in opts[::2])
     assert "ssm" not in files and {"tripinfo", "edgedata"} <= set(files)
     assert "--device.emissions.probability" in opts
@@ -247,7 +254,7 @@ def test_options_keep_what_the_user_asked_for(tmp_path):
 
 def test_options_follow_the_users_output_prefix(tmp_path):
     given = {"output-prefix": "run1_", "tripinfo-output": "trips.xml"}
-    _, files = network_options(tmp_path / "sumo", OutputSettings(), given, tmp_path)
+    _, files = network_options(tmp_path / "sumo", OutputSettings(ssm=True), given, tmp_path)
     assert files["tripinfo"] == tmp_path / "run1_trips.xml"
     assert files["ssm"].name == "run1_ssm.xml" and files["edgedata"].name == "run1_edgedata.xml"
 
@@ -295,8 +302,11 @@ def test_a_scenario_run_measures_the_network_without_changing_it(tmp_path, paper
     assert (trips["route_length_m"] - driven).abs().max() < first_step_m.max() + 0.5
     assert net["co2_g_per_km"]["cav"] > 0 and net["delay_s"]["hv"] >= 0.0
     assert net["hard_brakes_per_1000_vkm"] == 0.0  # no hard brake in the paper's scene
-    conflicts = pd.read_parquet(tmp_path / "on" / "network_conflicts.parquet")
-    assert net["ttc_below_1_5s_events"] == int((conflicts["min_ttc_s"] < 1.5).sum())
+    assert not (tmp_path / "on" / "network_conflicts.parquet").exists()  # no SSM by default
+    # the conflicts counted during the run: the same as counted afterwards from every row
+    counted = TtcConflictCounter(1.5)
+    counted.add(gaps(df))
+    assert net["ttc_below_1_5s_events"] == counted.events
     edges = pd.read_parquet(tmp_path / "on" / "network_edges.parquet")
     assert set(edges["edge"]) == {"hwy"} and edges["speed_mps"].between(10, 30).all()
     assert on["swarms"]["platoons_formed"] == 1 and on["swarms"]["overtakes_started"] >= 1
@@ -327,7 +337,7 @@ def test_a_users_road_keeps_the_users_outputs_and_drives_the_same(tmp_path):
     assert (tmp_path / "road" / "loops.xml").is_file()  # their detectors still run
     assert not (tmp_path / "on" / "sumo" / "tripinfo.xml").exists()
     assert 'arrival="-1.00"' in (tmp_path / "road" / "mytrips.xml").read_text()  # unfinished
-    assert (tmp_path / "on" / "sumo" / "ssm.xml").is_file()
+    assert not (tmp_path / "on" / "sumo" / "ssm.xml").exists()  # no SSM device by default
     net = on["network"]
     assert set(net["vehicles_per_class"]) == {"cav", "hv", "truck"}
     assert net["vehicles_per_class"]["truck"] == 1

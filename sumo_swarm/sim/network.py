@@ -323,6 +323,7 @@ def network_block(
     hard_brake_events: int,
     duration_s: float,
     ttc_threshold_s: float,
+    ttc_events: int | None = None,
     exits_missed: int = 0,
 ) -> dict[str, Any]:
     """summary.json's ``network`` block.
@@ -337,8 +338,12 @@ def network_block(
     - ``throughput_vph``: trips finished per hour of the run (``duration_s``);
     - ``hard_brakes_per_1000_vkm``: ``hard_brake_events`` (episodes, any vehicle) per thousand
       vehicle-kilometres driven (None when nobody drove);
-    - ``ttc_below_1_5s_events``: SSM conflicts with a minimum TTC below ``ttc_threshold_s``
-      (None without SSM output);
+    - ``ttc_below_1_5s_events``: conflicts, encounters of two vehicles whose time to collision
+      fell below ``ttc_threshold_s``: ``ttc_events``, counted during the run from every
+      vehicle's step (:mod:`sumo_swarm.sim.conflicts`); without it, SSM's conflicts (None
+      without SSM output either);
+    - ``ttc_below_1_5s_events_ssm``: SSM's conflicts below ``ttc_threshold_s`` as SUMO wrote
+      them (each from both vehicles' sides), when there was SSM output and ``ttc_events``;
     - ``co2_g_per_km``, ``fuel_g_per_km``: emitted / driven per class (mg per m = g per km);
     - ``exits_missed``: CAVs that gave up the exit of their route after standing for it and
       drove on (``exit_missed`` events, controllers.cacc): they are counted as trips, to
@@ -365,9 +370,14 @@ def network_block(
 
     vkm = float(trips["route_length_m"].sum()) / 1000.0 if len(trips) else 0.0
     conflicts = tables.conflicts
-    ttc_events = None
+    ssm_events = None
     if conflicts is not None:
-        ttc_events = int((conflicts["min_ttc_s"] < ttc_threshold_s).sum())
+        ssm_events = int((conflicts["min_ttc_s"] < ttc_threshold_s).sum())
+    extra = {}
+    if ttc_events is None:
+        ttc_events = ssm_events
+    elif ssm_events is not None:
+        extra["ttc_below_1_5s_events_ssm"] = ssm_events
     hours = duration_s / 3600.0
     delay = (every["time_loss_s"] + every["depart_delay_s"]).groupby(every["vehicle_class"])
     return {
@@ -385,6 +395,7 @@ def network_block(
         "vehicles_not_departed": int((~departed).sum()),
         "depart_delay_s": per_class(every.groupby("vehicle_class")["depart_delay_s"].mean()),
         "exits_missed": int(exits_missed),
+        **extra,
     }
 
 

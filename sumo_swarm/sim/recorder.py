@@ -26,6 +26,8 @@ from pandas.api.types import union_categoricals
 from sumo_swarm.config import OutputSettings
 from sumo_swarm.controllers.base import Controller, StandDown, close_controller
 from sumo_swarm.files import write_json_atomic, write_parquet_atomic
+from sumo_swarm.sim import metrics
+from sumo_swarm.sim.conflicts import TtcConflictCounter
 from sumo_swarm.sim.metrics import HardBrakeCounter
 from sumo_swarm.sim.network import mean_speed_field, speed_field
 from sumo_swarm.sim.streamed import TrajectoryFile, rows_between_cavs, streamed_measures
@@ -203,11 +205,19 @@ class RunRecorder:
         # The run loop's guard of the controller (StandDown): the summary's stood_down
         self.stand_down: StandDown | None = None
         self._steps = _Steps()  # rows recorded, not packed yet
+        # The network's TTC conflicts, of every vehicle at every step whatever is recorded
+        # (sim/conflicts.py: instead of SUMO's SSM device, whose memory grows with a jam); the
+        # steps wait here, as the session read them, until a chunk's worth is paired.
+        self.conflicts = (
+            TtcConflictCounter(self.outputs.ttc_threshold_s) if self.outputs.network else None
+        )
+        self._conflict_steps = _Steps()
         # Kind, length and width are taken per vehicle when rows are packed: rows of a vehicle
         # id that departs again are packed before the new one's values replace the old.
         hooks = getattr(session, "on_id_reused", None)
         if hooks is not None:
             hooks.append(self._pack)
+            hooks.append(self._count_conflicts)
         self.sumo_s: float | None = None  # measured by the caller, else wall minus controller
         self.controller_s = 0.0
         self._wall0 = time.perf_counter()
@@ -235,11 +245,15 @@ class RunRecorder:
         self.hard_brakes.update(c.ids, c.accel_mps2, s.kinds)
         o = self.outputs
         t = s.time_s
-        if t < o.record_from_s - 1e-9 or (o.record_to_s is not None and t > o.record_to_s + 1e-9):
-            return
         # in _Steps.PARTS' order
         columns = [c.ids, c.edge, c.lane, c.xy, c.s_m, c.lat_m, c.speed_mps, c.accel_mps2,
                    c.lane_pos_m, c.lane_width_m]  # fmt: skip
+        if self.conflicts is not None and c.ids:
+            self._conflict_steps.add(t, columns)  # the same lists: no copy
+            if self._conflict_steps.rows >= CHUNK_ROWS:
+                self._count_conflicts()
+        if t < o.record_from_s - 1e-9 or (o.record_to_s is not None and t > o.record_to_s + 1e-9):
+            return
         if o.trajectories == "cavs":
             rows = _near_cavs(c.ids, c.xy, s.kinds, o.neighbour_range_m)
             columns = [list(map(column.__getitem__, rows)) for column in columns]
@@ -278,6 +292,13 @@ class RunRecorder:
             self._steps = _Steps()
         if self._file is not None and (self._file.open or self._held_rows > self.memory_rows):
             self._spill()
+
+    def _count_conflicts(self) -> None:
+        """Pair the steps waiting for the conflict counter and count them."""
+        if self.conflicts is not None and self._conflict_steps.rows:
+            table = self._conflict_steps.table(self._vehicle_info)
+            self._conflict_steps = _Steps()
+            self.conflicts.add(metrics.gaps(table))
 
     @property
     def memory_rows(self) -> int:
@@ -476,6 +497,7 @@ class RunRecorder:
         from sumo_swarm.sim import network
 
         s = self.session
+        self._count_conflicts()
         try:
             tables = network.read_network(
                 files, lambda vid, vtype: network.vehicle_class(*s.classify(vid, vtype))
@@ -487,6 +509,7 @@ class RunRecorder:
                 hard_brake_events=self.hard_brakes.episodes,
                 duration_s=self.timing_simulated_s(),
                 ttc_threshold_s=scenario.outputs.ttc_threshold_s,
+                ttc_events=self.conflicts.events if self.conflicts is not None else None,
                 exits_missed=exits_missed,
             )
         except Exception as exc:  # a damaged output costs the block, never the run
