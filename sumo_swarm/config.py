@@ -118,7 +118,7 @@ class OutputSettings:
     Attributes
     ----------
     network
-        Ask SUMO for tripinfo (with emissions), SSM conflicts and edge data, and fill
+        Ask SUMO for tripinfo (with emissions) and edge data, count TTC conflicts, and fill
         summary.json's network block from them.
     edge_data_period_s
         The edge data's aggregation interval [s].

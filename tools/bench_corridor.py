@@ -15,7 +15,10 @@ alternated point by point so that each sees the same machine load:
   this one;
 - ``sumo-cacc``: ``sumo-swarm run ... --controller sumo-cacc``: SUMO drives, the project reads,
   records and summarises (the plumbing);
-- ``swarm``: ``sumo-swarm run ... --controller swarm``.
+- ``swarm``: ``sumo-swarm run ... --controller swarm``;
+- ``cacc``, ``sumo-lc``: the other two controllers, likewise (not run unless named in
+  ``--modes``: with ``--times 300,1200`` they give the peak memory of every controller, a long
+  run's against a short one's, docs/bench/memory.md).
 
 Two axes: the simulated time (``--times``, at the scenario's CAV share) and the number of CAVs
 (``--shares`` of the demand, at ``--share-time`` simulated seconds). Prints and saves a table of
@@ -52,7 +55,8 @@ from sumo_swarm.sim.scene import CAV_TYPE, write_sumo_inputs
 
 ROOT = Path(__file__).resolve().parent.parent
 CORRIDOR = ROOT / "scenarios" / "corridor.toml"
-MODES = ("sumo", "libsumo", "sumo-cacc", "swarm")
+MODES = ("sumo", "libsumo", "sumo-cacc", "swarm", "cacc", "sumo-lc")
+DEFAULT_MODES = ("sumo", "libsumo", "sumo-cacc", "swarm")
 
 
 def scenario_file(folder: Path, duration_s: float, share: float) -> Path:
@@ -93,6 +97,8 @@ def what_it_did(mode: str, work: Path) -> dict[str, float]:
         "platoons_formed": swarms.get("platoons_formed", np.nan),
         "collisions": summary["safety"]["collisions"],
         "cav_mean_speed_mps": summary["cav"]["mean_speed_mps"],
+        "ttc_events": network.get("ttc_below_1_5s_events", np.nan),
+        "ttc_events_ssm": network.get("ttc_below_1_5s_events_ssm", np.nan),
     }
 
 
@@ -107,7 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--share-time", type=float, default=300.0)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "corridor")
-    parser.add_argument("--modes", default=",".join(MODES), help="modes to run, comma list")
+    parser.add_argument("--modes", default=",".join(DEFAULT_MODES),
+                        help=f"modes to run, comma list of {', '.join(MODES)}")  # fmt: skip
     args = parser.parse_args(argv)
     chosen = {m.strip() for m in args.modes.split(",") if m.strip()}
     if not chosen or chosen - set(MODES):
@@ -177,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     out.to_csv(args.out.with_suffix(".csv"), index=False)
     command_line = (f"python tools/bench_corridor.py --times {args.times} --shares {args.shares} "
                     f"--share-time {args.share_time:g} --repeats {args.repeats}")  # fmt: skip
-    if modes != MODES:
+    if modes != DEFAULT_MODES:
         command_line += f" --modes {','.join(modes)}"
     md = (
         f"Corridor cost (`scenarios/corridor.toml`), {args.repeats} repeat(s), modes alternated, "
