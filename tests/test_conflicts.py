@@ -19,14 +19,30 @@ def pairs(rows: list[tuple[float, str, str | None, float]]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["time_s", "vehicle", "leader", "ttc_s"])
 
 
+def as_categories(table: pd.DataFrame) -> pd.DataFrame:
+    """The names as metrics.gaps gives them: categories, the leaders on the vehicles' ones (a
+    batch's categories differ from the next one's)."""
+    names = sorted({*table["vehicle"], *table["leader"].dropna()})
+    kind = pd.CategoricalDtype(names)
+    return table.astype({"vehicle": kind, "leader": kind})
+
+
 def counted(table: pd.DataFrame, batch_steps: int | None = None, **kw) -> int:
+    text = _counted(table, batch_steps, **kw)
+    coded = _counted(table, batch_steps, categories=True, **kw)
+    assert coded == text  # names as categories or as text: the same count
+    return text
+
+
+def _counted(table, batch_steps, categories=False, **kw) -> int:
+    prepare = as_categories if categories else (lambda x: x)
     counter = TtcConflictCounter(**kw)
     if batch_steps is None:
-        counter.add(table)
+        counter.add(prepare(table))
     else:
         times = np.unique(table["time_s"])
         for lo in range(0, len(times), batch_steps):
-            counter.add(table[table["time_s"].isin(times[lo : lo + batch_steps])])
+            counter.add(prepare(table[table["time_s"].isin(times[lo : lo + batch_steps])]))
     return counter.events
 
 

@@ -24,6 +24,8 @@ one behind the other, overlapping, with a time to collision of 0, where
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pandas as pd
 
@@ -51,13 +53,12 @@ class TtcConflictCounter:
             self._forget_before(None)
             return
         sub = pairs.loc[paired, ["time_s", "vehicle", "leader", "ttc_s"]]
-        key = sub["vehicle"].astype(str).to_numpy(dtype=object) + "\n"
-        key = key + sub["leader"].astype(str).to_numpy(dtype=object)
-        code, names = pd.factorize(key)
+        code, name_of = _pair_codes(sub["vehicle"], sub["leader"])
         t = sub["time_s"].to_numpy(dtype=float)
         below = sub["ttc_s"].to_numpy(dtype=float) < self.threshold_s  # NaN/inf: not below
         order = np.lexsort((t, code))
         code, t, below = code[order], t[order], below[order]
+        rows = np.arange(len(sub))[order]  # each sorted row's place in ``sub``
         n = len(code)
         # Rows split into encounters at each pair's first row and after a break longer than the
         # extra time; a pair's first encounter here may go on from the batch before (carried).
@@ -67,7 +68,7 @@ class TtcConflictCounter:
         start[1:] |= t[1:] - t[:-1] > self.extra_time_s + 1e-9
         carried = np.zeros(n, dtype=bool)  # the row's encounter was counted before this batch
         for i in np.flatnonzero(first_of_pair):
-            held = self._open.get(names[code[i]])
+            held = self._open.get(name_of(rows[i]))
             if held is not None and t[i] - held[0] <= self.extra_time_s + 1e-9:
                 carried[i] = held[1]
         encounter = np.cumsum(start) - 1
@@ -82,7 +83,7 @@ class TtcConflictCounter:
         last_of_pair[:-1] = code[1:] != code[:-1]
         for i in np.flatnonzero(last_of_pair):
             e = encounter[i]
-            self._open[names[code[i]]] = (float(t[i]), bool(any_below[e] or was_counted[e]))
+            self._open[name_of(rows[i])] = (float(t[i]), bool(any_below[e] or was_counted[e]))
         self._forget_before(float(t.max()))
 
     def _forget_before(self, now_s: float | None) -> None:
@@ -91,3 +92,19 @@ class TtcConflictCounter:
             return
         horizon = now_s - self.extra_time_s - 1e-9
         self._open = {k: v for k, v in self._open.items() if v[0] >= horizon}
+
+
+def _pair_codes(vehicle: pd.Series, leader: pd.Series) -> tuple[np.ndarray, Callable[[int], str]]:
+    """One integer per (vehicle, leader) pair of the rows, and the name of row ``i``'s pair (asked
+    only for a pair's first and last rows: it keys the pairs held between batches): from the
+    category codes when both columns share their categories (as :func:`metrics.gaps` makes
+    them), else from the names as text."""
+    v_cat = isinstance(vehicle.dtype, pd.CategoricalDtype)
+    if v_cat and vehicle.dtype == leader.dtype:
+        names = vehicle.cat.categories.astype(str).to_numpy(dtype=object)
+        v = vehicle.cat.codes.to_numpy().astype(np.int64)
+        lead = leader.cat.codes.to_numpy().astype(np.int64)
+        return v * len(names) + lead, lambda i: f"{names[v[i]]}\n{names[lead[i]]}"
+    key = vehicle.astype(str).to_numpy(dtype=object) + "\n"
+    key = key + leader.astype(str).to_numpy(dtype=object)
+    return pd.factorize(key)[0].astype(np.int64), lambda i: key[i]
