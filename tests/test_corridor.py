@@ -16,6 +16,8 @@ import sumolib
 
 from sumo_swarm.config import CorridorSettings, load_scenario
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.sim.conflicts import TtcConflictCounter
+from sumo_swarm.sim.metrics import gaps
 from sumo_swarm.sim.netbuild import CorridorSpec, build_corridor
 from sumo_swarm.sim.runner import run_scenario
 from sumo_swarm.sim.scene import (
@@ -381,3 +383,17 @@ def test_a_cav_stuck_beside_the_deceleration_lane_misses_its_exit_and_drives_on(
         for _ in range(100):
             sumo.step()
         assert vehicle.getRoadID("stuck") in main[main.index("dec0") + 1 :]
+
+
+@pytest.mark.sumo
+def test_ttc_conflicts_are_counted_during_the_run_as_from_the_whole_table(runs):
+    # The network block's conflicts are counted step by step while the run goes (every
+    # vehicle, whatever is recorded: sim/conflicts.py); here every vehicle is recorded, so the
+    # count from the whole trajectory table afterwards is the same.
+    seen = 0
+    for controller, (summary, folder) in runs.items():
+        counter = TtcConflictCounter(1.5)
+        counter.add(gaps(pd.read_parquet(folder / "trajectories.parquet")))
+        assert summary["network"]["ttc_below_1_5s_events"] == counter.events, controller
+        seen += counter.events
+    assert seen > 0  # some conflict to count in this dense traffic

@@ -195,6 +195,7 @@ class RunRecorder:
         scene: Scene,
         outputs: OutputSettings | None = None,
         out_dir: Path | None = None,
+        count_conflicts: bool = False,
     ) -> None:
         self.session = session
         self.outputs = outputs or OutputSettings()  # which rows to record
@@ -205,11 +206,12 @@ class RunRecorder:
         # The run loop's guard of the controller (StandDown): the summary's stood_down
         self.stand_down: StandDown | None = None
         self._steps = _Steps()  # rows recorded, not packed yet
-        # The network's TTC conflicts, of every vehicle at every step whatever is recorded
+        # The network block's TTC conflicts (``count_conflicts``: a run that reads SUMO's
+        # outputs into it), of every vehicle at every step whatever is recorded
         # (sim/conflicts.py: instead of SUMO's SSM device, whose memory grows with a jam); the
         # steps wait here, as the session read them, until a chunk's worth is paired.
         self.conflicts = (
-            TtcConflictCounter(self.outputs.ttc_threshold_s) if self.outputs.network else None
+            TtcConflictCounter(self.outputs.ttc_threshold_s) if count_conflicts else None
         )
         self._conflict_steps = _Steps()
         # Kind, length and width are taken per vehicle when rows are packed: rows of a vehicle

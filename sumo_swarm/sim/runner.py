@@ -557,8 +557,9 @@ def _drive(
     A controller's error stands the swarm down (:class:`StandDown`): the run goes on.
     """
     recorder = RunRecorder(
-        session, controller, controller_name, scene, scenario.outputs, out_dir=out
-    )
+        session, controller, controller_name, scene, scenario.outputs, out_dir=out,
+        count_conflicts=network_files is not None,
+    )  # fmt: skip
     recorder.sumo_s = 0.0
     failure: str | None = None
     cause: BaseException | None = None
