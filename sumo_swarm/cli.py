@@ -414,8 +414,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
             require_cavs=args.cav_share is None,  # a share may give no CAV (0, or by chance)
         )
     else:
-        if args.scale is not None or args.cav_share is not None:
-            raise ConfigError("run: --scale and --cav-share go with --sumocfg")
+        # An option of --sumocfg given without it would be dropped silently: the run the user
+        # gets is not the one asked for.
+        given = {"--scale": args.scale, "--cav-share": args.cav_share,
+                 "--cav-type": args.cav_type, "--config": args.config}  # fmt: skip
+        stray = [option for option, value in given.items() if value is not None]
+        if stray:
+            raise ConfigError(f"run: {' and '.join(stray)} go with --sumocfg")
         if args.scenario is None:
             raise ConfigError("run: give a scenario file (or --sumocfg FILE --cav-type TYPE)")
         scenario = load_scenario(args.scenario)

@@ -1274,9 +1274,14 @@ def read_toml(path: Path, what: str) -> dict[str, Any]:
 
     text = read_user_text(path, what)
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    # An empty file (or only comments) is a file not yet written, or the wrong one: run with
+    # every default instead, it would pass silently for the file the user meant.
+    if not data:
+        raise ConfigError(f"{path}: the {what} is empty (no keys, no tables)")
+    return data
 
 
 def load_scenario(

@@ -63,6 +63,27 @@ def read_user_bytes(path: str | Path, what: str, max_bytes: int = MAX_TEXT_BYTES
     return data
 
 
+# How much of an XML file is read to find its root element [bytes]: past any declaration and
+# leading comments of a real file.
+ROOT_SNIFF_BYTES = 64 * 2**10
+_FIRST_TAG = re.compile(r"<\s*([A-Za-z_][\w.:-]*)")
+_SKIPPED = re.compile(r"<!--.*?-->|<\?.*?\?>|<!\w[^>]*>", re.DOTALL)
+
+
+def xml_root_name(path: str | Path) -> str | None:
+    """The name of the root element of XML file ``path``, read from its first bytes only (a
+    network may be a gigabyte); None if not found there, or not readable as text."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(ROOT_SNIFF_BYTES)
+    except OSError:
+        return None
+    utf16 = head[:2] in (b"\xff\xfe", b"\xfe\xff")  # a byte-order mark
+    text = head.decode("utf-16" if utf16 else "utf-8", errors="ignore")
+    found = _FIRST_TAG.search(_SKIPPED.sub("", text))
+    return found.group(1) if found else None
+
+
 def read_user_text(path: str | Path, what: str, max_bytes: int = MAX_TEXT_BYTES) -> str:
     """A user's file as UTF-8 text (see :func:`read_user_bytes`)."""
     data = read_user_bytes(path, what, max_bytes)

@@ -43,6 +43,7 @@ from sumo_swarm.files import writable_folder
 from sumo_swarm.sim.bridge import SumoSession, is_of_type, unknown_vtype
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.recorder import EMPTY_WINDOW_S, RunRecorder
+from sumo_swarm.sim.runfolder import check_out_folder
 from sumo_swarm.sim.scene import LiveScene, default_settings
 from sumo_swarm.sim.steplimit import check_step_length
 
@@ -311,6 +312,13 @@ def attach(
         )
     if out_dir is not None and not isinstance(out_dir, str | os.PathLike):
         raise ConfigError(f"attach: out_dir must be a folder path, got {type(out_dir).__name__}")
+    if out_dir is not None and not os.fspath(out_dir):
+        # Path("") is the working folder: the outputs would land among whatever it holds
+        raise ConfigError("attach: out_dir is empty: name a folder (or leave out_dir None)")
+    if out_dir is not None:
+        # As the command line's --out: a folder of other files is never written into (an
+        # earlier swarm's outputs are replaced, as with --force)
+        check_out_folder(Path(out_dir), force=True)
     out = writable_folder(out_dir) if out_dir is not None else None
     warn_if_sumo_teleports(connection)
     handle = SwarmHandle(connection, ctrl, settings, is_cav, cruising_speed_mps, out)

@@ -49,6 +49,7 @@ from sumo_swarm.userfiles import (
     check_sumo_path,
     check_user_file,
     sumo_saved_path,
+    xml_root_name,
 )
 
 log = logging.getLogger(__name__)
@@ -368,20 +369,55 @@ def normalized_sumocfg_options(cfg: Path) -> dict[str, str]:
     return options
 
 
+# What each input option of a configuration names, for messages
+SUMO_INPUT_KIND = {
+    "net-file": "a network",
+    "route-files": "a route file",
+    "additional-files": "an additional file",
+    "weight-files": "a weight file",
+    "load-state": "a saved state",
+}
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def check_sumocfg_inputs(cfg: Path, options: dict[str, str]) -> None:
     """ConfigError naming the first input file of ``cfg`` that is missing, or no regular file
     of bounded size (SUMO's own message would be a "Process Error" with exit status 1; a FIFO
     would hang it)."""
     if not options.get("net-file"):
         raise ConfigError(f"{cfg}: no net-file in the SUMO configuration")
+    if "," in str(cfg.resolve().parent):
+        # SUMO splits its file lists at commas, a folder's name included: it reads the files
+        # beside the configuration as two missing ones.
+        raise ConfigError(
+            f"{cfg}: the folder's path holds a comma, which SUMO reads as the end of a file "
+            "name in its file lists; move the configuration to a folder without one"
+        )
     for option in SUMOCFG_INPUTS:
         for name in options.get(option, "").split(","):
             if name.strip():
+                path = cfg.parent / name.strip()
                 try:
-                    check_user_file(cfg.parent / name.strip(), "file", MAX_DATA_BYTES)
-                    check_sumo_path(cfg.parent / name.strip(), "file")
+                    check_user_file(path, "file", MAX_DATA_BYTES)
+                    check_sumo_path(path, "file")
                 except ConfigError as exc:
                     raise ConfigError(f"{cfg}: {option}: {exc}") from None
+                # A configuration where a network, routes or additionals belong (the file
+                # itself, or another one): SUMO warns and reads nothing from it.
+                root = xml_root_name(path)
+                if root is not None and root.lower().endswith("configuration"):
+                    which = "a SUMO configuration"
+                    if _same_file(path, cfg):
+                        which = "the configuration itself"
+                    raise ConfigError(
+                        f"{cfg}: {option}: {path} is {which}, not {SUMO_INPUT_KIND[option]}"
+                    )
 
 
 def sumocfg_time_s(cfg: Path, options: dict[str, str], name: str, default_s: float) -> float:

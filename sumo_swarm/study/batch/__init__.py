@@ -23,7 +23,12 @@ from tqdm import tqdm
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.runner import prepare_out_dir
 from sumo_swarm.study.batch.backends import Backend, LocalBackend, RayBackend, make_backend
-from sumo_swarm.study.batch.store import RESULTS, STATUS_FAILED, BatchStore
+from sumo_swarm.study.batch.store import (
+    RESULTS,
+    STATUS_FAILED,
+    BatchStore,
+    check_batch_folder,
+)
 from sumo_swarm.study.batch.sweep import RunSpec, Sweep, find_case, load_sweep
 
 log = logging.getLogger(__name__)
@@ -115,6 +120,7 @@ def run_batch(
     if workers is not None and workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     sweep = load_sweep(sweep_file)
+    check_batch_folder(Path(out_dir), sweep.path, {spec.run_id for spec in sweep.runs})
     out = prepare_out_dir(out_dir)
     store = BatchStore(out)
     with store.lock():

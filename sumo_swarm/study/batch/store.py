@@ -237,12 +237,59 @@ def _discard(folder: Path) -> None:
 # --------------------------------------------------------------------------- driver side
 
 
+# What a batch leaves in its folder: a folder holding any of them holds a batch
+BATCH_MARKERS = (SWEEP, RUNS, RESULTS, UPSTREAM, LOCK)
+SHOWN_NAMES = 3  # names listed in a refusal
+
+
+def check_batch_folder(out: Path, sweep_file: Path, run_ids: set[str]) -> None:
+    """ConfigError unless ``out`` may take the batch of sweep ``sweep_file`` (its runs
+    ``run_ids``): new, empty, or the folder of this sweep (resumed). Never a folder of other
+    files (``--out /``, a project folder), nor another sweep's batch: its runs would sit
+    beside this one's, and its sweep.json would be overwritten."""
+    if not out.exists() and not out.is_symlink():
+        return
+    if not out.is_dir():
+        raise ConfigError(f"batch folder {out} exists and is not a folder")
+    try:
+        names = sorted(p.name for p in out.iterdir())
+    except OSError as exc:
+        raise ConfigError(f"batch folder {out} cannot be read: {exc.strerror or exc}") from None
+    if not names:
+        return
+    if not any(name in names for name in BATCH_MARKERS):
+        shown = ", ".join(names[:SHOWN_NAMES]) + (", ..." if len(names) > SHOWN_NAMES else "")
+        raise ConfigError(
+            f"batch folder {out} holds files that are not a sumo-swarm batch's ({shown}); "
+            "give a new or empty folder"
+        )
+    try:
+        stored = json.loads((out / SWEEP).read_text(encoding="utf-8"))
+        stored_file, stored_runs = stored["sweep_file"], set(stored["runs"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # no readable sweep.json: the records themselves are checked run by run
+    # The same sweep file (grown or changed: its runs in common are kept), or one sharing runs
+    if Path(str(stored_file)) != sweep_file and not (stored_runs & run_ids):
+        raise ConfigError(
+            f"batch folder {out} holds the batch of another sweep ({stored_file}); give "
+            "another --out"
+        )
+
+
 class BatchStore:
     """The batch folder ``out`` as seen by the batch process."""
 
     def __init__(self, out: Path) -> None:
         self.out = out
         self.runs = out / RUNS
+        # The batch's own names taken by something of the wrong kind (a folder where a table
+        # belongs): every later write or rename onto them would fail mid-batch.
+        for name, is_folder in ((RUNS, True), (RESULTS, False), (UPSTREAM, False), (SWEEP, False)):
+            path = out / name
+            if (path.exists() or path.is_symlink()) and path.is_dir() != is_folder:
+                found = "a folder" if path.is_dir() else "not a folder"
+                wanted = "the folder of the runs" if is_folder else "a file of the batch"
+                raise ConfigError(f"{path}: {found}, where {wanted} belongs; move it away")
         self.runs.mkdir(parents=True, exist_ok=True)
 
     @contextlib.contextmanager

@@ -42,6 +42,7 @@ import dataclasses
 import hashlib
 import itertools
 import json
+import math
 import re
 import tomllib
 import typing
@@ -589,6 +590,7 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
     parameters = tuple(dict.fromkeys([*grid, *case_keys]))
     paths = {key: compile_key(key) for key in (*fixed, *parameters)}
 
+    check_run_count(cases, grid, seeds, controllers)
     runs: list[RunSpec] = []
     seen: dict[str, dict[str, Any]] = {}
     points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
@@ -628,6 +630,31 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
         seeds=tuple(seeds),
         runs=tuple(runs),
     )
+
+
+# The most runs one sweep may hold. Each run is checked (its scenario built) before any starts
+# and has a row, a folder and a record: a grid of a million runs would take minutes and
+# gigabytes before the first one ran. Split a larger study into several sweeps.
+MAX_RUNS = 100_000
+
+
+def check_run_count(
+    cases: Sequence[Mapping[str, Any]],
+    grid: Mapping[str, Sequence[Any]],
+    seeds: Sequence[int],
+    controllers: Sequence[str],
+) -> None:
+    """ConfigError if the sweep holds more than :data:`MAX_RUNS` runs, counted from the sizes
+    of its lists before any run is built."""
+    sizes = {"cases": len(cases), **{f'grid."{k}"': len(v) for k, v in grid.items()}}
+    sizes.update(seeds=len(seeds), controllers=len(controllers))
+    count = math.prod(sizes.values())
+    if count > MAX_RUNS:
+        product = " x ".join(f"{n} {name}" for name, n in sizes.items() if n > 1)
+        raise ConfigError(
+            f"{count} runs ({product}) are more than the {MAX_RUNS} a sweep may hold; "
+            "split the study into several sweeps"
+        )
 
 
 def _controllers(data: Mapping[str, Any]) -> list[str]:
@@ -692,6 +719,7 @@ def _build_sumocfg(path: Path, data: dict[str, Any]) -> Sweep:
         check_share_applies(base.demand, base.cav_type, base.share_of or "", base.path)
 
     parameters = tuple(dict.fromkeys([*grid, *(k for c in cases for k in c)]))
+    check_run_count(cases, grid, seeds, controllers)
     runs: list[RunSpec] = []
     seen: dict[str, dict[str, Any]] = {}
     points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
