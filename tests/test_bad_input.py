@@ -675,3 +675,138 @@ def test_sumo_printing_its_own_errors_at_the_start_is_still_one_line(tmp_path, s
         proc, f"{net}: SUMO refuses it: Attribute 'shape' is missing in definition of lane",
         str(path),
     )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------------
+# The hostile-input probe of items 4 and 5: each a class of input, refused in one line
+
+
+@pytest.mark.parametrize("text", ["", "\n\n", "# only a comment\n"])
+@pytest.mark.parametrize("role", ["scenario", "config", "sweep"])
+def test_an_empty_toml_file_is_refused_not_run_with_every_default(tmp_path, text, role):
+    path = tmp_path / "empty.toml"
+    path.write_text(text, encoding="utf-8")
+    cfg = write_user_case(tmp_path / "case", HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    args = {
+        "scenario": ["run", str(path)],
+        "config": ["run", "--sumocfg", str(cfg), "--cav-type", "cav", "--config", str(path)],
+        "sweep": ["batch", str(path)],
+    }[role]
+    out = tmp_path / "o"
+    assert_bad_input(sumo_swarm(*args, "--out", str(out)), str(path), "is empty")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "names"),
+    [
+        ("additional-files", "user.sumocfg"),  # the configuration itself
+        ("route-files", "user.sumocfg"),
+        ("additional-files", "other.sumocfg"),  # another configuration
+        ("route-files", "routes.rou.xml,other.sumocfg"),
+    ],
+)
+def test_a_sumocfg_named_where_an_input_file_belongs_is_refused(tmp_path, option, names):
+    cfg = write_user_case(tmp_path, HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    (tmp_path / "other.sumocfg").write_text(
+        '<?xml version="1.0"?>\n<!-- a comment -->\n<sumoConfiguration/>\n', encoding="utf-8"
+    )
+    text = cfg.read_text(encoding="utf-8")
+    text = text.replace('<route-files value="routes.rou.xml"/>', "")
+    extra = f'<{option} value="{names}"/>'
+    if option != "route-files":
+        extra += '<route-files value="routes.rou.xml"/>'
+    cfg.write_text(text.replace("<input>", "<input>" + extra), encoding="utf-8")
+    which = "the configuration itself" if "user" in names else "a SUMO configuration"
+    assert_bad_input(
+        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")),
+        str(cfg),
+        f"{option}:",
+        which,
+    )
+
+
+def test_a_sumocfg_in_a_folder_whose_path_holds_a_comma_says_so(tmp_path):
+    # SUMO splits its file lists at commas, the folder's name included
+    cfg = write_user_case(tmp_path / "roads, v2", HighwaySpec(length_m=500, lanes=3), end_s=5.0)
+    assert_bad_input(
+        sumo_swarm("run", "--sumocfg", str(cfg), "--cav-type", "cav", "--out", str(tmp_path / "o")),
+        str(cfg),
+        "holds a comma",
+    )
+
+
+def test_a_sweep_of_a_million_runs_is_refused_before_any_is_built(tmp_path, paper_path):
+    sweep = tmp_path / "huge.toml"
+    gaps = ", ".join(f"{20.0 + i * 0.001:.3f}" for i in range(1000))
+    seeds = ", ".join(str(i) for i in range(1000))
+    sweep.write_text(
+        f'base = "{paper_path.as_posix()}"\ncontrollers = ["cacc"]\nseeds = [{seeds}]\n'
+        f'[grid]\n"scene.upstream_gap_m" = [{gaps}]\n',
+        encoding="utf-8",
+    )
+    t0 = time.perf_counter()
+    proc = sumo_swarm("batch", str(sweep), "--out", str(tmp_path / "o"))
+    assert_bad_input(proc, str(sweep), "1000000 runs", "more than the 100000")
+    assert time.perf_counter() - t0 < 20.0  # built one by one, it took minutes
+    assert not (tmp_path / "o").exists()
+
+
+def _small_sweep(tmp_path, paper_path):
+    sweep = tmp_path / "small.toml"
+    sweep.write_text(
+        f'base = "{paper_path.as_posix()}"\ncontrollers = ["cacc"]\nseeds = [1]\n'
+        '[fixed]\n"simulation.duration_s" = 2.0\n"evaluation.end_s" = 2.0\n',
+        encoding="utf-8",
+    )
+    return sweep
+
+
+@pytest.mark.parametrize(
+    ("layout", "fragments"),
+    [
+        ({"notes.txt": "mine"}, ["holds files that are not a sumo-swarm batch's", "notes.txt"]),
+        (
+            {"sweep.json": '{"sweep_file": "/elsewhere/other.toml", "runs": ["cacc-s9-x"]}'},
+            ["holds the batch of another sweep", "/elsewhere/other.toml"],
+        ),
+        ({"results.parquet/": None}, ["results.parquet: a folder, where a file"]),
+        ({"runs": "a file"}, ["runs: not a folder, where the folder of the runs"]),
+    ],
+)
+def test_a_batch_folder_that_is_not_this_sweeps_is_refused(tmp_path, paper_path, layout, fragments):
+    out = tmp_path / "o"
+    out.mkdir()
+    for name, text in layout.items():
+        if name.endswith("/"):
+            (out / name).mkdir()
+        else:
+            (out / name).write_text(text, encoding="utf-8")
+    before = sorted(p.name for p in out.iterdir())
+    sweep = _small_sweep(tmp_path, paper_path)
+    assert_bad_input(sumo_swarm("batch", str(sweep), "--out", str(out)), str(out), *fragments)
+    assert sorted(p.name for p in out.iterdir()) == before  # nothing written, nothing removed
+
+
+@pytest.mark.parametrize("option", [["--config", "x.toml"], ["--cav-type", "cav"]])
+def test_a_sumocfg_option_without_sumocfg_is_refused_not_dropped(tmp_path, paper_path, option):
+    assert_bad_input(
+        sumo_swarm("run", str(paper_path), *option, "--out", str(tmp_path / "o")),
+        f"{option[0]} go with --sumocfg",
+    )
+    assert not (tmp_path / "o").exists()
+
+
+def test_attach_out_dir_empty_or_a_folder_of_other_files(running, tmp_path):
+    import sumo_swarm
+
+    api = running("--lateral-resolution", "0.5")
+    with pytest.raises(sumo_swarm.ConfigError, match="out_dir is empty"):
+        sumo_swarm.attach(api, cav_type="cav", out_dir="")  # "" would be the working folder
+    mine = tmp_path / "project"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine", encoding="utf-8")
+    with pytest.raises(sumo_swarm.ConfigError, match="holds files that are not a sumo-swarm run"):
+        sumo_swarm.attach(api, cav_type="cav", out_dir=mine)
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    sumo_swarm.attach(api, cav_type="cav", out_dir=tmp_path / "new").detach()  # still fine

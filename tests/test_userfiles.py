@@ -18,6 +18,7 @@ from sumo_swarm.userfiles import (
     read_user_json,
     read_user_text,
     sumo_saved_path,
+    xml_root_name,
 )
 
 
@@ -198,3 +199,20 @@ def test_require_display(env, platform, fragment):
     else:
         with pytest.raises(ConfigError, match=fragment):
             require_display(env, platform)
+
+
+@pytest.mark.parametrize(
+    ("data", "root"),
+    [
+        (b'<?xml version="1.0"?>\n<!-- c <x> -->\n<configuration/>', "configuration"),
+        (b"  <routes>\n<vType id='a'/></routes>", "routes"),
+        ('<?xml version="1.0" encoding="UTF-16"?><net/>'.encode("utf-16"), "net"),
+        (b"not xml at all", None),
+        (b"", None),
+    ],
+)
+def test_the_root_element_is_read_from_the_first_bytes(tmp_path, data, root):
+    path = tmp_path / "f.xml"
+    path.write_bytes(data)
+    assert xml_root_name(path) == root
+    assert xml_root_name(tmp_path / "missing.xml") is None

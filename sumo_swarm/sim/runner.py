@@ -358,6 +358,13 @@ def normalized_sumocfg_options(cfg: Path) -> dict[str, str]:
     :data:`SUMOCFG_PATHS` by absolute path. SUMO writes the configuration out
     (``--save-configuration``); ConfigError if SUMO refuses it."""
     read_sumocfg_options(cfg)  # the file itself first, by our parser: missing, malformed, unsafe
+    if "," in str(cfg.resolve().parent):
+        # SUMO splits its file lists at commas, -c's and a folder's name included: it reads
+        # the configuration, or the files beside it, as two missing ones.
+        raise ConfigError(
+            f"{cfg}: the folder's path holds a comma, which SUMO reads as the end of a file "
+            "name in its file lists; move the configuration to a folder without one"
+        )
     with tempfile.TemporaryDirectory() as tmp:
         saved = Path(tmp) / "user.sumocfg"
         save_sumo_configuration(cfg, ["-c", str(cfg.resolve())], saved)
@@ -392,13 +399,6 @@ def check_sumocfg_inputs(cfg: Path, options: dict[str, str]) -> None:
     would hang it)."""
     if not options.get("net-file"):
         raise ConfigError(f"{cfg}: no net-file in the SUMO configuration")
-    if "," in str(cfg.resolve().parent):
-        # SUMO splits its file lists at commas, a folder's name included: it reads the files
-        # beside the configuration as two missing ones.
-        raise ConfigError(
-            f"{cfg}: the folder's path holds a comma, which SUMO reads as the end of a file "
-            "name in its file lists; move the configuration to a folder without one"
-        )
     for option in SUMOCFG_INPUTS:
         for name in options.get(option, "").split(","):
             if name.strip():
