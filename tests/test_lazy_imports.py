@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.test_cli import paper_variant
+
 ROOT = Path(__file__).resolve().parent.parent
 # What only the swarm's planner and tracking (OR-Tools, osqp, scipy) or the figures use.
 NOT_FOR_A_BASELINE = ("ortools", "osqp", "scipy", "matplotlib")
@@ -31,10 +33,8 @@ def imported(argv: list[str], cwd: Path) -> set[str]:
 @pytest.mark.sumo
 @pytest.mark.parametrize("controller", ["sumo-cacc", "sumo-lc"])
 def test_a_baseline_run_loads_no_solver_and_no_plots(tmp_path, paper_path, controller):
-    short = tmp_path / "short.toml"
-    short.write_text("[simulation]\nduration_s = 3.0\n", encoding="utf-8")
-    argv = ["run", str(paper_path), "--controller", controller, "--config", str(short),
-            "--out", str(tmp_path / "run")]  # fmt: skip
+    short = paper_variant(tmp_path, paper_path, 3.0)
+    argv = ["run", str(short), "--controller", controller, "--out", str(tmp_path / "run")]
     packages = imported(argv, tmp_path)
     assert {"libsumo", "pandas", "sumo_swarm"} <= packages  # the log was read
     assert packages.isdisjoint(NOT_FOR_A_BASELINE), packages & set(NOT_FOR_A_BASELINE)
