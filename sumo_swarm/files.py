@@ -81,3 +81,25 @@ def dictionary_columns(df: pd.DataFrame) -> list[str]:
     values when it grows too large: on a run's trajectories (266k rows, 12 float columns)
     that try took half the write (0.10 -> 0.056 s), for a larger file."""
     return [str(c) for c in df.columns if not pd.api.types.is_float_dtype(df[c].dtype)]
+
+
+SHOWN_NAMES = 3  # names listed when a folder is refused
+
+
+def folder_names(folder: Path, what: str) -> list[str]:
+    """The names in ``folder``, sorted ([] when it does not exist): for checking a folder the
+    user named before writing into it. ConfigError, naming it as ``what`` ("output folder"),
+    when it is something else than a folder or cannot be read."""
+    if not folder.exists() and not folder.is_symlink():
+        return []
+    if not folder.is_dir():
+        raise ConfigError(f"{what} {folder} exists and is not a folder")
+    try:
+        return sorted(p.name for p in folder.iterdir())
+    except OSError as exc:
+        raise ConfigError(f"{what} {folder} cannot be read: {exc.strerror or exc}") from None
+
+
+def shown_names(names: list[str]) -> str:
+    """The first :data:`SHOWN_NAMES` of ``names``, for a message."""
+    return ", ".join(names[:SHOWN_NAMES]) + (", ..." if len(names) > SHOWN_NAMES else "")

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
-from sumo_swarm.files import fsync_folder, write_json_atomic
+from sumo_swarm.files import folder_names, fsync_folder, shown_names, write_json_atomic
 
 MANIFEST = "run.json"
 MANIFEST_SCHEMA = "sumo-swarm/run-folder/1"
@@ -39,7 +39,6 @@ STAGING_INFIX = ".partial-"
 # run.json existed included).
 RUN_MARKERS = (MANIFEST, "summary.json", "trajectories.parquet", "events.jsonl", "plans.jsonl",
                "sumo")  # fmt: skip
-SHOWN_NAMES = 3  # names listed in a refusal
 
 
 def _utc_now() -> str:
@@ -55,17 +54,10 @@ def check_out_folder(out: Path, force: bool) -> None:
     """ConfigError unless a run may be written to ``out``: a new or empty folder, or (with
     ``force``) one holding an earlier run, which the new run replaces as a whole. A folder
     holding anything else is never emptied, ``force`` or not."""
-    if not out.exists() and not out.is_symlink():
-        return
-    if not out.is_dir():
-        raise ConfigError(f"output folder {out} exists and is not a folder")
-    try:
-        names = sorted(p.name for p in out.iterdir())
-    except OSError as exc:
-        raise ConfigError(f"output folder {out} cannot be read: {exc.strerror or exc}") from None
+    names = folder_names(out, "output folder")
     if not names:
         return
-    shown = ", ".join(names[:SHOWN_NAMES]) + (", ..." if len(names) > SHOWN_NAMES else "")
+    shown = shown_names(names)
     if not holds_run(out):
         raise ConfigError(
             f"output folder {out} holds files that are not a sumo-swarm run's ({shown}); "

@@ -39,7 +39,12 @@ import pandas as pd
 
 from sumo_swarm.checks import finite_or_none
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.files import write_json_atomic, write_parquet_atomic
+from sumo_swarm.files import (
+    folder_names,
+    shown_names,
+    write_json_atomic,
+    write_parquet_atomic,
+)
 from sumo_swarm.sim.metrics import INFLUENCE_THRESHOLD_PCT
 from sumo_swarm.study.batch.sweep import RunSpec, Sweep
 
@@ -239,7 +244,6 @@ def _discard(folder: Path) -> None:
 
 # What a batch leaves in its folder: a folder holding any of them holds a batch
 BATCH_MARKERS = (SWEEP, RUNS, RESULTS, UPSTREAM, LOCK)
-SHOWN_NAMES = 3  # names listed in a refusal
 
 
 def check_batch_folder(out: Path, sweep_file: Path, run_ids: set[str]) -> None:
@@ -247,20 +251,13 @@ def check_batch_folder(out: Path, sweep_file: Path, run_ids: set[str]) -> None:
     ``run_ids``): new, empty, or the folder of this sweep (resumed). Never a folder of other
     files (``--out /``, a project folder), nor another sweep's batch: its runs would sit
     beside this one's, and its sweep.json would be overwritten."""
-    if not out.exists() and not out.is_symlink():
-        return
-    if not out.is_dir():
-        raise ConfigError(f"batch folder {out} exists and is not a folder")
-    try:
-        names = sorted(p.name for p in out.iterdir())
-    except OSError as exc:
-        raise ConfigError(f"batch folder {out} cannot be read: {exc.strerror or exc}") from None
+    names = folder_names(out, "batch folder")
     if not names:
         return
     if not any(name in names for name in BATCH_MARKERS):
-        shown = ", ".join(names[:SHOWN_NAMES]) + (", ..." if len(names) > SHOWN_NAMES else "")
         raise ConfigError(
-            f"batch folder {out} holds files that are not a sumo-swarm batch's ({shown}); "
+            f"batch folder {out} holds files that are not a sumo-swarm batch's "
+            f"({shown_names(names)}); "
             "give a new or empty folder"
         )
     try:

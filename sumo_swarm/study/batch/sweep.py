@@ -606,18 +606,12 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
             steps = scenario.simulation.duration_s / scenario.simulation.step_length_s
             canonical = {key: read_value(scenario, paths[key]) for key in values}
             params = {key: read_value(scenario, paths[key]) for key in parameters}
-            for seed in seeds:
-                for controller in controllers:
-                    run_id = make_run_id(base.name, canonical, params, seed, controller)
-                    if run_id in seen:
-                        raise ConfigError(
-                            f"cases[{i}]: the runs of {values} repeat those of {seen[run_id]}"
-                        )
-                    seen[run_id] = values
-                    cost = steps * CONTROLLER_COST.get(controller, 1.0)
-                    runs.append(
-                        RunSpec(run_id, str(base.path), overrides, params, seed, controller, cost)
-                    )
+            keys = _run_keys(seen, i, values, base.name, canonical, params, seeds, controllers)
+            for run_id, seed, controller, cost in keys:
+                runs.append(
+                    RunSpec(run_id, str(base.path), overrides, params, seed, controller,
+                            steps * cost)
+                )  # fmt: skip
     fixed_scenario = base.scenario(base.overrides(fixed))
     return Sweep(
         path=path.resolve(),
@@ -732,18 +726,11 @@ def _build_sumocfg(path: Path, data: dict[str, Any]) -> Sweep:
             params = {key: values.get(key, base.default(key)) for key in parameters}
             job = base.job(values)
             identity = {**base.identity(), **values}
-            for seed in seeds:
-                for controller in controllers:
-                    run_id = make_run_id(base.name, identity, params, seed, controller)
-                    if run_id in seen:
-                        raise ConfigError(
-                            f"cases[{i}]: the runs of {raw} repeat those of {seen[run_id]}"
-                        )
-                    seen[run_id] = raw
-                    cost = base.steps * CONTROLLER_COST.get(controller, 1.0)
-                    overrides = {"sumocfg": dataclasses.asdict(job)}
-                    spec = RunSpec(run_id, str(base.path), overrides, params, seed, controller)
-                    runs.append(dataclasses.replace(spec, cost=cost, sumocfg=job))
+            overrides = {"sumocfg": dataclasses.asdict(job)}
+            keys = _run_keys(seen, i, raw, base.name, identity, params, seeds, controllers)
+            for run_id, seed, controller, cost in keys:
+                spec = RunSpec(run_id, str(base.path), overrides, params, seed, controller)
+                runs.append(dataclasses.replace(spec, cost=base.steps * cost, sumocfg=job))
     return Sweep(
         path=path.resolve(),
         name=name,
@@ -755,6 +742,32 @@ def _build_sumocfg(path: Path, data: dict[str, Any]) -> Sweep:
         seeds=tuple(seeds),
         runs=tuple(runs),
     )
+
+
+def _run_keys(
+    seen: dict[str, dict[str, Any]],
+    case: int,
+    values: dict[str, Any],
+    base_name: str,
+    identity: dict[str, Any],
+    params: dict[str, Any],
+    seeds: Sequence[int],
+    controllers: Sequence[str],
+) -> list[tuple[str, int, str, float]]:
+    """``(run_id, seed, controller, cost per step)`` of each run of one point of a sweep
+    (``values``, of ``cases[case]``), every seed under every controller; ``seen`` (run id ->
+    the values that made it) refuses a point whose runs repeat an earlier point's."""
+    keys = []
+    for seed in seeds:
+        for controller in controllers:
+            run_id = make_run_id(base_name, identity, params, seed, controller)
+            if run_id in seen:
+                raise ConfigError(
+                    f"cases[{case}]: the runs of {values} repeat those of {seen[run_id]}"
+                )
+            seen[run_id] = values
+            keys.append((run_id, seed, controller, CONTROLLER_COST.get(controller, 1.0)))
+    return keys
 
 
 def cases_toml(cases: Sequence[Mapping[str, object]]) -> list[str]:
