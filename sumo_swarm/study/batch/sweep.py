@@ -583,17 +583,10 @@ def _build(path: Path, data: dict[str, Any]) -> Sweep:
             if where.get(key, name_).split("[")[0] != name_.split("[")[0]:
                 raise ConfigError(f'{name_}."{key}": also set in [{where[key].split("[")[0]}]')
             where.setdefault(key, name_)
-    for key, values in grid.items():
-        if not isinstance(values, list) or not values:
-            raise ConfigError(f'grid."{key}": expected a non-empty list of values, got {values!r}')
-    case_keys = [k for c in cases for k in c]
-    parameters = tuple(dict.fromkeys([*grid, *case_keys]))
+    parameters, points = _grid_points(grid, cases, seeds, controllers)
     paths = {key: compile_key(key) for key in (*fixed, *parameters)}
-
-    check_run_count(cases, grid, seeds, controllers)
     runs: list[RunSpec] = []
     seen: dict[str, dict[str, Any]] = {}
-    points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
     for i, case in enumerate(cases):
         for point in points:
             values = {**fixed, **case, **point}
@@ -691,9 +684,6 @@ def _build_sumocfg(path: Path, data: dict[str, Any]) -> Sweep:
                 raise ConfigError(
                     f"{where}: unknown parameter '{key}' (a sumocfg sweep varies: {known})"
                 )
-    for key, values in grid.items():
-        if not isinstance(values, list) or not values:
-            raise ConfigError(f'grid."{key}": expected a non-empty list of values, got {values!r}')
     both = sorted(set(fixed) & {k for _, t in tables[1:] for k in t})
     if both:
         raise ConfigError(f'fixed."{both[0]}": also swept in [grid] or [[cases]]')
@@ -712,11 +702,9 @@ def _build_sumocfg(path: Path, data: dict[str, Any]) -> Sweep:
     if shared:
         check_share_applies(base.demand, base.cav_type, base.share_of or "", base.path)
 
-    parameters = tuple(dict.fromkeys([*grid, *(k for c in cases for k in c)]))
-    check_run_count(cases, grid, seeds, controllers)
+    parameters, points = _grid_points(grid, cases, seeds, controllers)
     runs: list[RunSpec] = []
     seen: dict[str, dict[str, Any]] = {}
-    points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
     for i, case in enumerate(cases):
         for point in points:
             raw = {**fixed, **case, **point}
@@ -742,6 +730,24 @@ def _build_sumocfg(path: Path, data: dict[str, Any]) -> Sweep:
         seeds=tuple(seeds),
         runs=tuple(runs),
     )
+
+
+def _grid_points(
+    grid: dict[str, Any],
+    cases: list[dict[str, Any]],
+    seeds: Sequence[int],
+    controllers: Sequence[str],
+) -> tuple[tuple[str, ...], list[dict[str, Any]]]:
+    """The sweep's parameters (the keys of ``grid`` and ``cases``) and the points of its grid,
+    each a ``{key: value}``; every grid entry must be a non-empty list, and the runs are
+    counted (:func:`check_run_count`) before any point is made."""
+    for key, values in grid.items():
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f'grid."{key}": expected a non-empty list of values, got {values!r}')
+    parameters = tuple(dict.fromkeys([*grid, *(k for c in cases for k in c)]))
+    check_run_count(cases, grid, seeds, controllers)
+    points = [dict(zip(grid, combo, strict=True)) for combo in itertools.product(*grid.values())]
+    return parameters, points
 
 
 def _run_keys(
