@@ -497,6 +497,17 @@ class SwarmSettings:
 
     Attributes
     ----------
+    decide
+        How the swarm chooses what to do about a slow vehicle ahead: ``"weigh"`` predicts
+        following, waiting for it to leave the lane, a lane pass and the cells over
+        ``horizon_s`` and takes the best for everyone on the road
+        (:mod:`sumo_swarm.core.swarming.arbiter`); ``"paper"`` is the paper's trigger (the
+        cells, or a lane pass that beats them), the reproduce run's.
+    horizon_s
+        The horizon the candidates are predicted over [s].
+    others_weight
+        A metre lost by another vehicle against a metre gained by a CAV in the weighing [1]:
+        1 counts every vehicle alike.
     trigger_speed_ratio
         An overtake is considered when the leader is held below this share of the cruising speed
         [1].
@@ -674,6 +685,9 @@ class SwarmSettings:
         A CAV is in a lane when within this of its centre [m].
     """
 
+    decide: Literal["weigh", "paper"] = "weigh"
+    horizon_s: float = 20.0
+    others_weight: float = 1.0
     trigger_speed_ratio: float = 0.95
     trigger_after_s: float = 2.0
     detect_range_m: float = 60.0
@@ -748,9 +762,10 @@ class SwarmSettings:
 
     def __post_init__(self) -> None:
         check_positive(
-            self, "trigger_speed_ratio", "detect_range_m", "control_interval_s",
+            self, "horizon_s", "trigger_speed_ratio", "detect_range_m", "control_interval_s",
             "control_interval_steps",
         )  # fmt: skip
+        check_non_negative(self, "others_weight")
         check_non_negative(
             self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
             "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",

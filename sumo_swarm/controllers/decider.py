@@ -20,6 +20,7 @@ from sumo_swarm.core.grid import MovingGrid
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.neighbours import Snapshot, snapshot_of
+from sumo_swarm.core.swarming.arbiter import Outlook, PlatoonView, choose
 from sumo_swarm.core.swarming.decision import (
     TargetWatch,
     behaving_interval_s,
@@ -73,6 +74,7 @@ class Decider:
         self._keep_right_target: str | None = None
         self._moves_right: dict[str, tuple[float, bool]] = {}  # vehicle -> (time, answer)
         self._target_lane: tuple[str | None, int] | None = None
+        self._weighed: tuple[str, str, int | None] | None = None  # the last choice said
 
     # ------------------------------------------------------------------ speeds
     def slow_below(self) -> float:
@@ -136,6 +138,8 @@ class Decider:
         reach = sw.detect_range_m + 2.0 * 3.0 * ctx.scenario.cav.cruising_speed_mps
         if candidate is not None and leader.lane in self.lanes.ending(leader, platoon[0], reach):
             candidate = None
+        if sw.decide == "weigh":  # catching up, side lanes, keeping right: weighed (choose)
+            return self.watch.update(t_s, candidate)
         if candidate is not None and self._catching_up(candidate, vehicles):
             candidate = None
         if candidate is not None and not self._side_lane_pays(leader, candidate, states):
@@ -144,6 +148,61 @@ class Decider:
         if candidate is not None and self.may_keep_right(candidate, states):
             wait_s = sw.keep_right_wait_s
         return self.watch.update(t_s, candidate, wait_s)
+
+    def choose(self, target: VehicleState, states: States, platoon: list[str]) -> Outlook:
+        """What to do about ``target`` (``[swarm] decide = "weigh"``): the best of following,
+        waiting for it to leave the lane, a lane pass beside and the cells, for everyone on the
+        road (:func:`~sumo_swarm.core.swarming.arbiter.choose`). An event
+        ``overtake_weighed`` gives each candidate's prediction when the choice changes."""
+        ctx = self.ctx
+        sc, road = ctx.scenario, ctx.road
+        sw = sc.swarm
+        leader = states[self.leader(states, platoon)]
+        tail = min((states[v] for v in platoon), key=lambda st: st.rear_s_m)
+        wish, blocked = self._lane_wish(target.vehicle_id)
+        lane = road.lane_of(leader)
+        side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
+        ending = self.lanes.ending(leader, leader.vehicle_id)
+        # Not the lane the target is about to move into: it would take the lane passed in.
+        wished = road.lane_of(target) + wish if wish else None
+        side = [q for q in side if q not in ending and q != wished]
+        interval = behaving_interval_s(
+            self.planner.behaving_interval_s, sc.cell_length_m, target.speed_mps,
+            self.cap_mps, sw.speed_margin_mps, sw.interval_rule,
+        )  # fmt: skip
+        cells_mps = sc.cell_length_m / interval if math.isfinite(interval) else None
+        view = PlatoonView(
+            front=leader, tail=tail, n_cavs=len(platoon),
+            cruise_mps=min(sc.cav.cruising_speed_mps, self.cap_mps),
+            lateral_speed_mps=sc.cav.max_lateral_speed_mps,
+            lane_width_m=road.lane_widths_m[lane],
+        )  # fmt: skip
+        members = set(platoon)
+        choice = choose(
+            view, target, [st for v, st in states.items() if v not in members], road,
+            side_lanes=side, leaves=bool(wish) and not blocked, cells_pace_mps=cells_mps,
+            desired_of=self.reformer.desired_speed, horizon_s=sw.horizon_s,
+            range_m=sw.detect_range_m + 2.0 * sc.cell_length_m,
+            others_weight=sw.others_weight, min_gain_mps=sw.min_speed_gain_mps,
+        )  # fmt: skip
+        said = (target.vehicle_id, choice.best.kind, choice.best.lane)
+        if said != self._weighed:
+            self._weighed = said
+            ctx.event("overtake_weighed", target=target.vehicle_id, chosen=choice.best.kind,
+                      lane=choice.best.lane, target_speed_mps=round(target.speed_mps, 2),
+                      scores_m={o.kind + ("" if o.lane is None else f"@{o.lane}"):
+                                [round(o.gain_m, 1), round(o.loss_m, 1)]
+                                for o in choice.weighed})  # fmt: skip
+        return choice.best
+
+    def _lane_wish(self, vid: str) -> tuple[int, bool]:
+        """The lane ``vid``'s driver wants to move to (+1 left, -1 right, 0 none) and whether
+        it is blocked there (``SumoSession.lane_wish``); (0, False) where SUMO cannot tell."""
+        ask = getattr(self.ctx.session, "lane_wish", None)
+        try:
+            return (0, False) if ask is None else ask(vid)
+        except Exception:
+            return 0, False
 
     def leader(self, states: States, platoon: list[str]) -> str:
         """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.

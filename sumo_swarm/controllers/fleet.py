@@ -28,7 +28,15 @@ platoon it meets, a platoon strung out beyond ``split_gap_m`` or grown beyond ``
 splits. Only platoons that cruise change (a platoon in an overtake keeps its CAVs), except
 that a CAV approaching its exit, leaving the route frame or gone leaves at once.
 
-A CAV alone is a swarm of one: it overtakes slow vehicles the swarm's way. The summary's
+A CAV alone is no swarm: cooperation starts at two. The swarm controller says so
+(``alone_to_sumo``): a lone CAV is driven by SUMO as its vType says, braking at most 3.5 m/s^2
+(SUMO's lane changes, for
+speed, keeping right and letting merging traffic in, with SUMO's own safety checks at any step
+length) until it meets another CAV in its lane. A swarm of one weighed the same lane change at
+many times SUMO's cost, and on a corridor its passes were cut short by targets changing lanes;
+our CACC on a lone CAV that SUMO's lane changes drive slowed a users' flow (CAVs 26.5 m/s
+against 31.2 m/s left to SUMO, 29.1 under cacc). (The ``cacc`` baseline keeps a platoon of one
+in its lane.) The summary's
 ``swarms`` block counts as platoons only groups that had two CAVs or more.
 """
 
@@ -196,6 +204,7 @@ class Fleet:
         self._off_frame: set[str] = set()  # ... that left the route frame: SUMO drives them
         self._single: Controller | None = None  # grouping = "one"
         self._parted: set[str] = set()  # CAVs whose exit came near: no platoon again
+        self._alone: set[str] = set()  # CAVs left to SUMO alone, their braking limited
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:
@@ -235,6 +244,11 @@ class Fleet:
             return
         session = self.ctx.session
         states = session.states
+        if getattr(self._kind, "alone_to_sumo", False):
+            for vid in session.departed:
+                if vid in states and states[vid].is_cav and vid not in self._alone:
+                    self._alone.add(vid)
+                    session.limit_braking(vid)  # a CAV's braking, from its first step
         new = any(vid in states and self._platoon_of(vid) is None for vid in session.departed)
         if new or t_s - self._reviewed_s >= self.settings.review_every_s - 1e-9:
             self._reviewed_s = t_s
@@ -379,10 +393,19 @@ class Fleet:
         for rear, front, gap in sorted(in_lane_neighbours(placed), key=lambda p: p[2]):
             if gap <= st.join_gap_m and rear in eligible and front in eligible:
                 self._meet(t_s, rear, front, states)
-        # Every other eligible CAV drives as a swarm of one.
+        # Every other eligible CAV drives as a swarm of one; or, where the swarms leave a CAV
+        # alone to SUMO (``alone_to_sumo``), as SUMO drives it (one that left a platoon: SUMO's
+        # lane changes, our CACC for the speed, as every CAV leaving a platoon).
+        alone_to_sumo = getattr(self._kind, "alone_to_sumo", False)
         for vid in cavs:
-            if vid in eligible and self._platoon_of(vid) is None:
+            if not alone_to_sumo and vid in eligible and self._platoon_of(vid) is None:
                 self._new(t_s, [vid], states)
+        self._alone &= set(cavs)
+        if alone_to_sumo:
+            for platoon in [p for p in self.platoons if len(p.members) == 1 and p.idle]:
+                vid = platoon.members[0]
+                self._set(platoon, [], states)
+                self._free(platoon, vid)
         self._retire_empty()
         live = sum(1 for p in self.platoons if len(p.members) > 1)
         self.counts.max_concurrent = max(self.counts.max_concurrent, live)

@@ -78,6 +78,8 @@ class SwarmController:
     """The method of the paper: cruise, swarm past a slow vehicle, regroup, cruise."""
 
     name = "swarm"
+    # Many swarms (controllers.fleet): a CAV alone drives as SUMO's drivers do.
+    alone_to_sumo = True
 
     def __init__(self, planner: CellPlanner | None = None, tracker: Tracker | None = None) -> None:
         """``planner`` and ``tracker`` replace the ones built from the scenario."""
@@ -317,6 +319,20 @@ class SwarmController:
     def _cruise_decision(self, t_s: float, states, platoon: list[str]) -> None:
         """Follow a lane pass under way; else decide on a target: a lane pass or the cells."""
         target = self._lane_pass_target(t_s, states, platoon)
+        if target is None and self.lane_pass is None and self.ctx.scenario.swarm.decide == "weigh":
+            if self.book.open:
+                return  # a manoeuvre the cruise drives is under way: it is seen through
+            target = self.decider.decide(t_s, states, platoon)
+            if target is None or not self._may_start(t_s, target, platoon):
+                return
+            best = self.decider.choose(target, states, platoon)
+            if best.kind == "lane_pass":
+                self._start_lane_pass(t_s, target, best.lane, platoon)
+            elif best.kind == "cells":
+                self._start_overtake(t_s, target, platoon)
+            else:  # follow, or wait for it to leave: asked again after trigger_after_s
+                self.decider.watch.since_s = t_s
+            return
         if target is None and self.lane_pass is None:
             target = self.decider.decide(t_s, states, platoon)
             lane = None if target is None else self.decider.lane_beats_plan(target, states, platoon)
@@ -348,6 +364,10 @@ class SwarmController:
         )  # fmt: skip
         if stop is not None and target is not None and all_past(target, cavs, sc.cav.min_gap_m):
             self._finish(t_s, completed=True)  # all past: the cruise re-forms the platoon
+        elif stop == "target_changed_lane" and self._weighs():
+            # It moved out of the way, still slower: the cruise drives the CAVs past it, the
+            # manoeuvre goes on until every CAV is past (or the horizon runs out).
+            self._finish(t_s, completed=False, reason=stop, handover=True)
         elif stop is not None:
             self._finish(t_s, completed=False, reason=stop)
         elif self.decider.passing_in_lane(target, cavs, states, self.replanner.grid,
@@ -455,12 +475,25 @@ class SwarmController:
             self.reformer.prefer = (self.regroup_lane_used, self.regroup_edge)
         cells = self.book.current("cells")
         if handover and cells is not None:
-            cells.watched = True
-            self.ctx.event("overtake_handover", target=self.target_id, kind="cells",
-                           manoeuvre=cells.number, reason=reason)  # fmt: skip
+            self._hand_over(t_s, cells, reason)
             return
         self.book.end(t_s, cells, completed=completed, reason=reason,
                       states=self.ctx.session.states)  # fmt: skip
+
+    def _weighs(self) -> bool:
+        """Does the swarm weigh its manoeuvres (``[swarm] decide = "weigh"``)?"""
+        return self.ctx.scenario.swarm.decide == "weigh"
+
+    def _hand_over(self, t_s: float, m, reason: str) -> None:
+        """Manoeuvre ``m`` goes on driven by the cruise: the book ends it once every CAV is past
+        its target (completed), the target is gone, or, with decide = "weigh", once
+        ``horizon_s`` has run out (timeout): a target that moved out of the way and sped up is
+        not passed."""
+        m.watched = True
+        if self._weighs():
+            m.until_s = t_s + self.ctx.scenario.swarm.horizon_s
+        self.ctx.event("overtake_handover", target=m.target_id, kind=m.kind,
+                       manoeuvre=m.number, reason=reason)  # fmt: skip
 
     def _overtake_done(
         self,
@@ -512,6 +545,15 @@ class SwarmController:
             return None
         stop = stopped_blocking(target, self.decider.target_changed_lane(target),
                                 slow_below_mps=self.decider.slow_below())  # fmt: skip
+        if (
+            stop == "target_changed_lane" and self._weighs()
+            and self.ctx.road.lane_of(target) != self.lane_pass.lane
+        ):  # fmt: skip
+            # Out of the way, not into the lane passed in: the cruise drives past it.
+            self.lane_pass = None
+            self.reformer.move_to = None
+            self._hand_over(t_s, self.book.current("lane_pass"), stop)
+            return None
         if stop is not None:  # it moved over (perhaps into the lane the platoon moves to)
             self._end_lane_pass(t_s, completed=False, reason=stop)
             return None

@@ -38,7 +38,13 @@ LC_MODE_DEFAULT = 0b011001010101
 LCA_LEFT = 1 << 1
 LCA_RIGHT = 1 << 2
 LCA_STRATEGIC = 1 << 3
+LCA_COOPERATIVE = 1 << 4
+LCA_SPEEDGAIN = 1 << 5
 LCA_KEEPRIGHT = 1 << 6
+# A wish of these reasons moves a driver to another lane (not the sublane model's alignment
+# within its lane); the blocked bits say a vehicle there keeps it from moving now.
+LCA_REASONS = LCA_STRATEGIC | LCA_COOPERATIVE | LCA_SPEEDGAIN | LCA_KEEPRIGHT
+LCA_BLOCKED = 0xF << 9
 # The rate of a keep-right build-up is taken between readings at most this far apart [s].
 KEEP_RIGHT_RATE_WINDOW_S = 1.0
 STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
@@ -274,6 +280,7 @@ class SumoSession:
         self.collisions: list[Collision] = []
         self.teleports: int = 0
         self.departed: list[str] = []
+        self._braking_limited: set[str] = set()  # vTypes whose decel limit_braking set
         self.arrived: list[str] = []
         self.time_s = 0.0
         self.step_length_s = 0.0
@@ -669,16 +676,26 @@ class SumoSession:
         changes for its own route included); it leaves the swarm for its own route. Its speed
         stays commanded (a controller follows with CACC): handed back to SUMO's car-following
         at the platoon's short gap, SUMO braked it at 4.9 m/s^2 to open a gap at once."""
-        vehicle = self.api.vehicle
         self.released.add(vid)
         self.set_modes(vid, None, LC_MODE_DEFAULT)
+        self.limit_braking(vid)
+
+    def limit_braking(self, vid: str) -> None:
+        """Cap ``vid``'s deceleration at ``RELEASED_DECEL_MPS2``: SUMO's own car-following and
+        lane changes may brake at up to decel (4.5 m/s^2 by default); a CAV driven by SUMO
+        stays inside the 4 m/s^2 hard-brake line."""
+        vehicle, vtypes = self.api.vehicle, self.api.vehicletype
         try:
             type_id = vehicle.getTypeID(vid)
-            # SUMO's own lane changes may brake at up to decel (4.5 m/s^2 by default): a CAV,
-            # even one that left the swarm, stays inside the 4 m/s^2 hard-brake line.
-            decel = self.api.vehicletype.getDecel(type_id)
+            decel = vtypes.getDecel(type_id)
             vehicle.setDecel(vid, min(decel, RELEASED_DECEL_MPS2))
-        except Exception:  # vanished: nothing to hand back
+            # ...and its vType's (only CAVs have it), so that the CAVs still to depart are
+            # inserted with it: SUMO braked CAVs inserted at departSpeed="max" at 4.2 m/s^2.
+            base = type_id.split("@")[0]
+            if base not in self._braking_limited:
+                self._braking_limited.add(base)
+                vtypes.setDecel(base, min(vtypes.getDecel(base), RELEASED_DECEL_MPS2))
+        except Exception:  # vanished: nothing to limit
             pass
 
     def reclaim(self, vid: str) -> None:
@@ -789,6 +806,19 @@ class SumoSession:
         except Exception:  # the vehicle left, or a TraCI without the call
             return False
         return state & LCA_RIGHT != 0 and state & LCA_KEEPRIGHT != 0
+
+    def lane_wish(self, vid: str) -> tuple[int, bool]:
+        """The lane ``vid``'s driver wants to move to now, as SUMO's lane-change model shows it
+        (any reason: its route, speed gain, keeping right, cooperation): +1 left, -1 right, 0
+        none; and whether a vehicle there blocks it. (0, False) when it vanished."""
+        try:
+            for direction, side in ((1, LCA_LEFT), (-1, LCA_RIGHT)):
+                state = self.api.vehicle.getLaneChangeState(vid, direction)[0]
+                if state & side and state & LCA_REASONS:
+                    return direction, bool(state & LCA_BLOCKED)
+        except Exception:  # the vehicle left, or a TraCI without the call
+            pass
+        return 0, False
 
     def must_change(self, vid: str, direction: int) -> bool:
         """Does ``vid``'s lane-change model want to move one lane ``direction`` (+1 left, -1

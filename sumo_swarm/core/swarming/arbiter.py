@@ -1,0 +1,268 @@
+"""The swarm's one decision principle (pure): weigh what it could do about a slow vehicle, take
+the best for everyone on the road.
+
+When a slow vehicle holds the platoon (the decision point), each candidate is predicted over a
+horizon of ``horizon_s`` with plain kinematics, and scored in vehicle-metres:
+
+    score = gain of the CAVs over following - others_weight * loss of everyone else
+
+- **follow**: the platoon stays behind the slow vehicle: the reference, score 0. Its pace is
+  the slow vehicle's, rising to what the lane ahead of it allows (a car catching up with a
+  line ahead is not slow for long).
+- **wait**: the slow vehicle's driver will leave the lane: SUMO shows the wish (whatever the
+  reason: keeping right, its route, a faster lane), or a lane beside it is faster by what the
+  platoon would gain there, up to its desired speed (SUMO's speed-gain model weighs the same).
+  It does so within ``LEAVE_S`` and the platoon then drives at the pace ahead of it; a lane
+  pass into the lane it takes is not weighed. Nobody else loses.
+- **lane_pass**: the platoon moves over to a lane beside it and drives at that lane's pace. The
+  others lose the road the platoon takes in that lane: the vehicles behind it there drop back to
+  their secure gaps, each by what exceeds its spare room (:func:`insertion_loss_m`).
+- **cells**: the paper's manoeuvre: the CAVs move up one cell per behaving interval past the
+  slow vehicle, blocking the side lanes' vehicles to the grid's speed while they pass, then
+  drive at the pace ahead of it. The blocked vehicles lose the speed they give up for as long
+  as the pass lasts.
+
+A manoeuvre is taken when its score beats following by ``min_gain_mps`` per CAV for half the
+horizon (MOBIL's incentive threshold for the platoon as a whole); else the platoon follows, and
+the vehicles around are no worse off than under SUMO's own drivers. Units: m, s, m/s.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from sumo_swarm.core.model import RoadSection, VehicleState
+
+__all__ = [
+    "Choice",
+    "Outlook",
+    "PlatoonView",
+    "choose",
+    "insertion_loss_m",
+    "lane_pace_mps",
+    "mean_speed_mps",
+]
+
+# How long [s] a driver that wants to leave its lane takes to be out of it: SUMO's default
+# lane-change duration (lcDuration... the sublane model moves at maxSpeedLat 1 m/s over half a
+# 3.2-3.5 m lane before the vehicle counts in the next) plus a second to find its gap.
+LEAVE_S = 3.0
+# An HV's acceleration while it rises to the pace ahead [m/s^2] (IDM's a is 0.73-1.5, SUMO's
+# default passenger accel 2.6 less its comfortable use).
+HV_ACCEL_MPS2 = 1.0
+# A vehicle's spacing in a lane at speed v: its length plus this standstill gap [m] plus a
+# one-second headway (SUMO's default tau), for the secure gap the others keep.
+MIN_GAP_M = 2.5
+HEADWAY_S = 1.0
+# Vehicles in a lane behind an entry point that can lose road to it: this far behind [m].
+BEHIND_M = 150.0
+
+
+@dataclass(frozen=True)
+class PlatoonView:
+    """The platoon as the arbiter sees it."""
+
+    front: VehicleState
+    tail: VehicleState
+    n_cavs: int
+    cruise_mps: float  # the platoon's cruise, capped
+    lateral_speed_mps: float
+    lane_width_m: float
+
+
+@dataclass(frozen=True)
+class Outlook:
+    """A candidate's prediction: what the CAVs gain over following and what the others lose
+    [vehicle-metres over the horizon]."""
+
+    kind: str  # follow, wait, lane_pass, cells
+    lane: int | None
+    gain_m: float
+    loss_m: float
+    score_m: float
+
+
+@dataclass(frozen=True)
+class Choice:
+    """The candidate taken and every candidate weighed (for the decision's event)."""
+
+    best: Outlook
+    weighed: tuple[Outlook, ...]
+
+
+def mean_speed_mps(v0_mps: float, v1_mps: float, horizon_s: float, accel_mps2: float) -> float:
+    """Mean speed [m/s] over ``horizon_s`` of a vehicle going from ``v0_mps`` to ``v1_mps`` at
+    ``accel_mps2`` (braking at once)."""
+    if horizon_s <= 0.0:
+        return v0_mps
+    if v1_mps <= v0_mps:
+        return v1_mps
+    t_up = (v1_mps - v0_mps) / accel_mps2
+    if t_up >= horizon_s:
+        return v0_mps + 0.5 * accel_mps2 * horizon_s
+    return v1_mps - 0.5 * (v1_mps - v0_mps) * t_up / horizon_s
+
+
+def _ahead_in_lane(
+    s_m: float, others: Sequence[VehicleState], road: RoadSection, lane: int, range_m: float
+) -> list[VehicleState]:
+    """The vehicles in ``lane`` (by their centre) whose front is ahead of ``s_m`` within
+    ``range_m``, nearest first."""
+    found = [
+        o for o in others
+        if s_m < o.s_m <= s_m + range_m and road.lane_of(o) == lane
+    ]  # fmt: skip
+    return sorted(found, key=lambda o: o.s_m)
+
+
+def lane_pace_mps(
+    s_m: float,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    lane: int,
+    *,
+    cap_mps: float,
+    range_m: float,
+    desired_of: Callable[[VehicleState], float],
+    horizon_s: float,
+) -> float:
+    """The mean speed [m/s] over ``horizon_s`` of a platoon whose front is at ``s_m`` in
+    ``lane``: ``cap_mps`` on a free lane; else the nearest vehicle's, rising (at most
+    ``HV_ACCEL_MPS2``) to the lowest desired speed of the vehicles ahead of it within
+    ``range_m`` of it (a line it is catching up with holds it to that line's speed)."""
+    ahead = _ahead_in_lane(s_m, others, road, lane, range_m)
+    if not ahead:
+        return cap_mps
+    nearest = ahead[0]
+    line = [o for o in ahead if o.s_m - nearest.s_m <= range_m]
+    eventual = min(min(desired_of(o), o.speed_mps if o is not nearest else math.inf)
+                   for o in line)  # fmt: skip
+    eventual = min(max(eventual, nearest.speed_mps), cap_mps)
+    return min(cap_mps, mean_speed_mps(max(nearest.speed_mps, 0.0), eventual, horizon_s,
+                                       HV_ACCEL_MPS2))  # fmt: skip
+
+
+def secure_room_m(speed_mps: float) -> float:
+    """The gap [m] a vehicle at ``speed_mps`` keeps to its leader at the same speed."""
+    return MIN_GAP_M + HEADWAY_S * max(speed_mps, 0.0)
+
+
+def insertion_loss_m(
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    lane: int,
+    front_s_m: float,
+    rear_s_m: float,
+) -> float:
+    """The road [vehicle-metres] the vehicles of ``lane`` give up when a platoon spanning
+    ``rear_s_m`` to ``front_s_m`` moves in there: the nearest one behind its front drops back
+    to its secure gap behind the platoon's rear; each one behind it drops back by what that
+    exceeds its own spare room (its gap less the gap it keeps); the first with room to spare
+    stops it."""
+    behind = sorted(
+        (o for o in others
+         if front_s_m - BEHIND_M < o.s_m <= front_s_m and road.lane_of(o) == lane),
+        key=lambda o: -o.s_m,
+    )  # fmt: skip
+    loss, push, ahead_rear = 0.0, 0.0, rear_s_m
+    for i, o in enumerate(behind):
+        if i == 0:
+            push = max(0.0, o.s_m + secure_room_m(o.speed_mps) - rear_s_m)
+        else:
+            spare = ahead_rear - o.s_m - secure_room_m(o.speed_mps)
+            push = max(0.0, push - max(0.0, spare))
+        if push <= 0.0:
+            break
+        loss += push
+        ahead_rear = o.rear_s_m
+    return loss
+
+
+def choose(
+    platoon: PlatoonView,
+    target: VehicleState,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    *,
+    side_lanes: Sequence[int],
+    leaves: bool,
+    cells_pace_mps: float | None,
+    desired_of: Callable[[VehicleState], float],
+    horizon_s: float,
+    range_m: float,
+    others_weight: float,
+    min_gain_mps: float,
+) -> Choice:
+    """Weigh following, waiting (``leaves``: the target's driver wants to leave the lane), a
+    lane pass in each of ``side_lanes`` and the cells (``cells_pace_mps``: the plan's pace past
+    the target above the target's speed; None: no cell plan possible) and take the best (see
+    the module docstring). ``others``: every vehicle but the platoon's CAVs."""
+    n = platoon.n_cavs
+    cap = platoon.cruise_mps
+    others = [o for o in others if o.vehicle_id != target.vehicle_id]
+    pace = dict(
+        cap_mps=cap, range_m=range_m, desired_of=desired_of, horizon_s=horizon_s
+    )  # fmt: skip
+    # The road ahead of the target, once the platoon is past it or it has gone.
+    beyond = lane_pace_mps(target.s_m, others, road, road.lane_of(target), **pace)
+    follow_mps = min(
+        cap,
+        mean_speed_mps(
+            max(target.speed_mps, 0.0), min(desired_of(target), beyond), horizon_s,
+            HV_ACCEL_MPS2,
+        ),
+    )  # fmt: skip
+    weighed = [Outlook("follow", None, 0.0, 0.0, 0.0)]
+    # The target's driver, too, moves to a faster lane beside it when it gains what the platoon
+    # would (MOBIL's incentive, as SUMO's speed-gain model weighs it): it leaves, into that lane.
+    here = road.lane_of(target)
+    beside = {
+        q: lane_pace_mps(target.rear_s_m, others, road, q, **pace)
+        for q in (here - 1, here + 1) if 0 <= q < road.n_lanes
+    }  # fmt: skip
+    own_lane = max(beside, key=lambda q: beside[q], default=None)
+    if (
+        own_lane is not None
+        and min(desired_of(target), beside[own_lane]) - target.speed_mps >= min_gain_mps
+    ):  # fmt: skip
+        leaves = True
+        side_lanes = [q for q in side_lanes if q != own_lane]
+
+    def add(kind: str, lane: int | None, gain: float, loss: float) -> None:
+        weighed.append(Outlook(kind, lane, gain, loss, gain - others_weight * loss))
+
+    if leaves:
+        rest = max(0.0, horizon_s - LEAVE_S)
+        # Half: the platoon rises to the pace ahead over the rest of the horizon.
+        add("wait", None, n * max(0.0, beyond - follow_mps) * rest * 0.5, 0.0)
+    move_s = 0.5 * platoon.lane_width_m / max(platoon.lateral_speed_mps, 0.1)
+    for lane in side_lanes:
+        # A vehicle beside the platoon counts as ahead: it gets in behind it or passes it.
+        lane_mps = lane_pace_mps(platoon.front.rear_s_m, others, road, lane, **pace)
+        gain = n * (lane_mps - follow_mps) * max(0.0, horizon_s - move_s)
+        loss = insertion_loss_m(others, road, lane, platoon.front.s_m, platoon.tail.rear_s_m)
+        add("lane_pass", lane, gain, loss)
+    # The cells pass through the same lanes beside (none usable: no way through).
+    if cells_pace_mps is not None and cells_pace_mps > 0.0 and side_lanes:
+        grid_mps = max(target.speed_mps, 0.0)
+        # Each CAV moves up past the target and the CAVs ahead of it: the platoon's
+        # footprint plus the target's length, at the plan's pace above the grid.
+        pass_s = (platoon.front.s_m - platoon.tail.rear_s_m + target.length_m) / cells_pace_mps
+        during = min(pass_s, horizon_s)
+        after = max(0.0, horizon_s - pass_s)
+        through_mps = min(cap, grid_mps + cells_pace_mps)
+        # Half of the pass: the CAVs pass one after the other, the last at its end.
+        gain = n * (0.5 * (through_mps - follow_mps) * during + (beyond - follow_mps) * after)
+        loss = 0.0
+        lo, hi = platoon.tail.rear_s_m - range_m, target.s_m + range_m
+        for o in others:
+            if lo < o.s_m < hi and road.lane_of(o) in side_lanes:
+                loss += max(0.0, min(o.speed_mps, desired_of(o)) - grid_mps) * during
+        add("cells", None, gain, loss)
+    threshold = n * min_gain_mps * 0.5 * horizon_s
+    best = max(weighed, key=lambda o: o.score_m)
+    if best.kind != "follow" and best.score_m < threshold:
+        best = weighed[0]
+    return Choice(best, tuple(weighed))

@@ -1,0 +1,120 @@
+"""The swarm's one decision principle (core/swarming/arbiter.py) on hand-made scenes."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.swarming.arbiter import (
+    PlatoonView,
+    choose,
+    insertion_loss_m,
+    lane_pace_mps,
+    mean_speed_mps,
+)
+
+ROAD = RoadSection(lane_widths_m=(3.5, 3.5, 3.5))
+
+
+def car(vid: str, s_m: float, lane: int, v: float, *, cav: bool = False) -> VehicleState:
+    return VehicleState(vid, s_m, lane, 0.0, v, 5.0, is_cav=cav)
+
+
+def platoon(n: int = 3, lane: int = 1, front_m: float = 200.0, v: float = 20.0) -> PlatoonView:
+    cavs = [car(f"c{i}", front_m - 15.0 * i, lane, v, cav=True) for i in range(n)]
+    return PlatoonView(front=cavs[0], tail=cavs[-1], n_cavs=n, cruise_mps=30.0,
+                       lateral_speed_mps=1.0, lane_width_m=3.5)  # fmt: skip
+
+
+def weigh(view, target, others, desired=None, **kw):
+    desired = desired or {}
+    args = dict(
+        side_lanes=[0, 2], leaves=False, cells_pace_mps=5.0,
+        desired_of=lambda v: desired.get(v.vehicle_id, 30.0), horizon_s=20.0, range_m=90.0,
+        others_weight=1.0, min_gain_mps=2.0,
+    )  # fmt: skip
+    args.update(kw)
+    return choose(view, target, others, ROAD, **args)
+
+
+def test_mean_speed_of_a_vehicle_speeding_up_over_the_horizon():
+    # 10 -> 20 m/s at 1 m/s^2: 10 s up (mean 15) then 10 s at 20: mean 17.5
+    assert mean_speed_mps(10.0, 20.0, 20.0, 1.0) == pytest.approx(17.5)
+    assert mean_speed_mps(10.0, 40.0, 10.0, 1.0) == pytest.approx(15.0)  # still rising
+    assert mean_speed_mps(20.0, 10.0, 20.0, 1.0) == 10.0  # braking: at once
+
+
+def test_a_free_lane_runs_at_the_cap_and_a_line_ahead_holds_it_to_its_slowest_wish():
+    others = [car("a", 260.0, 0, 25.0), car("b", 280.0, 0, 25.0)]
+    pace = dict(cap_mps=30.0, range_m=90.0, horizon_s=20.0)
+    assert lane_pace_mps(200.0, others, ROAD, 2, desired_of=lambda v: 40.0, **pace) == 30.0
+    slow = {"a": 40.0, "b": 22.0}  # a wants 40 but b, ahead of it, wants 22 (below a's 25)
+    got = lane_pace_mps(200.0, others, ROAD, 0, desired_of=lambda v: slow[v.vehicle_id], **pace)
+    assert got == pytest.approx(25.0)  # never below the nearest one's speed now
+
+
+def test_insertion_loss_is_what_the_followers_must_drop_back():
+    # Platoon spans 170..200 in lane 0; a follower at 180 (20 m/s) must be 2.5 + 20 = 22.5 m
+    # behind 170 - it drops back 180 + 22.5 - 170 = 32.5 m; the next, at 100 with 75 m of
+    # room behind the first's rear (175 - 100) less its 22.5 m gap, has 52.5 m spare: stops it.
+    others = [car("f1", 180.0, 0, 20.0), car("f2", 100.0, 0, 20.0)]
+    assert insertion_loss_m(others, ROAD, 0, 200.0, 170.0) == pytest.approx(32.5)
+    # a second follower close behind the first takes on what exceeds its spare room
+    close = [car("f1", 180.0, 0, 20.0), car("f2", 170.0, 0, 20.0)]
+    # f2's room: 175 - 170 - 22.5 < 0: drops back the same 32.5
+    assert insertion_loss_m(close, ROAD, 0, 200.0, 170.0) == pytest.approx(65.0)
+    assert insertion_loss_m(others, ROAD, 2, 200.0, 170.0) == 0.0  # nobody there
+
+
+def test_a_free_lane_beside_a_truck_is_passed_in():
+    view = platoon()
+    truck = car("truck", 215.0, 1, 20.0)
+    choice = weigh(view, truck, [truck], desired={"truck": 20.0})
+    assert choice.best.kind == "lane_pass" and choice.best.loss_m == 0.0
+    # 3 CAVs x (30 - 20) m/s x (20 s - 1.75 s moving over)
+    assert choice.best.gain_m == pytest.approx(3 * 10.0 * (20.0 - 1.75))
+
+
+def test_a_car_that_will_pass_its_own_leader_is_waited_for():
+    view = platoon()
+    target = car("t", 215.0, 1, 20.0)
+    # it wants 30 m/s and lane 2 beside it is free: SUMO's speed gain will take it there;
+    # lane 0 is as slow as the target
+    right = [car("r", 230.0, 0, 20.0)]
+    choice = weigh(view, target, [target, *right], desired={"t": 30.0, "r": 20.0})
+    kinds = {o.kind + ("" if o.lane is None else f"@{o.lane}") for o in choice.weighed}
+    assert "wait" in kinds and "lane_pass@2" not in kinds  # not the lane it takes
+    assert choice.best.kind == "wait"
+
+
+def test_when_every_lane_is_as_slow_the_platoon_follows():
+    view = platoon()
+    target = car("t", 215.0, 1, 20.0)
+    side = [car("l", 222.0, 2, 20.0), car("r", 222.0, 0, 20.0)]
+    desired = {"t": 20.0, "l": 20.0, "r": 20.0}
+    choice = weigh(view, target, [target, *side], desired=desired, cells_pace_mps=None)
+    assert choice.best.kind == "follow"
+
+
+def test_blocking_dense_side_lanes_costs_more_than_it_gains():
+    view = platoon(n=2)
+    target = car("t", 215.0, 1, 20.0)
+    # side lanes: a dense stream at 28 m/s beside and behind the platoon
+    side = [car(f"{side}{i}", 210.0 - 20.0 * i, lane, 28.0)
+            for lane, side in ((0, "r"), (2, "l")) for i in range(8)]  # fmt: skip
+    choice = weigh(view, target, [target, *side], desired={"t": 20.0})
+    cells = next(o for o in choice.weighed if o.kind == "cells")
+    assert cells.loss_m > cells.gain_m
+    assert choice.best.kind != "cells"
+
+
+def test_no_manoeuvre_below_the_incentive_threshold():
+    view = platoon(n=2)
+    target = car("t", 215.0, 1, 29.0)  # 1 m/s below the cruise: gain 2 x 1 x 18.25 = 36.5 m
+    choice = weigh(view, target, [target], desired={"t": 29.0})
+    lane = max((o for o in choice.weighed if o.kind == "lane_pass"), key=lambda o: o.score_m)
+    assert 0.0 < lane.score_m < 2 * 2.0 * 0.5 * 20.0
+    assert choice.best.kind == "follow"
+    assert math.isclose(choice.weighed[0].score_m, 0.0)
