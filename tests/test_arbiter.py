@@ -24,7 +24,7 @@ def car(vid: str, s_m: float, lane: int, v: float, *, cav: bool = False) -> Vehi
 
 def platoon(n: int = 3, lane: int = 1, front_m: float = 200.0, v: float = 20.0) -> PlatoonView:
     cavs = [car(f"c{i}", front_m - 15.0 * i, lane, v, cav=True) for i in range(n)]
-    return PlatoonView(front=cavs[0], tail=cavs[-1], n_cavs=n, cruise_mps=30.0,
+    return PlatoonView(front=cavs[0], tail=cavs[-1], n_cavs=n, cavs=tuple(cavs), cruise_mps=30.0,
                        lateral_speed_mps=1.0, lane_width_m=3.5)  # fmt: skip
 
 
@@ -80,13 +80,20 @@ def test_a_free_lane_beside_a_truck_is_passed_in():
 def test_a_car_that_will_pass_its_own_leader_is_waited_for():
     view = platoon()
     target = car("t", 215.0, 1, 20.0)
-    # it wants 30 m/s and lane 2 beside it is free: SUMO's speed gain will take it there;
-    # lane 0 is as slow as the target
-    right = [car("r", 230.0, 0, 20.0)]
-    choice = weigh(view, target, [target, *right], desired={"t": 30.0, "r": 20.0})
-    kinds = {o.kind + ("" if o.lane is None else f"@{o.lane}") for o in choice.weighed}
-    assert "wait" in kinds and "lane_pass@2" not in kinds  # not the lane it takes
+    # it wants 30 m/s, a car at 21 m/s holds it, lane 2 beside it is free: SUMO's speed gain
+    # will take it there
+    ahead, right = car("x", 250.0, 1, 21.0), car("r", 230.0, 0, 20.0)
+    desired = {"t": 30.0, "x": 21.0, "r": 20.0}
+    choice = weigh(view, target, [target, ahead, right], desired=desired)
     assert choice.best.kind == "wait"
+    assert [o.kind for o in choice.weighed] == ["follow", "wait"]  # nothing else weighed
+    # the same car wanting only what its lane ahead gives: it stays, and is weighed for
+    desired["t"] = 20.0
+    stays = weigh(view, target, [target, ahead, right], desired=desired)
+    assert "wait" not in {o.kind for o in stays.weighed}
+    # SUMO shows a wish: a truck that keeps right, the lane on its right free
+    truck = weigh(view, target, [target, ahead, right], desired=desired, leaves=True)
+    assert truck.best.kind == "wait"
 
 
 def test_when_every_lane_is_as_slow_the_platoon_follows():
@@ -112,8 +119,9 @@ def test_blocking_dense_side_lanes_costs_more_than_it_gains():
 
 def test_no_manoeuvre_below_the_incentive_threshold():
     view = platoon(n=2)
-    target = car("t", 215.0, 1, 29.0)  # 1 m/s below the cruise: gain 2 x 1 x 18.25 = 36.5 m
-    choice = weigh(view, target, [target], desired={"t": 29.0})
+    # 1 m/s below the cruise, held there by a car ahead: gain 2 x 1 x 18.25 = 36.5 m
+    target, ahead = car("t", 215.0, 1, 29.0), car("x", 260.0, 1, 29.0)
+    choice = weigh(view, target, [target, ahead], desired={"t": 29.0, "x": 29.0})
     lane = max((o for o in choice.weighed if o.kind == "lane_pass"), key=lambda o: o.score_m)
     assert 0.0 < lane.score_m < 2 * 2.0 * 0.5 * 20.0
     assert choice.best.kind == "follow"

@@ -173,6 +173,7 @@ class Decider:
         cells_mps = sc.cell_length_m / interval if math.isfinite(interval) else None
         view = PlatoonView(
             front=leader, tail=tail, n_cavs=len(platoon),
+            cavs=tuple(sorted((states[v] for v in platoon), key=lambda st: -st.s_m)),
             cruise_mps=min(sc.cav.cruising_speed_mps, self.cap_mps),
             lateral_speed_mps=sc.cav.max_lateral_speed_mps,
             lane_width_m=road.lane_widths_m[lane],

@@ -330,6 +330,8 @@ class SwarmController:
                 self._start_lane_pass(t_s, target, best.lane, platoon)
             elif best.kind == "cells":
                 self._start_overtake(t_s, target, platoon)
+            elif best.kind == "one_by_one":
+                self._start_one_by_one(t_s, target, platoon)
             else:  # follow, or wait for it to leave: asked again after trigger_after_s
                 self.decider.watch.since_s = t_s
             return
@@ -515,6 +517,16 @@ class SwarmController:
             return True
         y_lane = road.lane_centre_y(self.regroup_lane_used)
         return all(abs(road.y_of(c.lane, c.lat_m) - y_lane) <= tol for c in cavs.values())
+
+    def _start_one_by_one(self, t_s: float, target: VehicleState, platoon: list[str]) -> None:
+        """The CAVs pass ``target`` one by one, each through the guards when its gap comes, and
+        re-form the platoon ahead (the reformer's passing alone); the book sees it through."""
+        self._count_manoeuvre(t_s, target.vehicle_id)
+        self.decider.new_target()
+        until_s = t_s + self.ctx.scenario.swarm.pass_singly_s
+        self.reformer.singly = (target.vehicle_id, until_s)
+        self.book.start(t_s, "one_by_one", target.vehicle_id, platoon, watched=True,
+                        until_s=until_s)  # fmt: skip
 
     # ------------------------------------------------------------------ passing in a lane
     def _start_lane_pass(

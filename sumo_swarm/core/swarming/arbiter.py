@@ -12,11 +12,17 @@ horizon of ``horizon_s`` with plain kinematics, and scored in vehicle-metres:
 - **wait**: the slow vehicle's driver will leave the lane: SUMO shows the wish (whatever the
   reason: keeping right, its route, a faster lane), or a lane beside it is faster by what the
   platoon would gain there, up to its desired speed (SUMO's speed-gain model weighs the same).
-  It does so within ``LEAVE_S`` and the platoon then drives at the pace ahead of it; a lane
-  pass into the lane it takes is not weighed. Nobody else loses.
-- **lane_pass**: the platoon moves over to a lane beside it and drives at that lane's pace. The
-  others lose the road the platoon takes in that lane: the vehicles behind it there drop back to
-  their secure gaps, each by what exceeds its spare room (:func:`insertion_loss_m`).
+  It does so within ``LEAVE_S`` and the platoon then drives at the pace ahead of it. Nobody
+  else loses, and nothing else is weighed: a target that leaves is not passed (whatever passing
+  it gains, waiting gains too; on a motorway, manoeuvres on such targets ended when they left).
+- **lane_pass**: the platoon moves over to a lane beside it and drives at that lane's pace,
+  once the vehicles beside it there (or too close behind it) have passed: the guards let them
+  by, and a lane whose vehicles never pass (no faster than the platoon) is not weighed. The
+  vehicles further behind lose the road the platoon takes: each drops back to its secure gap by
+  what exceeds its spare room (:func:`insertion_loss_m`).
+- **one_by_one**: each CAV moves over where it is and passes in its fastest lane beside, the
+  others losing what each CAV's own length takes; ahead, the platoon re-forms, each CAV but the
+  first giving up a vehicle's spacing to close up.
 - **cells**: the paper's manoeuvre: the CAVs move up one cell per behaving interval past the
   slow vehicle, blocking the side lanes' vehicles to the grid's speed while they pass, then
   drive at the pace ahead of it. The blocked vehicles lose the speed they give up for as long
@@ -67,6 +73,7 @@ class PlatoonView:
     front: VehicleState
     tail: VehicleState
     n_cavs: int
+    cavs: tuple[VehicleState, ...]  # front first
     cruise_mps: float  # the platoon's cruise, capped
     lateral_speed_mps: float
     lane_width_m: float
@@ -200,6 +207,7 @@ def choose(
     the target above the target's speed; None: no cell plan possible) and take the best (see
     the module docstring). ``others``: every vehicle but the platoon's CAVs."""
     n = platoon.n_cavs
+    cavs = platoon.cavs
     cap = platoon.cruise_mps
     others = [o for o in others if o.vehicle_id != target.vehicle_id]
     pace = dict(
@@ -228,33 +236,77 @@ def choose(
         and min(desired_of(target), beside[own_lane]) - target.speed_mps >= min_gain_mps
     ):  # fmt: skip
         leaves = True
-        side_lanes = [q for q in side_lanes if q != own_lane]
 
     def add(kind: str, lane: int | None, gain: float, loss: float) -> None:
         weighed.append(Outlook(kind, lane, gain, loss, gain - others_weight * loss))
 
     if leaves:
+        # A target that leaves is not passed: whatever passing it gains, waiting gains too, and
+        # a manoeuvre on it ends when it goes (on a motorway most of them did).
         rest = max(0.0, horizon_s - LEAVE_S)
         # Half: the platoon rises to the pace ahead over the rest of the horizon.
         add("wait", None, n * max(0.0, beyond - follow_mps) * rest * 0.5, 0.0)
+        return Choice(weighed[-1], tuple(weighed))
     move_s = 0.5 * platoon.lane_width_m / max(platoon.lateral_speed_mps, 0.1)
     for lane in side_lanes:
-        # A vehicle beside the platoon counts as ahead: it gets in behind it or passes it.
-        lane_mps = lane_pace_mps(platoon.front.rear_s_m, others, road, lane, **pace)
-        gain = n * (lane_mps - follow_mps) * max(0.0, horizon_s - move_s)
-        loss = insertion_loss_m(others, road, lane, platoon.front.s_m, platoon.tail.rear_s_m)
+        # The platoon moves over where nobody must brake for it: a vehicle beside it there, or
+        # closer behind its rear than its own secure gap, passes first (the guards wait for
+        # it); one no faster than the platoon never does, and the pass waits.
+        lane_mps = lane_pace_mps(platoon.front.s_m, others, road, lane, **pace)
+        first = [
+            o for o in others
+            if road.lane_of(o) == lane and o.rear_s_m < platoon.front.s_m + MIN_GAP_M
+            and o.s_m > platoon.tail.rear_s_m - secure_room_m(o.speed_mps)
+        ]  # fmt: skip
+        clear_s = max(
+            (
+                (platoon.front.s_m + MIN_GAP_M - o.rear_s_m) / (o.speed_mps - follow_mps)
+                if o.speed_mps > follow_mps + 0.5 else math.inf
+                for o in first
+            ),
+            default=0.0,
+        )
+        if clear_s >= horizon_s - move_s:
+            continue
+        lane_mps = min([lane_mps, *(min(o.speed_mps, desired_of(o)) for o in first)])
+        gain = n * (lane_mps - follow_mps) * (horizon_s - move_s - clear_s)
+        rest = [o for o in others if o not in first]
+        loss = insertion_loss_m(rest, road, lane, platoon.front.s_m, platoon.tail.rear_s_m)
         add("lane_pass", lane, gain, loss)
+    # One by one: each CAV moves over where it is, when its own gap comes, in the lane beside
+    # that is fastest for it, one behaving move after the other; the others lose the road each
+    # CAV takes (insertion_loss_m for its own length); ahead, the platoon re-forms, each CAV but
+    # the first giving up a vehicle's spacing to close up again.
+    if n > 1 and side_lanes:
+        gain = loss = 0.0
+        for i, cav in enumerate(cavs):
+            paces = {
+                q: lane_pace_mps(cav.rear_s_m, others, road, q, **pace) for q in side_lanes
+            }  # fmt: skip
+            q = max(paces, key=lambda k: paces[k])
+            gain += (paces[q] - follow_mps) * max(0.0, horizon_s - move_s * (i + 1))
+            loss += insertion_loss_m(others, road, q, cav.s_m, cav.rear_s_m)
+        regroup = (n - 1) * (platoon.front.length_m + secure_room_m(follow_mps))
+        add("one_by_one", None, gain - regroup, loss)
     # The cells pass through the same lanes beside (none usable: no way through).
     if cells_pace_mps is not None and cells_pace_mps > 0.0 and side_lanes:
-        grid_mps = max(target.speed_mps, 0.0)
+        # The grid moves with the target: at its predicted pace (a target speeding up takes
+        # the grid, and the CAVs in it, along; passing it then gains little).
+        grid_mps = follow_mps
         # Each CAV moves up past the target and the CAVs ahead of it: the platoon's
         # footprint plus the target's length, at the plan's pace above the grid.
         pass_s = (platoon.front.s_m - platoon.tail.rear_s_m + target.length_m) / cells_pace_mps
         during = min(pass_s, horizon_s)
         after = max(0.0, horizon_s - pass_s)
-        through_mps = min(cap, grid_mps + cells_pace_mps)
-        # Half of the pass: the CAVs pass one after the other, the last at its end.
-        gain = n * (0.5 * (through_mps - follow_mps) * during + (beyond - follow_mps) * after)
+        # ...and no faster than the lanes it passes in let it (blocking holds back who is
+        # behind, not who is ahead).
+        side_mps = max(
+            lane_pace_mps(platoon.front.s_m, others, road, q, **pace) for q in side_lanes
+        )  # fmt: skip
+        through_mps = min(cap, grid_mps + cells_pace_mps, max(side_mps, grid_mps))
+        # Every CAV moves up a cell per behaving interval at once: at the grid's speed plus the
+        # plan's pace while the pass lasts (the front ones are through sooner: a lower bound).
+        gain = n * ((through_mps - follow_mps) * during + (beyond - follow_mps) * after)
         loss = 0.0
         lo, hi = platoon.tail.rear_s_m - range_m, target.s_m + range_m
         for o in others:
