@@ -131,7 +131,7 @@ def test_a_good_scene_passes_every_check():
         ({"safety__hard_brakes_hv": 2}, "hard_brakes"),  # one more HV than under cacc
         ({"safety__hard_brakes_cav": 1}, "hard_brakes"),
         ({"cav__max_speed_mps": 25.11}, "max_speed"),
-        ({"overtake__blocked_hv_min_accel_mps2": -2.01}, "blocked_hv_brake"),
+        ({"overtake__blocked_hv_min_accel_mps2": -2.11}, "blocked_hv_brake"),
         ({"cav__mean_speed_mps": 17.0}, "mean_speed"),  # equal is not above
         ({"timing__wall_s": 6.01}, "run_cost"),
         ({"planner__solve_ms_p95": 50.5}, "planner_p95"),
@@ -149,7 +149,7 @@ def test_each_check_fails_on_its_own(change, check):
 def test_bounds_themselves_pass():
     at_bounds = {
         "cav__gap_min_m": 5.0, "cav__max_speed_mps": 25.1, "timing__wall_s": 6.0,
-        "overtake__blocked_hv_min_accel_mps2": -2.0, "planner__solve_ms_p95": 50.0,
+        "overtake__blocked_hv_min_accel_mps2": -2.1, "planner__solve_ms_p95": 50.0,
         "planner__solve_ms_max": 250.0,
     }  # fmt: skip
     verdicts = _judge(_summary(**at_bounds))
@@ -354,3 +354,39 @@ _NUMBERS = {
     "planner_p95": ("solve_ms_p95", "replans", "lateral_holds"),
     "planner_max": ("solve_ms_max", "replans"),
 }
+
+
+def _family(gains_pct):
+    cacc = 20.0
+    return pd.DataFrame({
+        "mean_speed_cacc_mps": [cacc] * len(gains_pct),
+        "mean_speed_mps": [cacc * (1 + g / 100) for g in gains_pct],
+    })  # fmt: skip
+
+
+def test_a_family_is_judged_by_its_distribution():
+    # mean 13.25 %, one scene 0.5 % below cacc (within 1 %), none 5 % below: passes
+    good = vr.family_verdict(_family([20, 20, 20, 20, 10, 10, 10, 10, 13, -0.5] * 2))
+    assert set(good["verdict"]) - {""} == {vr.PASS}
+    got = dict(zip(good["measure"], good["value"], strict=True))
+    assert got["mean gain over cacc [%]"] == pytest.approx(13.25)
+    assert got["worst gain over cacc [%]"] == pytest.approx(-0.5)
+
+
+@pytest.mark.parametrize(
+    ("gains", "failing"),
+    [
+        ([11.0] * 20, "mean gain over cacc [%]"),  # every scene wins, the mean too little
+        ([14.0] * 18 + [-2.0, -2.0], "share within 1 % of cacc or better"),  # 90 % within
+        ([15.0] * 39 + [-6.0], "worst gain over cacc [%]"),  # one scene 6 % below
+    ],
+)
+def test_each_family_bound_fails_on_its_own(gains, failing):
+    verdict = vr.family_verdict(_family(gains))
+    failed = verdict.loc[verdict["verdict"] == vr.FAIL, "measure"].tolist()
+    assert failed == [failing]
+
+
+def test_a_family_without_speeds_fails():
+    verdict = vr.family_verdict(pd.DataFrame({"mean_speed_mps": [float("nan")]}))
+    assert (verdict["verdict"] == vr.FAIL).any()

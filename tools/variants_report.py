@@ -12,7 +12,7 @@ For every scene, its ``swarm`` run against its ``cacc`` run:
 - ``min_gap``: min CAV-to-CAV gap (``cav.gap_min_cav_m``; ``cav.gap_min_m`` in older summaries)
   >= 5 m; the gap behind HVs, which may cut in, is reported apart (``gap_min_hv_m``);
 - ``max_speed``: no CAV above the scenario's ``cav.max_speed_mps`` (+0.1 m/s);
-- ``blocked_hv_brake``: ``overtake.blocked_hv_min_accel_mps2`` >= -b_safe (the scenario's
+- ``blocked_hv_brake``: ``overtake.blocked_hv_min_accel_mps2`` >= -(b_safe + 0.1) (the scenario's
   ``[hvmodel] b_safe_mps2``, 2.0 m/s^2 where the key does not exist); null = no HV blocked;
 - ``mean_speed``: the swarm's mean CAV speed above cacc's;
 - ``run_cost``: the swarm run's cost <= 3x the cacc run's: process time (``timing.cpu_s``,
@@ -31,6 +31,10 @@ sign of whether a safe overtake of the whole platoon was there to be had. It jud
 A verdict is ``pass``, ``FAIL`` or ``n/a`` (a summary field the check needs is missing: not a
 pass). ``lateral_holds`` is reported per run (``overtake.lateral_holds``, else the number of
 ``lateral_hold`` events in the run's events.jsonl) and over the sweep (median, p95, max).
+
+The family is judged by its distribution (issue 51): the swarm's mean gain over cacc >= 12 %, at
+least 95 % of the scenes within 1 % of cacc or better, none more than 5 % below
+(:func:`family_verdict`).
 
 Writes variants.md and variants.csv into DIR (``--to`` another folder: ``--to docs/bench``
 publishes them); exit status 0 when every check of every scene passes, 1 otherwise, 2 on bad
@@ -56,6 +60,7 @@ from sumo_swarm.sim.metrics import HARD_BRAKE_MPS2
 from sumo_swarm.sim.summary import pass_times_s
 
 TARGET = "hv_target"  # the paper scene's slow vehicle
+BLOCKED_REACTION_MPS2 = 0.1  # a blocked HV may brake this much beyond b_safe (one step)
 PASS, FAIL, NA = "pass", "FAIL", "n/a"
 CHECKS = (
     "ran",
@@ -264,7 +269,8 @@ def judge_scene(
     elif blocked is None:
         out["blocked_hv_brake"] = PASS  # no HV was blocked
     else:
-        out["blocked_hv_brake"] = _at_least(blocked, -b_safe_mps2)
+        # one SUMO step of reaction: b_safe + 0.1 m/s^2 (issue 51, item 4)
+        out["blocked_hv_brake"] = _at_least(blocked, -b_safe_mps2 - BLOCKED_REACTION_MPS2)
     out["mean_speed_mps"] = _number(field(s, "cav.mean_speed_mps"))
     out["mean_speed_cacc_mps"] = _number(field(c, "cav.mean_speed_mps"))
     if out["mean_speed_mps"] is None or out["mean_speed_cacc_mps"] is None:
@@ -535,6 +541,42 @@ def verdict_table(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+# Issue 51, item 4: a family of scenes is judged by its distribution of the swarm's gain over
+# cacc (mean CAV speed): the mean must win, nearly every scene be no worse, none much worse.
+FAMILY_MEAN_GAIN_PCT = 12.0
+FAMILY_WITHIN_PCT = -1.0  # "within 1 % of cacc or better"
+FAMILY_WITHIN_SHARE = 0.95
+FAMILY_WORST_PCT = -5.0
+
+
+def family_verdict(table: pd.DataFrame) -> pd.DataFrame:
+    """The family's distribution of the swarm's gain over cacc [%] (``mean_speed_mps`` against
+    ``mean_speed_cacc_mps`` per scene), each figure beside its bound and verdict: mean gain >=
+    FAMILY_MEAN_GAIN_PCT, a share >= FAMILY_WITHIN_SHARE of the scenes within 1 % of cacc or
+    better, the worst no more than 5 % below. Scenes without both speeds are left out (their
+    count is a row)."""
+    swarm = pd.to_numeric(table.get("mean_speed_mps"), errors="coerce")
+    cacc = pd.to_numeric(table.get("mean_speed_cacc_mps"), errors="coerce")
+    gain = (100.0 * (swarm / cacc - 1.0)).dropna()
+    if gain.empty:
+        return pd.DataFrame(
+            [("scenes with both speeds", 0, ">= 1", FAIL)],
+            columns=["measure", "value", "bound", "verdict"],
+        )
+    within = float((gain >= FAMILY_WITHIN_PCT).mean())
+    rows = [
+        ("scenes with both speeds", len(gain), ">= 1", PASS),
+        ("mean gain over cacc [%]", round(gain.mean(), 2), f">= {FAMILY_MEAN_GAIN_PCT:g}",
+         PASS if gain.mean() >= FAMILY_MEAN_GAIN_PCT else FAIL),
+        ("share within 1 % of cacc or better", round(within, 3), f">= {FAMILY_WITHIN_SHARE:g}",
+         PASS if within >= FAMILY_WITHIN_SHARE else FAIL),
+        ("worst gain over cacc [%]", round(gain.min(), 2), f">= {FAMILY_WORST_PCT:g}",
+         PASS if gain.min() >= FAMILY_WORST_PCT else FAIL),
+        ("median gain over cacc [%]", round(gain.median(), 2), "", ""),
+    ]  # fmt: skip
+    return pd.DataFrame(rows, columns=["measure", "value", "bound", "verdict"])
+
+
 def render(table: pd.DataFrame, folder: Path) -> str:
     checks = check_table(table)
     md = [
@@ -547,6 +589,10 @@ def render(table: pd.DataFrame, folder: Path) -> str:
         "## Per check",
         "",
         checks.to_markdown(index=False),
+        "",
+        "## The family (issue 51: judged by its distribution)",
+        "",
+        family_verdict(table).to_markdown(index=False),
         "",
         "## Over the sweep",
         "",
@@ -580,10 +626,14 @@ def main(argv: list[str] | None = None) -> int:
     (args.to / "variants.md").write_text(md, encoding="utf-8")
     print(check_table(table).to_markdown(index=False))
     print()
+    family = family_verdict(table)
+    print(family.to_markdown(index=False))
+    print()
     print(sweep_figures(table).to_markdown(index=False))
     print()
     print(verdict_table(table).to_markdown(index=False))
-    return 0 if (table["all"] == PASS).all() else 1
+    family_ok = not (family["verdict"] == FAIL).any()
+    return 0 if (table["all"] == PASS).all() and family_ok else 1
 
 
 if __name__ == "__main__":
