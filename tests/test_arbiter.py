@@ -126,3 +126,58 @@ def test_no_manoeuvre_below_the_incentive_threshold():
     assert 0.0 < lane.score_m < 2 * 2.0 * 0.5 * 20.0
     assert choice.best.kind == "follow"
     assert math.isclose(choice.weighed[0].score_m, 0.0)
+
+
+def test_others_weight_trades_their_loss_against_the_cavs_gain():
+    # Side lanes of 24 m/s traffic beside and behind the platoon: the cells block them to the
+    # grid's 20 m/s while the pass lasts (8 vehicles x 4 m/s x 8 s = 256 m lost), a lane pass
+    # waits for them to go by first.
+    view = platoon(n=3)
+    target = car("t", 215.0, 1, 20.0)
+    side = [car(f"{name}{i}", 205.0 - 30.0 * i, lane, 24.0)
+            for lane, name in ((0, "r"), (2, "l")) for i in range(4)]  # fmt: skip
+    counted = weigh(view, target, [target, *side], desired={"t": 20.0})
+    cells = next(o for o in counted.weighed if o.kind == "cells")
+    assert cells.loss_m == pytest.approx(8 * 4.0 * 8.0)
+    assert counted.best.kind == "cells"  # 480 m gained against 256 m lost
+    careful = weigh(view, target, [target, *side], desired={"t": 20.0}, others_weight=2.0)
+    assert careful.best.kind == "one_by_one"  # 480 - 2 x 256 < 0
+
+
+def test_a_short_horizon_sees_no_pass_paying():
+    view = platoon()
+    truck = car("truck", 215.0, 1, 20.0)
+    # moving over takes 1.75 s: within 1.5 s no lane pass gains anything
+    short = weigh(view, truck, [truck], desired={"truck": 20.0}, horizon_s=1.5,
+                  cells_pace_mps=None)  # fmt: skip
+    assert short.best.kind == "follow"
+    assert [o.kind for o in short.weighed] == ["follow", "one_by_one"]
+    long = weigh(view, truck, [truck], desired={"truck": 20.0}, horizon_s=20.0,
+                 cells_pace_mps=None)  # fmt: skip
+    assert long.best.kind == "lane_pass"
+
+
+@pytest.mark.sumo
+def test_the_paper_trigger_and_the_weighing_start_the_same_paper_overtake(tmp_path):
+    """[swarm] decide = "paper" (the paper's trigger) and the default weighing both start the
+    cells on the paper scene at 3.03 s; only the weighing says why (overtake_weighed)."""
+    import json
+
+    from sumo_swarm.config import load_scenario
+    from sumo_swarm.sim.runner import run_scenario
+    from tests.conftest import PAPER
+
+    events = {}
+    for decide in ("weigh", "paper"):
+        sc = load_scenario(PAPER, overrides={"swarm": {"decide": decide},
+                                             "simulation": {"duration_s": 12.0},
+                                             "evaluation": {"end_s": 12.0}})  # fmt: skip
+        run_scenario(sc, "swarm", tmp_path / decide, progress=False)
+        lines = (tmp_path / decide / "events.jsonl").read_text().splitlines()
+        events[decide] = [json.loads(line) for line in lines]
+    for decide, evs in events.items():
+        start = next(e for e in evs if e["event"] == "overtake_start")
+        assert (start["kind"], start["time_s"]) == ("cells", pytest.approx(3.03)), decide
+    weighed = [e for e in events["weigh"] if e["event"] == "overtake_weighed"]
+    assert [e["chosen"] for e in weighed] == ["cells"]
+    assert not any(e["event"] == "overtake_weighed" for e in events["paper"])

@@ -248,44 +248,51 @@ def choose(
         add("wait", None, n * max(0.0, beyond - follow_mps) * rest * 0.5, 0.0)
         return Choice(weighed[-1], tuple(weighed))
     move_s = 0.5 * platoon.lane_width_m / max(platoon.lateral_speed_mps, 0.1)
-    for lane in side_lanes:
-        # The platoon moves over where nobody must brake for it: a vehicle beside it there, or
-        # closer behind its rear than its own secure gap, passes first (the guards wait for
-        # it); one no faster than the platoon never does, and the pass waits.
-        lane_mps = lane_pace_mps(platoon.front.s_m, others, road, lane, **pace)
+
+    def move_over(front: VehicleState, rear_s_m: float, lane: int, after_s: float):
+        """``(gain per CAV, loss)`` of moving the CAVs from ``front`` back to ``rear_s_m``
+        over to ``lane`` at ``after_s`` into the horizon; None: not within it. They move where
+        nobody must brake for them: a vehicle beside them there, or closer behind than its own
+        secure gap, passes first (the guards wait for it); one no faster than them never
+        does. The vehicles further behind lose the road they take (:func:`insertion_loss_m`)."""
         first = [
             o for o in others
-            if road.lane_of(o) == lane and o.rear_s_m < platoon.front.s_m + MIN_GAP_M
-            and o.s_m > platoon.tail.rear_s_m - secure_room_m(o.speed_mps)
+            if road.lane_of(o) == lane and o.rear_s_m < front.s_m + MIN_GAP_M
+            and o.s_m > rear_s_m - secure_room_m(o.speed_mps)
         ]  # fmt: skip
         clear_s = max(
             (
-                (platoon.front.s_m + MIN_GAP_M - o.rear_s_m) / (o.speed_mps - follow_mps)
+                (front.s_m + MIN_GAP_M - o.rear_s_m) / (o.speed_mps - follow_mps)
                 if o.speed_mps > follow_mps + 0.5 else math.inf
                 for o in first
             ),
             default=0.0,
         )
-        if clear_s >= horizon_s - move_s:
-            continue
+        left_s = horizon_s - after_s - move_s - clear_s
+        if left_s <= 0.0:
+            return None
+        lane_mps = lane_pace_mps(front.s_m, others, road, lane, **pace)
         lane_mps = min([lane_mps, *(min(o.speed_mps, desired_of(o)) for o in first)])
-        gain = n * (lane_mps - follow_mps) * (horizon_s - move_s - clear_s)
         rest = [o for o in others if o not in first]
-        loss = insertion_loss_m(rest, road, lane, platoon.front.s_m, platoon.tail.rear_s_m)
-        add("lane_pass", lane, gain, loss)
-    # One by one: each CAV moves over where it is, when its own gap comes, in the lane beside
-    # that is fastest for it, one behaving move after the other; the others lose the road each
-    # CAV takes (insertion_loss_m for its own length); ahead, the platoon re-forms, each CAV but
-    # the first giving up a vehicle's spacing to close up again.
+        return (lane_mps - follow_mps) * left_s, insertion_loss_m(
+            rest, road, lane, front.s_m, rear_s_m
+        )
+
+    for lane in side_lanes:
+        moved = move_over(platoon.front, platoon.tail.rear_s_m, lane, 0.0)
+        if moved is not None:
+            add("lane_pass", lane, n * moved[0], moved[1])
+    # One by one: each CAV moves over on its own, one lane move after the other, into the lane
+    # beside that pays it most (as a lane pass of one); ahead, the platoon re-forms, each CAV
+    # but the first giving up a vehicle's spacing to close up again.
     if n > 1 and side_lanes:
         gain = loss = 0.0
         for i, cav in enumerate(cavs):
-            paces = {
-                q: lane_pace_mps(cav.rear_s_m, others, road, q, **pace) for q in side_lanes
-            }  # fmt: skip
-            q = max(paces, key=lambda k: paces[k])
-            gain += (paces[q] - follow_mps) * max(0.0, horizon_s - move_s * (i + 1))
-            loss += insertion_loss_m(others, road, q, cav.s_m, cav.rear_s_m)
+            options = [move_over(cav, cav.rear_s_m, q, move_s * i) for q in side_lanes]
+            best = max((o for o in options if o is not None),
+                       key=lambda o: o[0] - others_weight * o[1], default=None)  # fmt: skip
+            if best is not None:
+                gain, loss = gain + best[0], loss + best[1]
         regroup = (n - 1) * (platoon.front.length_m + secure_room_m(follow_mps))
         add("one_by_one", None, gain - regroup, loss)
     # The cells pass through the same lanes beside (none usable: no way through).
