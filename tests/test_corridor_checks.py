@@ -4,6 +4,7 @@ swarm through the tool, and issue 51's seven checks on hand-made summaries with 
 from __future__ import annotations
 
 import copy
+import json
 from pathlib import Path
 from typing import Any
 
@@ -146,3 +147,18 @@ def test_others_delay_of_an_older_summary_comes_from_its_trips(tmp_path: Path):
     del older["network"]["delay_s_others"]
     assert cc.measures(older, tmp_path)["others_delay_s"] == pytest.approx(18.0)
     assert cc.measures(older)["others_delay_s"] is None
+
+
+def test_a_kept_run_whose_controller_stood_down_is_a_failed_row(tmp_path: Path):
+    job = cc.Job("r", 0.2, 1, "swarm", ("x.toml",), tmp_path / "swarm")
+    job.out.mkdir()
+    stood_down = {"t_s": 264.0, "reason": "IndexError: boom", "then": "fallback"}
+    summary = {**BASE["swarm"], "complete": True, "stood_down": stood_down}
+    (job.out / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
+    row = cc.run_job(job, force=False, timeout_s=1.0)  # kept: not run again
+    assert row["status"] == "failed" and "264.00 s" in row["error"] and "IndexError" in row["error"]
+    assert row["cav_speed_mps"] == 20.0  # its measures stay for the runs' table, not judged
+    rows = [row] + [{"road": "r", "share": 0.2, "seed": 1, "controller": c, "status": "ran",
+                     **cc.measures(BASE[c])} for c in cc.BASELINES]  # fmt: skip
+    wide, _ = cc.judged(pd.DataFrame(rows))
+    assert wide.loc[0, "passed"] == 0 and "stood down" in wide.loc[0, "errors"]

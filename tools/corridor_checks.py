@@ -286,6 +286,7 @@ def run_job(job: Job, *, force: bool, timeout_s: float) -> dict[str, Any]:
     if job.out.exists():  # an earlier run that failed, or --force: replace it
         cmd.append("--force")
     job.out.parent.mkdir(parents=True, exist_ok=True)
+    summary_file.unlink(missing_ok=True)  # --force: a run that fails now must not read the last
     t0 = time.perf_counter()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, env=env)
@@ -295,11 +296,14 @@ def run_job(job: Job, *, force: bool, timeout_s: float) -> dict[str, Any]:
         return row
     row["process_s"] = round(time.perf_counter() - t0, 1)
     log.write_text(" ".join(cmd) + "\n" + proc.stdout + proc.stderr, encoding="utf-8")
-    if proc.returncode != 0:
-        lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    if proc.returncode != 0 and not summary_file.is_file():
+        # the problem, not the notice of the options added that follows it
+        lines = [
+            line for line in proc.stderr.splitlines() if line.strip() and ": added --" not in line
+        ]
         row.update(status="failed", error=f"exit {proc.returncode}: {lines[-1] if lines else ''}")
         return row
-    row.update(_finished(job, "ran"))
+    row.update(_finished(job, "ran"))  # a run that ended but failed says why in its summary
     return row
 
 
@@ -310,10 +314,17 @@ def _finished(job: Job, how: str) -> dict[str, Any]:
     except (OSError, ValueError) as exc:
         return {"status": "failed", "error": f"summary.json unreadable: {exc}"}
     row: dict[str, Any] = {"status": how, "wall_s": _get(summary, "timing.wall_s")}
-    if not summary.get("complete", True) or summary.get("stood_down"):
-        reason = summary.get("incomplete_reason") or "the controller stood down"
-        return {**row, "status": "failed", "error": f"incomplete: {reason}"}
+    # Its measures stay in the row (the runs' CSV), but a run that did not go to its end under
+    # its controller is not judged.
     row.update(measures(summary, job.out))
+    stood_down = summary.get("stood_down")
+    if stood_down:
+        at = stood_down.get("t_s") if isinstance(stood_down, Mapping) else None
+        why = stood_down.get("reason") if isinstance(stood_down, Mapping) else stood_down
+        error = f"the controller failed at {_f(at)} s and stood down ({why})"
+        row.update(status="failed", error=error)
+    elif not summary.get("complete", True):
+        row.update(status="failed", error=f"incomplete: {summary.get('incomplete_reason')}")
     return row
 
 
