@@ -154,7 +154,13 @@ def judge(by_controller: Mapping[str, Mapping[str, float | None] | None]) -> lis
 
     out = []
     n = swarm.get("collisions")
-    out.append(check("collisions", None if n is None else n == 0, f"swarm {n}"))
+    out.append(
+        check(
+            "collisions",
+            None if n is None else n == 0,
+            "no swarm run" if n is None else f"swarm {_n(n)}",
+        )
+    )
 
     v, vc, vl = (m.get("cav_speed_mps") for m in (swarm, cacc, lc))
     ok = v >= vc and v >= SPEED_OF_LC * vl if _known(v, vc, vl) else None
@@ -164,7 +170,7 @@ def judge(by_controller: Mapping[str, Mapping[str, float | None] | None]) -> lis
     if _known(q, qc, ql):
         best = max(qc, ql)
         ok = q >= THROUGHPUT_OF_BEST * best
-        out.append(check("throughput", ok, f"{_f(q)} >= 0.98 x {_f(best)}"))
+        out.append(check("throughput", ok, f"{_n(q)} >= 0.98 x {_n(best)}"))
     else:
         out.append(check("throughput", None, "missing"))
 
@@ -179,7 +185,7 @@ def judge(by_controller: Mapping[str, Mapping[str, float | None] | None]) -> lis
     t, tc, tl = (m.get("ttc_events") for m in (swarm, cacc, lc))
     if _known(t, tc, tl):
         worst = max(tc, tl)
-        out.append(check("ttc", t <= worst, f"{t} <= {worst}"))
+        out.append(check("ttc", t <= worst, f"{_n(t)} <= {_n(worst)}"))
     else:
         out.append(check("ttc", None, "missing"))
 
@@ -194,7 +200,7 @@ def judge(by_controller: Mapping[str, Mapping[str, float | None] | None]) -> lis
     started, aborted = swarm.get("started"), swarm.get("aborted")
     if _known(started, aborted):
         ok = aborted <= ABORTED_OF_STARTED * started
-        out.append(check("aborted", ok, f"{aborted} of {started}"))
+        out.append(check("aborted", ok, f"{_n(aborted)} of {_n(started)}"))
     else:
         out.append(check("aborted", None, "missing"))
     return out
@@ -202,6 +208,11 @@ def judge(by_controller: Mapping[str, Mapping[str, float | None] | None]) -> lis
 
 def _f(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f}"
+
+
+def _n(value: float | None) -> str:
+    """A count (read back from a table as a float)."""
+    return "-" if value is None else f"{value:.0f}"
 
 
 # --------------------------------------------------------------------------- runs
@@ -215,6 +226,7 @@ class Job:
     controller: str
     args: tuple[str, ...]  # sumo-swarm run's arguments but --controller, --seed and --out
     out: Path  # the run's folder; its log is beside it (<out>.log)
+    commit: str = ""  # of this checkout, in the log of a run made now
 
 
 def corridor_toml(end_s: float, share: float) -> str:
@@ -276,6 +288,8 @@ def run_job(job: Job, *, force: bool, timeout_s: float) -> dict[str, Any]:
     log = job.out.with_name(job.out.name + ".log")
     if summary_file.is_file() and not force:
         row.update(_finished(job, "kept"))
+        first = log.read_text(encoding="utf-8").split("\n", 1)[0] if log.is_file() else ""
+        row["run_commit"] = first.removeprefix("# commit ") if first.startswith("# commit ") else ""
         return row
     env = {
         **os.environ,
@@ -295,7 +309,9 @@ def run_job(job: Job, *, force: bool, timeout_s: float) -> dict[str, Any]:
         row["process_s"] = round(time.perf_counter() - t0, 1)
         return row
     row["process_s"] = round(time.perf_counter() - t0, 1)
-    log.write_text(" ".join(cmd) + "\n" + proc.stdout + proc.stderr, encoding="utf-8")
+    row["run_commit"] = job.commit
+    text = f"# commit {job.commit}\n" + " ".join(cmd) + "\n" + proc.stdout + proc.stderr
+    log.write_text(text, encoding="utf-8")
     if proc.returncode != 0 and not summary_file.is_file():
         # the problem, not the notice of the options added that follows it
         lines = [
@@ -415,20 +431,30 @@ def failures(wide: pd.DataFrame) -> list[str]:
     return out
 
 
-def report(wide: pd.DataFrame, shown: pd.DataFrame, command: str, commit: str, end_s: float) -> str:
+def report(
+    wide: pd.DataFrame,
+    shown: pd.DataFrame,
+    command: str,
+    commit: str,
+    end_s: float,
+    run_commits: Sequence[str] = (),
+) -> str:
+    """The Markdown report: what was run, the table, the checks passed and those that were
+    not; ``run_commits``: the commits the runs were made at (kept runs: earlier ones)."""
     total = len(wide) * len(CHECKS)
     passed = int(wide["passed"].sum()) if len(wide) else 0
     lines = [
         "# Corridor checks (issue 51): the swarm against sumo-cacc and sumo-lc",
         "",
-        f"Commit `{commit}`, `{command}`; {end_s:g} s simulated per run at a step of "
-        f"{STEP_LENGTH_S:g} s for every controller. Each cell: PASS/FAIL, then swarm / "
-        "sumo-cacc / sumo-lc (the aborted manoeuvres: the swarm's, of those it started). "
-        "Roads: the OpenStreetMap motorways of sumo_swarm/sim/userroads.py (maps in "
-        "networks/osm/, SUMO's default drivers, 15 % trucks, the CAVs drawn inside every flow) "
-        "and the project's corridor (scenarios/corridor.toml cut to the run's length). "
-        "Others' delay: the mean delay (timeLoss + insertion delay) of every vehicle that is "
-        "not a CAV; CAV-CAV gap: the smallest bumper-to-bumper gap of a CAV behind a CAV.",
+        f"Commit `{commit}`{_made(run_commits, commit)}, `{command}`; {end_s:g} s simulated "
+        f"per run at a step of {STEP_LENGTH_S:g} s for every controller. Each cell: "
+        "PASS/FAIL, then swarm / sumo-cacc / sumo-lc (the aborted manoeuvres: the swarm's, of "
+        "those it started). Roads: the OpenStreetMap motorways of sumo_swarm/sim/userroads.py "
+        "(maps in networks/osm/, SUMO's default drivers, 15 % trucks, the CAVs drawn inside "
+        "every flow) and the project's corridor (scenarios/corridor.toml cut to the run's "
+        "length). Others' delay: the mean delay (timeLoss + insertion delay) of every vehicle "
+        "that is not a CAV; CAV-CAV gap: the smallest bumper-to-bumper gap of a CAV behind a "
+        "CAV.",
         "",
         shown.to_markdown(index=False, disable_numparse=True) if len(shown) else "No run.",
         "",
@@ -439,6 +465,13 @@ def report(wide: pd.DataFrame, shown: pd.DataFrame, command: str, commit: str, e
     if missed:
         lines += ["Not passed:", "", *(f"- {m}" for m in missed), ""]
     return "\n".join(lines)
+
+
+def _made(run_commits: Sequence[str], commit: str) -> str:
+    others = [c for c in run_commits if c != commit]
+    if not others:
+        return ""
+    return " (runs kept from " + ", ".join(f"`{c}`" for c in others) + ")"
 
 
 def git_commit() -> str:
@@ -456,9 +489,15 @@ def git_commit() -> str:
 
 
 def plan(
-    roads: Sequence[str], shares: Sequence[float], seeds: Sequence[int], end_s: float, out: Path
+    roads: Sequence[str],
+    shares: Sequence[float],
+    seeds: Sequence[int],
+    end_s: float,
+    out: Path,
+    commit: str = "",
 ) -> list[Job]:
-    """Every run, its road's files written: road x share x seed x controller."""
+    """Every run, its road's files written: road x share x seed x controller; ``commit``: this
+    checkout's, recorded in the log of each run made."""
     jobs = []
     for road in roads:
         for share in shares:
@@ -466,7 +505,7 @@ def plan(
             args = road_args(road, share, end_s, where / "road")
             for seed in seeds:
                 folder = where / f"share-{share_name(share)}" / f"seed-{seed}"
-                jobs += [Job(road, share, seed, c, args, folder / c) for c in CONTROLLERS]
+                jobs += [Job(road, share, seed, c, args, folder / c, commit) for c in CONTROLLERS]
     return jobs
 
 
@@ -521,13 +560,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"corridor_checks: --end must be > 0, got {args.end:g}", file=sys.stderr)
         return 2
     commit = git_commit()
-    jobs = plan(args.roads, args.shares, args.seeds, args.end, args.out)
+    jobs = plan(args.roads, args.shares, args.seeds, args.end, args.out, commit)
     runs = run_all(jobs, workers=args.workers, force=args.force, timeout_s=args.timeout)
     wide, shown = judged(runs)
     command = "python tools/corridor_checks.py " + " ".join(
         argv if argv is not None else sys.argv[1:]
     )
-    text = report(wide, shown, command.strip(), commit, args.end)
+    made = sorted(
+        {c if isinstance(c, str) and c else "not recorded" for c in runs.get("run_commit", [])}
+    )
+    text = report(wide, shown, command.strip(), commit, args.end, made)
     print(text)
     args.table.parent.mkdir(parents=True, exist_ok=True)
     args.table.with_suffix(".md").write_text(text, encoding="utf-8")
