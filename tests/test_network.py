@@ -149,6 +149,8 @@ def test_network_block_from_hand_made_trips(sumo_files):
     # delay: timeLoss plus insertion delay, every vehicle due to depart, so far for unfinished
     # ones: HVs (30 + 50 + 30 waiting at the entry) / 3, the truck 5 + 2
     assert block["delay_s"] == {"cav": 10.0, "hv": pytest.approx(110 / 3), "truck": 7.0}
+    # every vehicle but the CAV, classes together: (110 + 7) / 4, not the mean of class means
+    assert block["delay_s_others"] == pytest.approx(117 / 4)
     assert block["depart_delay_s"] == {"cav": 0.0, "hv": 10.0, "truck": 2.0}
     assert block["throughput_vph"] == pytest.approx(2 / (180.0 / 3600.0))  # 40 veh/h
     assert block["vehicle_km"] == pytest.approx(6.0)
@@ -186,6 +188,7 @@ def test_network_block_of_nothing(tmp_path):
     empty = NetworkTables(read_trips(tmp_path / "none.xml", classify), conflicts=None, edges=None)
     block = network_block(empty, hard_brake_events=0, duration_s=0.0, ttc_threshold_s=1.5)
     assert block["vehicles"] == 0 and block["travel_time_s"] == {}
+    assert block["delay_s_others"] is None
     assert block["throughput_vph"] is None and block["hard_brakes_per_1000_vkm"] is None
     assert block["ttc_below_1_5s_events"] is None  # no SSM output read
     no_ssm = NetworkTables(empty.trips, conflicts=None, edges=None)

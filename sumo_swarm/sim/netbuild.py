@@ -5,13 +5,15 @@ Used by the tests, the stress sweep and users who want a quick test bed: straigh
 keeps the lanes on the left going); and a
 straight motorway with an on-ramp (acceleration lane) and an off-ramp (deceleration lane); and
 a motorway corridor of any length with any number of on- and off-ramps (the corridor scenarios,
-``[corridor]`` in a scenario file).
+``[corridor]`` in a scenario file); and, from an OpenStreetMap file, whatever road it maps
+(:func:`convert_osm`, netconvert's OSM import as SUMO's documentation recommends it).
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+import os
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,6 +94,45 @@ def build_highway(spec: HighwaySpec, folder: Path, name: str = "highway") -> Pat
     return _netconvert(folder, name, nodes, edges)
 
 
+def netconvert_binary() -> Path:
+    """SUMO's netconvert, from the eclipse-sumo package."""
+    import sumo
+
+    return Path(sumo.SUMO_HOME) / "bin" / "netconvert"
+
+
+# What SUMO's documentation recommends for importing OpenStreetMap ("Recommended netconvert
+# Options"), less the traffic-light options a motorway does not need: geometry-only nodes
+# removed, on- and off-ramps given their acceleration and deceleration lanes, the nodes of one
+# intersection joined.
+OSM_OPTIONS = ("--geometry.remove", "--ramps.guess", "--junctions.join")
+
+
+def convert_osm(osm: Path, folder: Path, name: str = "road") -> Path:
+    """netconvert an OpenStreetMap file as a user does (:data:`OSM_OPTIONS`, SUMO's built-in
+    type map) into ``folder/name.net.xml``; return the network path. ConfigError naming the
+    file with netconvert's message if it fails."""
+    import sumo
+
+    if not osm.is_file():
+        raise ConfigError(f"OpenStreetMap file not found: {osm}")
+    folder.mkdir(parents=True, exist_ok=True)
+    net = folder / f"{name}.net.xml"
+    home = Path(sumo.SUMO_HOME)
+    # SUMO_HOME: netconvert finds its type maps; PROJ_LIB: PROJ finds its database for the
+    # projection to UTM (the pip package's own copy).
+    env = {**os.environ, "SUMO_HOME": str(home), "PROJ_LIB": str(home / "data" / "proj")}
+    cmd = [
+        str(netconvert_binary()), "--osm-files", str(osm.resolve()), "--output-file", net.name,
+        *OSM_OPTIONS, "--no-warnings", "true",
+    ]  # fmt: skip
+    proc = subprocess.run(cmd, cwd=folder, capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        message = proc.stderr.strip().splitlines()
+        raise ConfigError(f"netconvert failed for {osm}: {message[-1] if message else ''}")
+    return net
+
+
 def _netconvert(
     folder: Path,
     name: str,
@@ -101,12 +142,10 @@ def _netconvert(
 ) -> Path:
     """Write the plain XML files (nodes, edges, optional connections) into ``folder`` and
     netconvert them to ``name.net.xml``; ConfigError with netconvert's message if it fails."""
-    import sumo
-
     files = {"node-files": (f"{name}.nod.xml", nodes), "edge-files": (f"{name}.edg.xml", edges)}
     if connections is not None:
         files["connection-files"] = (f"{name}.con.xml", connections)
-    cmd = [str(Path(sumo.SUMO_HOME) / "bin" / "netconvert")]
+    cmd = [str(netconvert_binary())]
     for option, (file_name, lines) in files.items():
         (folder / file_name).write_text("\n".join(lines) + "\n", encoding="utf-8")
         cmd += [f"--{option}", file_name]

@@ -348,6 +348,9 @@ def network_block(
     - ``exits_missed``: CAVs that gave up the exit of their route after standing for it and
       drove on (``exit_missed`` events, controllers.cacc): they are counted as trips, to
       another end than their own;
+    - ``delay_s_others``: the same delay's mean over every vehicle that is not a CAV, all
+      classes together (what the CAVs cost the rest of the traffic; None without such a
+      vehicle);
     - extras: ``vehicle_km``, ``trips_finished``, ``vehicles_per_class`` (entered),
       ``vehicles_not_departed`` (still waiting at the end), ``depart_delay_s`` per class.
     """
@@ -384,6 +387,7 @@ def network_block(
         "vehicles": len(trips),
         "travel_time_s": {str(k): finite_or_none(travel.get(k)) for k in distance_m.index},
         "delay_s": per_class(delay.mean()),
+        "delay_s_others": others_delay_s(every),
         "throughput_vph": float(len(finished) / hours) if hours > 0 else None,
         "hard_brakes_per_1000_vkm": (float(hard_brake_events / vkm * 1000.0) if vkm > 0 else None),
         "ttc_below_1_5s_events": ttc_events,
@@ -397,6 +401,15 @@ def network_block(
         "exits_missed": int(exits_missed),
         **extra,
     }
+
+
+def others_delay_s(trips: pd.DataFrame) -> float | None:
+    """Mean delay [s] (timeLoss plus departDelay, as ``delay_s``) of the vehicles of ``trips``
+    (:data:`TRIP_COLUMNS`, departed or not) that are not CAVs; None without one."""
+    others = trips[trips["vehicle_class"] != "cav"]
+    if others.empty:
+        return None
+    return finite_or_none((others["time_loss_s"] + others["depart_delay_s"]).mean())
 
 
 SPEED_FIELD_COLUMNS = ("t_s", "s_m", "speed_mps", "samples")

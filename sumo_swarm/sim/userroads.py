@@ -10,6 +10,13 @@ dawdle) behind it in the same lane. Nothing else is set: no lateral resolution, 
 default 1 s. Run one with::
 
     sumo-swarm run --sumocfg DIR/user.sumocfg --cav-type cav --controller swarm
+
+Real motorways, from OpenStreetMap (:data:`OSM_ROADS`, the maps in ``networks/osm/``), are
+written the same way with the CAVs inside the traffic instead: netconvert's OSM import
+(:func:`~sumo_swarm.sim.netbuild.convert_osm`), ``<flow>`` s from each entry to each exit whose
+vehicles SUMO draws from a ``vTypeDistribution`` of SUMO's default car, a truck (vClass
+``truck``, SUMO's defaults) and the CAV; ``sumo-swarm run --cav-share`` changes the share
+(:func:`osm_cav_share_option`).
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sumo_swarm.errors import ConfigError
+from sumo_swarm.safexml import parse_xml
 from sumo_swarm.sim.netbuild import (
     MOTORWAY_FROM_RAMP,
     MOTORWAY_THROUGH,
@@ -27,6 +35,7 @@ from sumo_swarm.sim.netbuild import (
     MotorwaySpec,
     build_highway,
     build_motorway,
+    convert_osm,
     edge_ids,
 )
 
@@ -193,7 +202,15 @@ def write_road(
         raise ConfigError(f"unknown road {name!r}; known: {', '.join(ROADS)}")
     folder.mkdir(parents=True, exist_ok=True)
     net, lines = road.write(folder, end_s)
-    routes = ["<routes>", *VTYPES, *lines, "</routes>"]
+    return _write_sumocfg(folder, net, [*VTYPES, *lines], end_s, step_length_s)
+
+
+def _write_sumocfg(
+    folder: Path, net: Path, route_lines: list[str], end_s: float, step_length_s: float | None
+) -> Path:
+    """``routes.rou.xml`` of ``route_lines`` and ``user.sumocfg`` over ``net`` in ``folder``;
+    return the sumocfg."""
+    routes = ["<routes>", *route_lines, "</routes>"]
     (folder / "routes.rou.xml").write_text("\n".join(routes) + "\n", encoding="utf-8")
     step = "" if step_length_s is None else f'    <step-length value="{step_length_s:g}"/>\n'
     cfg = folder / "user.sumocfg"
@@ -205,3 +222,117 @@ def write_road(
         encoding="utf-8",
     )
     return cfg
+
+
+# ----------------------------------------------------------------- real motorways, from OSM
+
+# Traffic on the OSM roads: this share of every flow are trucks, whatever the CAVs' share.
+OSM_TRUCK_SHARE = 0.15
+OSM_CAV_SHARE = 0.2  # the CAVs' share of every flow in the written configuration
+OSM_VTYPES = (
+    '  <vType id="car"/>',
+    '  <vType id="truck" vClass="truck"/>',
+    f'  <vType id="{CAV_TYPE}" sigma="0" color="0,160,255"/>',
+)
+TRAFFIC = "traffic"  # the vTypeDistribution every flow draws its vehicles from
+
+
+@dataclass(frozen=True)
+class OsmRoad:
+    """A motorway mapped in OpenStreetMap (``osm``: a file of ``networks/osm/``) and its demand:
+    ``flows`` of (entry node, exit node, veh/h), the nodes being the OSM ids of where a way
+    begins (the main road's upstream end, an on-ramp's far end) and where one ends."""
+
+    name: str
+    about: str
+    osm: str
+    flows: tuple[tuple[str, str, float], ...]
+
+
+OSM_ROADS: dict[str, OsmRoad] = {
+    road.name: road
+    for road in (
+        OsmRoad(
+            "osm-5-lane-ramps",
+            "5-lane motorway (65 mph), an on-ramp at 0.9 km and an off-ramp at 2.1 km, 3.2 km; "
+            "4500 veh/h from upstream (500 of them leaving), 800 veh/h merging",
+            "motorway5-ramps.osm",
+            (("1001", "1007", 4000), ("1001", "1011", 500), ("1008", "1007", 700),
+             ("1008", "1011", 100)),
+        ),
+        OsmRoad(
+            "osm-3-lane-drop",
+            "3-lane Autobahn (120 km/h): an exit at 0.8 km, an on-ramp at 1.6 km, the lanes "
+            "drop from 3 to 2 at 2.6 km, 3.6 km; 2900 veh/h from upstream (400 leaving), "
+            "450 veh/h merging",
+            "autobahn3-drop.osm",
+            (("2001", "2009", 2500), ("2001", "2011", 400), ("2012", "2009", 450)),
+        ),
+        OsmRoad(
+            "osm-3-lane-junctions",
+            "3-lane motorway (70 mph): exits at 0.6, 2.0 and 3.4 km, on-ramps at 1.4 and "
+            "2.8 km, 4.0 km; 3400 veh/h from upstream, 400 veh/h at each on-ramp",
+            "motorway3-junctions.osm",
+            (("3001", "3007", 2600), ("3001", "3009", 300), ("3001", "3013", 250),
+             ("3001", "3017", 250), ("3010", "3007", 300), ("3010", "3013", 50),
+             ("3010", "3017", 50), ("3014", "3007", 350), ("3014", "3017", 50)),
+        ),
+    )
+}  # fmt: skip
+
+
+def end_edges(net: Path) -> tuple[dict[str, str], dict[str, str]]:
+    """The network's edges by node: ``(leaving, entering)``, node id -> the edge leaving it
+    and node id -> the edge entering it (the last one read where several do; the ends of a
+    road have one). Internal edges are left out."""
+    leaving: dict[str, str] = {}
+    entering: dict[str, str] = {}
+    for edge in parse_xml(net, "SUMO network").iter("edge"):
+        if edge.get("function") == "internal":
+            continue
+        leaving[edge.get("from", "")] = edge.get("id", "")
+        entering[edge.get("to", "")] = edge.get("id", "")
+    return leaving, entering
+
+
+def osm_cav_share_option(cav_share: float) -> float:
+    """``sumo-swarm run --cav-share`` (of passenger vehicles, ``--cav-share-of passenger``)
+    that makes ``cav_share`` of all vehicles of an OSM road CAVs: the trucks keep their
+    :data:`OSM_TRUCK_SHARE`."""
+    return cav_share / (1.0 - OSM_TRUCK_SHARE)
+
+
+def write_osm_road(
+    name: str,
+    osm_dir: Path,
+    folder: Path,
+    *,
+    end_s: float = 300.0,
+    step_length_s: float | None = 0.2,
+) -> Path:
+    """Write OSM road ``name`` (its network, netconverted from ``osm_dir``'s map,
+    ``routes.rou.xml`` and ``user.sumocfg``) into ``folder``; return the sumocfg. Every flow
+    runs from 0 to ``end_s`` with ``departLane="best"`` and ``departSpeed="max"``, its vehicles
+    drawn as :data:`OSM_TRUCK_SHARE` trucks, :data:`OSM_CAV_SHARE` CAVs and cars the rest.
+    ConfigError for an unknown name or a node of the demand the network lacks."""
+    road = OSM_ROADS.get(name)
+    if road is None:
+        raise ConfigError(f"unknown OSM road {name!r}; known: {', '.join(OSM_ROADS)}")
+    folder.mkdir(parents=True, exist_ok=True)
+    net = convert_osm(osm_dir / road.osm, folder)
+    leaving, entering = end_edges(net)
+    car = 1.0 - OSM_TRUCK_SHARE - OSM_CAV_SHARE
+    lines = [
+        *OSM_VTYPES,
+        f'  <vTypeDistribution id="{TRAFFIC}" vTypes="car truck {CAV_TYPE}" '
+        f'probabilities="{car:g} {OSM_TRUCK_SHARE:g} {OSM_CAV_SHARE:g}"/>',
+    ]
+    for k, (entry, exit_, veh_per_hour) in enumerate(road.flows):
+        if entry not in leaving or exit_ not in entering:
+            raise ConfigError(f"{osm_dir / road.osm}: no road leaves {entry} or enters {exit_}")
+        lines.append(
+            f'  <flow id="f{k}_{entry}_{exit_}" type="{TRAFFIC}" from="{leaving[entry]}" '
+            f'to="{entering[exit_]}" begin="0" end="{end_s:g}" vehsPerHour="{veh_per_hour:g}" '
+            'departLane="best" departSpeed="max"/>'
+        )
+    return _write_sumocfg(folder, net, lines, end_s, step_length_s)
