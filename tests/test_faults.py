@@ -396,6 +396,8 @@ def test_a_controller_error_is_one_warning_and_one_event_and_the_swarm_stands_do
     assert not any(r.exc_info for r in caplog.records if r.levelno >= logging.INFO)
     errors = [e for e in _events(tmp_path) if e["event"] == "controller_error"]
     assert len(errors) == 1 and errors[0]["action"] == "stood_down"
+    # where in our code: the bug report's first line (the broken tracker is the test's)
+    assert errors[0]["where"].startswith(("controllers/", "core/")), errors[0]["where"]
     stood = summary["stood_down"]
     assert stood["t_s"] == pytest.approx(errors[0]["time_s"]) and stood["then"] == "fallback"
     assert "ZeroDivisionError: a bug" in stood["reason"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import traceback
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -194,6 +195,18 @@ class RouteWatch:
                           parting_in_m=round(distance, 1))  # fmt: skip
 
 
+def _where(exc: BaseException) -> str | None:
+    """``file:line in function`` of the innermost frame of ``exc``'s traceback in this
+    package (where a bug report starts), else the innermost frame; None without one."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    ours = [f for f in frames if "sumo_swarm" in f.filename.replace("\\", "/")]
+    frame = (ours or frames or [None])[-1]
+    if frame is None:
+        return None
+    name = frame.filename.replace("\\", "/").rsplit("sumo_swarm/", 1)[-1]
+    return f"{name}:{frame.lineno} in {frame.name}"
+
+
 class StandDown:
     """Calls a controller until its first error; then the swarm stands down for the rest of
     the simulation: one warning (the traceback only at debug level) and one
@@ -257,7 +270,8 @@ class StandDown:
         log.debug("the controller's error", exc_info=exc)
         if self.ctx is None:
             return
-        self.ctx.event("controller_error", message=self.reason, action="stood_down")
+        self.ctx.event("controller_error", message=self.reason, action="stood_down",
+                       where=_where(exc))  # fmt: skip
         if has_fallback:
             self.control(t_s)  # this step's commands, from the fallback
         else:
