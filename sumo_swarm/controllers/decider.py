@@ -160,6 +160,11 @@ class Decider:
         leader = states[self.leader(states, platoon)]
         tail = min((states[v] for v in platoon), key=lambda st: st.rear_s_m)
         wish, blocked = self._lane_wish(target.vehicle_id)
+        # Its route leaves the road within the horizon (an exit ahead): it goes, as a wish.
+        target_left_m = self._road_left_m(target)
+        exits = target_left_m is not None and target_left_m <= sw.horizon_s * max(
+            target.speed_mps, 1.0
+        )
         lane = road.lane_of(leader)
         side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
         ending = self.lanes.ending(leader, leader.vehicle_id)
@@ -179,10 +184,17 @@ class Decider:
             lane_width_m=road.lane_widths_m[lane],
         )  # fmt: skip
         members = set(platoon)
+        # Predicted until the platoon's own road ends (or it leaves it), if that is sooner:
+        # on a short stretch of road left no manoeuvre is seen through.
+        left_m = self._road_left_m(leader)
+        horizon_s = sw.horizon_s
+        if left_m is not None:
+            horizon_s = max(0.0, min(horizon_s, left_m / max(leader.speed_mps, 1.0)))
         choice = choose(
             view, target, [st for v, st in states.items() if v not in members], road,
-            side_lanes=side, leaves=bool(wish) and not blocked, cells_pace_mps=cells_mps,
-            desired_of=self.reformer.desired_speed, horizon_s=sw.horizon_s,
+            side_lanes=side, leaves=(bool(wish) and not blocked) or exits,
+            cells_pace_mps=cells_mps,
+            desired_of=self.reformer.desired_speed, horizon_s=horizon_s,
             range_m=sw.detect_range_m + 2.0 * sc.cell_length_m,
             others_weight=sw.others_weight, min_gain_mps=sw.min_speed_gain_mps,
         )  # fmt: skip
@@ -195,6 +207,29 @@ class Decider:
                                 [round(o.gain_m, 1), round(o.loss_m, 1)]
                                 for o in choice.weighed})  # fmt: skip
         return choice.best
+
+    def _road_left_m(self, vehicle: VehicleState) -> float | None:
+        """How far [m] ``vehicle`` still drives on the road (the session's route frame): to
+        where its route leaves it, or else to its route's end (it arrives); None where SUMO
+        cannot tell."""
+        session = self.ctx.session
+        frame = getattr(session, "frame", None)
+        route = getattr(session, "route_of", lambda vid: None)(vehicle.vehicle_id)
+        if frame is None or route is None:
+            return None
+        edges, index = route
+        try:
+            parting = session.distance_to_parting_m(
+                vehicle.vehicle_id, edges, index, frozenset(frame.route_edges)
+            )
+            if parting is None:
+                position = session.lane_positions.get(vehicle.vehicle_id, 0.0)
+                parting = (
+                    sum(frame.net.lane_length_m(f"{e}_0") for e in edges[index:]) - position
+                )
+        except Exception:  # vanished
+            return None
+        return max(parting, 0.0)
 
     def _lane_wish(self, vid: str) -> tuple[int, bool]:
         """The lane ``vid``'s driver wants to move to (+1 left, -1 right, 0 none) and whether
