@@ -533,14 +533,6 @@ class SwarmSettings:
         Replan when a CAV is more than this many cells from its planned cells [rows].
     regroup_lane
         Lane to regroup in (none: the platoon's original lane) [lane].
-    regroup_grid_speed
-        Grid speed once every CAV is past the target: the target's speed or the cruising speed.
-    regroup_by
-        Who regroups the CAVs once all are past the target: the cell planner (the paper) or the
-        cruise mode.
-    regroup_anywhere
-        With regroup_by = "planner", a platoon in any lane counts as regrouped, not only in the
-        regroup lane.
     hand_over_in_lane
         Hand the pass over to the cruise once all CAVs are settled in one lane faster than the
         plan's pace.
@@ -699,9 +691,6 @@ class SwarmSettings:
     control_interval_steps: int | None = None
     drift_rows: float = 1.0
     regroup_lane: int | None = None
-    regroup_grid_speed: Literal["target", "cruise"] = "target"
-    regroup_by: Literal["planner", "cruise"] = "cruise"
-    regroup_anywhere: bool = True
     hand_over_in_lane: bool = True
     lane_pass: bool = True
     lane_pass_stall_s: float = 15.0

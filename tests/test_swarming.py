@@ -20,7 +20,6 @@ from sumo_swarm.core.swarming.decision import (
     lane_pass_pace,
     lane_speeds,
     leader_ease_cap,
-    one_platoon,
     only_catching_up,
     passing_lane,
     right_lane_free,
@@ -564,22 +563,6 @@ def test_a_cav_waits_for_a_swarm_cav_clearing_the_lane_it_enters():
     )
     assert yields_to_cav(car("c1", 100.0, 1, 16.0, cav=True), ROAD.y_of(1, 0.0), 0.05,
                          [ego, passing], ROAD, **kw) is None  # fmt: skip
-
-
-def test_one_platoon_in_any_lane():
-    road = RoadSection((3.2, 3.2, 3.2))
-    cavs = [car(f"c{i}", 300.0 - 15.0 * i, 1, 20.0, cav=True) for i in range(3)]  # 10 m gaps
-    kw = dict(tolerance_m=0.3, max_gap_m=25.0)
-    assert one_platoon(cavs, [], road, **kw)
-    truck = car("truck", 250.0, 0, 15.0)  # behind, another lane: no matter
-    assert one_platoon(cavs, [truck], road, **kw)
-    between = car("hv", 280.0, 1, 20.0)  # an HV in their lane between two CAVs
-    assert not one_platoon(cavs, [between], road, **kw)
-    spread = [*cavs[:2], car("c2", 240.0, 1, 20.0, cav=True)]  # a 35 m gap
-    assert not one_platoon(spread, [], road, **kw)
-    astride = [*cavs[:2], dataclasses.replace(cavs[2], lat_m=0.8)]  # half into the next lane
-    assert not one_platoon(astride, [], road, **kw)
-    assert not one_platoon([], [], road, **kw)
 
 
 def test_passing_lane_is_one_settled_lane_that_is_not_the_targets():

@@ -81,7 +81,7 @@ class Reformer:
     # (the others follow one by one, each once the CAV ahead is past), until this time [s].
     singly: tuple[str, float] | None = None
     # (lane, edge) the platoon re-forms in next unless a lane its CAVs occupy is faster by the
-    # gain: the regroup lane, once every CAV is past the target (regroup_by = "cruise").
+    # gain: the regroup lane, once every CAV is past the target (the cruise regroups them).
     prefer: tuple[int, str | None] | None = None
     # CAV -> (its goal lane, how long [s] the guard has held its lane change there, in a row)
     held_s: dict[str, tuple[int, float]] = field(default_factory=dict)

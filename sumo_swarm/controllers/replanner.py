@@ -33,7 +33,6 @@ from sumo_swarm.core.planner.problem import PlanStatus, hvs_in_grid
 from sumo_swarm.core.stats import summarise_ms
 from sumo_swarm.core.swarming.decision import (
     Progress,
-    all_past,
     behaving_interval_s,
     cavs_behind,
     keeps_cell,
@@ -301,13 +300,10 @@ class Replanner:
         sc = ctx.scenario
         target = states[target_id]
         cavs = [states[v] for v in platoon]
-        # Paper II-B-1, Step 4: the grid moves with the front HV while the swarm overtakes it,
-        # at the cruising speed otherwise (here: once every CAV is past it, to regroup).
-        cruise_grid = sc.swarm.regroup_grid_speed == "cruise" and all_past(
-            target, {v: states[v] for v in platoon}, sc.cav.min_gap_m
-        )
-        grid_speed = sc.cav.cruising_speed_mps if cruise_grid else max(target.speed_mps, 0.0)
-        if not cruise_grid and self.grid is not None and self._cav_ahead_of(target, states):
+        # Paper II-B-1, Step 4: the grid moves with the front HV while the swarm overtakes it
+        # (until every CAV is past it: the cruise mode regroups them, SwarmController).
+        grid_speed = max(target.speed_mps, 0.0)
+        if self.grid is not None and self._cav_ahead_of(target, states):
             # CAVs just ahead of the target set its pace: never let them pull the grid down.
             grid_speed = max(grid_speed, self.grid.speed_mps)
         cap = self.decider.speed_cap(platoon)
@@ -333,7 +329,7 @@ class Replanner:
         self.closed_lane = closed
         own = max(target.speed_mps, 0.0)
         tries = [(grid_speed, interval)]
-        if not cruise_grid and grid_speed > own + GRID_RETRY_MPS:
+        if grid_speed > own + GRID_RETRY_MPS:
             # Held above the target's speed by the CAVs ahead of it, the grid leaves the target
             # behind: the CAVs queued behind it must fall back row by row over the horizon, and
             # with the tail CAV in row 0 they may have nowhere to go (variant 17: 5 CAVs behind

@@ -377,15 +377,10 @@ def _reasons(report: Mapping[str, Any], scenario: Scenario) -> list[str]:
 
 
 def _regroup_reason(facts: Mapping[str, Any], scenario: Scenario) -> str:
-    mode = scenario.swarm.regroup_grid_speed
-    grid = (
-        "the slow HV's speed until the swarm has regrouped"
-        if mode == "target"
-        else f"the cruising speed ({scenario.cav.cruising_speed_mps:g} m/s) once past"
-    )
     text = (
-        "**Regrouping.** Our swarm finishes its plan inside the grid, which moves at "
-        f'{grid} (`[swarm] regroup_grid_speed = "{mode}"`).'
+        "**Regrouping.** Our swarm plans inside the grid, which moves at the slow HV's speed, "
+        "until every CAV is past it; then the cruise mode re-forms the platoon at the cruising "
+        f"speed ({scenario.cav.cruising_speed_mps:g} m/s)."
     )
     low, t_end, t_reg = (
         facts.get(k) for k in ("regroup_min_speed_mps", "t_end_s", "t_regrouped_s")

@@ -515,37 +515,9 @@ def waiting_plan(
     return bool(planned) and all(keeps_cell(seq, steps) for seq in planned)
 
 
-# A platoon again: bumper gaps between consecutive CAVs up to this many desired gaps (the
-# swarm's own check and summary.json's "regrouped" use the same).
+# A platoon again: bumper gaps between consecutive CAVs up to this many desired gaps
+# (summary.json's "regrouped", sumo_swarm.sim.summary and .streamed).
 REGROUPED_GAP_FACTOR = 2.5
-
-
-def one_platoon(
-    cavs: Sequence[VehicleState],
-    others: Iterable[VehicleState],
-    road: RoadSection,
-    *,
-    tolerance_m: float,
-    max_gap_m: float,
-) -> bool:
-    """Do ``cavs`` form one platoon, in whatever lane: every centre within ``tolerance_m`` of
-    the front CAV's lane centre, bumper gaps between consecutive CAVs at most ``max_gap_m``,
-    and none of ``others`` (vehicles that are not these CAVs) in that lane between them."""
-    if not cavs:
-        return False
-    ordered = sorted(cavs, key=lambda c: c.s_m)
-    lane = road.lane_of(ordered[-1])
-    centre = road.lane_centre_y(lane)
-    if any(abs(road.y_of(c.lane, c.lat_m) - centre) > tolerance_m for c in ordered):
-        return False
-    if any(b.rear_s_m - a.s_m > max_gap_m for a, b in itertools.pairwise(ordered)):
-        return False
-    ids = {c.vehicle_id for c in ordered}
-    rear, front = ordered[0].rear_s_m, ordered[-1].s_m
-    return not any(
-        o.vehicle_id not in ids and rear < o.centre_s_m < front and road.lane_of(o) == lane
-        for o in others
-    )
 
 
 def passing_lane(
