@@ -527,8 +527,6 @@ class SwarmSettings:
         passing it [m].
     control_interval_s
         MPC re-solve period; in between the solved inputs are held [s].
-    control_interval_steps
-        If set, the MPC re-solve period in SUMO steps instead [steps].
     drift_rows
         Replan when a CAV is more than this many cells from its planned cells [rows].
     regroup_lane
@@ -557,9 +555,6 @@ class SwarmSettings:
     pass_intruder_mps
         An HV that splits the platoon is passed when it drives below the cruise by
         min_speed_gain_mps less this (0: only slow vehicles) [m/s].
-    catch_up_across_lanes
-        A cruising CAV fallen back from a platoon CAV in another lane closes up as if in the same
-        lane.
     run_up_gap_m
         Gap a CAV refused a lane change keeps behind a slow vehicle so it can run up to the next
         lane's speed (0: it waits) [m].
@@ -592,9 +587,6 @@ class SwarmSettings:
         ("drivable"), or always planner.behaving_interval_s ("fixed").
     speed_margin_mps
         Room kept under the speed cap for tracking [m/s].
-    replan_min_interval_s
-        At most one replan per this long unless a safety check demands one (none: one behaving
-        interval) [s].
     retry_after_s
         After a failed replan, wait this long before the next [s].
     replan_every_intervals
@@ -628,8 +620,6 @@ class SwarmSettings:
     wait_lead_m
         Waiting, the CAVs past the target keep up to this much more room ahead of it than the CAVs
         behind need [m].
-    pass_in_train
-        A CAV passing on its own is followed at once by the CAV behind it, as a train.
     pass_reach_s
         A CAV passing on its own judges the lanes beside over detect_range_m plus this many seconds
         at the cruise [s].
@@ -688,7 +678,6 @@ class SwarmSettings:
     catching_up_ahead_m: float = 300.0
     progress_step_m: float = 3.0
     control_interval_s: float = 0.18
-    control_interval_steps: int | None = None
     drift_rows: float = 1.0
     regroup_lane: int | None = None
     hand_over_in_lane: bool = True
@@ -700,7 +689,6 @@ class SwarmSettings:
     pass_open_side_s: float = 1.0
     drop_behind_s: float = 3.0
     pass_intruder_mps: float = 1.0
-    catch_up_across_lanes: bool = True
     run_up_gap_m: float = 30.0
     entry_accel_mps2: float = 1.5
     run_up_after_s: float = 2.0
@@ -714,7 +702,6 @@ class SwarmSettings:
     min_speed_gain_mps: float = 2.0
     interval_rule: Literal["drivable", "fixed"] = "drivable"
     speed_margin_mps: float = 0.3
-    replan_min_interval_s: float | None = None
     retry_after_s: float = 1.0
     replan_every_intervals: int = 1
     prediction_error_m: float = 4.0
@@ -728,7 +715,6 @@ class SwarmSettings:
     pass_singly_s: float = 60.0
     wait_ahead_s: float = 45.0
     wait_lead_m: float = 50.0
-    pass_in_train: bool = True
     pass_reach_s: float = 5.0
     keep_right_wait_s: float = 10.0
     keep_right_middle: Literal["left", "wait", "go"] = "left"
@@ -752,12 +738,11 @@ class SwarmSettings:
     def __post_init__(self) -> None:
         check_positive(
             self, "horizon_s", "trigger_speed_ratio", "detect_range_m", "control_interval_s",
-            "control_interval_steps",
         )  # fmt: skip
         check_non_negative(self, "others_weight")
         check_non_negative(
             self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
-            "speed_margin_mps", "replan_min_interval_s", "retry_after_s", "give_up_no_plan_s",
+            "speed_margin_mps", "retry_after_s", "give_up_no_plan_s",
             "cooldown_s", "pass_singly_s", "wait_ahead_s", "wait_lead_m", "max_block_s",
             "prediction_error_m",
             "max_leader_ease_mps", "regroup_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",

@@ -142,14 +142,6 @@ def test_cavs_cut_off_by_a_slow_vehicle_pass_it_in_a_train():
     goals = r.goals(1.0, st, platoon, ROAD, 1, cap_mps=25.0)
     assert goals == {"c0": 1, "c1": 0, "c2": 0}
     assert events[-1] == ("passing_start", {"vehicle": "c2", "slow": "slow", "lane": 0})
-    # With pass_in_train off, c2 waits until c1 is past.
-    events.clear()
-    r2 = reformer(events)
-    r2.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, pass_in_train=False))
-    st["c1"] = car("c1", 220.0, 1, 12.0, cav=True)
-    r2.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)
-    st["c1"] = car("c1", 228.0, 0, 14.0, cav=True, lat=0.5)
-    assert r2.goals(1.0, st, platoon, ROAD, 1, cap_mps=25.0)["c2"] == 1
 
 
 def test_cavs_behind_an_hv_that_splits_the_platoon_pass_it():

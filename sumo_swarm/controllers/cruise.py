@@ -81,7 +81,7 @@ class Cruiser:
             desired_gap_m=sc.cav.desired_gap_m, k_close=sc.cacc.k_close,
             slow_below_mps=sc.cav.cruising_speed_mps - sc.swarm.min_speed_gain_mps,
             reach_m=sc.swarm.detect_range_m, width_m=sc.cav.width_m,
-        ) if sc.swarm.catch_up_across_lanes else {}  # fmt: skip
+        )  # fmt: skip
         if waits_at is not None and boost <= 0.0:
             wait = reformer.wait_cruise(states, platoon, road, waits_at, base)
             catch_up = {**catch_up, **{v: min(catch_up.get(v, base), w) for v, w in wait.items()}}

@@ -475,10 +475,9 @@ class Reformer:
         """The lane in which the CAV ``ahead`` passes ``slow_id``, or None. Once that CAV's
         centre is in it, the CAV behind it passes too, behind it there, as SUMO's own drivers
         do: waiting for each CAV to be past before the next one started took 5-6 s a CAV, and
-        9-12-CAV platoons that gave up were still in two lanes 50 s later ([swarm]
-        pass_in_train; None when it is off)."""
+        9-12-CAV platoons that gave up were still in two lanes 50 s later."""
         passing = self.passing.get(ahead)
-        if not self.scenario.swarm.pass_in_train or passing is None or passing[0] != slow_id:
+        if passing is None or passing[0] != slow_id:
             return None
         return passing[1]
 

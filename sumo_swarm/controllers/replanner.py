@@ -223,9 +223,7 @@ class Replanner:
             reason = self.trigger.check(t_s, {}, ())  # "initial" once the retry time has passed
         if reason is None or t_s < self.replan_not_before_s:
             return
-        min_gap = ctx.scenario.swarm.replan_min_interval_s
-        min_gap = self.interval() if min_gap is None else min_gap
-        if reason not in URGENT_TRIGGERS and t_s - self.last_plan_s < min_gap:
+        if reason not in URGENT_TRIGGERS and t_s - self.last_plan_s < self.interval():
             return
         self.replan(t_s, reason, states, platoon, target_id, progress)
 

@@ -125,9 +125,7 @@ class SwarmController:
                 max_lateral_speed_mps=sc.cav.max_lateral_speed_mps,
             ),
         )  # fmt: skip
-        steps = sc.swarm.control_interval_steps or max(
-            1, round(sc.swarm.control_interval_s / ctx.dt_s)
-        )
+        steps = max(1, round(sc.swarm.control_interval_s / ctx.dt_s))
         self.tracker = self._tracker_override or Tracker(sc.longitudinal, sc.lateral, steps)
         self.planlog = self._planlog_override or PlanLog(ctx.out_dir)
         self.routes = RouteWatch()
