@@ -542,44 +542,6 @@ class SwarmSettings:
     lane_pass_beats
         What a free lane must beat by min_speed_gain_mps for a lane pass: the plan's pace ("cells")
         or the lower of that and the cruise ("free").
-    max_pass_s
-        A CAV cut off from the platoon passes a slow vehicle on its own for at most this long [s].
-    pass_switch_s
-        A CAV held from its passing side this long tries the other side (0: never) [s].
-    pass_open_side_s
-        Held this long towards its passing side, a CAV switches at once to the other side when that
-        opens (0: never) [s].
-    drop_behind_s
-        A CAV held this long beside a platoon CAV slightly behind it drops back behind that CAV (0:
-        never) [s].
-    pass_intruder_mps
-        An HV that splits the platoon is passed when it drives below the cruise by
-        min_speed_gain_mps less this (0: only slow vehicles) [m/s].
-    run_up_gap_m
-        Gap a CAV refused a lane change keeps behind a slow vehicle so it can run up to the next
-        lane's speed (0: it waits) [m].
-    entry_accel_mps2
-        Acceleration of a CAV entering a faster lane in the cruise (0: the guard assumes it keeps
-        its speed) [m/s²].
-    run_up_after_s
-        A run-up starts once the guard has held the lane change this long [s].
-    run_up_commit_s
-        A run-up goes on this long after the last step a gap would take the CAV [s].
-    run_up_drop_mps
-        Dropping back to its run-up gap, a CAV slows at most this much below the slow vehicle [m/s].
-    pull_away_after_s
-        A CAV held this long beside the platoon's lane by an HV following the platoon makes the
-        platoon pull away (0: off) [s].
-    pull_away_mps
-        How much faster the platoon cruises when it pulls away [m/s].
-    reform_switch_s
-        Where that HV follows, after this long the platoon re-forms in the held CAVs' lane (0: off)
-        [s].
-    block_assist_after_s
-        A CAV stranded behind a slow vehicle this long is helped by the platoon CAV the blocking HV
-        follows (0: off) [s].
-    block_assist_mps
-        The helping CAV slows this much below the stranded CAV [m/s].
     min_speed_gain_mps
         Overtake only when the swarm's speed cap exceeds the target's speed by at least this [m/s].
     interval_rule
@@ -614,15 +576,6 @@ class SwarmSettings:
     pass_singly_s
         After a give-up for no progress or stranded CAVs, the leader too passes on its own for this
         long (0: the platoon follows) [s].
-    wait_ahead_s
-        After a give-up that splits the platoon around the target, the CAVs past it wait for the
-        others up to this long (0: they drive on) [s].
-    wait_lead_m
-        Waiting, the CAVs past the target keep up to this much more room ahead of it than the CAVs
-        behind need [m].
-    pass_reach_s
-        A CAV passing on its own judges the lanes beside over detect_range_m plus this many seconds
-        at the cruise [s].
     keep_right_wait_s
         A target that keeps right with a free lane on its right is waited for up to this long
         before the swarm starts (0: never) [s].
@@ -643,12 +596,6 @@ class SwarmSettings:
     keep_right_ahead_s
         Nothing slower may be within this time ahead in the target's right lane for it to be judged
         free [s].
-    max_block_s
-        An HV is held back by blockers for at most this long per manoeuvre [s].
-    max_leader_ease_mps
-        A cruising leader slows by at most this to let the platoon close up [m/s].
-    regroup_ease_mps
-        ...and by up to this when no HV follows it in its lane [m/s].
     match_lookahead_s
         A CAV matches the speed of the lane its reference enters this far ahead [s].
     hold_episode_s
@@ -684,21 +631,6 @@ class SwarmSettings:
     lane_pass: bool = True
     lane_pass_stall_s: float = 15.0
     lane_pass_beats: Literal["cells", "free"] = "free"
-    max_pass_s: float = 30.0
-    pass_switch_s: float = 6.0
-    pass_open_side_s: float = 1.0
-    drop_behind_s: float = 3.0
-    pass_intruder_mps: float = 1.0
-    run_up_gap_m: float = 30.0
-    entry_accel_mps2: float = 1.5
-    run_up_after_s: float = 2.0
-    run_up_commit_s: float = 1.0
-    run_up_drop_mps: float = 2.0
-    pull_away_after_s: float = 3.0
-    pull_away_mps: float = 3.0
-    reform_switch_s: float = 6.0
-    block_assist_after_s: float = 3.0
-    block_assist_mps: float = 2.0
     min_speed_gain_mps: float = 2.0
     interval_rule: Literal["drivable", "fixed"] = "drivable"
     speed_margin_mps: float = 0.3
@@ -713,9 +645,6 @@ class SwarmSettings:
     give_up_no_plan_s: float = 10.0
     cooldown_s: float = 15.0
     pass_singly_s: float = 60.0
-    wait_ahead_s: float = 45.0
-    wait_lead_m: float = 50.0
-    pass_reach_s: float = 5.0
     keep_right_wait_s: float = 10.0
     keep_right_middle: Literal["left", "wait", "go"] = "left"
     keep_right_move_s: float = 5.0
@@ -723,9 +652,6 @@ class SwarmSettings:
     keep_right_wish: bool = True
     keep_right_soon_s: float = 10.0
     keep_right_ahead_s: float = 4.0
-    max_block_s: float = 30.0
-    max_leader_ease_mps: float = 2.0
-    regroup_ease_mps: float = 5.0
     match_lookahead_s: float = 2.0
     hold_episode_s: float = 1.0
     lane_end_hold_s: float = 12.0
@@ -743,14 +669,11 @@ class SwarmSettings:
         check_non_negative(
             self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
             "speed_margin_mps", "retry_after_s", "give_up_no_plan_s",
-            "cooldown_s", "pass_singly_s", "wait_ahead_s", "wait_lead_m", "max_block_s",
-            "prediction_error_m",
-            "max_leader_ease_mps", "regroup_ease_mps", "in_lane_tolerance_m", "match_lookahead_s",
-            "hold_episode_s", "max_pass_s", "pass_switch_s", "pass_open_side_s", "drop_behind_s",
-            "keep_right_wait_s",
+            "cooldown_s", "pass_singly_s",             "prediction_error_m",
+            "in_lane_tolerance_m", "match_lookahead_s",
+            "hold_episode_s",             "keep_right_wait_s",
             "give_up_waiting_s", "accelerating_mps2", "catching_up_ahead_m", "progress_step_m",
-            "pass_reach_s",
-            "run_up_commit_s", "run_up_drop_mps", "keep_right_move_s", "keep_right_soon_s",
+            "keep_right_move_s", "keep_right_soon_s",
             "keep_right_ahead_s", "lane_end_hold_s", "lane_end_escape_s", "lane_end_min_m",
             "lane_shift_hold_m",
         )  # fmt: skip
@@ -759,16 +682,7 @@ class SwarmSettings:
             self,
             "give_up_waiting_plans",
             "give_up_stranded_plans",
-            "run_up_gap_m",
-            "run_up_after_s",
-            "pull_away_after_s",
-            "pull_away_mps",
-            "reform_switch_s",
-            "block_assist_after_s",
-            "block_assist_mps",
-            "entry_accel_mps2",
             "lane_pass_stall_s",
-            "pass_intruder_mps",
         )
         check_fields(self, "give_up_no_progress_intervals", "give_up_partial_intervals", ge=1)
         check_fields(self, "regroup_lane", "replan_every_intervals", ge=0, integer=True)

@@ -10,7 +10,7 @@ import types
 import pytest
 
 from sumo_swarm.config import Scenario
-from sumo_swarm.controllers.cruise import Cruiser
+from sumo_swarm.controllers.cruise import WAIT_AHEAD_S, Cruiser
 from sumo_swarm.controllers.follower import PlanFollower
 from sumo_swarm.controllers.lanes import (
     LANE_END_LENGTH_M,
@@ -134,7 +134,7 @@ def test_a_give_up_that_leaves_cavs_on_both_sides_of_the_target_starts_the_wait(
     assert cruiser.waits_started == 0 and reformer.waiting is None
     cruiser.wait_if_split(30.0, truck, {"c0": past, "c1": behind})
     assert cruiser.waits_started == 1
-    assert reformer.waiting == ("truck", 30.0, 30.0 + sc.swarm.wait_ahead_s)
+    assert reformer.waiting == ("truck", 30.0, 30.0 + WAIT_AHEAD_S)
     assert events == [{"slow": "truck", "past": 1, "behind": 1, "until_s": 75.0}]
 
 

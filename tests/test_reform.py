@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from sumo_swarm.config import Scenario
+from sumo_swarm.controllers import reform
 from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
@@ -77,8 +78,8 @@ def test_a_cav_cut_off_by_a_slow_vehicle_passes_it_and_comes_back():
     goals = r.goals(5.0, st, platoon, ROAD, 1, cap_mps=25.0)
     assert goals == {"c0": 1, "c1": 1, "c2": 0}
     assert events[1] == ("passing_end", {"vehicle": "c1", "slow": "slow", "past": True})
-    # Passing gives up after max_pass_s.
-    goals = r.goals(5.0 + SCENARIO.swarm.max_pass_s + 0.1, st, platoon, ROAD, 1, cap_mps=25.0)
+    # Passing gives up after MAX_PASS_S.
+    goals = r.goals(5.0 + reform.MAX_PASS_S + 0.1, st, platoon, ROAD, 1, cap_mps=25.0)
     assert goals["c2"] == 1 and events[-1][1] == {"vehicle": "c2", "slow": "slow", "past": False}
 
 
@@ -144,10 +145,10 @@ def test_cavs_cut_off_by_a_slow_vehicle_pass_it_in_a_train():
     assert events[-1] == ("passing_start", {"vehicle": "c2", "slow": "slow", "lane": 0})
 
 
-def test_cavs_behind_an_hv_that_splits_the_platoon_pass_it():
+def test_cavs_behind_an_hv_that_splits_the_platoon_pass_it(monkeypatch):
     # An HV at 18.5 m/s between c0 (ahead, lane 1) and c1: not slow enough to be passed as a
     # slow vehicle (cruise 20 - gain 2 = 18), but it splits the platoon: c1 passes it in the
-    # free lane 0 (pass_intruder_mps = 1: below 19 m/s).
+    # free lane 0 (PASS_INTRUDER_MPS = 1: below 19 m/s).
     events = []
     r = reformer(events)
     st = states(
@@ -164,9 +165,9 @@ def test_cavs_behind_an_hv_that_splits_the_platoon_pass_it():
     r = reformer(events)
     st["c0"] = car("c0", 330.0, 2, 18.5, cav=True)
     assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1 and events == []
-    # With pass_intruder_mps = 0 the split HV is not passed either.
+    # Without the PASS_INTRUDER_MPS allowance the split HV is not passed either.
     st["c0"] = car("c0", 330.0, 1, 18.5, cav=True)
-    r.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, pass_intruder_mps=0.0))
+    monkeypatch.setattr(reform, "PASS_INTRUDER_MPS", 0.0)
     assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1 and events == []
 
 
@@ -206,15 +207,12 @@ def test_past_the_target_the_platoon_reforms_in_its_regroup_lane():
     assert r5.lane(split, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) != 2
 
 
-def test_a_passing_lane_is_judged_over_the_length_of_the_pass():
+def test_a_passing_lane_is_judged_over_the_length_of_the_pass(monkeypatch):
     # c1 is cut off by a 12 m/s car in lane 1. Lane 0 is free for 60 m (detect_range_m), but
     # a truck drives 11 m/s 120 m ahead there, within the 100 m the pass looks further
-    # (pass_reach_s, 5 s at the cruise): c1 would end up behind it. It passes in lane 2.
-    def goal(truck_ahead_m, **swarm):
-        import dataclasses
-
-        sc = dataclasses.replace(SCENARIO, swarm=dataclasses.replace(SCENARIO.swarm, **swarm))
-        r = Reformer(sc, lambda vid: DriverModel(desired_speed_mps=30.0))
+    # (PASS_REACH_S, 5 s at the cruise): c1 would end up behind it. It passes in lane 2.
+    def goal(truck_ahead_m):
+        r = Reformer(SCENARIO, lambda vid: DriverModel(desired_speed_mps=30.0))
         st = states(
             car("c0", 300.0, 1, 20.0, cav=True),
             car("slow", 240.0, 1, 12.0),
@@ -226,7 +224,8 @@ def test_a_passing_lane_is_judged_over_the_length_of_the_pass():
 
     assert goal(120.0) == 2
     assert goal(200.0) == 0  # beyond the pass's reach: lane 0 is free for it
-    assert goal(120.0, pass_reach_s=0.0) == 0  # detect_range_m only: the former rule
+    monkeypatch.setattr(reform, "PASS_REACH_S", 0.0)
+    assert goal(120.0) == 0  # detect_range_m only: the former rule
 
 
 def passing_on_the_right(events):
@@ -356,7 +355,7 @@ def test_a_cav_held_out_of_its_passing_lane_tries_the_other_side():
     platoon = ["c0", "c1"]
     goals = r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)
     assert goals["c1"] == 0 and events[-1][0] == "passing_start"
-    switch_s = SCENARIO.swarm.pass_switch_s
+    switch_s = reform.PASS_SWITCH_S
     t, dt = 0.0, 0.1
     while t < switch_s - dt / 2:  # the guard holds c1: a car right behind it in lane 0
         assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] == 0.0
@@ -367,7 +366,7 @@ def test_a_cav_held_out_of_its_passing_lane_tries_the_other_side():
         "passing_switch",
         {"vehicle": "c1", "slow": "slow", "held_lane": 0, "lane": 2},
     )
-    assert r.passing["c1"] == ("slow", 2, 0.0)  # max_pass_s still counts from the start
+    assert r.passing["c1"] == ("slow", 2, 0.0)  # MAX_PASS_S still counts from the start
     assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] > 0.0  # lane 2 is free: it goes
     assert "c1" not in r.held_s
 
@@ -375,7 +374,7 @@ def test_a_cav_held_out_of_its_passing_lane_tries_the_other_side():
 def _held_towards_lane_0(open_side, dt=0.1):
     """c1 behind a slow car in lane 1, passing in lane 0, held there by a car right behind it
     in lane 0; lane 2 is free or (``open_side`` false) a car there is right behind c1 too.
-    Returns the time at which c1 switches to lane 2 (None: not within pass_switch_s)."""
+    Returns the time at which c1 switches to lane 2 (None: not within PASS_SWITCH_S)."""
     events = []
     r = reformer(events)
     st = states(
@@ -391,7 +390,7 @@ def _held_towards_lane_0(open_side, dt=0.1):
     goals = r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0, step_s=dt)
     assert goals["c1"] == 0
     t = 0.0
-    while t < SCENARIO.swarm.pass_switch_s - 1.5 * dt:
+    while t < reform.PASS_SWITCH_S - 1.5 * dt:
         assert r.moves(st, platoon, ROAD, 1, goals, dt)["c1"][0] == 0.0  # held
         t += dt
         goals = r.goals(t, st, platoon, ROAD, 1, cap_mps=25.0, step_s=dt)
@@ -406,21 +405,11 @@ def _held_towards_lane_0(open_side, dt=0.1):
 
 
 def test_a_held_cav_switches_at_once_to_the_other_side_when_that_opens():
-    # Lane 2 would let c1 in: it switches once held for pass_open_side_s, not pass_switch_s.
+    # Lane 2 would let c1 in: it switches once held for PASS_OPEN_SIDE_S, not PASS_SWITCH_S.
     t = _held_towards_lane_0(open_side=True)
-    assert t == pytest.approx(SCENARIO.swarm.pass_open_side_s, abs=0.11)
+    assert t == pytest.approx(reform.PASS_OPEN_SIDE_S, abs=0.11)
     # Lane 2 would refuse it too (a car closing in right behind): it keeps waiting for lane 0.
     assert _held_towards_lane_0(open_side=False) is None
-
-
-def test_the_early_switch_can_be_turned_off():
-    global SCENARIO
-    kept = SCENARIO
-    SCENARIO = replace(kept, swarm=replace(kept.swarm, pass_open_side_s=0.0))
-    try:
-        assert _held_towards_lane_0(open_side=True) is None  # only after pass_switch_s
-    finally:
-        SCENARIO = kept
 
 
 def test_a_cav_held_out_of_the_platoons_lane_behind_a_slow_car_passes_on_the_other_side():
@@ -435,7 +424,7 @@ def test_a_cav_held_out_of_the_platoons_lane_behind_a_slow_car_passes_on_the_oth
     platoon = ["c0", "c1"]
     goals = r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)
     assert goals["c1"] == 1
-    for _ in range(round(SCENARIO.swarm.pass_switch_s / 0.1)):
+    for _ in range(round(reform.PASS_SWITCH_S / 0.1)):
         assert r.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"][0] == 0.0  # held
     # Lane 0 is the rightmost: no other side. From lane 1 the other side of lane 0 is lane 2.
     assert r.goals(6.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1
@@ -445,7 +434,7 @@ def test_a_cav_held_out_of_the_platoons_lane_behind_a_slow_car_passes_on_the_oth
     st["beside"] = car("beside", 219.0, 0, 12.0)
     goals = r.goals(6.0, st, platoon, ROAD, 0, cap_mps=25.0)
     assert goals["c1"] == 0
-    for _ in range(round(SCENARIO.swarm.pass_switch_s / 0.1)):
+    for _ in range(round(reform.PASS_SWITCH_S / 0.1)):
         r.moves(st, platoon, ROAD, 0, goals, 0.1)
     assert r.goals(12.0, st, platoon, ROAD, 0, cap_mps=25.0)["c1"] == 2
     assert events[-1][0] == "passing_switch" and events[-1][1]["lane"] == 2
@@ -464,12 +453,12 @@ def test_a_cav_beside_a_platoon_cav_a_little_behind_it_drops_back_behind_it():
     platoon = ["c1", "c0", "c2", "c3"]
     goals = {"c1": 0, "c0": 0, "c2": 0, "c3": 0}
     gentle = -SCENARIO.hvmodel.planner_share * SCENARIO.hvmodel.b_safe_mps2
-    for _ in range(round(SCENARIO.swarm.drop_behind_s / 0.1)):
+    for _ in range(round(reform.DROP_BEHIND_S / 0.1)):
         dlat, bound = r.moves(st, platoon, ROAD, 0, goals, 0.1)["c2"]
         assert dlat == 0.0  # held: c0 is beside it
         assert bound > gentle  # not at once: it may be passing by
     dlat, bound = r.moves(st, platoon, ROAD, 0, goals, 0.1)["c2"]
-    assert bound == pytest.approx(gentle)  # held for drop_behind_s: drops back behind c0
+    assert bound == pytest.approx(gentle)  # held for DROP_BEHIND_S: drops back behind c0
     # Once behind c0 it follows c0 at a real gap, and c3 makes room for it.
     st["c2"] = car("c2", 293.0, 1, 20.0, cav=True, lat=-0.6)
     moves = r.moves(st, platoon, ROAD, 0, goals, 0.1)
@@ -525,48 +514,43 @@ def test_a_stranded_cav_holds_back_from_the_slow_car_then_runs_up_into_a_gap():
     # Refused, but not yet for run_up_after_s: it waits as before (no bound, no floor).
     dlat, bound = r.moves(scene(240.0), platoon, ROAD, 1, goals, 0.1)["c1"]
     assert dlat == 0.0 and bound > 0.0 and r.floors == {}
-    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    r.held_s["c1"] = (1, reform.RUN_UP_AFTER_S)
     # 15 m behind the slow car, no gap takes it at the speed that room allows: it drops back.
     dlat, bound = r.moves(scene(240.0), platoon, ROAD, 1, goals, 0.1)["c1"]
     assert dlat == 0.0 and bound == pytest.approx(gentle) and r.floors == {}
-    # Never more than [swarm] run_up_drop_mps below the slow car's speed.
+    # Never more than RUN_UP_DROP_MPS below the slow car's speed.
     assert r.moves(scene(240.0, 9.9), platoon, ROAD, 1, goals, 0.1)["c1"][1] >= 0.0
     # 40 m behind it, f 10 m farther back: running up to 19.2 m/s (2.4 s), it would be taken
     # behind f: it accelerates at its maximum (a floor under the CACC, which would close in on
     # the slow car more slowly). With f where it was, no: it keeps its distance.
-    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    r.held_s["c1"] = (1, reform.RUN_UP_AFTER_S)
     r.moves(scene(265.0), platoon, ROAD, 1, goals, 0.1)
     assert r.floors == {}
-    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    r.held_s["c1"] = (1, reform.RUN_UP_AFTER_S)
     dlat, bound = r.moves(scene(265.0, f_s=180.0), platoon, ROAD, 1, goals, 0.1)["c1"]
     assert dlat == 0.0 and r.floors == {"c1": SCENARIO.cav.accel_max_mps2} and bound >= 3.0
     # An HV alongside in lane 1 as slow as the slow car: lane 1 is no faster, no run-up (it
     # drops in behind that HV as before).
     st = scene(240.0)
     st["beside"] = car("beside", 221.0, 1, 12.5)
-    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
-    with_run_up = r.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"]
+    r.held_s["c1"] = (1, reform.RUN_UP_AFTER_S)
+    r.moves(st, platoon, ROAD, 1, goals, 0.1)
     assert r.floors == {}
     # A CAV following in lane 1 instead of f: it makes room (no run-up, no drop back).
     cavs = scene(240.0)
     cavs["f"] = car("f", 190.0, 1, 20.0, cav=True)
-    r.held_s["c1"] = (1, SCENARIO.swarm.run_up_after_s)
+    r.held_s["c1"] = (1, reform.RUN_UP_AFTER_S)
     assert r.moves(cavs, [*platoon, "f"], ROAD, 1, {**goals, "f": 1}, 0.1)["c1"][1] > gentle
-    # Off (run_up_gap_m = 0): it waits at the slow car's speed, without dropping back.
-    r.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, run_up_gap_m=0.0))
-    assert r.moves(scene(240.0), platoon, ROAD, 1, goals, 0.1)["c1"][1] > 0.0
-    assert r.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"] == with_run_up
 
 
 def test_a_cav_enters_a_faster_lane_speeding_up_where_the_guard_then_takes_it():
     # SUMO's default Krauss driver (b = 4.5 m/s^2, Krauss brakes late) in lane 1 at 24 m/s,
     # 120 m behind a CAV at 12 m/s that heads for lane 1, 40 m behind a slow car. Entering at
     # 12 m/s it would close in at 12 m/s and brake harder than b_safe on arrival (refused);
-    # entering speeding up at entry_accel_mps2 to lane 1's 18 m/s (the cruise less the
+    # entering speeding up at ENTRY_ACCEL_MPS2 to lane 1's 18 m/s (the cruise less the
     # leader's ease) the guard takes it, and the CAV gets that floor so that it does speed up.
     krauss = DriverModel("Krauss", 2.6, 4.5, 9.0, 1.0, 2.5, desired_speed_mps=30.0, sigma=0.0)
     r = Reformer(SCENARIO, lambda vid: krauss)
-    sw = SCENARIO.swarm
 
     def scene(slow_s=265.0):
         return states(
@@ -577,11 +561,7 @@ def test_a_cav_enters_a_faster_lane_speeding_up_where_the_guard_then_takes_it():
 
     platoon, goals = ["c1"], {"c1": 1}
     dlat, _ = r.moves(scene(), platoon, ROAD, 1, goals, 0.1)["c1"]
-    assert dlat > 0.0 and r.floors == {"c1": sw.entry_accel_mps2}
-    # Off: at its own speed the same entry is refused.
-    r.scenario = replace(SCENARIO, swarm=replace(sw, entry_accel_mps2=0.0))
-    dlat, _ = r.moves(scene(), platoon, ROAD, 1, goals, 0.1)["c1"]
-    assert dlat == 0.0 and r.floors == {}
+    assert dlat > 0.0 and r.floors == {"c1": reform.ENTRY_ACCEL_MPS2}
     # No room to speed up behind the slow car during the lane change (6 m, under min_gap +
     # 1.5 * (3.2 m / max_lateral_speed)^2 / 2 = 5 + 1.92 m): it would enter at its speed, refused.
     r.scenario = SCENARIO
@@ -628,7 +608,7 @@ def test_an_hv_following_the_platoon_beside_a_held_cav_is_pulled_away_from():
     r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0)
     assert len(events) == 2
     # Not for an HV that wants as much as the faster cruise (it would follow), not before
-    # pull_away_after_s, not for a CAV still behind a slow car of its own lane.
+    # PULL_AWAY_AFTER_S, not for a CAV still behind a slow car of its own lane.
     r, st, _ = held_beside_a_follower(33.0, 3.5)
     assert r.pull_away(st, ["c0", "c1"], ROAD, 2, cap_mps=25.0) == 0.0
     r, st, _ = held_beside_a_follower(21.0, 2.0)
@@ -639,7 +619,7 @@ def test_an_hv_following_the_platoon_beside_a_held_cav_is_pulled_away_from():
 
 
 def test_the_platoon_moves_over_to_a_cav_an_hv_keeps_out_of_its_lane():
-    # The HV wants 33 m/s, more than the platoon may drive: after reform_switch_s the platoon
+    # The HV wants 33 m/s, more than the platoon may drive: after REFORM_SWITCH_S the platoon
     # re-forms in c1's lane 1 (as fast at the cruise: its car ahead drives 21 m/s), and the HV
     # gets lane 2 back. The choice stays although lane 2 is free at the cap, and never goes
     # back to lane 2 on that edge.
@@ -666,7 +646,7 @@ def test_the_platoon_moves_over_to_a_cav_an_hv_keeps_out_of_its_lane():
 
 def test_a_cav_held_beside_a_platoon_cav_does_not_turn_to_the_other_side():
     # As in the test above (c1 in lane 1 behind a slow car, held out of the platoon's lane 0
-    # for pass_switch_s), but what holds it is a CAV of the platoon alongside in lane 0: the
+    # for PASS_SWITCH_S), but what holds it is a CAV of the platoon alongside in lane 0: the
     # platoon makes room (or c1 drops back behind it), so c1 keeps heading for lane 0.
     events = []
     r = reformer(events)
@@ -679,12 +659,12 @@ def test_a_cav_held_beside_a_platoon_cav_does_not_turn_to_the_other_side():
     platoon = ["c0", "c2", "c1"]
     goals = r.goals(0.0, st, platoon, ROAD, 0, cap_mps=25.0)
     assert goals["c1"] == 0
-    r.held_s["c1"] = (0, SCENARIO.swarm.pass_switch_s + 0.1)
+    r.held_s["c1"] = (0, reform.PASS_SWITCH_S + 0.1)
     assert r.goals(6.5, st, platoon, ROAD, 0, cap_mps=25.0)["c1"] == 0
     assert not any(kind == "passing_switch" for kind, _ in events)
     # The same with an HV there instead: it passes on the other side.
     st["c2"] = car("c2", 221.0, 0, 12.0)
-    r.held_s["c1"] = (0, SCENARIO.swarm.pass_switch_s + 0.1)
+    r.held_s["c1"] = (0, reform.PASS_SWITCH_S + 0.1)
     assert r.goals(7.0, st, ["c0", "c1"], ROAD, 0, cap_mps=25.0)["c1"] == 2
 
 
@@ -704,11 +684,11 @@ def test_a_platoon_cav_slows_the_hv_beside_a_stranded_cav_so_it_can_get_in():
     )  # fmt: skip
     platoon = ["c0", "c1", "c2"]
     goals = {"c0": 1, "c1": 1, "c2": 1}
-    r.held_s["c2"] = (1, SCENARIO.swarm.block_assist_after_s - 0.05)
-    moves = r.moves(st, platoon, ROAD, 1, goals, 0.1)  # held now for block_assist_after_s
+    r.held_s["c2"] = (1, reform.BLOCK_ASSIST_AFTER_S - 0.05)
+    moves = r.moves(st, platoon, ROAD, 1, goals, 0.1)  # held now for BLOCK_ASSIST_AFTER_S
     brake = SCENARIO.hvmodel.planner_share * SCENARIO.hvmodel.b_safe_mps2
     # 2 m/s to lose, at the cruise law's gain (within the gentle brake)
-    slower = -SCENARIO.cacc.k_cruise * SCENARIO.swarm.block_assist_mps
+    slower = -SCENARIO.cacc.k_cruise * reform.BLOCK_ASSIST_MPS
     assert moves["c1"][1] == pytest.approx(slower)
     assert moves["c1"][1] >= -brake
     assert moves["c0"][1] > 0.0  # the leader drives on
@@ -719,7 +699,7 @@ def test_a_platoon_cav_slows_the_hv_beside_a_stranded_cav_so_it_can_get_in():
     # Nor for an HV that drives its own pace (it wants what it drives).
     r2 = Reformer(SCENARIO, lambda vid: DriverModel(desired_speed_mps=14.0))
     st["c1"] = car("c1", 275.0, 1, 14.0, cav=True)
-    r2.held_s["c2"] = (1, SCENARIO.swarm.block_assist_after_s + 0.1)
+    r2.held_s["c2"] = (1, reform.BLOCK_ASSIST_AFTER_S + 0.1)
     assert r2.moves(st, platoon, ROAD, 1, goals, 0.1)["c1"][1] > -brake
 
 
@@ -783,9 +763,11 @@ def test_the_wait_ends_once_the_platoon_is_no_longer_split_or_its_time_is_up(cha
     assert r.split_by(10.0, st, platoon, ROAD) is None and r.wait_ends["gone"] == 1
 
 
-def test_the_cavs_waiting_keep_the_room_the_others_need_ahead_of_the_target_and_no_more():
+def test_the_cavs_waiting_keep_the_room_the_others_need_ahead_of_the_target_and_no_more(
+    monkeypatch,
+):
     r = reformer()  # the truck's model: min gap 2.5 m, tau 1 s
-    r.scenario = replace(SCENARIO, swarm=replace(SCENARIO.swarm, wait_lead_m=0.0))
+    monkeypatch.setattr(reform, "WAIT_LEAD_M", 0.0)
     platoon = ["c0", "c1", "c2", "c3"]
     st = split_scene()
     # Only CAVs past the truck and in its lane are held; none is there yet.
@@ -811,8 +793,8 @@ def test_the_cavs_waiting_keep_the_room_the_others_need_ahead_of_the_target_and_
     st["c1"] = car("c1", 285.0, 1, 20.0, cav=True)  # 10 m of room
     assert r.wait_cruise(st, platoon, ROAD, st["slow"], 16.0) == {"c0": 16.0, "c1": 16.0}
     # With a lead of 50 m they keep their cruise until they are 50 m further ahead.
-    r.scenario = SCENARIO
-    assert SCENARIO.swarm.wait_lead_m == 50.0
+    monkeypatch.undo()
+    assert reform.WAIT_LEAD_M == 50.0
     st["c0"] = car("c0", 320.0, 1, 20.0, cav=True)
     st["c1"] = car("c1", 330.0, 1, 20.0, cav=True)  # c0 rearmost: 45 m of room, 49.5 m short
     assert r.wait_cruise(st, platoon, ROAD, st["slow"], 20.0) == {
@@ -835,7 +817,7 @@ def test_a_cav_the_platoon_waits_for_passes_in_any_lane_beside_once_the_wait_has
     # Neither lane beside is faster by the gain: c1 stays behind the truck for now...
     assert r.goals(16.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}
     assert events == []
-    # ... and once the wait has lasted pass_switch_s (6 s), it passes in the lane beside.
+    # ... and once the wait has lasted PASS_SWITCH_S (6 s), it passes in the lane beside.
     goals = r.goals(21.0, st, platoon, ROAD, 1, cap_mps=25.0)
     assert goals["c1"] in (0, 2)
     assert events == [("passing_start", {"vehicle": "c1", "slow": "slow", "lane": goals["c1"]})]
@@ -847,7 +829,7 @@ def test_a_cav_the_platoon_waits_for_passes_in_any_lane_beside_once_the_wait_has
 def test_a_pass_out_of_time_goes_on_while_alongside_the_slow_vehicle():
     events = []
     r = reformer(events)
-    late = -(SCENARIO.swarm.max_pass_s + 1.0)  # the pass started longer ago than max_pass_s
+    late = -(reform.MAX_PASS_S + 1.0)  # the pass started longer ago than MAX_PASS_S
     platoon = ["c0", "c1"]
     # c1 in the passing lane, its front past the slow car's rear: the pass goes on
     st = states(

@@ -5,7 +5,7 @@
 the leader eases off to let a stretched platoon close up (only by what the followers cannot
 make up above the cruise); stragglers cut off in another lane may drive above the cruise to
 catch up; after a give-up that split the platoon, the CAVs past the slow vehicle wait ahead of
-it (``[swarm] wait_ahead_s``).
+it (``WAIT_AHEAD_S``).
 """
 
 from __future__ import annotations
@@ -20,9 +20,18 @@ from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.neighbours import Snapshot, snapshot_of
-from sumo_swarm.core.swarming.decision import leader_ease_cap, straggler_cruise
+from sumo_swarm.core.swarming.decision import (
+    MAX_LEADER_EASE_MPS,
+    REGROUP_EASE_MPS,
+    leader_ease_cap,
+    straggler_cruise,
+)
 from sumo_swarm.core.swarming.tracker import Tracker
 
+# After a give-up that leaves the target between CAVs, the CAVs past it wait ahead for the
+# others up to this long [s]. Driving on, the last CAV got by 190 m behind them and the
+# platoon was still in two lanes at 80 s (variants 24, 39; docs/dense-traffic.md).
+WAIT_AHEAD_S = 45.0
 
 class Cruiser:
     """The platoon's commands while it cruises (see the module docstring)."""
@@ -35,7 +44,7 @@ class Cruiser:
         self.decider = decider
         self.lanes = lanes
         self.tracker = tracker
-        self.waits_started = 0  # waits ahead of a target splitting the platoon (wait_ahead_s)
+        self.waits_started = 0  # waits ahead of a target splitting the platoon (WAIT_AHEAD_S)
 
     def step(self, t_s: float, states: Mapping[str, VehicleState], platoon: list[str]) -> None:
         """CACC following in the current lane, drifting back to the lane centre."""
@@ -99,9 +108,9 @@ class Cruiser:
         self, t_s: float, target: VehicleState | None, cavs: Mapping[str, VehicleState]
     ) -> None:
         """After a give-up: wait for the CAVs behind ``target`` if it splits the platoon
-        (``[swarm] wait_ahead_s``, :meth:`Reformer.split_by`; a ``wait_start`` event)."""
-        wait_s = self.ctx.scenario.swarm.wait_ahead_s
-        if wait_s <= 0.0 or target is None:
+        (``WAIT_AHEAD_S``, :meth:`Reformer.split_by`; a ``wait_start`` event)."""
+        wait_s = WAIT_AHEAD_S
+        if target is None:
             return
         past = sum(self.reformer.past(c, target) for c in cavs.values())
         if 0 < past < len(cavs):
@@ -118,7 +127,7 @@ class Cruiser:
         sc = self.ctx.scenario
         return leader_ease_cap(
             states, platoon, self.ctx.road, width_m=sc.cav.width_m,
-            reach_m=sc.swarm.detect_range_m, ease_mps=sc.swarm.max_leader_ease_mps,
-            regroup_ease_mps=sc.swarm.regroup_ease_mps,
+            reach_m=sc.swarm.detect_range_m, ease_mps=MAX_LEADER_EASE_MPS,
+            regroup_ease_mps=REGROUP_EASE_MPS,
             everyone=everyone,
         )  # fmt: skip

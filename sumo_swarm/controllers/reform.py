@@ -8,13 +8,13 @@ CAVs are brought back into one platoon:
   holding more CAVs; the choice is kept unless another lane is faster by ``min_speed_gain_mps``.
 * :meth:`Reformer.goals` gives each CAV its lane: the platoon's, except for a CAV cut off from
   the CAV ahead of it by a slow vehicle in that lane, which passes it on its own in the faster
-  lane beside and then comes back (at most ``[swarm] max_pass_s``).
+  lane beside and then comes back (at most ``MAX_PASS_S``).
 * :meth:`Reformer.moves` turns the goals into a lateral move and an acceleration bound per CAV:
   one lane at a time, through the same lateral guard as in a manoeuvre; a CAV that must change
   lanes drops in behind whatever drives ahead in the next lane, and the CAVs in the platoon's
   lane open a gap for a CAV merging next to them. A CAV held behind a slow HV beside a faster
   lane runs up (:func:`~sumo_swarm.core.swarming.guards.run_up`): it keeps
-  ``[swarm] run_up_gap_m`` behind the slow HV and accelerates when a gap in that lane would
+  ``RUN_UP_GAP_M`` behind the slow HV and accelerates when a gap in that lane would
   take it at a speed it can reach, instead of asking the stream to take it at the HV's speed.
 
 Pure apart from the ``event`` callback: tested without SUMO (tests/test_reform.py).
@@ -41,10 +41,61 @@ from sumo_swarm.core.neighbours import (
     vehicle_behind,
     within,
 )
-from sumo_swarm.core.swarming.decision import is_past, lane_speeds
+from sumo_swarm.core.swarming.decision import MAX_LEADER_EASE_MPS, is_past, lane_speeds
 from sumo_swarm.core.swarming.guards import gap_accel_limit, run_up
 
 Move = tuple[float, float]  # (lateral move [m], acceleration bound [m/s^2])
+
+# Passing on its own (Reformer.goals), a CAV cut off from the platoon by a slow vehicle:
+# at most this long [s] unless alongside it already (a CAV held out of a lane of 25-28 m/s
+# traffic kept trying for 30 s, 50 m behind its platoon).
+MAX_PASS_S = 30.0
+# Held this long [s] from its passing side, it tries the other side (stress scenes where a CAV
+# waited for one stream while the other side was free); also how long the platoon waits ahead
+# before a CAV behind the target passes in whichever lane beside is fastest.
+PASS_SWITCH_S = 6.0
+# Held this long [s], it switches at once if the other side would take it now (the last CAV of
+# five sat 60 s behind a truck, held towards a stream while the other side's traffic had gone).
+PASS_OPEN_SIDE_S = 1.0
+# An HV between platoon CAVs is passed below the cruise less the gain plus this [m/s]: it
+# follows the platoon's eased front part, so it is never slow enough (stress scene 187).
+PASS_INTRUDER_MPS = 1.0
+# The lanes beside are judged over detect_range_m plus this long [s] at the cruise: a slower
+# vehicle just beyond detect_range_m would hold the passing CAV there.
+PASS_REACH_S = 5.0
+# Held this long [s] beside a platoon CAV a little behind it, a CAV drops back behind that CAV
+# (at once, it braked a CAV passing alongside for a moment: stress scene 81, -1.2 m/s).
+DROP_BEHIND_S = 3.0
+# Run-up (guards.run_up): held this long [s] behind a slow HV beside a faster lane, a CAV keeps
+# RUN_UP_GAP_M [m] behind it, dropping at most RUN_UP_DROP_MPS [m/s] below its speed, and runs
+# up to a gap it can reach, for RUN_UP_COMMIT_S [s] more once no gap takes it. Entering a
+# stream 8 m/s faster at a truck's speed brakes its HVs harder than b_safe at any headway: a CAV
+# waited 36 s behind a 12 m/s truck beside a lane at 20 m/s.
+RUN_UP_AFTER_S = 2.0
+RUN_UP_GAP_M = 30.0
+RUN_UP_DROP_MPS = 2.0
+RUN_UP_COMMIT_S = 1.0
+# A CAV enters a faster lane speeding up at this [m/s^2] (the guard judges that entry, not one
+# at its own speed, which the lane's HVs would have to brake for).
+ENTRY_ACCEL_MPS2 = 1.5
+# Held this long [s] next to the platoon's lane by an HV following the platoon, the platoon
+# pulls away up to PULL_AWAY_MPS [m/s] faster; from an HV that wants more, it re-forms in the
+# held CAV's lane after REFORM_SWITCH_S [s] (CAVs drove beside such an HV at the cruise for
+# 30 s and never regrouped: stress scenes 17, 112, 186).
+PULL_AWAY_AFTER_S = 3.0
+PULL_AWAY_MPS = 3.0
+REFORM_SWITCH_S = 6.0
+# A CAV stranded behind a slow vehicle this long [s] is helped by the platoon CAV the HV
+# holding it out follows: that CAV slows BLOCK_ASSIST_MPS [m/s] below the stranded CAV (the
+# last of nine CAVs sat behind the truck for 20 s without it: stress scene 192).
+BLOCK_ASSIST_AFTER_S = 3.0
+BLOCK_ASSIST_MPS = 2.0
+# An HV is held back by blockers for at most this long [s] per manoeuvre, the cell plan's
+# (Replanner) and the cruise's (block_assist): blocking delays the traffic behind it.
+MAX_BLOCK_S = 30.0
+# Waiting ahead of the target for the CAVs behind it, the CAVs past it keep up to this much
+# [m] more room than the others need to get in (room only, they braked the others' entries).
+WAIT_LEAD_M = 50.0
 
 
 def clip(x: float, bound: float) -> float:
@@ -170,18 +221,18 @@ class Reformer:
         candidates: Collection[int],
         cap_mps: float,
     ) -> int:
-        """The lane of CAVs an HV has kept out of ``current`` for ``[swarm] reform_switch_s``
+        """The lane of CAVs an HV has kept out of ``current`` for ``REFORM_SWITCH_S``
         (:meth:`_held_by_hv`; not an HV the platoon can pull away from) when the platoon cruises
         as fast there (``speeds`` capped at the cruise, within ``min_speed_gain_mps``), else
         ``current``. The HV following the platoon then has its lane back (it wanted 33 m/s
         behind a platoon at 20 for 30 s, two CAVs beside it at the lane's edge: stress scenes
         17 and 112). Never back to a lane left so: once per lane and edge."""
         sw = self.scenario.swarm
-        if sw.reform_switch_s <= 0.0 or self.left_for_held == (current, self.edge):
+        if self.left_for_held == (current, self.edge):
             return current
         cruise = self.scenario.cav.cruising_speed_mps
         boost = self._boost(cap_mps)
-        for ego, hv in self._held_by_hv(states, platoon, road, current, sw.reform_switch_s):
+        for ego, hv in self._held_by_hv(states, platoon, road, current, REFORM_SWITCH_S):
             if self._left_behind(hv, boost):
                 continue  # the platoon pulls away from it instead (pull_away)
             q = road.lane_of(ego)
@@ -216,7 +267,7 @@ class Reformer:
         ``cacc.k_close`` per metre the room ahead of it (to the rearmost of those CAVs) falls
         short of what the CAVs behind need to get in (each a CAV length plus
         ``cav.desired_gap_m``, plus ``slow``'s secure gap by its model: ``min_gap_m + tau_s *
-        v``, plus ``[swarm] wait_lead_m``), at most ``cruise_mps``. Never slower than
+        v``, plus ``WAIT_LEAD_M``), at most ``cruise_mps``. Never slower than
         ``slow``: it is held up by nobody.
         None is held while a CAV past ``slow`` in another lane is still to drop in behind them
         (its front within ``cav.desired_gap_m`` of their rear or ahead of it): it would slow
@@ -236,7 +287,7 @@ class Reformer:
         need = (
             behind * (sc.cav.length_m + sc.cav.desired_gap_m)
             + (model.min_gap_m + model.tau_s * slow.speed_mps)
-            + sc.swarm.wait_lead_m
+            + WAIT_LEAD_M
         )
         room = rear - slow.s_m
         speed = min(slow.speed_mps + sc.cacc.k_close * max(need - room, 0.0), cruise_mps)
@@ -392,7 +443,7 @@ class Reformer:
                 # Out of time, but alongside it in the passing lane already: the pass goes on
                 # (given up there, a CAV past it 2 s later was recorded as not past).
                 alongside = not done and road.lane_of(ego) == side and ego.s_m > slow.rear_s_m
-                late = t_s - since > sw.max_pass_s and not alongside
+                late = t_s - since > MAX_PASS_S and not alongside
                 if done or moved or gone or late:
                     del self.passing[vid]
                     self.event("passing_end", vehicle=vid, slow=slow_id, past=done)
@@ -408,7 +459,7 @@ class Reformer:
             slow = ahead[0]
             slow_below = sc.cav.cruising_speed_mps - sw.min_speed_gain_mps
             if i > 0 and self._splits(slow, states, platoon[:i], road):
-                slow_below += sw.pass_intruder_mps
+                slow_below += PASS_INTRUDER_MPS
             if slow.speed_mps > slow_below:
                 continue
             if road.lane_of(slow) != road.lane_of(ego):
@@ -431,12 +482,12 @@ class Reformer:
                 # Not on the right of a driver about to move there, with a lane on its left
                 # (the swarm's plan keeps out of it too: Decider.keep_right_closure).
                 side = [q for q in side if q != wanted]
-            reach = sw.detect_range_m + sw.pass_reach_s * sc.cav.cruising_speed_mps
+            reach = sw.detect_range_m + PASS_REACH_S * sc.cav.cruising_speed_mps
             speeds = lane_speeds(ego, others, road, side, range_m=reach,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip
             best = max(speeds, key=speeds.get, default=None)
             gain = sw.min_speed_gain_mps
-            if self._waited_at(slow, t_s) >= sw.pass_switch_s:
+            if self._waited_at(slow, t_s) >= PASS_SWITCH_S:
                 # The platoon waits for ego ahead of this vehicle: ego passes it to re-join,
                 # not to drive faster, in whichever lane beside is fastest (an HV beside the
                 # truck at 15.8 m/s kept the only side lane from being 2 m/s faster than the
@@ -463,8 +514,8 @@ class Reformer:
     ) -> bool:
         """Does ``hv`` split the platoon: is one of the CAVs ``ahead`` (the platoon's CAVs in
         front of the one behind ``hv``) in ``hv``'s lane ahead of it, at any distance? The
-        CAVs behind such an HV pass it when it is slower than the cruise by ``[swarm]
-        pass_intruder_mps`` less than a slow vehicle must be: it follows the platoon's front
+        CAVs behind such an HV pass it when it is slower than the cruise by
+        ``PASS_INTRUDER_MPS`` less than a slow vehicle must be: it follows the platoon's front
         part, which eases off for the stretched platoon, so it was never slow enough to pass,
         and five CAVs drove 85 m behind the other four for 15 s, the HV between them, the lane
         beside free (stress scene 187)."""
@@ -514,10 +565,10 @@ class Reformer:
         step_s: float = 0.0,
     ) -> int:
         """``goal``, or the lane on ego's other side once the guard has held ego's lane change
-        towards ``goal`` for ``[swarm] pass_switch_s`` with a slow vehicle ahead of it in its
+        towards ``goal`` for ``PASS_SWITCH_S`` with a slow vehicle ahead of it in its
         own lane, and that other lane is faster than the slow vehicle by the gain: ego then
         passes the slow vehicle there (``passing_switch`` event) and comes back after. With
-        ``early``, held for ``[swarm] pass_open_side_s`` already, ego switches sooner if the
+        ``early``, held for ``PASS_OPEN_SIDE_S`` already, ego switches sooner if the
         guard would let it into the other lane now (``step_s``: the simulation step; a
         ``passing_switch`` event with ``open: true``). ``others``: the vehicles outside the
         platoon, ``everyone``: all of them."""
@@ -525,10 +576,10 @@ class Reformer:
         sw = sc.swarm
         vid = ego.vehicle_id
         held_lane, held = self.held_s.get(vid, (goal, 0.0))
-        if sw.pass_switch_s <= 0.0 or held_lane != goal:
+        if held_lane != goal:
             return goal
-        waited = held + 1e-9 >= sw.pass_switch_s
-        look = early and step_s > 0.0 and 0.0 < sw.pass_open_side_s <= held + 1e-9
+        waited = held + 1e-9 >= PASS_SWITCH_S
+        look = early and step_s > 0.0 and held + 1e-9 >= PASS_OPEN_SIDE_S
         if not waited and not look:
             return goal
         here = road.lane_of(ego)
@@ -553,7 +604,7 @@ class Reformer:
         if opened and not self._open_towards(ego, other, everyone, road, step_s):
             return goal
         since = self.passing[vid][2] if vid in self.passing else t_s
-        self.passing[vid] = (slow.vehicle_id, other, since)  # max_pass_s counts from the start
+        self.passing[vid] = (slow.vehicle_id, other, since)  # MAX_PASS_S counts from the start
         self.held_s.pop(vid, None)
         extra = {"open": True} if opened else {}
         self.event("passing_switch", vehicle=vid, slow=slow.vehicle_id, held_lane=goal,
@@ -618,23 +669,21 @@ class Reformer:
         step_s: float,
     ) -> None:
         """The paper's blocking, while the swarm cruises: a CAV stranded behind a slow vehicle
-        in its lane, its move into the lane beside held for ``[swarm] block_assist_after_s``
+        in its lane, its move into the lane beside held for ``BLOCK_ASSIST_AFTER_S``
         by an HV alongside or just behind it there (within ``cav.desired_gap_m``), is helped by
-        the platoon CAV that HV follows: that CAV slows to ``block_assist_mps`` below the
+        the platoon CAV that HV follows: that CAV slows to ``BLOCK_ASSIST_MPS`` below the
         stranded CAV's speed (braking at most the planner's share of b_safe), so the HV, behind
         it, falls back beside the stranded CAV until the guard lets it in ahead of the HV.
         While the blocker keeps more than ``cav.desired_gap_m`` of room ahead of the stranded
-        CAV, and at most ``max_block_s`` per HV (``block_assist`` event). Without it the HV
+        CAV, and at most ``MAX_BLOCK_S`` per HV (``block_assist`` event). Without it the HV
         drove beside the stranded CAV at the speed of the CAVs ahead of it (stress scene 192:
         the last of nine CAVs behind the truck for 20 s)."""
         sc = self.scenario
         sw = sc.swarm
-        if sw.block_assist_mps <= 0.0:
-            return
         members = set(platoon)
         slow_below = sc.cav.cruising_speed_mps - sw.min_speed_gain_mps
         width = sc.cav.width_m
-        for ego, goal in self._held_next_to(states, platoon, road, sw.block_assist_after_s):
+        for ego, goal in self._held_next_to(states, platoon, road, BLOCK_ASSIST_AFTER_S):
             vid = ego.vehicle_id
             own = vehicle_ahead(ego, others, road, width_m=width)
             if own is None or own[0].is_cav or own[1] > sw.detect_range_m:
@@ -660,13 +709,13 @@ class Reformer:
             if blocker.rear_s_m - ego.s_m <= sc.cav.desired_gap_m:
                 continue  # no room left ahead of the stranded CAV: the blocker drives on
             spent = self.block_s.get(hv.vehicle_id, 0.0)
-            if spent > sw.max_block_s:
+            if spent > MAX_BLOCK_S:
                 continue
             self.block_s[hv.vehicle_id] = spent + step_s
             if spent == 0.0:
                 self.event("block_assist", vehicle=vid, blocker=blocker.vehicle_id,
                            hv=hv.vehicle_id)  # fmt: skip
-            target = max(ego.speed_mps - sw.block_assist_mps, 0.0)
+            target = max(ego.speed_mps - BLOCK_ASSIST_MPS, 0.0)
             brake = -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
             accel = max(sc.cacc.k_cruise * (target - blocker.speed_mps), brake)
             dlat, bound = moves[blocker.vehicle_id]
@@ -708,7 +757,7 @@ class Reformer:
         accel = math.inf
         ahead = vehicle_ahead(ego, others, road, y_m=y_next, width_m=sc.cav.width_m)
         held_lane, held = self.held_s.get(ego.vehicle_id, (None, 0.0))
-        stuck = held_lane == lane and held + 1e-9 >= sc.swarm.drop_behind_s > 0.0
+        stuck = held_lane == lane and held + 1e-9 >= DROP_BEHIND_S
         beside = cav_alongside_behind(ego, others, road, y_next, sc.cav.width_m) if stuck else None
         if beside is not None:
             # Held beside a CAV whose front is a little behind ego's: ego drops back behind it
@@ -724,8 +773,8 @@ class Reformer:
             if dlat and self._refusal(ego, y, dlat, others, road, step_s) is not None:
                 dlat = 0.0  # not into a vehicle alongside
         elif refusal is not None:
-            waited = held_lane == lane and held + 1e-9 >= sc.swarm.run_up_after_s
-            if beside is None and waited and sc.swarm.run_up_gap_m > 0.0:
+            waited = held_lane == lane and held + 1e-9 >= RUN_UP_AFTER_S
+            if beside is None and waited:
                 bound, floor = self._run_up(ego, y, dlat, next_lane, near, others, road, step_s)
                 accel = min(accel, bound)
                 if floor > 0.0:
@@ -774,18 +823,16 @@ class Reformer:
         """``(a, v)``: ego enters ``next_lane`` speeding up at ``a`` to ``v``, that lane's speed
         ahead of it (at most the cruise), when that is faster than ego by ``min_speed_gain_mps``
         and the vehicle ahead of ego in its own lane leaves room to speed up during the lane
-        change (``[swarm] entry_accel_mps2``; None: it enters at its speed). ``near``: the
-        vehicles around ego, ``others``: all of them."""
+        change (``ENTRY_ACCEL_MPS2``; None: it enters at its speed). ``near``: the vehicles
+        around ego, ``others``: all of them."""
         sc = self.scenario
         sw = sc.swarm
-        accel = sw.entry_accel_mps2
-        if accel <= 0.0:
-            return None
+        accel = ENTRY_ACCEL_MPS2
         lane_speed = lane_speeds(ego, near, road, [next_lane], range_m=sw.detect_range_m,
                                  cap_mps=sc.cav.cruising_speed_mps,
                                  desired_of=self.desired_speed)[next_lane]  # fmt: skip
         # Never more than the cruise a leader easing off to close up would keep.
-        final = min(lane_speed, sc.cav.cruising_speed_mps - sw.max_leader_ease_mps)
+        final = min(lane_speed, sc.cav.cruising_speed_mps - MAX_LEADER_EASE_MPS)
         if final - ego.speed_mps < sw.min_speed_gain_mps:
             return None
         change_s = road.lane_widths_m[next_lane] / sc.cav.max_lateral_speed_mps
@@ -854,7 +901,7 @@ class Reformer:
             min_gain_mps=sw.min_speed_gain_mps, entry_ok=entry_ok,
         )  # fmt: skip
         if what == "run":
-            self.running[vid] = sw.run_up_commit_s
+            self.running[vid] = RUN_UP_COMMIT_S
             return math.inf, sc.cav.accel_max_mps2 if value > ego.speed_mps else 0.0
         if what == "brake":
             self.running.pop(vid, None)
@@ -863,10 +910,10 @@ class Reformer:
             self.running[vid] -= step_s
             return math.inf, sc.cav.accel_max_mps2
         # No gap takes it: keep the run-up gap behind the slow vehicle, braking gently and
-        # dropping at most ``run_up_drop_mps`` below its speed (the HVs behind wait too).
-        extra = max(sw.run_up_gap_m - sc.cav.desired_gap_m, 0.0)
+        # dropping at most ``RUN_UP_DROP_MPS`` below its speed (the HVs behind wait too).
+        extra = max(RUN_UP_GAP_M - sc.cav.desired_gap_m, 0.0)
         bound = self._follow_gently(ego, slow, gap - extra)
-        if ego.speed_mps <= slow.speed_mps - sw.run_up_drop_mps:
+        if ego.speed_mps <= slow.speed_mps - RUN_UP_DROP_MPS:
             bound = max(bound, 0.0)
         return bound, 0.0
 
@@ -1020,7 +1067,7 @@ class Reformer:
         """How much faster than the cruise [m/s] the platoon may pull away (0: it may not)."""
         sc = self.scenario
         cruise = sc.cav.cruising_speed_mps
-        return max(min(sc.swarm.pull_away_mps, min(cap_mps, sc.cav.max_speed_mps) - cruise), 0.0)
+        return max(min(PULL_AWAY_MPS, min(cap_mps, sc.cav.max_speed_mps) - cruise), 0.0)
 
     def _left_behind(self, hv: VehicleState, boost: float) -> bool:
         """Does ``hv`` want less than the cruise plus ``boost`` by a metre per second (a
@@ -1038,14 +1085,13 @@ class Reformer:
         cap_mps: float,
     ) -> float:
         """How much faster [m/s] than the cruise the platoon drives to pull away from an HV that
-        keeps one of its CAVs out of ``lane`` (:meth:`_held_by_hv` for ``[swarm]
-        pull_away_after_s``) and wants less than that faster cruise. 0: no such HV. A
+        keeps one of its CAVs out of ``lane`` (:meth:`_held_by_hv` for
+        ``PULL_AWAY_AFTER_S``) and wants less than that faster cruise. 0: no such HV. A
         ``pull_away`` event once per CAV and HV until :meth:`reset`."""
-        sw = self.scenario.swarm
         boost = self._boost(cap_mps)
         if boost <= 0.0:
             return 0.0
-        for ego, hv in self._held_by_hv(states, platoon, road, lane, sw.pull_away_after_s):
+        for ego, hv in self._held_by_hv(states, platoon, road, lane, PULL_AWAY_AFTER_S):
             if not self._left_behind(hv, boost):
                 continue
             if (ego.vehicle_id, hv.vehicle_id) not in self.pulled:

@@ -24,6 +24,7 @@ from typing import Any
 from sumo_swarm.config import PlannerSettings
 from sumo_swarm.controllers.decider import Decider
 from sumo_swarm.controllers.lanes import LaneView
+from sumo_swarm.controllers.reform import MAX_BLOCK_S
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
@@ -94,7 +95,7 @@ class BlockWatch:
         self.until_s[hv_id] = max(self.until_s.get(hv_id, 0.0), until_s)
 
     def budget(self, t_s: float, max_block_s: float, interval_s: float) -> dict[str, int]:
-        """Behaving steps each blocked HV may still be held (``[swarm] max_block_s``)."""
+        """Behaving steps each blocked HV may still be held (``max_block_s``, ``MAX_BLOCK_S``)."""
         return {
             hv: max(0, math.floor((max_block_s - (t_s - since)) / interval_s + 1e-9))
             for hv, since in self.since_s.items()
@@ -322,7 +323,7 @@ class Replanner:
         previous = None
         if self.hints and self.plan is not None and self.grid is not None:
             previous = (self.plan, self.grid)  # the warm start of the next solve
-        budget = self.blocks.budget(t_s, sc.swarm.max_block_s, interval)
+        budget = self.blocks.budget(t_s, MAX_BLOCK_S, interval)
         closed = self.decider.keep_right_closure(t_s, progress.started_s, target, states)
         self.closed_lane = closed
         own = max(target.speed_mps, 0.0)

@@ -600,7 +600,7 @@ class SwarmController:
                 "manoeuvres": len(manoeuvres),
                 "lateral_holds": follower.holds,
                 "lateral_yields": follower.yields,
-                # waits ahead of a target that split the platoon at a give-up (wait_ahead_s)
+                # waits ahead of a target that split the platoon at a give-up (WAIT_AHEAD_S)
                 "waits_ahead": waits,
                 "lateral_holds_per_manoeuvre": list(follower.holds_per_manoeuvre),
                 "blocked_hv_min_accel_mps2": self.blocks.strongest(),

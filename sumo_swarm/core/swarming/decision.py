@@ -668,6 +668,13 @@ class LanePass:
         return None
 
 
+# A cruising leader slows by at most this [m/s] to let a stretched platoon close up, and by up
+# to REGROUP_EASE_MPS when no HV follows it in its lane (nobody is held back; a platoon capped
+# at the cruise by its vType kept a 25 m hole for the rest of the run without the ease).
+MAX_LEADER_EASE_MPS = 2.0
+REGROUP_EASE_MPS = 5.0
+
+
 def leader_ease_cap(
     states: Mapping[str, VehicleState],
     platoon: Sequence[str],
