@@ -495,6 +495,10 @@ class CaccSettings:
 class SwarmSettings:
     """When the swarm decides to overtake, and how it tracks its plan.
 
+    The swarm's other thresholds (re-forming, passing alone, replanning, giving up, lane ends)
+    are constants beside the code that uses them, each with the reason for its value: no
+    scenario set them, and no test ran them at another value (issue 51).
+
     Attributes
     ----------
     decide
@@ -522,13 +526,8 @@ class SwarmSettings:
     catching_up_ahead_m
         A slow vehicle is only catching up (not a target) when it and every vehicle this far ahead
         of it in its lane want at least the trigger speed [m].
-    progress_step_m
-        Progress of a manoeuvre includes the CAVs behind the target getting this much closer to
-        passing it [m].
     control_interval_s
         MPC re-solve period; in between the solved inputs are held [s].
-    drift_rows
-        Replan when a CAV is more than this many cells from its planned cells [rows].
     regroup_lane
         Lane to regroup in (none: the platoon's original lane) [lane].
     hand_over_in_lane
@@ -549,28 +548,6 @@ class SwarmSettings:
         ("drivable"), or always planner.behaving_interval_s ("fixed").
     speed_margin_mps
         Room kept under the speed cap for tracking [m/s].
-    retry_after_s
-        After a failed replan, wait this long before the next [s].
-    replan_every_intervals
-        Check the last plan's HV predictions every this many behaving intervals (0: only on the
-        paper's events) [intervals].
-    prediction_error_m
-        Replan when an HV in the grid is off its prediction by more than this [m].
-    give_up_no_progress_intervals
-        Give up a manoeuvre with no progress for this many behaving intervals [intervals].
-    give_up_partial_intervals
-        With some CAVs past and the others stuck, give up after this many intervals without
-        progress [intervals].
-    give_up_stranded_plans
-        Give up once this many fresh plans in a row keep some CAVs behind the target for the whole
-        horizon (0: never) [plans].
-    give_up_waiting_plans
-        Give up once this many fresh plans in a row keep every CAV behind the target waiting for
-        give_up_waiting_s (0: never) [plans].
-    give_up_waiting_s
-        The wait at the start of a plan that counts for give_up_waiting_plans [s].
-    give_up_no_plan_s
-        Give up a manoeuvre without a usable plan for this long [s].
     cooldown_s
         No new overtaking decision for this long after a give-up [s].
     pass_singly_s
@@ -596,20 +573,6 @@ class SwarmSettings:
     keep_right_ahead_s
         Nothing slower may be within this time ahead in the target's right lane for it to be judged
         free [s].
-    match_lookahead_s
-        A CAV matches the speed of the lane its reference enters this far ahead [s].
-    hold_episode_s
-        Lateral holds of one CAV closer together than this count once [s].
-    lane_end_hold_s
-        No CAV moves into a lane that ends within this time at its speed [s].
-    lane_end_escape_s
-        A CAV whose lane ends within this time heads out of it [s].
-    lane_end_min_m
-        Lane ends are looked for at least this far ahead [m].
-    lane_shift_hold_m
-        No lane change within this distance of a place where lane indices shift [m].
-    cap_decel_mps2
-        A CAV above the speed cap slows to it at this rate [m/s²].
     in_lane_tolerance_m
         A CAV is in a lane when within this of its centre [m].
     """
@@ -623,9 +586,7 @@ class SwarmSettings:
     start_after_s: float = 1.0
     accelerating_mps2: float = 0.5
     catching_up_ahead_m: float = 300.0
-    progress_step_m: float = 3.0
     control_interval_s: float = 0.18
-    drift_rows: float = 1.0
     regroup_lane: int | None = None
     hand_over_in_lane: bool = True
     lane_pass: bool = True
@@ -634,15 +595,6 @@ class SwarmSettings:
     min_speed_gain_mps: float = 2.0
     interval_rule: Literal["drivable", "fixed"] = "drivable"
     speed_margin_mps: float = 0.3
-    retry_after_s: float = 1.0
-    replan_every_intervals: int = 1
-    prediction_error_m: float = 4.0
-    give_up_no_progress_intervals: int = 6
-    give_up_partial_intervals: int = 3
-    give_up_stranded_plans: int = 2
-    give_up_waiting_plans: int = 2
-    give_up_waiting_s: float = 12.0
-    give_up_no_plan_s: float = 10.0
     cooldown_s: float = 15.0
     pass_singly_s: float = 60.0
     keep_right_wait_s: float = 10.0
@@ -652,40 +604,19 @@ class SwarmSettings:
     keep_right_wish: bool = True
     keep_right_soon_s: float = 10.0
     keep_right_ahead_s: float = 4.0
-    match_lookahead_s: float = 2.0
-    hold_episode_s: float = 1.0
-    lane_end_hold_s: float = 12.0
-    lane_end_escape_s: float = 8.0
-    lane_end_min_m: float = 300.0
-    lane_shift_hold_m: float = 40.0
-    cap_decel_mps2: float = 2.0
     in_lane_tolerance_m: float = 0.3
 
     def __post_init__(self) -> None:
         check_positive(
             self, "horizon_s", "trigger_speed_ratio", "detect_range_m", "control_interval_s",
         )  # fmt: skip
-        check_non_negative(self, "others_weight")
         check_non_negative(
-            self, "trigger_after_s", "start_after_s", "drift_rows", "min_speed_gain_mps",
-            "speed_margin_mps", "retry_after_s", "give_up_no_plan_s",
-            "cooldown_s", "pass_singly_s",             "prediction_error_m",
-            "in_lane_tolerance_m", "match_lookahead_s",
-            "hold_episode_s",             "keep_right_wait_s",
-            "give_up_waiting_s", "accelerating_mps2", "catching_up_ahead_m", "progress_step_m",
-            "keep_right_move_s", "keep_right_soon_s",
-            "keep_right_ahead_s", "lane_end_hold_s", "lane_end_escape_s", "lane_end_min_m",
-            "lane_shift_hold_m",
+            self, "others_weight", "trigger_after_s", "start_after_s", "min_speed_gain_mps",
+            "speed_margin_mps", "cooldown_s", "pass_singly_s", "in_lane_tolerance_m",
+            "keep_right_wait_s", "accelerating_mps2", "catching_up_ahead_m", "keep_right_move_s",
+            "keep_right_soon_s", "keep_right_ahead_s", "lane_pass_stall_s",
         )  # fmt: skip
-        check_positive(self, "cap_decel_mps2")
-        check_non_negative(
-            self,
-            "give_up_waiting_plans",
-            "give_up_stranded_plans",
-            "lane_pass_stall_s",
-        )
-        check_fields(self, "give_up_no_progress_intervals", "give_up_partial_intervals", ge=1)
-        check_fields(self, "regroup_lane", "replan_every_intervals", ge=0, integer=True)
+        check_fields(self, "regroup_lane", ge=0, integer=True)
 
 
 @dataclass(frozen=True)

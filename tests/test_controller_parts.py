@@ -4,12 +4,12 @@ wait, the replanner's fallback when a solve fails, and the plan follower's guard
 Hand-made sessions stand in for the bridge: a route where lane 0 ends at s = 900 m.
 """
 
-import dataclasses
 import types
 
 import pytest
 
 from sumo_swarm.config import Scenario
+from sumo_swarm.controllers import follower, lanes
 from sumo_swarm.controllers.cruise import WAIT_AHEAD_S, Cruiser
 from sumo_swarm.controllers.follower import PlanFollower
 from sumo_swarm.controllers.lanes import (
@@ -18,7 +18,7 @@ from sumo_swarm.controllers.lanes import (
     LaneView,
 )
 from sumo_swarm.controllers.reform import Reformer
-from sumo_swarm.controllers.replanner import BlockWatch, PlanStats, Replanner
+from sumo_swarm.controllers.replanner import RETRY_AFTER_S, BlockWatch, PlanStats, Replanner
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.decision import Progress
@@ -34,9 +34,8 @@ def cav(vid, s, lane, v=20.0, lat=0.0):  # a CAV of 5 m
     return VehicleState(vid, s, lane, lat, v, 5.0, 0.0, True)
 
 
-def view(*own_states, near_shift=False, **swarm):
-    """A LaneView over a session whose edge "e" loses lane 0 at LANE_0_ENDS_M (``swarm``:
-    ``[swarm]`` settings)."""
+def view(*own_states, near_shift=False):
+    """A LaneView over a session whose edge "e" loses lane 0 at LANE_0_ENDS_M."""
 
     def lanes_ending(edge, s_from_m, s_to_m):
         return [(0, LANE_0_ENDS_M)] if edge == "e" and s_from_m <= LANE_0_ENDS_M <= s_to_m else []
@@ -48,22 +47,22 @@ def view(*own_states, near_shift=False, **swarm):
         frame=types.SimpleNamespace(lane_count=lambda edge: 3),
         near_lane_shift=lambda s_m, within_m: near_shift,
     )
-    scenario = Scenario(name="t", path=None)
-    scenario = dataclasses.replace(scenario, swarm=dataclasses.replace(scenario.swarm, **swarm))
-    ctx = types.SimpleNamespace(session=session, road=ROAD, scenario=scenario)
+    ctx = types.SimpleNamespace(session=session, road=ROAD, scenario=Scenario(name="t", path=None))
     return LaneView(ctx)
 
 
-def test_a_cav_whose_lane_ends_within_8_s_heads_left_and_not_before():
+def test_a_cav_whose_lane_ends_within_8_s_heads_left_and_not_before(monkeypatch):
     # 20 m/s: 8 s is 160 m, less than the 300 m floor, so the lane end is seen 300 m ahead.
     step = 0.1
     near = cav("c", 650.0, 0)  # 250 m to the end
     assert view(near).end_escape(near, 0.0, step) == pytest.approx(step)  # to lane 1
     far = cav("c", 550.0, 0)  # 350 m: beyond the 300 m
     assert view(far).end_escape(far, 0.0, step) == 0.0
-    # The thresholds are the scenario's: looking only 8 s (160 m) ahead, it stays.
-    assert view(near, lane_end_min_m=100.0).end_escape(near, 0.0, step) == 0.0
-    assert view(near, lane_end_min_m=100.0, lane_end_escape_s=13.0).end_escape(near, 0.0, step) > 0
+    # The thresholds are the module's: looking only 8 s (160 m) ahead, it stays.
+    monkeypatch.setattr(lanes, "LANE_END_MIN_M", 100.0)
+    assert view(near).end_escape(near, 0.0, step) == 0.0
+    monkeypatch.setattr(lanes, "LANE_END_ESCAPE_S", 13.0)
+    assert view(near).end_escape(near, 0.0, step) > 0
     other = cav("c", 650.0, 1)  # its own lane goes on
     assert view(other).end_escape(other, -0.05, step) == -0.05
 
@@ -178,10 +177,10 @@ def test_a_failed_solve_is_a_fallback_recorded_and_retried_after_retry_after_s()
     assert stats.fallbacks == 1 and stats.statuses == {"error": 1}
     assert stats.triggers == {"initial": 1}
     assert events == [("planner_fallback", {"trigger": "initial", "kept_last_plan": False})]
-    # Nothing is asked again before retry_after_s (1 s) has passed; then it is.
+    # Nothing is asked again before RETRY_AFTER_S (1 s) has passed; then it is.
     replanner.maybe_replan(1.5, states, ["c0", "c1"], "truck", progress)
     assert len(manoeuvre.calls) == 1
-    replanner.maybe_replan(1.0 + sc.swarm.retry_after_s + 0.1, states, ["c0", "c1"], "truck",
+    replanner.maybe_replan(1.0 + RETRY_AFTER_S + 0.1, states, ["c0", "c1"], "truck",
                            progress)  # fmt: skip
     assert len(manoeuvre.calls) == 2 and stats.fallbacks == 2
     assert stats.block()["solves"] == 0  # no solver ran to a result
@@ -234,10 +233,9 @@ class _FixedTracker:
         self.held.append(held)
 
 
-def follower_run(ego, others=(), tracker=None, steps=1, **swarm):
+def follower_run(ego, others=(), tracker=None, steps=1):
     """Drive ``ego`` with a PlanFollower for ``steps`` steps of 0.1 s: the commands and events."""
     scenario = Scenario(name="t", path=None)
-    scenario = dataclasses.replace(scenario, swarm=dataclasses.replace(scenario.swarm, **swarm))
     commands, events = [], []
     states = {v.vehicle_id: v for v in (ego, *others)}
     session = types.SimpleNamespace(
@@ -260,13 +258,15 @@ def follower_run(ego, others=(), tracker=None, steps=1, **swarm):
     return follower, tracker, commands, events
 
 
-def test_a_cav_above_the_cap_comes_down_to_it_at_cap_decel_mps2():
+def test_a_cav_above_the_cap_comes_down_to_it_at_cap_decel_mps2(monkeypatch):
     fast = cav("c", 300.0, 1, 30.0)
     _, _, commands, _ = follower_run(fast)
     assert commands[0] == ("speed", "c", pytest.approx(30.0 - 2.0 * 0.1))
-    _, _, commands, _ = follower_run(fast, cap_decel_mps2=4.0)
+    monkeypatch.setattr(follower, "CAP_DECEL_MPS2", 4.0)
+    _, _, commands, _ = follower_run(fast)
     assert commands[0] == ("speed", "c", pytest.approx(30.0 - 4.0 * 0.1))
     # At the cap it drives on at the tracker's acceleration.
+    monkeypatch.undo()
     _, _, commands, _ = follower_run(cav("c", 300.0, 1, 24.0), tracker=_FixedTracker(1.0))
     assert commands[0] == ("speed", "c", pytest.approx(24.1))
 

@@ -236,7 +236,7 @@ def test_progress_counts_only_the_cavs_still_behind():
     assert (
         p.give_up_reason(19.0, no_progress_s=18.0, no_plan_s=30.0, has_plan=True) == "no_progress"
     )
-    # The stuck CAV closing in on the truck by 4 m (> progress_step_m, 3 m) is progress; with
+    # The stuck CAV closing in on the truck by 4 m (> GAIN_STEP_M, 3 m) is progress; with
     # a step of 5 m it is not.
     import copy
 

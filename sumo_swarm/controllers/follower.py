@@ -5,7 +5,7 @@ then the guards of :mod:`sumo_swarm.core.swarming.guards`: a lane change waits f
 clearing the lane (a *yield*), is refused where an HV would brake harder than b_safe (a *hold*,
 counted once per episode and per manoeuvre), and is held near a lane shift or a lane that ends;
 the speed is bounded by the gap ahead, matched to a faster lane being entered, and brought down
-to the cap gently (``[swarm] cap_decel_mps2``). Commands go to SUMO as ``setSpeed`` and
+to the cap gently (``CAP_DECEL_MPS2``). Commands go to SUMO as ``setSpeed`` and
 ``changeSublane``.
 """
 
@@ -30,6 +30,13 @@ from sumo_swarm.core.swarming.guards import (
 )
 from sumo_swarm.core.swarming.tracker import Tracker
 from sumo_swarm.core.trajectory import Reference
+
+# A CAV matches the speed of the lane its reference enters this far ahead [s]: about the time
+# a lane change takes (3.2 m at 2 m/s: 1.6 s), so that it arrives at that lane's speed.
+MATCH_LOOKAHEAD_S = 2.0
+# A CAV above the speed cap slows to it at this rate [m/s^2] (well inside the 4 m/s^2 line).
+CAP_DECEL_MPS2 = 2.0
+HOLD_EPISODE_S = 1.0  # holds of one CAV closer together than this are one episode [s]
 
 
 class PlanFollower:
@@ -106,7 +113,7 @@ class PlanFollower:
             # Into a faster lane at that lane's speed (up to the cap); with an HV close behind,
             # slow down only gently (that is how a blocker brings a lane down to its speed).
             lane_to = road.lane_of_y(
-                ref.y_at_s(ego.centre_s_m + sc.swarm.match_lookahead_s * ego.speed_mps)
+                ref.y_at_s(ego.centre_s_m + MATCH_LOOKAHEAD_S * ego.speed_mps)
             )
             accel = max(
                 accel, lane_speed_match(ego, lane_to, others, road, sc.cav.width_m, cap, sc.guards)
@@ -120,7 +127,7 @@ class PlanFollower:
             accel = min(max(min(accel, limit), sc.cav.accel_min_mps2), sc.cav.accel_max_mps2)
             # Above the cap (a CAV that departed faster, a lower limit ahead) it comes down to
             # it gently, never by a jump in the commanded speed (SUMO would brake at decel).
-            floor = ego.speed_mps - sc.swarm.cap_decel_mps2 * dt
+            floor = ego.speed_mps - CAP_DECEL_MPS2 * dt
             v_cmd = min(ego.speed_mps + accel * dt, max(cap, floor))
             ctx.session.set_speed(vid, max(v_cmd, 0.0))
             ctx.session.change_sublane(vid, dlat)
@@ -140,10 +147,10 @@ class PlanFollower:
 
     def _new_episode(self, seen: dict[str, float], vid: str, t_s: float) -> bool:
         """Record ``vid`` in ``seen`` at ``t_s``: a new episode unless it was there within
-        ``[swarm] hold_episode_s``."""
+        ``HOLD_EPISODE_S``."""
         last = seen.get(vid)
         seen[vid] = t_s
-        return last is None or t_s - last > self.ctx.scenario.swarm.hold_episode_s
+        return last is None or t_s - last > HOLD_EPISODE_S
 
     def _count_yield(self, vid: str, t_s: float) -> None:
         """One yield per episode: a CAV waiting for a swarm CAV to clear a lane."""
@@ -151,7 +158,7 @@ class PlanFollower:
             self.yields += 1
 
     def _count_hold(self, vid: str, refusal: str | None, lane: int, t_s: float) -> None:
-        """One ``lateral_hold`` per episode: a CAV held, not held again within hold_episode_s."""
+        """One ``lateral_hold`` per episode: a CAV held, not held again within HOLD_EPISODE_S."""
         if refusal is None or not self._new_episode(self._holding, vid, t_s):
             return
         self.holds += 1

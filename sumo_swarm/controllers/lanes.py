@@ -2,7 +2,7 @@
 
 The controller's states count lanes as on the leader's edge (``states_in_lanes_of``); what is
 read on a CAV's own edge (its lane count, the lanes ending ahead of it) is read from its own
-state; the thresholds are ``[swarm] lane_end_*`` and ``lane_shift_hold_m``. :class:`LaneView`
+state; the thresholds are the constants below. :class:`LaneView`
 holds nothing but the run's context: every answer is read afresh from
 the session, so it is safe to ask at any step.
 """
@@ -16,6 +16,13 @@ from sumo_swarm.core.planner.problem import LANE_END_PREFIX
 from sumo_swarm.core.swarming.guards import entering_lane
 
 LANE_END_LENGTH_M = 1000.0  # length of the pseudo-obstacle standing for a lane that ends [m]
+# No CAV moves into a lane that ends within this many seconds at its speed (at least
+# LANE_END_MIN_M ahead); a CAV whose lane ends within LANE_END_ESCAPE_S heads out of it.
+LANE_END_HOLD_S = 12.0
+LANE_END_ESCAPE_S = 8.0
+LANE_END_MIN_M = 300.0  # an on-ramp's acceleration lane is 250 m in netbuild's motorway
+# No lane change this close to a place where lane indices shift (see LaneView.shift_hold) [m].
+LANE_SHIFT_HOLD_M = 40.0
 
 
 class LaneView:
@@ -53,17 +60,16 @@ class LaneView:
 
     def ending_within(self, ego: VehicleState, horizon_s: float) -> set[int]:
         """Lanes of ``ego``'s own edge that end within ``horizon_s`` at its speed (at least
-        ``[swarm] lane_end_min_m``) ahead of it."""
-        reach_m = max(self.ctx.scenario.swarm.lane_end_min_m, horizon_s * ego.speed_mps)
+        ``LANE_END_MIN_M``) ahead of it."""
+        reach_m = max(LANE_END_MIN_M, horizon_s * ego.speed_mps)
         return self.ending(ego, ego.vehicle_id, reach_m)
 
     def ends_ahead(self, ego: VehicleState) -> set[int]:
-        """Lanes that end within ``[swarm] lane_end_hold_s`` ahead of ``ego``, numbered as
-        ``ego``'s lane is (the leader's edge's numbering), for the reformer."""
+        """Lanes that end within ``LANE_END_HOLD_S`` ahead of ``ego``, numbered as ``ego``'s
+        lane is (the leader's edge's numbering), for the reformer."""
         own = self.own(ego)
         shift = ego.lane - own.lane
-        hold_s = self.ctx.scenario.swarm.lane_end_hold_s
-        return {lane + shift for lane in self.ending_within(own, hold_s)}
+        return {lane + shift for lane in self.ending_within(own, LANE_END_HOLD_S)}
 
     def lane_count(self, ego: VehicleState) -> int:
         """Lanes of ``ego``'s own edge (the road's, where the session cannot tell)."""
@@ -81,7 +87,7 @@ class LaneView:
         on the right: on-ramps, lane drops): there the vehicles on either side of the junction
         count their lanes differently, so the neighbour look-ups cannot be trusted. Also hold
         one into a lane that ends ahead (an acceleration lane, a lane drop) within
-        ``[swarm] lane_end_hold_s`` at the CAV's speed: a CAV moved into an on-ramp's
+        ``LANE_END_HOLD_S`` at the CAV's speed: a CAV moved into an on-ramp's
         acceleration lane, which the plan's columns took for a through lane, and stopped at its
         end."""
         sc = self.ctx.scenario
@@ -89,18 +95,18 @@ class LaneView:
             return False
         ego = self.own(ego)
         entering = ego.lane + (1 if dlat > 0 else -1)
-        if entering in self.ending_within(ego, sc.swarm.lane_end_hold_s):
+        if entering in self.ending_within(ego, LANE_END_HOLD_S):
             return True
         near = getattr(self.ctx.session, "near_lane_shift", None)
-        return near is not None and near(ego.s_m, sc.swarm.lane_shift_hold_m + ego.length_m)
+        return near is not None and near(ego.s_m, LANE_SHIFT_HOLD_M + ego.length_m)
 
     def end_escape(self, ego: VehicleState, dlat: float, step_m: float) -> float:
         """The lateral move [m] of ``ego`` this step: ``dlat``, unless its lane ends within
-        ``[swarm] lane_end_escape_s``: then towards the neighbouring lane that goes on (left
+        ``LANE_END_ESCAPE_S``: then towards the neighbouring lane that goes on (left
         first: lanes end on the right at on-ramps), through the lateral guard like any other
         move."""
         ego = self.own(ego)
-        ending = self.ending_within(ego, self.ctx.scenario.swarm.lane_end_escape_s)
+        ending = self.ending_within(ego, LANE_END_ESCAPE_S)
         if ego.lane not in ending:
             return dlat
         n_lanes = self.lane_count(ego)

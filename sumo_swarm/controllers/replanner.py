@@ -50,6 +50,21 @@ URGENT_TRIGGERS = frozenset({"initial", "cav_set_changed", "plan_done", "conflic
 # A plan found infeasible on a grid held this much above the target's speed [m/s] is tried
 # again at the target's own speed (Replanner.replan).
 GRID_RETRY_MPS = 0.1
+# Replan when a CAV is more than this many cells from its planned cells (the paper's drift
+# event; one cell is what tracking may lag by between two behaving steps) [rows].
+DRIFT_ROWS = 1.0
+# After a failed replan, wait this long before the next [s] (each solve costs up to the MIP's
+# time limit; the last valid plan, or CACC, drives meanwhile).
+RETRY_AFTER_S = 1.0
+# Check the last plan's HV predictions (and idle or waiting plans) every this many behaving
+# intervals, besides the paper's events: HVs entering the grid later bring new gaps (a 2-lane
+# scene held a do-nothing plan for 18 s, then gave up, while gaps passed by) [intervals].
+REPLAN_CHECK_INTERVALS = 1
+# Replan when an HV in the grid is this far off its prediction [m] (about a third of a cell).
+PREDICTION_ERROR_M = 4.0
+# A plan that keeps every CAV behind the target in its cell this long [s] waits for a gap so
+# far ahead that it may never come (no_way_past after GIVE_UP_WAITING_PLANS such plans).
+GIVE_UP_WAITING_S = 12.0
 
 
 @dataclass
@@ -95,7 +110,7 @@ class BlockWatch:
         self.until_s[hv_id] = max(self.until_s.get(hv_id, 0.0), until_s)
 
     def budget(self, t_s: float, max_block_s: float, interval_s: float) -> dict[str, int]:
-        """Behaving steps each blocked HV may still be held (``max_block_s``, ``MAX_BLOCK_S``)."""
+        """Behaving steps each blocked HV may still be held (``max_block_s``: ``MAX_BLOCK_S``)."""
         return {
             hv: max(0, math.floor((max_block_s - (t_s - since)) / interval_s + 1e-9))
             for hv, since in self.since_s.items()
@@ -157,8 +172,7 @@ class Replanner:
         self.trigger = self._new_trigger()
 
     def _new_trigger(self) -> ReplanTrigger:
-        sw = self.ctx.scenario.swarm
-        return ReplanTrigger(drift_cells=sw.drift_rows, retry_interval_s=sw.retry_after_s)
+        return ReplanTrigger(drift_cells=DRIFT_ROWS, retry_interval_s=RETRY_AFTER_S)
 
     def interval(self) -> float:
         """The behaving interval [s] in force (the planner's setting before the first plan)."""
@@ -201,11 +215,10 @@ class Replanner:
             if set(platoon) != set(self.plan.cav_ids):
                 ctx.event("cav_set_changed", planned=list(self.plan.cav_ids), present=platoon)
                 reason = "cav_set_changed"
-            every = ctx.scenario.swarm.replan_every_intervals
             if (
                 reason is None
-                and every
-                and t_s - self.last_check_s >= every * (self.interval_s or 0.0) - 1e-9
+                and t_s - self.last_check_s
+                >= REPLAN_CHECK_INTERVALS * (self.interval_s or 0.0) - 1e-9
             ):
                 self.last_check_s = t_s
                 if self._prediction_off(t_s, states, in_grid):
@@ -242,9 +255,9 @@ class Replanner:
 
     def _still_waiting(self, t_s: float, states: States, target_id: str) -> bool:
         """Does the rest of the plan keep every CAV behind the target waiting (see
-        :func:`waiting_plan`)? Only counted when ``[swarm] give_up_waiting_plans`` is on."""
+        :func:`waiting_plan`)?"""
         target = states.get(target_id)
-        if not self.ctx.scenario.swarm.give_up_waiting_plans or target is None or not self.plan.ok:
+        if target is None or not self.plan.ok:
             return False
         step = max(self.trigger.current_step(t_s), 0)
         planned = [states[v] for v in self.plan.cav_ids if v in states]
@@ -259,8 +272,7 @@ class Replanner:
             return False
         near = {vid: states[vid] for vid in in_grid}
         errors = self.prediction[1].error_against(near, t_s)
-        limit = self.ctx.scenario.swarm.prediction_error_m
-        return any(abs(e) > limit for e in errors.values())
+        return any(abs(e) > PREDICTION_ERROR_M for e in errors.values())
 
     def _new_hv_conflicts(self, t_s: float, hvs: list[VehicleState]) -> bool:
         """Does an HV the plan did not know claim a cell a CAV is planned in (next 2 steps)?"""
@@ -280,9 +292,9 @@ class Replanner:
         return False
 
     def waiting_steps(self) -> int:
-        """Behaving steps in ``[swarm] give_up_waiting_s`` (a plan that keeps every CAV
-        behind the target in its cell that long waits)."""
-        return max(1, math.ceil(self.ctx.scenario.swarm.give_up_waiting_s / self.interval() - 1e-9))
+        """Behaving steps in ``GIVE_UP_WAITING_S`` (a plan that keeps every CAV behind the
+        target in its cell that long waits)."""
+        return max(1, math.ceil(GIVE_UP_WAITING_S / self.interval() - 1e-9))
 
     # ------------------------------------------------------------------ planning
     def replan(
@@ -433,7 +445,7 @@ class Replanner:
         self.stats.fallbacks += 1
         if progress is not None:
             progress.failed()
-        self.replan_not_before_s = t_s + self.ctx.scenario.swarm.retry_after_s
+        self.replan_not_before_s = t_s + RETRY_AFTER_S
         # A plan some CAV has drifted away from is not kept: that CAV would chase its cell at
         # full braking (a stale plan braked a CAV at 3.5 m/s^2, the CAV behind it came within
         # 4.9 m); the CAVs follow by CACC until a replan succeeds.

@@ -69,6 +69,17 @@ log = logging.getLogger(__name__)
 # found no way past together. A planner that fails (no_feasible_plan) leaves the platoon behind
 # the target, the safe fallback.
 PASS_SINGLY_AFTER = frozenset({"cavs_stranded", "no_progress", "no_way_past"})
+# Giving up a manoeuvre (Progress.give_up_reason): no progress for this many behaving
+# intervals; only 3 once some CAVs are past and others stuck (those past wait at the target's
+# speed in the passing lane, holding it back); this many fresh plans in a row that strand CAVs
+# behind the target for the whole horizon (cavs_stranded) or keep every CAV behind it waiting
+# for GIVE_UP_WAITING_S (no_way_past); without a usable plan for this long [s]. Two plans in a
+# row, not one: a single plan may see the gap one interval late.
+GIVE_UP_NO_PROGRESS_INTERVALS = 6
+GIVE_UP_PARTIAL_INTERVALS = 3
+GIVE_UP_STRANDED_PLANS = 2
+GIVE_UP_WAITING_PLANS = 2
+GIVE_UP_NO_PLAN_S = 10.0
 
 
 class SwarmController:
@@ -380,13 +391,13 @@ class SwarmController:
             interval = self.replanner.interval()
             give_up = self.progress.give_up_reason(
                 t_s,
-                sc.swarm.give_up_no_progress_intervals * interval,
-                sc.swarm.give_up_no_plan_s,
+                GIVE_UP_NO_PROGRESS_INTERVALS * interval,
+                GIVE_UP_NO_PLAN_S,
                 self.plan is not None,
-                partial_s=sc.swarm.give_up_partial_intervals * interval,
+                partial_s=GIVE_UP_PARTIAL_INTERVALS * interval,
                 n_cavs=len(cavs),
-                stranding_plans=sc.swarm.give_up_stranded_plans,
-                waiting_plans=sc.swarm.give_up_waiting_plans,
+                stranding_plans=GIVE_UP_STRANDED_PLANS,
+                waiting_plans=GIVE_UP_WAITING_PLANS,
             )
             if give_up is None:
                 self.replanner.maybe_replan(t_s, states, platoon, self.target_id, self.progress)
@@ -446,7 +457,7 @@ class SwarmController:
         self.mode = Mode.OVERTAKE
         self._count_manoeuvre(t_s, target.vehicle_id)
         self.replanner.start()
-        self.progress = Progress(t_s, gain_step_m=self.ctx.scenario.swarm.progress_step_m)
+        self.progress = Progress(t_s)
         self.follower.new_manoeuvre()
         lane = self.planner_settings.regroup_lane
         self.regroup_lane_used = target.lane if lane is None else lane

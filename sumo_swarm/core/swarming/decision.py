@@ -27,8 +27,10 @@ from enum import Enum
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead, vehicle_behind
 
-# Defaults of [swarm] accelerating_mps2 and progress_step_m (see config.SwarmSettings).
+# Default of [swarm] accelerating_mps2 (see config.SwarmSettings).
 ACCELERATING_MPS2 = 0.5
+# Progress of a manoeuvre includes the CAVs behind the target getting this much closer to
+# passing it [m] (Progress): a stuck CAV closing in on the truck by 4 m is progress.
 GAIN_STEP_M = 3.0
 
 
@@ -397,7 +399,7 @@ class Progress:
     stranding_plans: int = 0  # fresh plans in a row that leave CAVs behind the target for good
     waiting_plans: int = 0  # fresh plans in a row that keep every CAV behind it waiting
     stranded: frozenset[str] = frozenset()  # the CAVs the last of them left behind
-    gain_step_m: float = GAIN_STEP_M  # [swarm] progress_step_m
+    gain_step_m: float = GAIN_STEP_M
 
     def update(
         self, t_s: float, target: VehicleState, platoon: Sequence[VehicleState], min_gap_m: float

@@ -1,9 +1,10 @@
 """Tracking the references with the MPCs (paper Section II-D), one pair per CAV (pure).
 
 The longitudinal MPC works in time, the lateral one in space; both are re-solved every
-``control_interval_steps`` SUMO steps and their input sequences applied in between (zero-order
-hold on the MPC's own step). :meth:`Tracker.command` returns what the CAV should do this
-step; the controller applies the guards, then :meth:`Tracker.commit` integrates the heading.
+``[swarm] control_interval_s`` (rounded to whole SUMO steps) and their input sequences
+applied in between (zero-order hold on the MPC's own step). :meth:`Tracker.command` returns
+what the CAV should do this step; the controller applies the guards, then
+:meth:`Tracker.commit` integrates the heading.
 """
 
 from __future__ import annotations
