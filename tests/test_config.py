@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
 from sumo_swarm.config import load_scenario
@@ -44,14 +47,12 @@ def test_paper_scenario_holds_section_iv_c(paper_path):
         ),
         ("[lateral]\nwheelbase_m = 3.0\n", "lateral.wheelbase_m is not set here"),
         ("[hvmodel]\nplanner_share = 1.5\n", "planner_share must be <= 1"),
-        ("[swarm]\ngive_up_no_progress_intervals = 0\n", "give_up_no_progress_intervals"),
-        ("[swarm]\ngive_up_partial_intervals = 0\n", "give_up_partial_intervals"),
-        ("[swarm]\ngive_up_waiting_plans = -1\n", "give_up_waiting_plans must be >= 0"),
-        ("[swarm]\nprogress_step_m = -1.0\n", "progress_step_m must be >= 0"),
-        ("[swarm]\ncap_decel_mps2 = 0.0\n", "cap_decel_mps2 must be > 0"),
+        ("[swarm]\ncontrol_interval_s = 0.0\n", "control_interval_s must be > 0"),
+        ("[swarm]\nregroup_lane = -1\n", "regroup_lane must be an integer >= 0"),
+        ("[swarm]\nspeed_margin_mps = -0.1\n", "speed_margin_mps must be >= 0"),
         ("[guards]\nclearing_mps = -0.5\n", "clearing_mps must be >= 0"),
         ("[swarm]\nkeep_right_wait_s = -1\n", "keep_right_wait_s"),
-        ("[swarm]\npass_open_side_s = -1.0\n", "pass_open_side_s must be >= 0"),
+        ("[swarm]\npass_open_side_s = 1.0\n", "unknown key 'swarm.pass_open_side_s'"),
         ('[cell]\nrule = "fixed"\ncell_length_m = 2.0\n', "must be at least as long as a CAV"),
         ("[bogus]\nx = 1\n", "unknown section '[bogus]'"),
         ("[evaluation]\nend_s = 500.0\n", "is after simulation.duration_s"),
@@ -72,6 +73,47 @@ def test_bad_values_are_refused_naming_key_and_file(scenario_file, body, expecte
     message = str(err.value)
     assert expected in message
     assert str(path) in message
+
+
+# [swarm] keys deleted in issue 51: switches whose alternative lost (the default stays) and
+# tuning numbers no scenario set (now constants beside their code). A file that still sets one
+# is refused like any unknown key, not silently ignored.
+REMOVED_SWARM_KEYS = (
+    "regroup_by", "regroup_anywhere", "regroup_grid_speed", "catch_up_across_lanes",
+    "pass_in_train", "control_interval_steps", "replan_min_interval_s", "max_pass_s",
+    "pass_switch_s", "pass_open_side_s", "drop_behind_s", "pass_intruder_mps", "pass_reach_s",
+    "run_up_gap_m", "run_up_after_s", "run_up_commit_s", "run_up_drop_mps", "entry_accel_mps2",
+    "pull_away_after_s", "pull_away_mps", "reform_switch_s", "block_assist_after_s",
+    "block_assist_mps", "max_block_s", "wait_ahead_s", "wait_lead_m", "max_leader_ease_mps",
+    "regroup_ease_mps", "drift_rows", "retry_after_s", "replan_every_intervals",
+    "prediction_error_m", "give_up_no_progress_intervals", "give_up_partial_intervals",
+    "give_up_stranded_plans", "give_up_waiting_plans", "give_up_waiting_s", "give_up_no_plan_s",
+    "progress_step_m", "match_lookahead_s", "hold_episode_s", "lane_end_hold_s",
+    "lane_end_escape_s", "lane_end_min_m", "lane_shift_hold_m", "cap_decel_mps2",
+)  # fmt: skip
+
+
+@pytest.mark.parametrize("key", REMOVED_SWARM_KEYS)
+def test_a_removed_swarm_key_is_an_unknown_key(scenario_file, key):
+    path = scenario_file(f'[simulation]\nnetwork = "@NET@"\n[swarm]\n{key} = 1\n')
+    with pytest.raises(ConfigError, match=f"unknown key 'swarm.{key}'"):
+        load_scenario(path)
+
+
+def test_a_removed_swarm_key_in_a_run_exits_2_with_one_line(tmp_path, paper_path):
+    scenario = tmp_path / "old.toml"
+    text = paper_path.read_text(encoding="utf-8").replace(
+        'network = "', f'network = "{paper_path.parent.as_posix()}/', 1
+    )
+    scenario.write_text(text + '\n[swarm]\nregroup_by = "planner"\n', encoding="utf-8")
+    proc = subprocess.run(
+        [sys.executable, "-m", "sumo_swarm", "run", str(scenario), "--out", str(tmp_path / "o")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "unknown key 'swarm.regroup_by'" in lines[0]
+    assert str(scenario) in lines[0] and not (tmp_path / "o").exists()
 
 
 def test_missing_file(tmp_path):
