@@ -528,8 +528,6 @@ class SwarmSettings:
         of it in its lane want at least the trigger speed [m].
     control_interval_s
         MPC re-solve period; in between the solved inputs are held [s].
-    regroup_lane
-        Lane to regroup in (none: the platoon's original lane) [lane].
     hand_over_in_lane
         Hand the pass over to the cruise once all CAVs are settled in one lane faster than the
         plan's pace.
@@ -587,7 +585,6 @@ class SwarmSettings:
     accelerating_mps2: float = 0.5
     catching_up_ahead_m: float = 300.0
     control_interval_s: float = 0.18
-    regroup_lane: int | None = None
     hand_over_in_lane: bool = True
     lane_pass: bool = True
     lane_pass_stall_s: float = 15.0
@@ -616,7 +613,7 @@ class SwarmSettings:
             "keep_right_wait_s", "accelerating_mps2", "catching_up_ahead_m", "keep_right_move_s",
             "keep_right_soon_s", "keep_right_ahead_s", "lane_pass_stall_s",
         )  # fmt: skip
-        check_fields(self, "regroup_lane", ge=0, integer=True)
+
 
 
 @dataclass(frozen=True)

@@ -48,7 +48,7 @@ def test_paper_scenario_holds_section_iv_c(paper_path):
         ("[lateral]\nwheelbase_m = 3.0\n", "lateral.wheelbase_m is not set here"),
         ("[hvmodel]\nplanner_share = 1.5\n", "planner_share must be <= 1"),
         ("[swarm]\ncontrol_interval_s = 0.0\n", "control_interval_s must be > 0"),
-        ("[swarm]\nregroup_lane = -1\n", "regroup_lane must be an integer >= 0"),
+        ("[planner]\nregroup_lane = -1\n", "regroup_lane must be an integer >= 0"),
         ("[swarm]\nspeed_margin_mps = -0.1\n", "speed_margin_mps must be >= 0"),
         ("[guards]\nclearing_mps = -0.5\n", "clearing_mps must be >= 0"),
         ("[swarm]\nkeep_right_wait_s = -1\n", "keep_right_wait_s"),
@@ -75,10 +75,12 @@ def test_bad_values_are_refused_naming_key_and_file(scenario_file, body, expecte
     assert str(path) in message
 
 
-# [swarm] keys deleted in issue 51: switches whose alternative lost (the default stays) and
-# tuning numbers no scenario set (now constants beside their code). A file that still sets one
-# is refused like any unknown key, not silently ignored.
+# [swarm] keys deleted in issue 51: switches whose alternative lost (the default stays),
+# tuning numbers no scenario set (now constants beside their code) and regroup_lane, the
+# [planner] key of the same name spelt twice. A file that still sets one is refused like any
+# unknown key, not silently ignored.
 REMOVED_SWARM_KEYS = (
+    "regroup_lane",
     "regroup_by", "regroup_anywhere", "regroup_grid_speed", "catch_up_across_lanes",
     "pass_in_train", "control_interval_steps", "replan_min_interval_s", "max_pass_s",
     "pass_switch_s", "pass_open_side_s", "drop_behind_s", "pass_intruder_mps", "pass_reach_s",

@@ -157,3 +157,41 @@ def test_real_solver_time_limit_never_crashes(tmp_path):
     assert summary["safety"]["collisions"] == 0
     assert summary["safety"]["hard_brakes"] == 0
     assert summary["planner"]["solves"] >= 1
+
+
+def _first_seconds(overrides: dict, seconds: float = 5.0):
+    """The paper scene with ``overrides``, run for ``seconds``."""
+    sc = load_scenario(PAPER, overrides=overrides)
+    return replace(sc, simulation=replace(sc.simulation, duration_s=seconds),
+                   evaluation=replace(sc.evaluation, end_s=seconds))  # fmt: skip
+
+
+def _last_cells_columns(out) -> list[int]:
+    """The lane (grid column) each CAV ends the first plan in."""
+    first = json.loads((out / "plans.jsonl").read_text(encoding="utf-8").splitlines()[0])
+    return [cells[-1][1] for cells in first["cells"].values()]
+
+
+def test_the_plan_regroups_in_the_regroup_lane_the_scenario_names(swarm_run, tmp_path):
+    # By default the platoon's own lane (1, the truck's): five of the six CAVs end the first
+    # plan there (the last is still beside the truck); [planner] regroup_lane = 2 has the plan
+    # end every CAV in lane 2.
+    _, default_out = swarm_run
+    assert _last_cells_columns(default_out).count(1) == 5
+    summary = run_scenario(_first_seconds({"planner": {"regroup_lane": 2}}), "swarm", tmp_path,
+                           progress=False)  # fmt: skip
+    assert _last_cells_columns(tmp_path) == [2] * 6
+    assert summary["safety"]["collisions"] == 0
+
+
+def test_the_mpcs_are_solved_every_control_interval(tmp_path):
+    # The paper's step is 0.03 s: 0.18 s is 6 steps, 0.36 s is 12, and half as many solves.
+    solves = {}
+    for interval_s in (0.18, 0.36):
+        controller = SwarmController()
+        sc = _first_seconds({"swarm": {"control_interval_s": interval_s}}, seconds=6.0)
+        run_scenario(sc, "swarm", tmp_path / f"{interval_s}", progress=False,
+                     controller=controller)  # fmt: skip
+        assert controller.tracker.interval_steps == round(interval_s / 0.03)
+        solves[interval_s] = len(controller.tracker.solve_ms)
+    assert 0.4 < solves[0.36] / solves[0.18] < 0.65

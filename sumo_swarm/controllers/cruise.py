@@ -33,6 +33,7 @@ from sumo_swarm.core.swarming.tracker import Tracker
 # platoon was still in two lanes at 80 s (variants 24, 39; docs/dense-traffic.md).
 WAIT_AHEAD_S = 45.0
 
+
 class Cruiser:
     """The platoon's commands while it cruises (see the module docstring)."""
 

@@ -112,9 +112,7 @@ class PlanFollower:
             accel = cmd.accel_mps2
             # Into a faster lane at that lane's speed (up to the cap); with an HV close behind,
             # slow down only gently (that is how a blocker brings a lane down to its speed).
-            lane_to = road.lane_of_y(
-                ref.y_at_s(ego.centre_s_m + MATCH_LOOKAHEAD_S * ego.speed_mps)
-            )
+            lane_to = road.lane_of_y(ref.y_at_s(ego.centre_s_m + MATCH_LOOKAHEAD_S * ego.speed_mps))
             accel = max(
                 accel, lane_speed_match(ego, lane_to, others, road, sc.cav.width_m, cap, sc.guards)
             )

@@ -120,8 +120,6 @@ class SwarmController:
         sc = ctx.scenario
         self.book = ManoeuvreBook(ctx.event, sc.cav.min_gap_m)
         self.planner_settings = sc.planner
-        if sc.swarm.regroup_lane is not None:
-            self.planner_settings = replace(sc.planner, regroup_lane=sc.swarm.regroup_lane)
         planner = self._planner_override or make_planner(self.planner_settings)
         manoeuvre = ManoeuvrePlanner(
             planner,
