@@ -615,7 +615,6 @@ class SwarmSettings:
         )  # fmt: skip
 
 
-
 @dataclass(frozen=True)
 class HvModelSettings:
     """How the swarm models the human drivers around it: one model for the planner's HV cells

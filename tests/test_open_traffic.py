@@ -146,7 +146,7 @@ def test_cavs_passing_on_their_own_do_not_pass_into_the_trucks_lane_just_behind_
     # Variant 23: 12 CAVs, a 12.4 m/s truck that moves into the lane on its right at 16 s. The
     # last CAVs, passing queued cars there on their own, judged that lane free over 60 m with
     # the truck 94 m ahead in it: three ended behind the truck for 20 s and the platoon never
-    # regrouped. The lanes beside are judged over the pass's reach now ([swarm] pass_reach_s).
+    # regrouped. The lanes beside are judged over the pass's reach now (reform.PASS_REACH_S).
     spec = _variant_spec(12, 12.38)
     swarm = run_scenario(spec.scenario(), "swarm", tmp_path / "swarm", seed=spec.seed,
                          progress=False)  # fmt: skip
