@@ -133,6 +133,9 @@ def test_idle_hold_settings_are_checked():
 # lanes at the truck's speed while two upstream HVs came up beside it, level with the three
 # CAVs still behind: nobody could move for 18 s and the swarm gave up (cavs_stranded).
 STRANDED = {
+    # The cells' idle holds are what is tested: the paper's trigger starts the cells (weighed,
+    # one by one passes this truck without blocking anybody, 7 of 7 past at 29.9 s).
+    "swarm": {"decide": "paper"},
     "cav": {"count": 7},
     "hv": {"lane_changes": True},
     "simulation": {"duration_s": 150.0},

@@ -29,7 +29,7 @@ splits. Only platoons that cruise change (a platoon in an overtake keeps its CAV
 that a CAV approaching its exit, leaving the route frame or gone leaves at once.
 
 A CAV alone is no swarm: cooperation starts at two. The swarm controller says so
-(``alone_to_sumo``): a lone CAV is driven by SUMO as its vType says, braking at most 3.5 m/s^2
+(``alone_to_sumo``): a lone CAV is driven by SUMO as its vType says, braking at most 4 m/s^2
 (SUMO's lane changes, for
 speed, keeping right and letting merging traffic in, with SUMO's own safety checks at any step
 length) until it meets another CAV in its lane. A swarm of one weighed the same lane change at
@@ -248,7 +248,7 @@ class Fleet:
             for vid in session.departed:
                 if vid in states and states[vid].is_cav and vid not in self._alone:
                     self._alone.add(vid)
-                    session.limit_braking(vid)  # a CAV's braking, from its first step
+                    session.cap_type_braking(vid)  # from the next CAV's insertion on
         new = any(vid in states and self._platoon_of(vid) is None for vid in session.departed)
         if new or t_s - self._reviewed_s >= self.settings.review_every_s - 1e-9:
             self._reviewed_s = t_s

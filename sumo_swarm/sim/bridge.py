@@ -49,6 +49,7 @@ LCA_BLOCKED = 0xF << 9
 KEEP_RIGHT_RATE_WINDOW_S = 1.0
 STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
+HARD_BRAKE_LINE_MPS2 = 4.0  # the contract's hard-brake line (sim.metrics.HARD_BRAKE_MPS2)
 
 
 def sumo_binary(gui: bool = False) -> str:
@@ -280,7 +281,7 @@ class SumoSession:
         self.collisions: list[Collision] = []
         self.teleports: int = 0
         self.departed: list[str] = []
-        self._braking_limited: set[str] = set()  # vTypes whose decel limit_braking set
+        self._braking_capped: set[str] = set()  # vTypes cap_type_braking saw
         self.arrived: list[str] = []
         self.time_s = 0.0
         self.step_length_s = 0.0
@@ -678,24 +679,28 @@ class SumoSession:
         at the platoon's short gap, SUMO braked it at 4.9 m/s^2 to open a gap at once."""
         self.released.add(vid)
         self.set_modes(vid, None, LC_MODE_DEFAULT)
-        self.limit_braking(vid)
-
-    def limit_braking(self, vid: str) -> None:
-        """Cap ``vid``'s deceleration at ``RELEASED_DECEL_MPS2``: SUMO's own car-following and
-        lane changes may brake at up to decel (4.5 m/s^2 by default); a CAV driven by SUMO
-        stays inside the 4 m/s^2 hard-brake line."""
-        vehicle, vtypes = self.api.vehicle, self.api.vehicletype
+        vehicle = self.api.vehicle
         try:
-            type_id = vehicle.getTypeID(vid)
-            decel = vtypes.getDecel(type_id)
+            # SUMO's own lane changes may brake at up to decel (4.5 m/s^2 by default): a CAV,
+            # even one that left the swarm, stays inside the 4 m/s^2 hard-brake line.
+            decel = self.api.vehicletype.getDecel(vehicle.getTypeID(vid))
             vehicle.setDecel(vid, min(decel, RELEASED_DECEL_MPS2))
-            # ...and its vType's (only CAVs have it), so that the CAVs still to depart are
-            # inserted with it: SUMO braked CAVs inserted at departSpeed="max" at 4.2 m/s^2.
-            base = type_id.split("@")[0]
-            if base not in self._braking_limited:
-                self._braking_limited.add(base)
-                vtypes.setDecel(base, min(vtypes.getDecel(base), RELEASED_DECEL_MPS2))
-        except Exception:  # vanished: nothing to limit
+        except Exception:  # vanished: nothing to hand back
+            pass
+
+    def cap_type_braking(self, vid: str) -> None:
+        """Cap the deceleration of ``vid``'s vType (only CAVs have it) at the hard-brake line,
+        HARD_BRAKE_LINE_MPS2, once per vType: SUMO then inserts and drives the CAVs it drives
+        alone within it (SUMO inserted CAVs at departSpeed="max" and braked them at 4.2 m/s^2
+        on their first step). A vType within it already (the scenarios' CAVs) is unchanged."""
+        vtypes = self.api.vehicletype
+        try:
+            base = self.api.vehicle.getTypeID(vid).split("@")[0]
+            if base not in self._braking_capped:
+                self._braking_capped.add(base)
+                if vtypes.getDecel(base) > HARD_BRAKE_LINE_MPS2:
+                    vtypes.setDecel(base, HARD_BRAKE_LINE_MPS2)
+        except Exception:  # vanished: nothing to cap
             pass
 
     def reclaim(self, vid: str) -> None:
