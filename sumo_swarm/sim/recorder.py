@@ -213,7 +213,10 @@ class RunRecorder:
         self.conflicts = (
             TtcConflictCounter(self.outputs.ttc_threshold_s) if count_conflicts else None
         )
-        self._conflict_steps = _Steps()
+        self._conflict_steps = _Steps()  # steps not recorded whole
+        # Every vehicle of a recorded step is recorded: the counter pairs the packed rows
+        # (one table made of a step's rows, not two).
+        self._whole_steps = self.outputs.trajectories != "cavs"
         # Kind, length and width are taken per vehicle when rows are packed: rows of a vehicle
         # id that departs again are packed before the new one's values replace the old.
         hooks = getattr(session, "on_id_reused", None)
@@ -250,11 +253,15 @@ class RunRecorder:
         # in _Steps.PARTS' order
         columns = [c.ids, c.edge, c.lane, c.xy, c.s_m, c.lat_m, c.speed_mps, c.accel_mps2,
                    c.lane_pos_m, c.lane_width_m]  # fmt: skip
-        if self.conflicts is not None and c.ids:
+        to_s = o.record_to_s
+        recorded = t >= o.record_from_s - 1e-9 and (to_s is None or t <= to_s + 1e-9)
+        if self.conflicts is not None and c.ids and not (recorded and self._whole_steps):
+            if self._steps.rows and self._whole_steps:
+                self._pack()  # the counter takes the steps in time order
             self._conflict_steps.add(t, columns)  # the same lists: no copy
             if self._conflict_steps.rows >= CHUNK_ROWS:
                 self._count_conflicts()
-        if t < o.record_from_s - 1e-9 or (o.record_to_s is not None and t > o.record_to_s + 1e-9):
+        if not recorded:
             return
         if o.trajectories == "cavs":
             rows = _near_cavs(c.ids, c.xy, s.kinds, o.neighbour_range_m)
@@ -289,6 +296,9 @@ class RunRecorder:
         past ``outputs.memory_rows`` held, write the tables held to the trajectory file."""
         if self._steps.rows:
             chunk = self._steps.table(self._vehicle_info)
+            if self.conflicts is not None and self._whole_steps:
+                self._count_conflicts()  # steps before these, recorded in part or not at all
+                self.conflicts.add(metrics.gaps(chunk))
             self._chunks.append(chunk)
             self._held_rows += len(chunk)
             self._steps = _Steps()
