@@ -74,3 +74,28 @@ def test_fcd_output_on_request(paper_path, tmp_path):
     run_scenario(sc, "cacc", tmp_path, fcd=True, progress=False)
     text = (tmp_path / "fcd.xml").read_text()
     assert "<fcd-export" in text and 'id="cav0"' in text
+
+
+def test_the_saved_configuration_is_the_run_with_its_outputs(runs):
+    # sumo -c sumo/scenario.sumocfg runs the run's simulation and writes the run's SUMO outputs
+    # (tools/bench_plumbing.py's yardstick): sumo-lc sends SUMO no command, so the sumo binary
+    # on the saved configuration writes the very trips the run read.
+    import subprocess
+
+    from sumo_swarm.safexml import parse_xml
+    from sumo_swarm.sim.bridge import sumo_binary
+
+    folder = runs["sumo-lc"]
+    tripinfo = folder / "sumo" / "tripinfo.xml"
+
+    def trips() -> list[dict[str, str]]:
+        root = parse_xml(tripinfo, what="tripinfo", max_bytes=10**8)
+        return [dict(trip.attrib) | {"co2": trip[0].get("CO2_abs")} for trip in root]
+
+    ran = trips()
+    tripinfo.unlink()
+    cfg = folder / "sumo" / "scenario.sumocfg"
+    subprocess.run([sumo_binary(), "-c", str(cfg)], check=True, capture_output=True, timeout=120)
+    assert len(ran) == 6 + 3 + 15 and ran[0]["co2"] is not None
+    assert trips() == ran
+    assert (folder / "sumo" / "edgedata.xml").is_file()

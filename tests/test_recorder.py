@@ -218,3 +218,56 @@ def test_a_collision_is_an_event_naming_who_hit_whom(tmp_path):
     assert hits[0]["type"] == "collision"
     times = [e["time_s"] for e in events]
     assert times == sorted(times)
+
+
+class _Queue(_Road):
+    """_Road's vehicles in one lane of one edge, 8 m apart, each 3 m/s faster than the one
+    ahead: time to collision 0.3-1.2 s, pairs that come and go."""
+
+    def advance(self, k: int) -> None:
+        super().advance(k)
+        c = self.columns
+        n = len(c.ids)
+        c.edge, c.lane = ["a"] * n, [0] * n
+        c.s_m = [10.0 * k + 8.0 * j for j in range(n)]
+        c.speed_mps = [30.0 - 3.0 * j for j in range(n)]
+
+
+def test_conflicts_are_counted_of_every_vehicle_whatever_is_recorded(monkeypatch):
+    # The counter pairs the packed rows when every vehicle of a step is recorded, the steps as
+    # read otherwise (CAVs only, steps outside the record window): the same count, in chunks
+    # or whole, as the pairs of the whole table taken at once.
+    import sumo_swarm.sim.recorder as recorder
+    from sumo_swarm.config import OutputSettings
+    from sumo_swarm.sim.conflicts import TtcConflictCounter
+    from sumo_swarm.sim.metrics import gaps
+
+    def count(chunk_rows: int, **outputs) -> tuple[int, int]:
+        monkeypatch.setattr(recorder, "CHUNK_ROWS", chunk_rows)
+        road = _Queue()
+        settings = OutputSettings(**outputs)
+        rec = recorder.RunRecorder(road, None, "none", None, settings, count_conflicts=True)
+        for k in range(1, 40):
+            road.advance(k)
+            rec.record()
+        rec._pack()
+        rec._count_conflicts()
+        return rec.conflicts.events, len(rec.frame())
+
+    whole, rows = count(10**9)
+    road, table = _Queue(), []
+    for k in range(1, 40):
+        road.advance(k)
+        table.append(recorder._Steps())
+        c = road.columns
+        table[-1].add(road.time_s, [c.ids, c.edge, c.lane, c.xy, c.s_m, c.lat_m, c.speed_mps,
+                                    c.accel_mps2, c.lane_pos_m, c.lane_width_m])  # fmt: skip
+    info = recorder.RunRecorder(road, None, "none", None)._vehicle_info
+    at_once = TtcConflictCounter()
+    at_once.add(gaps(pd.concat([t.table(info) for t in table], ignore_index=True)))
+    assert whole == at_once.events > 3
+    assert count(7) == (whole, rows)
+    assert count(7, trajectories="cavs")[0] == whole
+    for chunk_rows in (7, 10**9):
+        windowed = count(chunk_rows, record_from_s=5.0, record_to_s=12.0)
+        assert windowed[0] == whole and windowed[1] < rows / 2

@@ -4,15 +4,17 @@ On ``scenarios/corridor.toml`` (6 km, 3 lanes, ramps, 1500 veh/h/lane, one flow 
 destination and class), three ways of running the same traffic, each in its own process,
 alternated point by point so that each sees the same machine load:
 
-- ``sumo``: the sumo binary on the configuration ``sumo-swarm run`` writes for sumo-cacc
-  (``sumo/scenario.sumocfg``: the same network, flows, step, sublane model and collision
-  options), with the same network outputs (tripinfo with emissions, SSM, edge data);
-- ``libsumo``: the same configuration and outputs stepped through libsumo, nothing read, with
-  the one command per CAV that defines sumo-cacc (its lane-change mode: SUMO's strategic
-  changes only; tools/libsumo_plain.py). This is the same simulation as sumo-cacc's; ``sumo``
-  is not (its CAVs change lanes to gain speed and cooperate too: over the hour sumo-cacc's
-  CAVs jam the corridor and ``sumo``'s do not), so the plumbing's cost is sumo-cacc's against
-  this one;
+- ``sumo``: the sumo binary on the configuration a ``sumo-swarm run`` under sumo-cacc saved
+  (``sumo/scenario.sumocfg`` of one untimed run per point: the same network, flows, step,
+  sublane model, collision options and network outputs, tripinfo with emissions and edge
+  data): the yardstick;
+- ``libsumo``: the same configuration stepped through libsumo, nothing read, with the one
+  command per CAV that defines sumo-cacc (its lane-change mode: SUMO's strategic changes
+  only; tools/libsumo_plain.py). This is the same simulation as sumo-cacc's; ``sumo`` is not
+  (its CAVs change lanes to gain speed and cooperate too: over the hour sumo-cacc's CAVs jam
+  the corridor and ``sumo``'s do not);
+- ``libsumo-reads``: the same, reading every vehicle's state at every step as the bridge does
+  (``libsumo_plain.py --reads``): the least a run that records trajectories costs;
 - ``sumo-cacc``: ``sumo-swarm run ... --controller sumo-cacc``: SUMO drives, the project reads,
   records and summarises (the plumbing);
 - ``swarm``: ``sumo-swarm run ... --controller swarm``;
@@ -23,15 +25,16 @@ alternated point by point so that each sees the same machine load:
 Two axes: the simulated time (``--times``, at the scenario's CAV share) and the number of CAVs
 (``--shares`` of the demand, at ``--share-time`` simulated seconds). Prints and saves a table of
 process wall time, CPU time (user + system: without the waits for a core) and peak resident
-memory per point and mode (median, p95 and max over ``--repeats``), the ratios swarm /
-sumo-cacc, sumo-cacc / libsumo and sumo-cacc / sumo of wall and of CPU time run by run, each
+memory per point and mode (median, p95 and max over ``--repeats``), the ratios of wall and of
+CPU time run by run (sumo-cacc, libsumo and libsumo-reads against the sumo binary, sumo-cacc
+against libsumo and libsumo-reads, swarm against sumo-cacc), each
 mode's peak memory against its shortest run's, and what the runs did (CAVs that entered,
 platoons formed, collisions).
 
 Usage: python tools/bench_corridor.py [--times 300,1200,3600] [--shares 0.1,0.2,0.4]
                                       [--share-time 300] [--repeats 1]
                                       [--out docs/bench/corridor]
-                                      [--modes sumo,libsumo,sumo-cacc,swarm]
+                                      [--modes sumo,libsumo,libsumo-reads,sumo-cacc,swarm]
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -46,16 +50,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from bench_plumbing import stats, timed  # tools/: one process's wall time and peak memory
+from libsumo_plain import READ_VARIABLES  # tools/
 
 from sumo_swarm.config import load_scenario
 from sumo_swarm.controllers.base import LC_MODE_STRATEGIC
-from sumo_swarm.sim.bridge import sumo_binary
-from sumo_swarm.sim.network import network_options
-from sumo_swarm.sim.scene import CAV_TYPE, write_sumo_inputs
+from sumo_swarm.sim.bridge import SumoSession, sumo_binary
+from sumo_swarm.sim.scene import CAV_TYPE
 
 ROOT = Path(__file__).resolve().parent.parent
 CORRIDOR = ROOT / "scenarios" / "corridor.toml"
-MODES = ("sumo", "libsumo", "sumo-cacc", "swarm", "cacc", "sumo-lc")
+MODES = ("sumo", "libsumo", "libsumo-reads", "sumo-cacc", "swarm", "cacc", "sumo-lc")
 DEFAULT_MODES = ("sumo", "libsumo", "sumo-cacc", "swarm")
 
 
@@ -71,22 +75,26 @@ def scenario_file(folder: Path, duration_s: float, share: float) -> Path:
     return path
 
 
-def command(mode: str, scenario: Path, work: Path) -> list[str]:
-    if mode in ("sumo", "libsumo"):
-        sc = load_scenario(scenario)
-        cfg, _ = write_sumo_inputs(sc, "sumo-cacc", work / "sumo")
-        outputs = network_options(work / "sumo", sc.outputs)[0]
-        if mode == "sumo":
-            return [sumo_binary(), "-c", str(cfg), *outputs]
-        plain = ROOT / "tools" / "libsumo_plain.py"
-        return [sys.executable, str(plain), CAV_TYPE, str(LC_MODE_STRATEGIC), "-c", str(cfg),
-                *outputs]  # fmt: skip
+def run_command(mode: str, scenario: Path, work: Path) -> list[str]:
     return [sys.executable, "-m", "sumo_swarm", "run", str(scenario), "--controller", mode,
             "--out", str(work)]  # fmt: skip
 
 
+def command(mode: str, scenario: Path, work: Path, reference: Path) -> list[str]:
+    """The process of ``mode``; ``reference``: the untimed sumo-cacc run of the point, whose
+    saved configuration the sumo and libsumo modes run."""
+    if mode in ("sumo", "libsumo", "libsumo-reads"):
+        cfg = str(reference / "sumo" / "scenario.sumocfg")
+        if mode == "sumo":
+            return [sumo_binary(), "-c", cfg]
+        plain = ROOT / "tools" / "libsumo_plain.py"
+        reads = ["--reads"] if mode == "libsumo-reads" else []
+        return [sys.executable, str(plain), *reads, CAV_TYPE, str(LC_MODE_STRATEGIC), "-c", cfg]
+    return run_command(mode, scenario, work)
+
+
 def what_it_did(mode: str, work: Path) -> dict[str, float]:
-    if mode in ("sumo", "libsumo"):
+    if mode in ("sumo", "libsumo", "libsumo-reads"):
         return {}
     summary = json.loads((work / "summary.json").read_text(encoding="utf-8"))
     network = summary.get("network") or {}
@@ -116,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--modes", default=",".join(DEFAULT_MODES),
                         help=f"modes to run, comma list of {', '.join(MODES)}")  # fmt: skip
     args = parser.parse_args(argv)
+    if READ_VARIABLES != SumoSession.VARS:
+        raise SystemExit("tools/libsumo_plain.py: READ_VARIABLES differ from SumoSession.VARS")
     chosen = {m.strip() for m in args.modes.split(",") if m.strip()}
     if not chosen or chosen - set(MODES):
         parser.error(f"--modes: expected some of {', '.join(MODES)}, got {args.modes!r}")
@@ -130,9 +140,12 @@ def main(argv: list[str] | None = None) -> int:
                 if axis == "cavs" and ("time", duration, share) in points:
                     continue  # the same runs as a point of the time axis: measured there
                 scenario = scenario_file(Path(tmp), duration, share)
+                reference = Path(tmp) / f"reference-{duration:g}-{share:g}"
+                if not reference.exists():  # the configuration the sumo modes run, saved once
+                    timed(run_command("sumo-cacc", scenario, reference))
                 for mode in modes:
                     work = Path(tmp) / f"{i}-{duration:g}-{share:g}-{mode}"
-                    wall, rss, cpu = timed(command(mode, scenario, work))
+                    wall, rss, cpu = timed(command(mode, scenario, work, reference))
                     row = {"repeat": i, "duration_s": duration, "cav_share": share,
                            "mode": mode, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss,
                            **what_it_did(mode, work)}  # fmt: skip
@@ -158,9 +171,12 @@ def main(argv: list[str] | None = None) -> int:
                 table.append({**head, "mode": mode, "measure": measure,
                               **stats(sub[(column, mode)])})  # fmt: skip
         ratios = (
-            ("swarm", "sumo-cacc", "sumo-cacc's"),
+            ("sumo-cacc", "sumo", "the sumo binary's"),
+            ("libsumo", "sumo", "the sumo binary's"),
+            ("libsumo-reads", "sumo", "the sumo binary's"),
             ("sumo-cacc", "libsumo", "libsumo's"),
-            ("sumo-cacc", "sumo", "plain SUMO's"),
+            ("sumo-cacc", "libsumo-reads", "libsumo-reads'"),
+            ("swarm", "sumo-cacc", "sumo-cacc's"),
         )
         for mode, against, whose in ratios:
             if mode in modes and against in modes:
@@ -182,13 +198,15 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out.with_suffix(".runs.csv"), index=False)
     out.to_csv(args.out.with_suffix(".csv"), index=False)
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+                            capture_output=True, text=True).stdout.strip()  # fmt: skip
     command_line = (f"python tools/bench_corridor.py --times {args.times} --shares {args.shares} "
                     f"--share-time {args.share_time:g} --repeats {args.repeats}")  # fmt: skip
     if modes != DEFAULT_MODES:
         command_line += f" --modes {','.join(modes)}"
     md = (
         f"Corridor cost (`scenarios/corridor.toml`), {args.repeats} repeat(s), modes alternated, "
-        f"one process each: `{command_line}`\n\n"
+        f"one process each, at commit {commit}: `{command_line}`\n\n"
         + out.to_markdown(index=False, floatfmt=".2f")
         + "\n\nPeak memory against simulated time (CAV share "
         + f"{base_share:g}):\n\n"

@@ -4,7 +4,11 @@ lane-change mode sumo-cacc sets (SUMO's strategic changes only). The same simula
 costs is compared with this (tools/bench_corridor.py). The sumo binary on the configuration
 alone is not the same simulation: its CAVs change lanes to gain speed and cooperate too.
 
-Usage: python tools/libsumo_plain.py CAV_TYPE LANE_CHANGE_MODE SUMO_ARGS...
+``--reads``: also read every vehicle's state at every step as sumo-swarm's bridge does (the same
+variables by subscription, ``vehicle.getAllSubscriptionResults``), and nothing else: what reading
+the trajectories through libsumo costs at the least.
+
+Usage: python tools/libsumo_plain.py [--reads] CAV_TYPE LANE_CHANGE_MODE SUMO_ARGS...
 """
 
 from __future__ import annotations
@@ -13,9 +17,18 @@ import sys
 
 import libsumo
 
+# sumo_swarm.sim.bridge.SumoSession.VARS, spelt out: importing the bridge would add its imports
+# to what this process costs (tools/bench_plumbing.py checks that the two agree).
+READ_VARIABLES = ("LANE_ID", "LANEPOSITION", "LANEPOSITION_LAT", "POSITION", "SPEED")
+
 
 def main(argv: list[str]) -> int:
+    reads = bool(argv) and argv[0] == "--reads"
+    if reads:
+        argv = argv[1:]
     cav_type, mode, sumo_args = argv[0], int(argv[1]), argv[2:]
+    c = libsumo.constants
+    variables = [getattr(c, f"VAR_{name}") for name in READ_VARIABLES]
     libsumo.start(["sumo", *sumo_args])
     try:
         end = libsumo.simulation.getEndTime()  # stepped to it, as sumo-swarm run does
@@ -27,6 +40,10 @@ def main(argv: list[str]) -> int:
                 type_id = libsumo.vehicle.getTypeID(vid)
                 if type_id == cav_type or type_id.startswith(cav_type + "@"):
                     libsumo.vehicle.setLaneChangeMode(vid, mode)
+                if reads:
+                    libsumo.vehicle.subscribe(vid, variables)
+            if reads:
+                libsumo.vehicle.getAllSubscriptionResults()
     finally:
         libsumo.close()
     return 0

@@ -134,12 +134,13 @@ class _Steps:
 
 
 def _concat(chunks: list[pd.DataFrame]) -> pd.DataFrame:
-    """Tables of :func:`_typed` one after the other, each category column on the sorted union
-    of their categories (what one table of all the rows would have)."""
+    """Tables of :func:`_typed` (or their :func:`metrics.gaps`) one after the other, each
+    category column on the sorted union of their categories (what one table of all the rows
+    would have)."""
     data = {}
-    for col in RECORD_COLUMNS:
+    for col in chunks[0].columns:
         parts = [c[col] for c in chunks]
-        if col in CATEGORY_COLUMNS:
+        if isinstance(parts[0].dtype, pd.CategoricalDtype):
             data[col] = union_categoricals(parts, sort_categories=True)
         else:
             data[col] = np.concatenate([part.to_numpy() for part in parts])
@@ -213,7 +214,13 @@ class RunRecorder:
         self.conflicts = (
             TtcConflictCounter(self.outputs.ttc_threshold_s) if count_conflicts else None
         )
-        self._conflict_steps = _Steps()
+        self._conflict_steps = _Steps()  # steps not recorded whole
+        # Every vehicle of a recorded step is recorded: the counter pairs the packed rows
+        # (one table made of a step's rows, not two).
+        self._whole_steps = self.outputs.trajectories != "cavs"
+        # metrics.gaps of each chunk held (the counter's pairs), in order: the summary's pairs
+        # of the table, not made a second time (None: not kept, or rows went to disk).
+        self._pairs: list[pd.DataFrame] | None = [] if self._whole_steps else None
         # Kind, length and width are taken per vehicle when rows are packed: rows of a vehicle
         # id that departs again are packed before the new one's values replace the old.
         hooks = getattr(session, "on_id_reused", None)
@@ -250,11 +257,15 @@ class RunRecorder:
         # in _Steps.PARTS' order
         columns = [c.ids, c.edge, c.lane, c.xy, c.s_m, c.lat_m, c.speed_mps, c.accel_mps2,
                    c.lane_pos_m, c.lane_width_m]  # fmt: skip
-        if self.conflicts is not None and c.ids:
+        to_s = o.record_to_s
+        recorded = t >= o.record_from_s - 1e-9 and (to_s is None or t <= to_s + 1e-9)
+        if self.conflicts is not None and c.ids and not (recorded and self._whole_steps):
+            if self._steps.rows and self._whole_steps:
+                self._pack()  # the counter takes the steps in time order
             self._conflict_steps.add(t, columns)  # the same lists: no copy
             if self._conflict_steps.rows >= CHUNK_ROWS:
                 self._count_conflicts()
-        if t < o.record_from_s - 1e-9 or (o.record_to_s is not None and t > o.record_to_s + 1e-9):
+        if not recorded:
             return
         if o.trajectories == "cavs":
             rows = _near_cavs(c.ids, c.xy, s.kinds, o.neighbour_range_m)
@@ -289,6 +300,12 @@ class RunRecorder:
         past ``outputs.memory_rows`` held, write the tables held to the trajectory file."""
         if self._steps.rows:
             chunk = self._steps.table(self._vehicle_info)
+            if self.conflicts is not None and self._whole_steps:
+                self._count_conflicts()  # steps before these, recorded in part or not at all
+                pairs = metrics.gaps(chunk)
+                self.conflicts.add(pairs)
+                if self._pairs is not None:
+                    self._pairs.append(pairs)
             self._chunks.append(chunk)
             self._held_rows += len(chunk)
             self._steps = _Steps()
@@ -310,6 +327,17 @@ class RunRecorder:
         for chunk in self._chunks:
             self._file.append(chunk)
         self._chunks, self._held_rows = [], 0
+        self._pairs = None  # the summary reads the rows back a slice at a time
+
+    def _pairs_of(self, df: pd.DataFrame) -> pd.DataFrame | None:
+        """:func:`metrics.gaps` of ``df`` when ``df`` is the table held (:meth:`_table`) and
+        its rows were paired as they were packed; else None."""
+        if self._pairs is None or len(self._chunks) != 1 or df is not self._chunks[0]:
+            return None
+        if len(self._pairs) > 1:
+            self._pairs = [_concat(self._pairs)]
+        pairs = self._pairs[0] if self._pairs else None
+        return pairs if pairs is not None and len(pairs) == len(df) else None
 
     @property
     def on_disk(self) -> bool:
@@ -402,6 +430,7 @@ class RunRecorder:
             scenario=scenario,
             controller=self.controller_name,
             df=df,
+            gap_table=None if streamed else self._pairs_of(df),
             scene=self.scene,
             session=self.session,
             controller_summary=own,

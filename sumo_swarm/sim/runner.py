@@ -38,7 +38,6 @@ from sumo_swarm.sim.scene import (
     LiveScene,
     default_settings,
     route_edges,
-    sumo_options,
     write_sumo_inputs,
 )
 from sumo_swarm.sim.steplimit import check_step_length
@@ -77,7 +76,8 @@ def run_scenario(
     """Run ``scenario`` under ``controller_name`` headless; write and return the summary.
 
     Outputs in ``out_dir``: ``summary.json``, ``trajectories.parquet``, ``events.jsonl``, the
-    SUMO inputs under ``sumo/`` (open ``sumo/scenario.sumocfg`` in sumo-gui to watch the scene),
+    SUMO inputs under ``sumo/`` (``sumo/scenario.sumocfg`` holds every option and SUMO output
+    of the run: ``sumo -c`` runs the same simulation, sumo-gui shows the scene),
     ``run.json`` (what the folder holds) and, with ``fcd``, SUMO's own ``fcd.xml``.
     ``controller`` replaces the named controller with an object of one's own (e.g. a swarm with
     another planner); ``controller_name`` still selects the CAVs' vehicle type.
@@ -103,9 +103,11 @@ def run_scenario(
         scenario = replace(scenario, simulation=replace(scenario.simulation, seed=seed))
 
     def run(out: Path, stop: StopRequest) -> _Ending:
-        cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo")
         net_args, net_files = _network_args(scenario, out / "sumo")
-        args = ["-c", str(cfg), *sumo_options(scenario), *_fcd_args(out, fcd), *net_args]
+        # The configuration holds every option and output of the run (sumo -c runs the same
+        # simulation with the same SUMO outputs: tools/bench_plumbing.py's yardstick).
+        cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo", net_args)
+        args = ["-c", str(cfg), *_fcd_args(out, fcd)]
         sim = scenario.simulation
         session = SumoSession(
             args,

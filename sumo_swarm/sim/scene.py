@@ -8,6 +8,7 @@ baselines are judged on the same scene and seed.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -346,10 +347,15 @@ def corridor_routes_xml(sc: Scenario, controller: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_sumo_inputs(sc: Scenario, controller: str, folder: Path) -> tuple[Path, Scene | None]:
+def write_sumo_inputs(
+    sc: Scenario, controller: str, folder: Path, outputs: Sequence[str] = ()
+) -> tuple[Path, Scene | None]:
     """Write ``routes.rou.xml`` and ``scenario.sumocfg`` into ``folder``; return the sumocfg
     and the placed scene. A corridor (``[corridor]``) also gets its network built there
-    (``corridor.net.xml``); it has no placed scene (None): its CAVs are those SUMO inserts."""
+    (``corridor.net.xml``); it has no placed scene (None): its CAVs are those SUMO inserts.
+    ``outputs``: the run's output options (``--name value`` pairs,
+    :func:`~sumo_swarm.sim.network.network_options`), written into the configuration too, so
+    that ``sumo -c scenario.sumocfg`` is the run's simulation with the run's SUMO outputs."""
     folder.mkdir(parents=True, exist_ok=True)
     routes = folder / "routes.rou.xml"
     if sc.corridor is not None:
@@ -364,17 +370,27 @@ def write_sumo_inputs(sc: Scenario, controller: str, folder: Path) -> tuple[Path
     # SUMO reads the config's paths relative to the config: a network built into the folder is
     # named by its file name (a relative --out gave "out/sumo/out/sumo/corridor.net.xml").
     net_value = net.name if net.parent.resolve() == folder.resolve() else str(Path(net).resolve())
-    opts = sumo_options(sc)
-    pairs = [(opts[i].removeprefix("--"), opts[i + 1]) for i in range(0, len(opts), 2)]
-    body = "\n".join(f"        <{k} value={quoteattr(v)}/>" for k, v in pairs)
+    sections = [("processing", sumo_options(sc))]
+    if outputs:
+        sections.append(("output", list(outputs)))
+    body = "".join(
+        f"    <{section}>\n{_option_lines(opts)}    </{section}>\n" for section, opts in sections
+    )
     cfg.write_text(
         '<?xml version="1.0" encoding="UTF-8"?>\n<configuration>\n    <input>\n'
         f"        <net-file value={quoteattr(net_value)}/>\n"
         f'        <route-files value="{routes.name}"/>\n    </input>\n'
-        f"    <processing>\n{body}\n    </processing>\n</configuration>\n",
+        f"{body}</configuration>\n",
         encoding="utf-8",
     )
     return cfg, scene
+
+
+def _option_lines(opts: Sequence[str]) -> str:
+    """SUMO command-line options (``--name value`` pairs) as lines of a configuration file
+    (SUMO reads an option by its name in any section)."""
+    pairs = [(opts[i].removeprefix("--"), opts[i + 1]) for i in range(0, len(opts), 2)]
+    return "".join(f"        <{k} value={quoteattr(v)}/>\n" for k, v in pairs)
 
 
 def default_settings(config: str | Path | Scenario | None) -> Scenario:

@@ -290,9 +290,12 @@ def table_measures(
     cav_ids: tuple[str, ...],
     target: str | None,
     t_start_s: float | None,
+    gap_table: pd.DataFrame | None = None,
 ) -> TableMeasures:
     """The summary's measures of the trajectory table ``df`` over the scenario's evaluation
     window; ``target`` and ``t_start_s``: the overtake's, as the controller reports them.
+    ``gap_table``: :func:`metrics.gaps` of ``df`` when the caller has it (the recorder pairs
+    the rows as it packs them, for the TTC conflicts).
     Each measure is taken on its own (:mod:`~sumo_swarm.sim.measured`): one that fails is None
     and its reason is in ``errors``."""
     ev = scenario.evaluation
@@ -300,7 +303,10 @@ def table_measures(
     m = MeasureErrors()
     # every follower and leader, once (None if the pairing fails: each measure of the pairs
     # then tries it on its own and fails with its reason)
-    pairs = m.take("cav.gap", lambda: metrics.gaps(metrics.window(df, w)))
+    if gap_table is None:
+        pairs = m.take("cav.gap", lambda: metrics.gaps(metrics.window(df, w)))
+    else:  # each step is paired on its own: the window's pairs are those of its rows
+        pairs = m.take("cav.gap", metrics.window, gap_table, w)
     t_end, t_regroup = m.take(
         "overtake.times", overtake_times_s, df, cav_ids, target,
         REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m, default=(None, None),
@@ -349,13 +355,15 @@ def build_summary(
     hard_brakes: metrics.HardBrakeCounter | None = None,
     measures: TableMeasures | None = None,
     rows_of: RowsOf | None = None,
+    gap_table: pd.DataFrame | None = None,
 ) -> dict[str, Any]:
     """Assemble every key of the contract's summary.json (None where a key does not apply).
 
     ``hard_brakes``: counted during the run, of every vehicle whether recorded or not; without
     it they are counted on ``df``. ``measures``: the table's measures when the caller has them
-    (a run whose table is on disk); else they are taken on ``df``. ``rows_of``: the rows of
-    each manoeuvre (:data:`RowsOf`) when the table is not ``df``.
+    (a run whose table is on disk); else they are taken on ``df`` (``gap_table``: its
+    :func:`metrics.gaps`, when the caller has it). ``rows_of``: the rows of each manoeuvre
+    (:data:`RowsOf`) when the table is not ``df``.
 
     ``manoeuvres`` is the controller's list (a controller that keeps none: empty), measured
     on the trajectories (:func:`measure_manoeuvres`); ``overtake``'s outcome fields and
@@ -368,7 +376,7 @@ def build_summary(
     target = first["target"] if first else scene.target_id
     t_start = first["t_start_s"] if first else None
     if measures is None:
-        measures = table_measures(df, scenario, scene.cav_ids, target, t_start)
+        measures = table_measures(df, scenario, scene.cav_ids, target, t_start, gap_table)
     m = measures
     speed, gap, upstream = m.speed, m.gap, m.upstream
     max_gap_m = REGROUPED_GAP_FACTOR * scenario.cav.desired_gap_m
