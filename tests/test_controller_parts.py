@@ -25,6 +25,7 @@ from sumo_swarm.core.swarming.decision import Progress
 from sumo_swarm.core.swarming.manoeuvre import PlanOutcome
 from sumo_swarm.core.swarming.planlog import PlanLog
 from sumo_swarm.core.swarming.tracker import TrackCommand
+from tests.fakes import FakeSession, run_context, said
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
 LANE_0_ENDS_M = 900.0
@@ -40,15 +41,14 @@ def view(*own_states, near_shift=False):
     def lanes_ending(edge, s_from_m, s_to_m):
         return [(0, LANE_0_ENDS_M)] if edge == "e" and s_from_m <= LANE_0_ENDS_M <= s_to_m else []
 
-    session = types.SimpleNamespace(
+    session = FakeSession(
+        {st.vehicle_id: st for st in own_states},
         edges={st.vehicle_id: "e" for st in own_states},
-        states={st.vehicle_id: st for st in own_states},
         lanes_ending=lanes_ending,
         frame=types.SimpleNamespace(lane_count=lambda edge: 3),
         near_lane_shift=lambda s_m, within_m: near_shift,
     )
-    ctx = types.SimpleNamespace(session=session, road=ROAD, scenario=Scenario(name="t", path=None))
-    return LaneView(ctx)
+    return LaneView(run_context(session, Scenario(name="t", path=None), ROAD))
 
 
 def test_a_cav_whose_lane_ends_within_8_s_heads_left_and_not_before(monkeypatch):
@@ -122,8 +122,7 @@ def test_the_planner_block_of_a_run_without_solves():
 
 def test_a_give_up_that_leaves_cavs_on_both_sides_of_the_target_starts_the_wait():
     sc = Scenario(name="t", path=None)
-    events = []
-    ctx = types.SimpleNamespace(scenario=sc, event=lambda kind, **data: events.append(data))
+    ctx = run_context(FakeSession(), sc, ROAD)
     reformer = Reformer(sc, lambda vid: DriverModel(model="unknown"))
     cruiser = Cruiser(ctx, reformer, decider=None, lanes=None, tracker=None)
     truck = VehicleState("truck", 300.0, 1, 0.0, 15.0, 12.0)
@@ -134,7 +133,7 @@ def test_a_give_up_that_leaves_cavs_on_both_sides_of_the_target_starts_the_wait(
     cruiser.wait_if_split(30.0, truck, {"c0": past, "c1": behind})
     assert cruiser.waits_started == 1
     assert reformer.waiting == ("truck", 30.0, 30.0 + WAIT_AHEAD_S)
-    assert events == [{"slow": "truck", "past": 1, "behind": 1, "until_s": 75.0}]
+    assert said(ctx) == [("wait_start", {"slow": "truck", "past": 1, "behind": 1, "until_s": 75.0})]
 
 
 class _FailingManoeuvre:
@@ -152,15 +151,10 @@ class _FailingManoeuvre:
 
 def test_a_failed_solve_is_a_fallback_recorded_and_retried_after_retry_after_s():
     sc = Scenario(name="t", path=None)
-    events = []
     truck = VehicleState("truck", 300.0, 1, 0.0, 15.0, 12.0)
     cavs = [cav("c0", 280.0, 1, 15.0), cav("c1", 265.0, 1, 15.0)]
     states = {v.vehicle_id: v for v in [truck, *cavs]}
-    session = types.SimpleNamespace(states=states, edges={})
-    ctx = types.SimpleNamespace(
-        scenario=sc, road=ROAD, session=session, cav_ids=["c0", "c1"], dt_s=0.1,
-        event=lambda kind, **data: events.append((kind, data)),
-    )  # fmt: skip
+    ctx = run_context(FakeSession(states), sc, ROAD, cav_ids=["c0", "c1"])
     manoeuvre, stats, resets = _FailingManoeuvre(), PlanStats(), []
     decider = types.SimpleNamespace(speed_cap=lambda platoon: 25.0,
                                     keep_right_closure=lambda *args: None)  # fmt: skip
@@ -176,7 +170,7 @@ def test_a_failed_solve_is_a_fallback_recorded_and_retried_after_retry_after_s()
     assert replanner.plan is None and progress.failing and not resets
     assert stats.fallbacks == 1 and stats.statuses == {"error": 1}
     assert stats.triggers == {"initial": 1}
-    assert events == [("planner_fallback", {"trigger": "initial", "kept_last_plan": False})]
+    assert said(ctx) == [("planner_fallback", {"trigger": "initial", "kept_last_plan": False})]
     # Nothing is asked again before RETRY_AFTER_S (1 s) has passed; then it is.
     replanner.maybe_replan(1.5, states, ["c0", "c1"], "truck", progress)
     assert len(manoeuvre.calls) == 1
@@ -193,9 +187,7 @@ def test_a_lane_the_target_comes_to_want_is_closed_by_a_replan_once():
     sc = Scenario(name="t", path=None)
     truck = VehicleState("truck", 300.0, 1, 0.0, 15.0, 12.0)
     states = {"truck": truck, "c0": cav("c0", 280.0, 1, 15.0)}
-    session = types.SimpleNamespace(edges={})
-    ctx = types.SimpleNamespace(scenario=sc, road=ROAD, session=session, cav_ids=["c0"], dt_s=0.1,
-                                event=lambda kind, **data: None)  # fmt: skip
+    ctx = run_context(FakeSession(), sc, ROAD, cav_ids=["c0"])
     closure = {"lane": None}
     decider = types.SimpleNamespace(speed_cap=lambda platoon: 25.0,
                                     keep_right_closure=lambda *args: closure["lane"])  # fmt: skip
@@ -236,17 +228,14 @@ class _FixedTracker:
 def follower_run(ego, others=(), tracker=None, steps=1):
     """Drive ``ego`` with a PlanFollower for ``steps`` steps of 0.1 s: the commands and events."""
     scenario = Scenario(name="t", path=None)
-    commands, events = [], []
+    commands = []
     states = {v.vehicle_id: v for v in (ego, *others)}
-    session = types.SimpleNamespace(
-        states=states,
+    session = FakeSession(
+        states,
         set_speed=lambda vid, v: commands.append(("speed", vid, v)),
         change_sublane=lambda vid, d: commands.append(("lat", vid, d)),
     )
-    ctx = types.SimpleNamespace(
-        scenario=scenario, session=session, road=ROAD, dt_s=0.1,
-        event=lambda kind, **data: events.append((kind, data)),
-    )  # fmt: skip
+    ctx = run_context(session, scenario, ROAD)
     tracker = tracker or _FixedTracker()
     idm = DriverModel(model="IDM", accel_mps2=2.6, decel_mps2=4.5, tau_s=1.0, min_gap_m=2.5,
                       desired_speed_mps=30.0)  # fmt: skip
@@ -255,7 +244,7 @@ def follower_run(ego, others=(), tracker=None, steps=1):
     centre = types.SimpleNamespace(y_at_s=lambda s: ROAD.lane_centre_y(ego.lane))
     for k in range(steps):
         follower.drive(0.1 * k, states, [ego.vehicle_id], {ego.vehicle_id: centre}, cap_mps=25.0)
-    return follower, tracker, commands, events
+    return follower, tracker, commands, said(ctx)
 
 
 def test_a_cav_above_the_cap_comes_down_to_it_at_cap_decel_mps2(monkeypatch):

@@ -22,6 +22,7 @@ from sumo_swarm.core.model import VehicleState
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
 from sumo_swarm.sim.runner import run_sumocfg
+from tests.fakes import FakeSession, run_context
 
 # --------------------------------------------------------------------------- pure parts
 
@@ -50,16 +51,9 @@ def test_strung_out_cuts_at_long_gaps_and_at_the_largest_size():
 
 
 def test_each_swarm_sees_the_other_swarms_cavs_as_vehicles():
-    class Session:
-        time_s = 1.0
-
-    class Ctx:
-        session = Session()
-
-    fleet = Fleet(lambda: None, name="x")
-    fleet.ctx = Ctx()
     states = {"a": _state("a", 100), "b": _state("b", 80), "h": _state("h", 60, cav=False)}
-    Session.states = states
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(FakeSession(states))
     view = fleet.view(frozenset({"a"}))
     assert view["a"].is_cav and not view["b"].is_cav and not view["h"].is_cav
     assert view["b"].s_m == 80 and states["b"].is_cav  # the session's states untouched

@@ -86,15 +86,12 @@ def test_a_cav_cut_off_by_a_slow_vehicle_passes_it_and_comes_back():
 def _decider(wishing):
     """A Decider over a session whose drivers keep right and where those in ``wishing`` want
     to move right now (SUMO's lane-change state)."""
-    import types
-
     from sumo_swarm.controllers.decider import Decider
     from sumo_swarm.controllers.lanes import LaneView
+    from tests.fakes import FakeSession, run_context
 
-    session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={},
-                                    wants_right=lambda vid: vid in wishing)  # fmt: skip
-    ctx = types.SimpleNamespace(scenario=SCENARIO, session=session, road=ROAD,
-                                event=lambda kind, **data: None)  # fmt: skip
+    session = FakeSession(keeps_right=lambda vid: True, wants_right=lambda vid: vid in wishing)
+    ctx = run_context(session, SCENARIO, ROAD)
     return Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=SCENARIO.planner,
                    model_of=lambda vid: DriverModel(model="unknown"))  # fmt: skip
 

@@ -41,6 +41,7 @@ from sumo_swarm.core.swarming.guards import (
 )
 from sumo_swarm.core.swarming.planlog import PlanLog
 from sumo_swarm.errors import ConfigError
+from tests.fakes import FakeSession, run_context
 
 ROAD = RoadSection((3.2, 3.2, 3.2))
 IDM = DriverModel(model="IDM", accel_mps2=1.0, decel_mps2=2.0, tau_s=1.0, min_gap_m=2.0,
@@ -807,7 +808,6 @@ def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
     # move into) the wait holds; with a lane on its left and [swarm] keep_right_middle =
     # "wait", the swarm may start (and passed faster so in a paper-scene variant).
     import dataclasses
-    import types
 
     from sumo_swarm.config import Scenario
     from sumo_swarm.controllers.decider import Decider
@@ -815,17 +815,15 @@ def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
     from sumo_swarm.core.hvmodel import DriverModel
 
     events = []
-    session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={})
+    session = FakeSession(keeps_right=lambda vid: True)
     default = Scenario(name="t", path=None)
     waits = dataclasses.replace(
         default, swarm=dataclasses.replace(default.swarm, keep_right_middle="wait")
     )
 
     def controller(scenario):
-        ctx = types.SimpleNamespace(
-            scenario=scenario, session=session, road=ROAD,
-            event=lambda kind, **data: events.append(kind),
-        )  # fmt: skip
+        ctx = run_context(session, scenario, ROAD)
+        ctx.events = events
         return Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=scenario.planner,
                        model_of=lambda vid: DriverModel(model="unknown"))  # fmt: skip
 
@@ -835,7 +833,7 @@ def test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only():
         assert decider.may_keep_right(truck, states_of(truck))  # the lane to its right is free
         beside = car("c", 300.0, lane - 1, 14.0)
         assert decider.may_keep_right(truck, states_of(truck, beside)) is holds
-    assert events == ["target_may_keep_right"] * 2
+    assert [e["event"] for e in events] == ["target_may_keep_right"] * 2
     # The default, "left": a target with a lane on its left is not waited for; its right lane
     # is closed to the plan while free, for keep_right_wait_s (10 s) from the start.
     decider = controller(default)
@@ -860,7 +858,6 @@ def test_the_right_lane_is_judged_for_when_sumo_says_the_truck_will_move():
     # free, and the plan sent a blocker there, which kept the truck in the platoon's way
     # until 17 s (it moved at 7 s under cacc). Judged 2 s ahead (56.2 m left): free, so
     # closed to the plan.
-    import types
 
     from sumo_swarm.config import Scenario
     from sumo_swarm.controllers.decider import Decider
@@ -868,9 +865,8 @@ def test_the_right_lane_is_judged_for_when_sumo_says_the_truck_will_move():
     from sumo_swarm.core.hvmodel import DriverModel
 
     due = {"truck": 2.0}
-    session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={},
-                                    wants_right=lambda vid: False,
-                                    keep_right_due_s=lambda vid: due["truck"])  # fmt: skip
+    session = FakeSession(keeps_right=lambda vid: True, wants_right=lambda vid: False,
+                          keep_right_due_s=lambda vid: due["truck"])  # fmt: skip
     idm = DriverModel(model="IDM", accel_mps2=0.73, decel_mps2=1.67, tau_s=1.2, min_gap_m=2.0,
                       desired_speed_mps=18.5)  # fmt: skip
     default = Scenario(name="t", path=None)
@@ -879,8 +875,7 @@ def test_the_right_lane_is_judged_for_when_sumo_says_the_truck_will_move():
     )
 
     def closure(scenario, *vehicles):
-        ctx = types.SimpleNamespace(scenario=scenario, session=session, road=ROAD,
-                                    event=lambda kind, **data: None)  # fmt: skip
+        ctx = run_context(session, scenario, ROAD)
         decider = Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=scenario.planner,
                           model_of=lambda vid: idm)  # fmt: skip
         return decider.keep_right_closure(3.0, 3.0, vehicles[0], states_of(*vehicles))
@@ -913,7 +908,6 @@ def test_the_right_lane_stays_closed_while_a_middle_lane_target_wants_to_move_th
     # held-out variants, 0.3-0.4 m/s slower than cacc). [swarm] keep_right_wish = false: the
     # former rule, closed only while free.
     import dataclasses
-    import types
 
     from sumo_swarm.config import Scenario
     from sumo_swarm.controllers.decider import Decider
@@ -921,16 +915,14 @@ def test_the_right_lane_stays_closed_while_a_middle_lane_target_wants_to_move_th
     from sumo_swarm.core.hvmodel import DriverModel
 
     wish = {"truck": True}
-    session = types.SimpleNamespace(keeps_right=lambda vid: True, edges={},
-                                    wants_right=lambda vid: wish[vid])  # fmt: skip
+    session = FakeSession(keeps_right=lambda vid: True, wants_right=lambda vid: wish[vid])
     default = Scenario(name="t", path=None)
     off = dataclasses.replace(
         default, swarm=dataclasses.replace(default.swarm, keep_right_wish=False)
     )
 
     def decider(scenario):
-        ctx = types.SimpleNamespace(scenario=scenario, session=session, road=ROAD,
-                                    event=lambda kind, **data: None)  # fmt: skip
+        ctx = run_context(session, scenario, ROAD)
         return Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=scenario.planner,
                        model_of=lambda vid: DriverModel(model="unknown"))  # fmt: skip
 

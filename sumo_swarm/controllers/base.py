@@ -10,13 +10,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
+from sumo_swarm.controllers.session import SessionView
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.guards import lateral_refusal
 from sumo_swarm.errors import ConfigError
 
 if TYPE_CHECKING:
-    from sumo_swarm.config import Scenario
-    from sumo_swarm.sim.bridge import SumoSession
+    from sumo_swarm.config import CavSettings, Scenario
 
 log = logging.getLogger(__name__)
 
@@ -49,22 +49,57 @@ WORLD_SPEED_SOURCE_TYPE = (
 
 
 @dataclass
+class CavSpeeds:
+    """The CAVs' settings in force (``cav``): the scenario's ``[cav]``, with ``[cav] speeds =
+    "world"`` its cruising and highest speed [m/s] following SUMO's desired speed for the CAVs
+    where they drive (:meth:`RunContext.follow_world_speeds`). One object, shared by a swarm's
+    context and its parts (the reformer), read where they read those speeds: the scenario a run
+    was configured with stays as it was."""
+
+    cav: CavSettings
+    world_mps: float | None = None  # the last speed taken from the world (None: not yet)
+
+    def follow(self, speed_mps: float) -> None:
+        """Cruise at, and never above, ``speed_mps`` [m/s] from now on."""
+        self.cav = replace(self.cav, cruising_speed_mps=speed_mps, max_speed_mps=speed_mps)
+        self.world_mps = speed_mps
+
+
+def _no_other_plans() -> Mapping[str, Callable[[float], float]]:
+    return {}
+
+
+def _may_always_start(t_s: float, s_from_m: float, s_to_m: float, target_id: str) -> bool:
+    return True
+
+
+@dataclass
 class RunContext:
     """What a controller may use: the SUMO session, the scenario and the road."""
 
-    session: SumoSession
-    scenario: Scenario
+    session: SessionView
+    scenario: Scenario  # as configured: never replaced during the run
     cav_ids: tuple[str, ...]  # leader first, as placed at t = 0
     road: RoadSection
     out_dir: Any = None  # pathlib.Path of the run's output folder, or None
     events: list[dict[str, Any]] = field(default_factory=list)
-    world_speed_mps: float | None = None  # the last speed taken from the world ([cav] speeds)
-    # Many swarms (controllers.fleet): this swarm's number; ``planned_paths()``, the other
-    # swarms' CAVs' planned front positions s(t); ``may_start(t_s, s_from_m, s_to_m,
-    # target_id)``, whether a manoeuvre may start on that stretch of road (None: anywhere).
-    platoon_id: int | None = None
-    planned_paths: Callable[[], Mapping[str, Callable[[float], float]]] | None = None
-    may_start: Callable[[float, float, float, str], bool] | None = None
+    speeds: CavSpeeds | None = None  # the CAVs' speeds in force (None: the scenario's [cav])
+    # Many swarms (controllers.fleet) set these three; the defaults are one swarm's answers.
+    platoon_id: int | None = None  # this swarm's number (None: the run's only swarm)
+    # The other swarms' CAVs' planned front positions s(t) [m] (t [s]); one swarm: none.
+    planned_paths: Callable[[], Mapping[str, Callable[[float], float]]] = _no_other_plans
+    # may_start(t_s, s_from_m, s_to_m, target_id): whether a manoeuvre may start on that
+    # stretch of road [m]; one swarm: always.
+    may_start: Callable[[float, float, float, str], bool] = _may_always_start
+
+    def __post_init__(self) -> None:
+        if self.speeds is None:
+            self.speeds = CavSpeeds(self.scenario.cav)
+
+    @property
+    def cav(self) -> CavSettings:
+        """The CAVs' settings in force: ``[cav]`` with the speeds the CAVs drive at now."""
+        return self.speeds.cav
 
     @property
     def dt_s(self) -> float:
@@ -87,30 +122,30 @@ class RunContext:
         )  # fmt: skip
 
     def follow_world_speeds(self, cav_ids: Sequence[str]) -> None:
-        """With ``[cav] speeds = "world"``: set the cruising and highest speed of the CAVs to
-        SUMO's desired speed for them where they drive, the lowest over ``cav_ids`` of
-        min(vType maxSpeed, lane limit * speedFactor) (``session.speed_limits``)."""
-        cav = self.scenario.cav
-        limits = getattr(self.session, "speed_limits", None)
-        if cav.speeds != "world" or limits is None:
+        """With ``[cav] speeds = "world"``: set the cruising and highest speed of the CAVs
+        (:attr:`speeds`) to SUMO's desired speed for them where they drive, the lowest over
+        ``cav_ids`` of min(vType maxSpeed, lane limit * speedFactor) (``session.speed_limits``;
+        none where SUMO cannot tell)."""
+        if self.scenario.cav.speeds != "world":
             return
         speed = math.inf
         for vid in cav_ids:
             try:
-                vtype_max, allowed = limits(vid)
+                limits = self.session.speed_limits(vid)
             except Exception:  # vanished this step
                 continue
-            speed = min(speed, vtype_max, allowed)
+            if limits is not None:
+                speed = min(speed, *limits)
         if not (math.isfinite(speed) and speed > 0.0):
             return
+        cav = self.cav
         if abs(speed - cav.cruising_speed_mps) > WORLD_SPEED_TOLERANCE_MPS or (
             cav.max_speed_mps != cav.cruising_speed_mps
         ):
-            cav = replace(cav, cruising_speed_mps=speed, max_speed_mps=speed)
-            self.scenario = replace(self.scenario, cav=cav)
-            if self.world_speed_mps is None:
+            first = self.speeds.world_mps is None
+            self.speeds.follow(speed)
+            if first:
                 self.event("world_speeds", cruising_speed_mps=speed, source=self._world_source())
-            self.world_speed_mps = speed
 
     def _world_source(self) -> str:
         type_factor = self.scenario.cav.speed_factor == "type"
@@ -118,7 +153,7 @@ class RunContext:
 
     def speeds_block(self) -> dict[str, Any]:
         """The ``speeds`` block of summary.json: the speeds the CAVs were given, and whence."""
-        cav = self.scenario.cav
+        cav = self.cav
         return {
             "cruising_speed_mps": cav.cruising_speed_mps,
             "max_speed_mps": cav.max_speed_mps,
@@ -150,8 +185,8 @@ class RouteWatch:
     destination; a CAV whose own route leaves it within ``reach_s`` at its speed (at least
     ``reach_min_m``) is handed back to SUMO (its own car-following and lane changing, so it
     makes the lane changes its exit needs: the controllers' lane-change mode allows none) and a
-    ``cav_leaves`` event says so. Checked every ``every_s``; a session without routes (a test
-    double) leaves nobody."""
+    ``cav_leaves`` event says so. Checked every ``every_s``; where SUMO cannot tell the routes
+    (``route_of`` None), nobody leaves."""
 
     every_s: float = 1.0
     reach_s: float = 25.0
@@ -162,7 +197,7 @@ class RouteWatch:
     def members(self, ctx: RunContext, t_s: float, platoon: Sequence[str]) -> list[str]:
         """``platoon`` (front first) without the CAVs that left it; those follow whatever is
         ahead of them by CACC (``follow``) while SUMO changes their lanes."""
-        if t_s - self._checked_s >= self.every_s and hasattr(ctx.session, "route_of"):
+        if t_s - self._checked_s >= self.every_s:
             self._checked_s = t_s
             self._check(ctx, [v for v in platoon if v not in self.left])
         return [v for v in platoon if v not in self.left]
@@ -288,7 +323,7 @@ class StandDown:
                 log.debug("handing %s back to SUMO: %s", vid, exc)
 
 
-def hand_back(session: SumoSession, vid: str) -> None:
+def hand_back(session: SessionView, vid: str) -> None:
     """CAV ``vid`` driven by SUMO again: the lane changes its route needs, SUMO's speed mode,
     its speed left to SUMO's car-following, braking within RELEASED_DECEL_MPS2
     (:meth:`SumoSession.release`).
@@ -318,7 +353,7 @@ def close_controller(controller: Controller) -> None:
 
 
 def configure_cav(
-    session: SumoSession,
+    session: SessionView,
     vid: str,
     *,
     lateral_speed_mps: float | None = None,

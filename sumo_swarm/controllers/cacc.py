@@ -80,14 +80,13 @@ def lane_end_accel(ctx: RunContext, vid: str, speed_mps: float) -> float | None:
     """Upper bound [m/s^2] of the acceleration of ``vid`` for the end of a lane it must leave
     (see :data:`LANE_END_DECEL_MPS2`); None when its lane goes on along its route."""
     session = ctx.session
-    need = getattr(session, "lane_change_need", lambda vid: None)(vid)
+    need = session.lane_change_need(vid)
     if need is None:
         return None
     distance, lanes = need
     if distance <= MISS_EXIT_WITHIN_M:
         wait_s = MISS_EXIT_AFTER_S * (1.0 if lanes >= 2 else 2.0)
-        stood = getattr(session, "standing_s", lambda vid: 0.0)(vid)
-        if stood >= wait_s and _miss_exit(ctx, vid):
+        if session.standing_s(vid) >= wait_s and _miss_exit(ctx, vid):
             return None
     room = max(0.0, distance - LANE_END_STOP_M)
     v_cap = math.sqrt(2.0 * LANE_END_DECEL_MPS2 * room)
@@ -97,7 +96,7 @@ def lane_end_accel(ctx: RunContext, vid: str, speed_mps: float) -> float | None:
 def _miss_exit(ctx: RunContext, vid: str) -> bool:
     """Give up ``vid``'s exit where its lane goes on along the road (see
     :data:`MISS_EXIT_WITHIN_M`); True if it now drives on."""
-    missed = getattr(ctx.session, "miss_exit", lambda vid: None)(vid)
+    missed = ctx.session.miss_exit(vid)
     if missed is None:
         return False
     ctx.event("exit_missed", vehicle=vid, exit=missed)
@@ -127,8 +126,8 @@ def command_cacc(
         states = ctx.session.states
     # sorted once: a look-up per CAV below
     others = snapshot_of(states, ctx.road) if everyone is None else everyone
-    sc = ctx.scenario
-    released = getattr(ctx.session, "released", ())
+    sc, cav = ctx.scenario, ctx.cav  # the CAVs' speeds in force
+    released = ctx.session.released
     for vid in platoon:
         ego = states[vid]
         cruise = leader_cruise_mps if vid == platoon[0] else cruise_mps
@@ -136,22 +135,22 @@ def command_cacc(
             cruise = cruise_of[vid]
         ahead = vehicle_ahead(ego, others, ctx.road)
         if ahead is None:
-            a = cacc_accel(ego.speed_mps, None, 0.0, 0.0, sc.cav, sc.cacc,
+            a = cacc_accel(ego.speed_mps, None, 0.0, 0.0, cav, sc.cacc,
                            cruising_speed_mps=cruise)  # fmt: skip
         else:
             lead, gap = ahead
             a = cacc_accel(
-                ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, sc.cav, sc.cacc,
+                ego.speed_mps, gap, lead.speed_mps, lead.accel_mps2, cav, sc.cacc,
                 ahead_is_cav=lead.is_cav, cruising_speed_mps=cruise,
             )  # fmt: skip
         if accel_limits is not None and vid in accel_limits:
-            a = max(min(a, accel_limits[vid]), sc.cav.accel_min_mps2)
+            a = max(min(a, accel_limits[vid]), cav.accel_min_mps2)
         if accel_floors is not None and vid in accel_floors:
-            a = min(max(a, accel_floors[vid]), sc.cav.accel_max_mps2)
+            a = min(max(a, accel_floors[vid]), cav.accel_max_mps2)
         if vid in released:  # SUMO makes its lane changes: its lane may end before its exit
             bound = lane_end_accel(ctx, vid, ego.speed_mps)
             if bound is not None:
-                a = max(min(a, bound), sc.cav.accel_min_mps2)
+                a = max(min(a, bound), cav.accel_min_mps2)
         ctx.session.set_speed(vid, ego.speed_mps + a * ctx.dt_s)
 
 

@@ -63,16 +63,16 @@ class Cruiser:
         # (up to the cap): with room above it, easing off slowed the whole re-formed platoon
         # by up to 2 m/s for 20 s after a target left the lane, where cacc drove on.
         reformer, road = self.reformer, ctx.road
-        reformer.scenario = sc  # the speeds may follow the world
+        cav = ctx.cav  # the speeds in force (they may follow the world)
         everyone = snapshot_of(states, road)  # sorted once for this step's look-ups
         cap = self.decider.speed_cap(platoon[:1])
-        room = max(min(cap, sc.cav.max_speed_mps) - sc.cav.cruising_speed_mps, 0.0)
+        room = max(min(cap, cav.max_speed_mps) - cav.cruising_speed_mps, 0.0)
         ease = self._leader_ease_cap(states, platoon, everyone)
-        leader_cruise = sc.cav.cruising_speed_mps - min(
+        leader_cruise = cav.cruising_speed_mps - min(
             ease, max(sc.cacc.k_close * stretch - room, 0.0)
         )
         # Never re-form in a lane that ends within 10 s at the cruise (an acceleration lane).
-        reach = sc.swarm.detect_range_m + 10.0 * sc.cav.cruising_speed_mps
+        reach = sc.swarm.detect_range_m + 10.0 * cav.cruising_speed_mps
         ending = self.lanes.ending(states[platoon[0]], platoon[0], reach)
         edge = self.lanes.edge_of(platoon[0])
         waits_at = reformer.split_by(t_s, states, platoon, road, ending)
@@ -83,13 +83,13 @@ class Cruiser:
         cruise = None
         boost = reformer.pull_away(states, platoon, road, lane, cap_mps=cap)
         if boost > 0.0:  # an HV following the platoon keeps a CAV out of its lane
-            cruise = sc.cav.cruising_speed_mps + boost
+            cruise = cav.cruising_speed_mps + boost
             leader_cruise = max(leader_cruise, cruise)
-        base = sc.cav.cruising_speed_mps if cruise is None else cruise
+        base = cav.cruising_speed_mps if cruise is None else cruise
         catch_up = straggler_cruise(
-            states, platoon, road, cruise_mps=base, cap_mps=min(cap, sc.cav.max_speed_mps),
+            states, platoon, road, cruise_mps=base, cap_mps=min(cap, cav.max_speed_mps),
             desired_gap_m=sc.cav.desired_gap_m, k_close=sc.cacc.k_close,
-            slow_below_mps=sc.cav.cruising_speed_mps - sc.swarm.min_speed_gain_mps,
+            slow_below_mps=cav.cruising_speed_mps - sc.swarm.min_speed_gain_mps,
             reach_m=sc.swarm.detect_range_m, width_m=sc.cav.width_m,
         )  # fmt: skip
         if waits_at is not None and boost <= 0.0:

@@ -80,22 +80,22 @@ class Decider:
     def slow_below(self) -> float:
         """Below this speed [m/s] a vehicle ahead is slow (``trigger_speed_ratio`` of the
         cruise)."""
-        sw, cav = self.ctx.scenario.swarm, self.ctx.scenario.cav
-        return cav.cruising_speed_mps * sw.trigger_speed_ratio
+        return self.ctx.cav.cruising_speed_mps * self.ctx.scenario.swarm.trigger_speed_ratio
 
     def speed_cap(self, platoon: list[str]) -> float:
         """The lowest of cav.max_speed_mps, the CAVs' vType maxSpeed and allowed lane speed
         (``platoon``: the CAVs to ask; the leader alone while cruising)."""
-        sources = {"cav.max_speed_mps": self.ctx.scenario.cav.max_speed_mps}
-        limits = getattr(self.ctx.session, "speed_limits", None)
-        if limits is not None:
-            for vid in platoon:
-                try:
-                    vtype_max, allowed = limits(vid)
-                except Exception:
-                    continue
-                sources["vType maxSpeed"] = min(sources.get("vType maxSpeed", math.inf), vtype_max)
-                sources["lane limit"] = min(sources.get("lane limit", math.inf), allowed)
+        sources = {"cav.max_speed_mps": self.ctx.cav.max_speed_mps}
+        for vid in platoon:
+            try:
+                limits = self.ctx.session.speed_limits(vid)
+            except Exception:  # vanished this step
+                continue
+            if limits is None:  # SUMO cannot tell
+                continue
+            vtype_max, allowed = limits
+            sources["vType maxSpeed"] = min(sources.get("vType maxSpeed", math.inf), vtype_max)
+            sources["lane limit"] = min(sources.get("lane limit", math.inf), allowed)
         self.cap_sources = sources
         self.cap_mps = speed_cap_mps(list(sources.values()))
         return self.cap_mps
@@ -129,13 +129,11 @@ class Decider:
         )  # fmt: skip
         # Never another swarm's CAV (many swarms: each sees the others' CAVs as vehicles): a
         # platoon behind one merges with it, or waits for it to overtake.
-        if candidate is not None and getattr(ctx.session, "kinds", {}).get(
-            candidate.vehicle_id
-        ) == "cav":  # fmt: skip
+        if candidate is not None and ctx.session.kinds.get(candidate.vehicle_id) == "cav":
             candidate = None
         # Not in a lane that ends within reach plus two 3 s intervals at the cruise (an
         # acceleration lane, a lane drop): everyone leaves that lane anyway.
-        reach = sw.detect_range_m + 2.0 * 3.0 * ctx.scenario.cav.cruising_speed_mps
+        reach = sw.detect_range_m + 2.0 * 3.0 * ctx.cav.cruising_speed_mps
         if candidate is not None and leader.lane in self.lanes.ending(leader, platoon[0], reach):
             candidate = None
         if sw.decide == "weigh":  # catching up, side lanes, keeping right: weighed (choose)
@@ -159,7 +157,7 @@ class Decider:
         sw = sc.swarm
         leader = states[self.leader(states, platoon)]
         tail = min((states[v] for v in platoon), key=lambda st: st.rear_s_m)
-        wish, blocked = self._lane_wish(target.vehicle_id)
+        wish, blocked = ctx.session.lane_wish(target.vehicle_id)
         # Its route leaves the road within the horizon (an exit ahead): it goes, as a wish.
         target_left_m = self._road_left_m(target)
         exits = target_left_m is not None and target_left_m <= sw.horizon_s * max(
@@ -179,7 +177,7 @@ class Decider:
         view = PlatoonView(
             front=leader, tail=tail, n_cavs=len(platoon),
             cavs=tuple(sorted((states[v] for v in platoon), key=lambda st: -st.s_m)),
-            cruise_mps=min(sc.cav.cruising_speed_mps, self.cap_mps),
+            cruise_mps=min(ctx.cav.cruising_speed_mps, self.cap_mps),
             lateral_speed_mps=sc.cav.max_lateral_speed_mps,
             lane_width_m=road.lane_widths_m[lane],
         )  # fmt: skip
@@ -213,8 +211,8 @@ class Decider:
         where its route leaves it, or else to its route's end (it arrives); None where SUMO
         cannot tell."""
         session = self.ctx.session
-        frame = getattr(session, "frame", None)
-        route = getattr(session, "route_of", lambda vid: None)(vehicle.vehicle_id)
+        frame = session.frame
+        route = session.route_of(vehicle.vehicle_id)
         if frame is None or route is None:
             return None
         edges, index = route
@@ -224,21 +222,10 @@ class Decider:
             )
             if parting is None:
                 position = session.lane_positions.get(vehicle.vehicle_id, 0.0)
-                parting = (
-                    sum(frame.net.lane_length_m(f"{e}_0") for e in edges[index:]) - position
-                )
+                parting = sum(frame.net.lane_length_m(f"{e}_0") for e in edges[index:]) - position
         except Exception:  # vanished
             return None
         return max(parting, 0.0)
-
-    def _lane_wish(self, vid: str) -> tuple[int, bool]:
-        """The lane ``vid``'s driver wants to move to (+1 left, -1 right, 0 none) and whether
-        it is blocked there (``SumoSession.lane_wish``); (0, False) where SUMO cannot tell."""
-        ask = getattr(self.ctx.session, "lane_wish", None)
-        try:
-            return (0, False) if ask is None else ask(vid)
-        except Exception:
-            return 0, False
 
     def leader(self, states: States, platoon: list[str]) -> str:
         """The CAV whose leader decides: the front CAV in the lane the platoon re-forms in.
@@ -369,22 +356,15 @@ class Decider:
     def _keeps_right(self, target: VehicleState) -> bool:
         """Does ``target``'s lane-change model keep right (read through libsumo)? False when
         it vanished or TraCI cannot tell."""
-        return self._session_says("keeps_right", target.vehicle_id)
+        try:
+            return bool(self.ctx.session.keeps_right(target.vehicle_id))
+        except Exception:  # the vehicle left
+            return False
 
     def must_change(self, vid: str, direction: int) -> bool:
         """Does vehicle ``vid`` need to move one lane ``direction`` (+1 left) for its route
         (SUMO's strategic wish, read through libsumo)? False when TraCI cannot tell."""
-        return self._session_says("must_change", vid, direction)
-
-    def _session_says(self, question: str, vid: str, *args: Any) -> bool:
-        """The session's answer to ``question`` (a method of it, asked with vehicle ``vid``
-        and ``args``); False when the session has no such method or it fails (the vehicle
-        left)."""
-        ask = getattr(self.ctx.session, question, None)
-        try:
-            return ask is not None and bool(ask(vid, *args))
-        except Exception:
-            return False
+        return bool(self.ctx.session.must_change(vid, direction))
 
     def moves_right_soon(self, target: VehicleState, states: States, t_s: float) -> bool:
         """Does ``target`` keep right, want to move right now (:meth:`wants_right`), and will
@@ -406,8 +386,8 @@ class Decider:
         """Does ``target``'s driver want to move right to keep right now, the lane there free
         or not (SUMO's lane-change state, read through libsumo)? False with ``[swarm]
         keep_right_wish`` off, or when TraCI cannot tell."""
-        return self.ctx.scenario.swarm.keep_right_wish and self._session_says(
-            "wants_right", target.vehicle_id
+        return self.ctx.scenario.swarm.keep_right_wish and bool(
+            self.ctx.session.wants_right(target.vehicle_id)
         )
 
     def _follower_gap(self, follower: VehicleState) -> float:
@@ -423,11 +403,7 @@ class Decider:
         where SUMO cannot tell."""
         if not self.ctx.scenario.swarm.keep_right_due:
             return None
-        ask = getattr(self.ctx.session, "keep_right_due_s", None)
-        try:
-            return None if ask is None else ask(target.vehicle_id)
-        except Exception:
-            return None
+        return self.ctx.session.keep_right_due_s(target.vehicle_id)
 
     def _right_lane_opens(self, target: VehicleState, states: States) -> bool:
         """Will the lane on ``target``'s right open for it within ``[swarm] keep_right_soon_s``
@@ -491,7 +467,7 @@ class Decider:
         interval = interval_s or self.planner.behaving_interval_s
         grid_speed = grid.speed_mps if grid is not None else target.speed_mps
         pace = max(grid_speed, target.speed_mps) + sc.cell_length_m / interval
-        cruise = min(speeds[lane], sc.cav.cruising_speed_mps)
+        cruise = min(speeds[lane], self.ctx.cav.cruising_speed_mps)
         return cruise - pace >= sw.min_speed_gain_mps
 
     def lane_beats_plan(
@@ -515,10 +491,11 @@ class Decider:
             leader, states[platoon[-1]], target, [st for st in states.values() if not st.is_cav],
             road, side, n_cavs=len(platoon), cell_length_m=sc.cell_length_m,
             range_m=sw.detect_range_m, cap_mps=self.cap_mps,
-            cruise_mps=sc.cav.cruising_speed_mps,
+            cruise_mps=self.ctx.cav.cruising_speed_mps,
             pace_mps=target.speed_mps + sc.cell_length_m / interval,
             free_pace_mps=lane_pass_pace(
-                target.speed_mps, sc.cell_length_m / interval, cruise_mps=sc.cav.cruising_speed_mps,
+                target.speed_mps, sc.cell_length_m / interval,
+                cruise_mps=self.ctx.cav.cruising_speed_mps,
                 min_gain_mps=sw.min_speed_gain_mps, rule=sw.lane_pass_beats,
             ),
             min_gain_mps=sw.min_speed_gain_mps, tolerance_m=sw.in_lane_tolerance_m,

@@ -51,8 +51,9 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sumo_swarm.config import PlatoonSettings
-from sumo_swarm.controllers.base import Controller, RunContext, close_controller
+from sumo_swarm.controllers.base import CavSpeeds, Controller, RunContext, close_controller
 from sumo_swarm.controllers.cacc import command_cacc
+from sumo_swarm.controllers.session import SessionView
 from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.neighbours import ordered_platoon
 from sumo_swarm.core.swarming.account import (
@@ -116,18 +117,63 @@ def strung_out(
 # --------------------------------------------------------------------------- the views
 
 
-class PlatoonSession:
-    """A platoon's view of the SUMO session: the session itself, except that in
-    :attr:`states` only the platoon's own CAVs are CAVs (``is_cav``); every other CAV is a
-    vehicle like the human-driven ones."""
+class _Same:
+    """A name of :class:`SessionView` a platoon's view passes on to the session unchanged."""
 
-    def __init__(self, session: Any, fleet: Fleet, members: frozenset[str]) -> None:
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, view: PlatoonSession | None, owner: type | None = None) -> Any:
+        if view is None:
+            return self
+        return getattr(view._session, self.name)
+
+
+class PlatoonSession:
+    """A platoon's view of the SUMO session (:class:`SessionView`): the session itself, except
+    that in :attr:`states` (and :meth:`states_in_lanes_of`) only the platoon's own CAVs are
+    CAVs (``is_cav``); every other CAV is a vehicle like the human-driven ones. Every other
+    name is the session's own, each passed on by name."""
+
+    time_s = _Same()
+    step_length_s = _Same()
+    cav_ids = _Same()
+    departed = _Same()
+    arrived = _Same()
+    kinds = _Same()
+    released = _Same()
+    frame = _Same()
+    api = _Same()
+    edges = _Same()
+    lane_positions = _Same()
+    exists = _Same()
+    road_at = _Same()
+    lanes_ending = _Same()
+    near_lane_shift = _Same()
+    driver_model = _Same()
+    speed_limits = _Same()
+    route_of = _Same()
+    distance_to_parting_m = _Same()
+    lane_change_need = _Same()
+    standing_s = _Same()
+    keeps_right = _Same()
+    wants_right = _Same()
+    lane_wish = _Same()
+    must_change = _Same()
+    keep_right_due_s = _Same()
+    set_speed = _Same()
+    release_speed = _Same()
+    change_sublane = _Same()
+    set_modes = _Same()
+    release = _Same()
+    limit_braking = _Same()
+    reclaim = _Same()
+    miss_exit = _Same()
+
+    def __init__(self, session: SessionView, fleet: Fleet, members: frozenset[str]) -> None:
         self._session = session
         self._fleet = fleet
         self.members = members
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._session, name)
 
     @property
     def states(self) -> dict[str, VehicleState]:
@@ -222,20 +268,23 @@ class Fleet:
         if hasattr(self._kind, "use_planlog"):
             self.planlog = PlanLog(self.ctx.out_dir)
 
-    def __getattr__(self, name: str) -> Any:
-        """What a single swarm offers (``mode``, ``plan``, ``target_id``, ...): the first
-        swarm's, as the summary's overtake block."""
-        if name.startswith("_") or name in ("ctx", "settings", "platoons"):
-            raise AttributeError(name)
-        inner = self._single if self._single is not None else self._lead_controller()
-        if inner is None:
-            raise AttributeError(name)
-        return getattr(inner, name)
-
-    def _lead_controller(self) -> Controller | None:
+    @property
+    def lead(self) -> Controller | None:
+        """The controller a single swarm's readers ask (its ``mode``, ``plan``,
+        ``target_id``, ...): with ``grouping = "one"`` the run's swarm; else the first swarm
+        that started a manoeuvre (whose overtake block the summary shows), or the first swarm
+        now; None while there is none."""
+        if self._single is not None:
+            return self._single
         self._note_first()
         lead = self._first or (self.platoons[0] if self.platoons else None)
         return None if lead is None else lead.controller
+
+    @property
+    def target_id(self) -> str | None:
+        """The target of the lead swarm's manoeuvre (None: none yet), for the scene's
+        outputs."""
+        return getattr(self.lead, "target_id", None)
 
     # ------------------------------------------------------------------ the step
     def control(self, t_s: float) -> None:
@@ -483,10 +532,11 @@ class Fleet:
     # ------------------------------------------------------------------ platoons
     def _new(self, t_s: float, members: list[str], states) -> Platoon:
         session = PlatoonSession(self.ctx.session, self, frozenset())
+        # Its CAVs start at the speeds the fleet's CAVs drive at now (they may follow the world).
         ctx = RunContext(
-            session, self.ctx.scenario, (), self.ctx.road, out_dir=None, events=self.ctx.events
-        )
-        ctx.platoon_id = self._next_id
+            session, self.ctx.scenario, (), self.ctx.road, out_dir=None, events=self.ctx.events,
+            speeds=CavSpeeds(self.ctx.cav), platoon_id=self._next_id,
+        )  # fmt: skip
         controller = self._make()
         if self.planlog is not None and hasattr(controller, "use_planlog"):
             controller.use_planlog(_Tagged(self.planlog, self._next_id))
@@ -522,9 +572,7 @@ class Fleet:
         """``vid`` joins a platoon: the controllers' modes are set again (by the platoon)."""
         self._handed.discard(vid)
         self._off_frame.discard(vid)
-        reclaim = getattr(self.ctx.session, "reclaim", None)
-        if reclaim is not None:
-            reclaim(vid)
+        self.ctx.session.reclaim(vid)
         for platoon in self.platoons:
             if vid in platoon.session.members:  # moving from another platoon
                 _forget(platoon.controller, vid)

@@ -78,7 +78,7 @@ class PlanFollower:
         dt = ctx.dt_s
         others = snapshot_of(states, road)
         solve = self.tracker.tick()
-        cap = cap_mps if math.isfinite(cap_mps) else sc.cav.max_speed_mps
+        cap = cap_mps if math.isfinite(cap_mps) else ctx.cav.max_speed_mps
         gentle = sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
         for vid in platoon:
             ego = states[vid]

@@ -28,18 +28,16 @@ LANE_SHIFT_HOLD_M = 40.0
 class LaneView:
     """Lane ends and lane shifts ahead of the CAVs, read through the run's session.
 
-    ``ctx`` is the run's context (:class:`~sumo_swarm.controllers.base.RunContext`, or any
-    object with ``session``, ``road``, ``scenario`` and ``cav_ids``). A session without
-    ``edges`` or ``lanes_ending`` (a test's stand-in) has no lane that ends.
+    ``ctx`` is the run's context (:class:`~sumo_swarm.controllers.base.RunContext`). Where
+    the session cannot tell a vehicle's edge, no lane ends ahead of it.
     """
 
     def __init__(self, ctx: Any) -> None:
         self.ctx = ctx
 
     def edge_of(self, vid: str) -> str | None:
-        """The edge ``vid`` is on (None if unknown, or a session without edges)."""
-        edges = getattr(self.ctx.session, "edges", None)
-        return None if edges is None else edges.get(vid)
+        """The edge ``vid`` is on (None if unknown)."""
+        return self.ctx.session.edges.get(vid)
 
     def own(self, ego: VehicleState) -> VehicleState:
         """``ego`` with its lane index on its own edge (the controller's states count lanes as
@@ -49,14 +47,13 @@ class LaneView:
     def ending(self, leader: VehicleState, vid: str, range_m: float | None = None) -> set[int]:
         """Lanes that end within ``range_m`` (default ``[swarm] detect_range_m``) ahead of the
         vehicle ``vid`` whose state is ``leader``."""
-        session = self.ctx.session
         edge = self.edge_of(vid)
-        if edge is None or not hasattr(session, "lanes_ending"):
+        if edge is None:
             return set()
         if range_m is None:
             range_m = self.ctx.scenario.swarm.detect_range_m
         reach = leader.s_m + range_m
-        return {lane for lane, _ in session.lanes_ending(edge, leader.rear_s_m, reach)}
+        return {lane for lane, _ in self.ctx.session.lanes_ending(edge, leader.rear_s_m, reach)}
 
     def ending_within(self, ego: VehicleState, horizon_s: float) -> set[int]:
         """Lanes of ``ego``'s own edge that end within ``horizon_s`` at its speed (at least
@@ -73,13 +70,13 @@ class LaneView:
 
     def lane_count(self, ego: VehicleState) -> int:
         """Lanes of ``ego``'s own edge (the road's, where the session cannot tell)."""
-        frame = getattr(self.ctx.session, "frame", None)
+        frame = self.ctx.session.frame
         edge = self.edge_of(ego.vehicle_id)
         if frame is None or edge is None:
             return self.ctx.road.n_lanes
         try:
             return frame.lane_count(edge)
-        except Exception:
+        except Exception:  # an edge SUMO does not know ("" while off the lanes)
             return self.ctx.road.n_lanes
 
     def shift_hold(self, ego: VehicleState, y: float, dlat: float) -> bool:
@@ -97,8 +94,7 @@ class LaneView:
         entering = ego.lane + (1 if dlat > 0 else -1)
         if entering in self.ending_within(ego, LANE_END_HOLD_S):
             return True
-        near = getattr(self.ctx.session, "near_lane_shift", None)
-        return near is not None and near(ego.s_m, LANE_SHIFT_HOLD_M + ego.length_m)
+        return self.ctx.session.near_lane_shift(ego.s_m, LANE_SHIFT_HOLD_M + ego.length_m)
 
     def end_escape(self, ego: VehicleState, dlat: float, step_m: float) -> float:
         """The lateral move [m] of ``ego`` this step: ``dlat``, unless its lane ends within

@@ -28,8 +28,8 @@ from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from sumo_swarm.config import Scenario
-from sumo_swarm.controllers.base import lateral_guard
+from sumo_swarm.config import CavSettings, Scenario
+from sumo_swarm.controllers.base import CavSpeeds, lateral_guard
 from sumo_swarm.controllers.cacc import cacc_accel
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
@@ -152,6 +152,18 @@ class Reformer:
     waiting: tuple[str, float, float] | None = None
     wait_ends: Counter[str] = field(default_factory=Counter)  # why the waits ended, counted
     last_wait_end: str | None = None  # why the last wait ended
+    # The CAVs' speeds in force, shared with the swarm's context (they may follow the world:
+    # RunContext.follow_world_speeds); None: the scenario's [cav]
+    speeds: CavSpeeds | None = None
+
+    def __post_init__(self) -> None:
+        if self.speeds is None:
+            self.speeds = CavSpeeds(self.scenario.cav)
+
+    @property
+    def cav(self) -> CavSettings:
+        """The CAVs' settings in force (their speeds may follow the world)."""
+        return self.speeds.cav
 
     def reset(self) -> None:
         """Choose the lane afresh from where the CAVs are (a manoeuvre just ended)."""
@@ -230,7 +242,7 @@ class Reformer:
         sw = self.scenario.swarm
         if self.left_for_held == (current, self.edge):
             return current
-        cruise = self.scenario.cav.cruising_speed_mps
+        cruise = self.cav.cruising_speed_mps
         boost = self._boost(cap_mps)
         for ego, hv in self._held_by_hv(states, platoon, road, current, REFORM_SWITCH_S):
             if self._left_behind(hv, boost):
@@ -367,7 +379,7 @@ class Reformer:
                 self.prefer = None
         # Once the platoon has moved over for a held CAV (_held_switch), a lane is faster only
         # by what the platoon would drive there: the lane it left is no better at the cruise.
-        top = sc.cav.cruising_speed_mps if self.left_for_held is not None else math.inf
+        top = self.cav.cruising_speed_mps if self.left_for_held is not None else math.inf
         if current in speeds and min(speeds[best], top) - min(speeds[current], top) < (
             sc.swarm.min_speed_gain_mps
         ):
@@ -457,7 +469,7 @@ class Reformer:
             if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
                 continue
             slow = ahead[0]
-            slow_below = sc.cav.cruising_speed_mps - sw.min_speed_gain_mps
+            slow_below = self.cav.cruising_speed_mps - sw.min_speed_gain_mps
             if i > 0 and self._splits(slow, states, platoon[:i], road):
                 slow_below += PASS_INTRUDER_MPS
             if slow.speed_mps > slow_below:
@@ -482,7 +494,7 @@ class Reformer:
                 # Not on the right of a driver about to move there, with a lane on its left
                 # (the swarm's plan keeps out of it too: Decider.keep_right_closure).
                 side = [q for q in side if q != wanted]
-            reach = sw.detect_range_m + PASS_REACH_S * sc.cav.cruising_speed_mps
+            reach = sw.detect_range_m + PASS_REACH_S * self.cav.cruising_speed_mps
             speeds = lane_speeds(ego, others, road, side, range_m=reach,
                                  cap_mps=cap_mps, desired_of=self.desired_speed)  # fmt: skip
             best = max(speeds, key=speeds.get, default=None)
@@ -592,7 +604,7 @@ class Reformer:
         if ahead is None or ahead[0].is_cav or ahead[1] > sw.detect_range_m:
             return goal
         slow = ahead[0]
-        if slow.speed_mps > sc.cav.cruising_speed_mps - sw.min_speed_gain_mps:
+        if slow.speed_mps > self.cav.cruising_speed_mps - sw.min_speed_gain_mps:
             return goal
         if self._next_to_a_cav(ego, goal, states, road):
             return goal
@@ -681,7 +693,7 @@ class Reformer:
         sc = self.scenario
         sw = sc.swarm
         members = set(platoon)
-        slow_below = sc.cav.cruising_speed_mps - sw.min_speed_gain_mps
+        slow_below = self.cav.cruising_speed_mps - sw.min_speed_gain_mps
         width = sc.cav.width_m
         for ego, goal in self._held_next_to(states, platoon, road, BLOCK_ASSIST_AFTER_S):
             vid = ego.vehicle_id
@@ -829,10 +841,10 @@ class Reformer:
         sw = sc.swarm
         accel = ENTRY_ACCEL_MPS2
         lane_speed = lane_speeds(ego, near, road, [next_lane], range_m=sw.detect_range_m,
-                                 cap_mps=sc.cav.cruising_speed_mps,
+                                 cap_mps=self.cav.cruising_speed_mps,
                                  desired_of=self.desired_speed)[next_lane]  # fmt: skip
         # Never more than the cruise a leader easing off to close up would keep.
-        final = min(lane_speed, sc.cav.cruising_speed_mps - MAX_LEADER_EASE_MPS)
+        final = min(lane_speed, self.cav.cruising_speed_mps - MAX_LEADER_EASE_MPS)
         if final - ego.speed_mps < sw.min_speed_gain_mps:
             return None
         change_s = road.lane_widths_m[next_lane] / sc.cav.max_lateral_speed_mps
@@ -873,7 +885,7 @@ class Reformer:
         slow, gap = own
         vid = ego.vehicle_id
         lane_speed = lane_speeds(ego, near, road, [next_lane], range_m=sw.detect_range_m,
-                                 cap_mps=sc.cav.max_speed_mps,
+                                 cap_mps=self.cav.max_speed_mps,
                                  desired_of=self.desired_speed)[next_lane]  # fmt: skip
         # A vehicle alongside in the next lane sets its speed too (lane_speeds looks ahead
         # only): a leader passing on its own ran up and fell back for 30 s beside an HV as
@@ -1055,7 +1067,7 @@ class Reformer:
         ego and at most ``detect_range_m`` ahead of ``front``?"""
         sc = self.scenario
         lane = road.lane_of(ego)
-        slow = sc.cav.cruising_speed_mps - sc.swarm.min_speed_gain_mps
+        slow = self.cav.cruising_speed_mps - sc.swarm.min_speed_gain_mps
         end = max(front.s_m, ego.s_m) + sc.swarm.detect_range_m
         return any(
             not o.is_cav and ego.s_m < o.s_m <= end and o.speed_mps < slow
@@ -1065,14 +1077,13 @@ class Reformer:
 
     def _boost(self, cap_mps: float) -> float:
         """How much faster than the cruise [m/s] the platoon may pull away (0: it may not)."""
-        sc = self.scenario
-        cruise = sc.cav.cruising_speed_mps
-        return max(min(PULL_AWAY_MPS, min(cap_mps, sc.cav.max_speed_mps) - cruise), 0.0)
+        cruise = self.cav.cruising_speed_mps
+        return max(min(PULL_AWAY_MPS, min(cap_mps, self.cav.max_speed_mps) - cruise), 0.0)
 
     def _left_behind(self, hv: VehicleState, boost: float) -> bool:
         """Does ``hv`` want less than the cruise plus ``boost`` by a metre per second (a
         platoon pulling away leaves it behind; one wanting as much follows)?"""
-        cruise = self.scenario.cav.cruising_speed_mps
+        cruise = self.cav.cruising_speed_mps
         return boost > 0.0 and self.desired_speed(hv) <= cruise + boost - 1.0
 
     def pull_away(
@@ -1106,6 +1117,6 @@ class Reformer:
         lane it moves into, or a CAV merging in front of it), braking no harder than the
         planner's share of b_safe: room is made gently, never by a hard brake."""
         sc = self.scenario
-        accel = cacc_accel(ego.speed_mps, gap_m, lead.speed_mps, lead.accel_mps2, sc.cav,
+        accel = cacc_accel(ego.speed_mps, gap_m, lead.speed_mps, lead.accel_mps2, self.cav,
                            sc.cacc, ahead_is_cav=lead.is_cav)  # fmt: skip
         return max(accel, -sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2)

@@ -354,8 +354,7 @@ class Replanner:
         if sc.planner.release_idle_holds == "stranded" and self.plan is not None and self.plan.ok:
             in_force = dict(zip(self.plan.cav_ids, self.plan.cells, strict=True))
             stranded = bool(stranded_cavs(in_force, cavs_behind(target, cavs, sc.cav.min_gap_m)))
-        others = getattr(ctx, "planned_paths", None)  # other swarms' plans (many swarms)
-        known = others() if others is not None else None
+        known = ctx.planned_paths()  # the other swarms' plans (many swarms; one: none)
         for n, (speed, speed_interval) in enumerate(tries):
             outcome = self.manoeuvre.plan(
                 t_s, reason, states, platoon, target_id, ctx.road,

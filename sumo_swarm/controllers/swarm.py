@@ -113,6 +113,9 @@ class SwarmController:
         self.replanner: Replanner | None = None
         self.follower: PlanFollower | None = None
         self.cruiser: Cruiser | None = None
+        self.reformer: Reformer | None = None
+        self.routes = RouteWatch()  # CAVs whose routes part leave the platoon
+        self.planlog: PlanLog | None = None  # plans.jsonl (made by attach)
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:
@@ -137,10 +140,9 @@ class SwarmController:
         steps = max(1, round(sc.swarm.control_interval_s / ctx.dt_s))
         self.tracker = self._tracker_override or Tracker(sc.longitudinal, sc.lateral, steps)
         self.planlog = self._planlog_override or PlanLog(ctx.out_dir)
-        self.routes = RouteWatch()
         self.lanes = LaneView(ctx)
         self.reformer = Reformer(
-            sc, self.model_of, ctx.event, hold=self.lanes.shift_hold,
+            sc, self.model_of, ctx.event, speeds=ctx.speeds, hold=self.lanes.shift_hold,
             escape=self.lanes.end_escape, ends=self.lanes.ends_ahead,
         )  # fmt: skip
         self.decider = Decider(
@@ -167,16 +169,14 @@ class SwarmController:
     def idle(self) -> bool:
         """Cruising with no manoeuvre of its own under way (no overtake, lane pass, passing one
         by one or wait ahead of a slow vehicle): its CAVs may change (controllers.fleet)."""
-        reformer = getattr(self, "reformer", None)
+        reformer = self.reformer
         busy = reformer is not None and (reformer.singly is not None or reformer.waiting)
         return self.mode is Mode.CRUISE and self.lane_pass is None and not busy
 
     def forget(self, vid: str) -> None:
         """CAV ``vid`` left this swarm (controllers.fleet): set its modes again if it returns."""
         self.configured.discard(vid)
-        routes = getattr(self, "routes", None)
-        if routes is not None:
-            routes.left.discard(vid)
+        self.routes.left.discard(vid)
 
     def planned_paths(self) -> dict[str, Any]:
         """Each CAV's planned front position ``s(t)`` [m] while a plan is in force (for the
@@ -252,16 +252,15 @@ class SwarmController:
             return cached[1]
         try:
             model = session.driver_model(vid)
-        except Exception:  # vanished, or a session without the call: a cautious default
+        except Exception:  # vanished: a cautious default
             model = DriverModel(model="unknown")
-        limits = getattr(session, "speed_limits", None)
-        if limits is not None:
-            try:
-                allowed = limits(vid)[1]
-            except Exception:
-                allowed = math.inf
-            if math.isfinite(allowed) and allowed > 0.0:
-                model = replace(model, desired_speed_mps=min(model.desired_speed_mps, allowed))
+        try:
+            limits = session.speed_limits(vid)
+        except Exception:  # vanished
+            limits = None
+        allowed = math.inf if limits is None else limits[1]
+        if math.isfinite(allowed) and allowed > 0.0:
+            model = replace(model, desired_speed_mps=min(model.desired_speed_mps, allowed))
         self._models[vid] = (edge, model)
         return model
 
@@ -300,11 +299,9 @@ class SwarmController:
         road = ctx.session.road_at(platoon[0])
         if road is not None:
             ctx.road = road
-        in_lanes = getattr(ctx.session, "states_in_lanes_of", None)
-        if in_lanes is not None:
-            # One lane numbering, the leader's edge's: behind a lane drop the CAVs not past it
-            # yet count their lane one higher, and the reformer sent them to the wrong lane.
-            states = in_lanes(platoon[0])
+        # One lane numbering, the leader's edge's: behind a lane drop the CAVs not past it
+        # yet count their lane one higher, and the reformer sent them to the wrong lane.
+        states = ctx.session.states_in_lanes_of(platoon[0])
         self.blocks.watch(t_s, states, self.replanner.interval())
         self.book.watch(t_s, states, platoon)
         if self.drawer is not None and self.mode is Mode.OVERTAKE:
@@ -352,12 +349,9 @@ class SwarmController:
     def _may_start(self, t_s: float, target: VehicleState, platoon: list[str]) -> bool:
         """Whether no other swarm's manoeuvre takes the road from this platoon's last CAV to
         ``target`` (``ctx.may_start``, set by controllers.fleet; always, for one swarm)."""
-        may_start = getattr(self.ctx, "may_start", None)
-        if may_start is None:
-            return True
         states = self.ctx.session.states
         rear = min(states[v].rear_s_m for v in platoon)
-        return may_start(t_s, rear, target.s_m, target.vehicle_id)
+        return self.ctx.may_start(t_s, rear, target.s_m, target.vehicle_id)
 
     def _overtake_step(self, t_s: float, states, platoon: list[str]) -> None:
         """End the manoeuvre (done, the target no longer blocking, given up), or plan again."""
@@ -578,7 +572,7 @@ class SwarmController:
 
     def close(self) -> None:
         """Close plans.jsonl (the run is over or the swarm was detached)."""
-        if getattr(self, "planlog", None) is not None:  # never attached: nothing to close
+        if self.planlog is not None:  # never attached: nothing to close
             self.planlog.close()
 
     def summary(self) -> dict[str, Any]:

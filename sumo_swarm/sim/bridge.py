@@ -21,6 +21,7 @@ from pathlib import Path
 from types import ModuleType
 
 from sumo_swarm.checks import unknown_name
+from sumo_swarm.controllers.session import SessionBase
 from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.routeframe import RouteFrame
@@ -197,8 +198,9 @@ class SumoNetwork:
         return [(link[0], link[4]) for link in self.api.lane.getLinks(lane_id)]
 
 
-class SumoSession:
-    """A running SUMO simulation.
+class SumoSession(SessionBase):
+    """A running SUMO simulation: the controllers' view of it is
+    :class:`~sumo_swarm.controllers.session.SessionView`.
 
     Use as a context manager::
 

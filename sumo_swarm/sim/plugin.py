@@ -143,7 +143,13 @@ class SwarmHandle:
             max_speed_mps=max(cav.max_speed_mps, cruise),
         )
         self.settings = replace(self.settings, cav=cav)
-        self.ctx.scenario = self.settings
+        # The controller's context, made once the settings are complete (before the controller
+        # sees it): its scenario is never replaced during the run.
+        ctx = self.ctx
+        self.ctx = RunContext(
+            self.session, self.settings, self.session.cav_ids, ctx.road, out_dir=ctx.out_dir,
+            events=ctx.events,
+        )  # fmt: skip
 
     @property
     def controller_s(self) -> float:
