@@ -6,12 +6,13 @@ not a changed scenario."""
 from __future__ import annotations
 
 import dataclasses
+import inspect
 
 import pytest
 
 from sumo_swarm.config import Scenario
-from sumo_swarm.controllers.base import RunContext
-from sumo_swarm.controllers.fleet import Fleet, PlatoonSession
+from sumo_swarm.controllers.base import Controller, RunContext
+from sumo_swarm.controllers.fleet import Fleet, PlatoonSession, SwarmMember
 from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.controllers.session import (
     SESSION_DATA,
@@ -19,6 +20,7 @@ from sumo_swarm.controllers.session import (
     SessionBase,
     SessionView,
 )
+from sumo_swarm.controllers.swarm import SwarmController
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.sim.bridge import SumoSession
@@ -127,3 +129,18 @@ def test_one_swarms_context_may_always_start_and_knows_no_other_plans():
     ctx = RunContext(SessionBase(), Scenario(name="t", path=None), (), RoadSection((3.2,)))
     assert ctx.may_start(0.0, 0.0, 100.0, "truck") is True
     assert ctx.planned_paths() == {} and ctx.platoon_id is None
+
+
+def test_the_swarm_controller_offers_the_fleet_every_declared_name():
+    swarm = SwarmController()  # before attach, as the fleet's pattern (Fleet._kind)
+    declared = [vars(Controller), vars(SwarmMember)]
+    for names in declared:
+        for name, value in names.items():
+            if name.startswith("_"):
+                continue
+            assert hasattr(swarm, name), name
+            if inspect.isfunction(value):
+                assert callable(getattr(swarm, name)), name
+    for name in (*Controller.__annotations__, *SwarmMember.__annotations__):
+        assert hasattr(swarm, name), name
+    assert swarm.idle() and swarm.planned_paths() == {} and swarm.manoeuvre_region(0.0) is None

@@ -48,10 +48,16 @@ import logging
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from sumo_swarm.config import PlatoonSettings
-from sumo_swarm.controllers.base import CavSpeeds, Controller, RunContext, close_controller
+from sumo_swarm.controllers.base import (
+    CavSpeeds,
+    Controller,
+    RouteWatch,
+    RunContext,
+    close_controller,
+)
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.session import SessionView
 from sumo_swarm.core.model import VehicleState
@@ -63,7 +69,10 @@ from sumo_swarm.core.swarming.account import (
 )
 from sumo_swarm.core.swarming.planlog import PlanLog
 
-__all__ = ["Fleet", "PlatoonSession", "in_lane_neighbours", "strung_out"]
+if TYPE_CHECKING:
+    from sumo_swarm.controllers.replanner import BlockWatch
+
+__all__ = ["Fleet", "PlatoonSession", "SwarmMember", "in_lane_neighbours", "strung_out"]
 
 log = logging.getLogger(__name__)
 
@@ -112,6 +121,53 @@ def strung_out(
                 continue
         parts.append([vid])
     return parts
+
+
+# --------------------------------------------------------------------------- the swarms
+
+
+class SwarmMember(Controller, Protocol):
+    """What the fleet asks of each platoon's controller (the swarm controller offers it)."""
+
+    alone_to_sumo: bool  # a CAV alone is driven by SUMO, not as a swarm of one
+    target_id: str | None  # the target of its manoeuvre (None: none yet)
+    t_start_s: float | None  # when its first manoeuvre started [s] (None: none yet)
+    routes: RouteWatch  # its CAVs whose routes part leave it
+    blocks: BlockWatch  # the HVs its plans blocked, with their strongest braking
+    planlog: Any  # where it writes its plans (plans.jsonl), or None
+    drawer: Any  # a sumo-gui plan drawer, or None
+
+    def idle(self) -> bool:
+        """Cruising with no manoeuvre of its own under way: its CAVs may change."""
+        ...
+
+    def forget(self, vid: str) -> None:
+        """CAV ``vid`` left it."""
+        ...
+
+    def dissolve(self, t_s: float) -> None:
+        """It has no CAV left: what it had under way ends."""
+        ...
+
+    def planned_paths(self) -> Mapping[str, Callable[[float], float]]:
+        """Its CAVs' planned front positions s(t) [m] while a plan is in force."""
+        ...
+
+    def manoeuvre_region(self, t_s: float) -> tuple[float, float] | None:
+        """The stretch of road [m] its manoeuvre takes now (None: it cruises)."""
+        ...
+
+    def use_planlog(self, planlog: Any) -> None:
+        """Write its plans to ``planlog`` (shared by every swarm); before ``attach``."""
+        ...
+
+    def fallback(self, t_s: float) -> None:
+        """Its step after the swarms stood down (CACC in its lanes)."""
+        ...
+
+    def manoeuvres(self) -> list[dict[str, Any]]:
+        """Its manoeuvres (the summary's list)."""
+        ...
 
 
 # --------------------------------------------------------------------------- the views
@@ -188,7 +244,7 @@ class Platoon:
     """One platoon and the controller that drives it."""
 
     id: int
-    controller: Controller
+    controller: SwarmMember
     ctx: RunContext
     session: PlatoonSession
     members: list[str]
@@ -202,8 +258,7 @@ class Platoon:
     @property
     def idle(self) -> bool:
         """Cruising, no manoeuvre of its own under way: its CAVs may change."""
-        idle = getattr(self.controller, "idle", None)
-        return True if idle is None else bool(idle())
+        return bool(self.controller.idle())
 
 
 @dataclass
@@ -227,10 +282,10 @@ class FleetCounts:
 class Fleet:
     """Many platoons, each driven by its own controller from ``make``; see the module."""
 
-    def __init__(self, make: Callable[[], Controller], name: str | None = None) -> None:
+    def __init__(self, make: Callable[[], SwarmMember], name: str | None = None) -> None:
         self._make = make
         self._kind = make()  # never attached: what the platoons' controllers offer
-        self.name = name or getattr(self._kind, "name", "fleet")
+        self.name = name or self._kind.name
         self.ctx: RunContext | None = None
         self.settings: PlatoonSettings | None = None
         self.platoons: list[Platoon] = []
@@ -248,7 +303,7 @@ class Fleet:
         self._views: dict[tuple[int, frozenset[str]], tuple[dict, dict[str, VehicleState]]] = {}
         self._handed: set[str] = set()  # CAVs once in a platoon, now free: CACC for the speed
         self._off_frame: set[str] = set()  # ... that left the route frame: SUMO drives them
-        self._single: Controller | None = None  # grouping = "one"
+        self._single: SwarmMember | None = None  # grouping = "one"
         self._parted: set[str] = set()  # CAVs whose exit came near: no platoon again
         self._alone: set[str] = set()  # CAVs left to SUMO alone, their braking limited
 
@@ -259,17 +314,16 @@ class Fleet:
         if self.settings.grouping == "one":
             self._single = self._make()
             self._single.attach(ctx)
-            self.planlog = getattr(self._single, "planlog", None)
+            self.planlog = self._single.planlog
             return
         self._open_planlog()
 
     def _open_planlog(self) -> None:
-        """One plans.jsonl for every swarm, if the swarms plan (they take ``use_planlog``)."""
-        if hasattr(self._kind, "use_planlog"):
-            self.planlog = PlanLog(self.ctx.out_dir)
+        """One plans.jsonl for every swarm."""
+        self.planlog = PlanLog(self.ctx.out_dir)
 
     @property
-    def lead(self) -> Controller | None:
+    def lead(self) -> SwarmMember | None:
         """The controller a single swarm's readers ask (its ``mode``, ``plan``,
         ``target_id``, ...): with ``grouping = "one"`` the run's swarm; else the first swarm
         that started a manoeuvre (whose overtake block the summary shows), or the first swarm
@@ -284,7 +338,8 @@ class Fleet:
     def target_id(self) -> str | None:
         """The target of the lead swarm's manoeuvre (None: none yet), for the scene's
         outputs."""
-        return getattr(self.lead, "target_id", None)
+        lead = self.lead
+        return None if lead is None else lead.target_id
 
     # ------------------------------------------------------------------ the step
     def control(self, t_s: float) -> None:
@@ -293,7 +348,7 @@ class Fleet:
             return
         session = self.ctx.session
         states = session.states
-        if getattr(self._kind, "alone_to_sumo", False):
+        if self._kind.alone_to_sumo:
             for vid in session.departed:
                 if vid in states and states[vid].is_cav and vid not in self._alone:
                     self._alone.add(vid)
@@ -366,9 +421,8 @@ class Fleet:
         (``RunContext.planned_paths`` of ``platoon``)."""
         paths: dict[str, Callable[[float], float]] = {}
         for other in self.platoons:
-            own = getattr(other.controller, "planned_paths", None)
-            if other is not platoon and own is not None:
-                paths.update(own())
+            if other is not platoon:
+                paths.update(other.controller.planned_paths())
         return paths
 
     def _may_start(
@@ -380,8 +434,7 @@ class Fleet:
         target."""
         clearance = self.settings.manoeuvre_clearance_m
         for other in self.platoons:
-            region = getattr(other.controller, "manoeuvre_region", None)
-            extent = None if other is platoon or region is None else region(t_s)
+            extent = None if other is platoon else other.controller.manoeuvre_region(t_s)
             if extent is None:
                 continue
             lo, hi = extent
@@ -414,7 +467,7 @@ class Fleet:
         eligible = {vid for vid in stays if where[vid][2]}
         # Leaving at once, whatever the platoon does: gone, off the frame, or near the exit.
         for platoon in list(self.platoons):
-            left = getattr(getattr(platoon.controller, "routes", None), "left", set())
+            left = platoon.controller.routes.left
             keep = [
                 v for v in platoon.members
                 if v in states and v not in left and (v in stays or _on_junction(session, v))
@@ -445,7 +498,7 @@ class Fleet:
         # Every other eligible CAV drives as a swarm of one; or, where the swarms leave a CAV
         # alone to SUMO (``alone_to_sumo``), as SUMO drives it (one that left a platoon: SUMO's
         # lane changes, our CACC for the speed, as every CAV leaving a platoon).
-        alone_to_sumo = getattr(self._kind, "alone_to_sumo", False)
+        alone_to_sumo = self._kind.alone_to_sumo
         for vid in cavs:
             if not alone_to_sumo and vid in eligible and self._platoon_of(vid) is None:
                 self._new(t_s, [vid], states)
@@ -538,7 +591,7 @@ class Fleet:
             speeds=CavSpeeds(self.ctx.cav), platoon_id=self._next_id,
         )  # fmt: skip
         controller = self._make()
-        if self.planlog is not None and hasattr(controller, "use_planlog"):
+        if self.planlog is not None:
             controller.use_planlog(_Tagged(self.planlog, self._next_id))
         platoon = Platoon(self._next_id, controller, ctx, session, [])
         ctx.planned_paths = functools.partial(self._paths_for, platoon)
@@ -595,9 +648,7 @@ class Fleet:
     def _retire(self, platoon: Platoon) -> None:
         counts = self.counts
         self._note_first()  # before it goes: the summary's overtake block may be its
-        dissolve = getattr(platoon.controller, "dissolve", None)
-        if dissolve is not None:  # what it had under way ends with it
-            dissolve(self.ctx.session.time_s)
+        platoon.controller.dissolve(self.ctx.session.time_s)  # what it had under way ends
         _merge_min(counts.blocked_min, _blocked_of(platoon.controller))
         if platoon is self._first:
             self._first_summary = platoon.controller.summary()
@@ -628,7 +679,7 @@ class Fleet:
     def _note_first(self) -> None:
         if self._first is None:
             for platoon in self.platoons:
-                if getattr(platoon.controller, "t_start_s", None) is not None:
+                if platoon.controller.t_start_s is not None:
                     self._first = platoon
                     break
 
@@ -724,15 +775,12 @@ def _on_junction(session: Any, vid: str) -> bool:
     return edge is not None and edge.startswith(":")
 
 
-def _forget(controller: Controller, vid: str) -> None:
-    forget = getattr(controller, "forget", None)
-    if forget is not None:
-        forget(vid)
+def _forget(controller: SwarmMember, vid: str) -> None:
+    controller.forget(vid)
 
 
-def _blocked_of(controller: Controller) -> dict[str, float]:
-    blocks = getattr(controller, "blocks", None)
-    return dict(getattr(blocks, "min_accel", {}) or {})
+def _blocked_of(controller: SwarmMember) -> dict[str, float]:
+    return dict(controller.blocks.min_accel)
 
 
 def _merge_min(into: dict[str, float], other: Mapping[str, float]) -> None:

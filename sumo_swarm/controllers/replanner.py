@@ -26,7 +26,7 @@ from sumo_swarm.controllers.decider import Decider
 from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import MAX_BLOCK_S
 from sumo_swarm.core.grid import MovingGrid, cav_cell, hv_blocked_cells
-from sumo_swarm.core.hvmodel import DriverModel
+from sumo_swarm.core.hvmodel import CarFollowingPredictor, DriverModel
 from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.neighbours import ordered_platoon, vehicle_ahead
 from sumo_swarm.core.planner import Plan, ReplanTrigger
@@ -167,7 +167,7 @@ class Replanner:
         self.replan_not_before_s = -math.inf
         self.last_plan_s = -math.inf
         self.last_check_s = -math.inf
-        self.prediction: tuple[float, Any] | None = None
+        self.prediction: tuple[float, CarFollowingPredictor | None] | None = None  # (made at, by)
         self.closed_lane: int | None = None  # the lane the last plan was asked to keep out of
         self.trigger = self._new_trigger()
 
@@ -268,7 +268,7 @@ class Replanner:
     def _prediction_off(self, t_s: float, states: States, in_grid: list[str]) -> bool:
         """Is an HV in the grid (``in_grid``) farther from where the last plan predicted it than
         allowed?"""
-        if self.prediction is None or not hasattr(self.prediction[1], "error_against"):
+        if self.prediction is None or self.prediction[1] is None:  # no car-following predictor
             return False
         near = {vid: states[vid] for vid in in_grid}
         errors = self.prediction[1].error_against(near, t_s)
@@ -401,11 +401,7 @@ class Replanner:
         """Count one planning call's outcome and write its record to plans.jsonl (with the
         last plan's prediction error against ``states`` when ``prediction_error``)."""
         record = outcome.record
-        if (
-            prediction_error
-            and self.prediction is not None
-            and hasattr(self.prediction[1], "error_against")
-        ):
+        if prediction_error and self.prediction is not None and self.prediction[1] is not None:
             errors = self.prediction[1].error_against(
                 {v: s for v, s in states.items() if not s.is_cav}, t_s
             )

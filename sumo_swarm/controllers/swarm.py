@@ -116,6 +116,7 @@ class SwarmController:
         self.reformer: Reformer | None = None
         self.routes = RouteWatch()  # CAVs whose routes part leave the platoon
         self.planlog: PlanLog | None = None  # plans.jsonl (made by attach)
+        self.drawer = None  # a sumo-gui plan drawer, set by the session's side (sim.gui)
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:

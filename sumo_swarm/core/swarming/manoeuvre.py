@@ -86,7 +86,7 @@ class PlanOutcome:
     problem: PlanningProblem | None
     record: dict[str, Any]
     references: dict[str, Reference] = field(default_factory=dict)
-    predictor: Any = None
+    predictor: CarFollowingPredictor | None = None  # None: [hvmodel] predictor = "constant-speed"
     relaxed: str | None = None  # the relaxation level used, when not the first
 
     @property
