@@ -222,7 +222,7 @@ class PlatoonSession:
     change_sublane = _Same()
     set_modes = _Same()
     release = _Same()
-    limit_braking = _Same()
+    cap_type_braking = _Same()
     reclaim = _Same()
     miss_exit = _Same()
 

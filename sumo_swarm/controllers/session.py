@@ -149,8 +149,9 @@ class SessionView(Protocol):
         """``vid`` leaves the swarm: SUMO changes its lanes again (its speed stays ours)."""
         ...
 
-    def limit_braking(self, vid: str) -> None:
-        """Cap ``vid``'s deceleration at that of a CAV handed back to SUMO."""
+    def cap_type_braking(self, vid: str) -> None:
+        """Cap the deceleration of ``vid``'s vType at the hard-brake line (the CAVs SUMO drives
+        alone, from their insertion on)."""
         ...
 
     def reclaim(self, vid: str) -> None:
@@ -284,7 +285,7 @@ class SessionBase:
     def release(self, vid: str) -> None:
         self.released.add(vid)
 
-    def limit_braking(self, vid: str) -> None:
+    def cap_type_braking(self, vid: str) -> None:
         pass
 
     def reclaim(self, vid: str) -> None:
