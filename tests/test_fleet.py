@@ -228,3 +228,15 @@ def test_two_swarms_overtaking_near_each_other_never_plan_into_the_same_space(tm
                 for tb0, tb1, sb0, sb1, lb in _footprints(b):
                     overlap = la == lb and ta0 < tb1 and tb0 < ta1 and sa0 < sb1 and sb0 < sa1
                     assert not overlap, (a["platoon"], b["platoon"], ta0, sa0, la)
+
+
+def test_a_cav_joins_the_one_ahead_only_where_it_can_follow_it():
+    from sumo_swarm.controllers.fleet import can_follow
+
+    # 25 m/s onto a CAV standing 40 m ahead: it needs 25^2 / 6 = 104 m to stop at 3 m/s^2
+    assert not can_follow(25.0, 0.0, 40.0)
+    assert can_follow(25.0, 0.0, 110.0)
+    # the same speeds: a 2 m gap is enough, 1 m is not
+    assert can_follow(25.0, 25.0, 2.0) and not can_follow(25.0, 25.0, 1.0)
+    # a slower CAV behind a faster one: always, at the minimum gap
+    assert can_follow(10.0, 20.0, 2.0)

@@ -337,9 +337,17 @@ def hand_back(session: SessionView, vid: str) -> None:
     # and braked CAVs beyond 4 m/s^2 (the paper scene, the swarm stood down at 3 s).
     session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_STRATEGIC)
     session.release_speed(vid)
-    try:  # its vType's tau and minGap back (the user's vType, not SUMO's copy: cav@vid)
+    restore_gaps(session, vid, tau=True)
+
+
+def restore_gaps(session: SessionView, vid: str, *, tau: bool = False) -> None:
+    """CAV ``vid``'s minGap (and, with ``tau``, its headway) its vType's again, the user's
+    vType, not SUMO's copy (cav@vid): a CAV SUMO drives keeps the gaps its type keeps (exiting
+    CAVs queued 0.5 m apart at an off-ramp with the controllers' minGap)."""
+    try:
         type_id = session.api.vehicle.getTypeID(vid).split("@")[0]
-        session.api.vehicle.setTau(vid, session.api.vehicletype.getTau(type_id))
+        if tau:
+            session.api.vehicle.setTau(vid, session.api.vehicletype.getTau(type_id))
         session.api.vehicle.setMinGap(vid, session.api.vehicletype.getMinGap(type_id))
     except Exception as exc:  # vanished meanwhile
         log.debug("handing %s back to SUMO: %s", vid, exc)

@@ -57,6 +57,7 @@ from sumo_swarm.controllers.base import (
     RouteWatch,
     RunContext,
     close_controller,
+    restore_gaps,
 )
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.session import SessionView
@@ -72,7 +73,9 @@ from sumo_swarm.core.swarming.planlog import PlanLog
 if TYPE_CHECKING:
     from sumo_swarm.controllers.replanner import BlockWatch
 
-__all__ = ["Fleet", "PlatoonSession", "SwarmMember", "in_lane_neighbours", "strung_out"]
+__all__ = [
+    "Fleet", "PlatoonSession", "SwarmMember", "can_follow", "in_lane_neighbours", "strung_out",
+]
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +105,21 @@ def in_lane_neighbours(vehicles: Iterable[Placed]) -> list[tuple[str, str, float
         for rear, front in itertools.pairwise(lane):
             pairs.append((rear.vehicle_id, front.vehicle_id, front.s_m - front.length_m - rear.s_m))
     return pairs
+
+
+# A CAV joins the CAV ahead of it only where it can follow it braking at most this much
+# [m/s^2], keeping JOIN_MIN_GAP_M [m]: a lone CAV (SUMO's) closing at 18 m/s on a CAV standing
+# at an acceleration lane's end was taken into its platoon 40 m behind it, and the platoon's
+# braking (at most 4 m/s^2) could not stop it in time.
+JOIN_DECEL_MPS2 = 3.0
+JOIN_MIN_GAP_M = 2.0
+
+
+def can_follow(rear_mps: float, front_mps: float, gap_m: float) -> bool:
+    """Can a vehicle at ``rear_mps`` follow one at ``front_mps`` ``gap_m`` [m] ahead, braking
+    at most JOIN_DECEL_MPS2 and keeping JOIN_MIN_GAP_M (the front one holding its speed)?"""
+    closing = max(0.0, rear_mps * rear_mps - front_mps * front_mps) / (2.0 * JOIN_DECEL_MPS2)
+    return gap_m - closing >= JOIN_MIN_GAP_M
 
 
 def strung_out(
@@ -493,7 +511,10 @@ class Fleet:
         # Meeting in a lane: joins and merges, nearest first.
         placed = [p for p in (self._placed(v, states) for v in states) if p is not None]
         for rear, front, gap in sorted(in_lane_neighbours(placed), key=lambda p: p[2]):
-            if gap <= st.join_gap_m and rear in eligible and front in eligible:
+            if (
+                gap <= st.join_gap_m and rear in eligible and front in eligible
+                and can_follow(states[rear].speed_mps, states[front].speed_mps, gap)
+            ):  # fmt: skip
                 self._meet(t_s, rear, front, states)
         # Every other eligible CAV drives as a swarm of one; or, where the swarms leave a CAV
         # alone to SUMO (``alone_to_sumo``), as SUMO drives it (one that left a platoon: SUMO's
@@ -667,6 +688,7 @@ class Fleet:
             elif vid not in self._off_frame and not _on_junction(session, vid):
                 self._off_frame.add(vid)  # off the frame: SUMO's car-following drives it
                 session.release_speed(vid)
+                restore_gaps(session, vid)
         if follow:
             # At SUMO's desired speed for them where they drive ([cav] speeds = "world"), as the
             # swarms: the fleet's own settings kept the config's 20 m/s, and a CAV leaving for
