@@ -10,8 +10,9 @@ horizon of ``horizon_s`` with plain kinematics, and scored in vehicle-metres:
   the slow vehicle's, rising to what the lane ahead of it allows (a car catching up with a
   line ahead is not slow for long).
 - **wait**: the slow vehicle's driver will leave the lane: SUMO shows the wish (whatever the
-  reason: keeping right, its route, a faster lane), or a lane beside it is faster by what the
-  platoon would gain there, up to its desired speed (SUMO's speed-gain model weighs the same).
+  reason: keeping right, its route, a faster lane), or it is held back below its desired
+  speed and a lane beside is faster by ``HV_SPEED_GAIN_MPS`` (SUMO's speed-gain model weighs
+  the same): only a vehicle slow by its driver's own choice stays to be passed.
   It does so within ``LEAVE_S`` and the platoon then drives at the pace ahead of it. Nobody
   else loses, and nothing else is weighed: a target that leaves is not passed (whatever passing
   it gains, waiting gains too; on a motorway, manoeuvres on such targets ended when they left).
@@ -62,6 +63,10 @@ HV_ACCEL_MPS2 = 1.0
 # one-second headway (SUMO's default tau), for the secure gap the others keep.
 MIN_GAP_M = 2.5
 HEADWAY_S = 1.0
+# A driver moves to a lane beside for this much more speed [m/s]: one driver changes lanes for
+# less than a platoon needs to coordinate a manoeuvre (min_gain_mps); with the platoon's 2 m/s,
+# targets moved into the lane the platoon was passing in within 1-4 s of the start.
+HV_SPEED_GAIN_MPS = 1.0
 # Vehicles in a lane behind an entry point that can lose road to it: this far behind [m].
 BEHIND_M = 150.0
 
@@ -223,19 +228,22 @@ def choose(
         ),
     )  # fmt: skip
     weighed = [Outlook("follow", None, 0.0, 0.0, 0.0)]
-    # The target's driver, too, moves to a faster lane beside it when it gains what the platoon
-    # would (MOBIL's incentive, as SUMO's speed-gain model weighs it): it leaves, into that lane.
+    # The target's driver, too, moves to a faster lane beside it when it gains there (MOBIL's
+    # incentive, as SUMO's speed-gain model weighs it, for one driver): held back below its
+    # desired speed, it takes a lane beside that is faster, as seen from it or from the
+    # platoon's front, by HV_SPEED_GAIN_MPS; it leaves. Only a vehicle slow by its driver's own
+    # choice stays to be passed.
     here = road.lane_of(target)
-    beside = {
-        q: lane_pace_mps(target.rear_s_m, others, road, q, **pace)
-        for q in (here - 1, here + 1) if 0 <= q < road.n_lanes
-    }  # fmt: skip
-    own_lane = max(beside, key=lambda q: beside[q], default=None)
-    if (
-        own_lane is not None
-        and min(desired_of(target), beside[own_lane]) - target.speed_mps >= min_gain_mps
-    ):  # fmt: skip
-        leaves = True
+    held_back = desired_of(target) - target.speed_mps >= HV_SPEED_GAIN_MPS
+    for q in (here - 1, here + 1):
+        if not 0 <= q < road.n_lanes or not held_back:
+            continue
+        faster = max(
+            lane_pace_mps(target.rear_s_m, others, road, q, **pace),
+            lane_pace_mps(platoon.front.s_m, others, road, q, **pace),
+        )
+        if min(desired_of(target), faster) - target.speed_mps >= HV_SPEED_GAIN_MPS:
+            leaves = True
 
     def add(kind: str, lane: int | None, gain: float, loss: float) -> None:
         weighed.append(Outlook(kind, lane, gain, loss, gain - others_weight * loss))
