@@ -299,8 +299,12 @@ class _UpstreamRows:
 
 class _CavSamples:
     """The CAV rows and pairs of the evaluation window, as little as their measures read: the
-    speeds and gaps as arrays (in the table's order, so the same sums as the whole table's),
-    the CAVs seen, and each CAV's travel clock."""
+    speeds and gaps as arrays of their own (in the table's order, so the same sums as the
+    whole table's), the CAVs seen, and each CAV's travel clock.
+
+    Each array is a copy: a column taken from a slice is a view of the slice's block of every
+    float column, which would keep the whole block (3-12 times the column) for the rest of the
+    read (docs/bench/memory.md: 170 MB of the hour's end)."""
 
     def __init__(self, travel_distance_m: float) -> None:
         self.speeds: list[np.ndarray] = []
@@ -313,7 +317,7 @@ class _CavSamples:
         """CAV rows of a slice (whole steps, in time order): their speeds."""
         if rows.empty:
             return
-        self.speeds.append(rows["speed_mps"].to_numpy(dtype=float))
+        self.speeds.append(_own(rows["speed_mps"]))
         self.vehicles.update(rows["vehicle"].astype(str).unique())
 
     def add_travel(self, rows: pd.DataFrame) -> None:
@@ -328,8 +332,8 @@ class _CavSamples:
     def add_pairs(self, pairs: pd.DataFrame) -> None:
         """CAV followers' pairs of a slice (:func:`metrics.gaps`)."""
         known = pairs[pairs["gap_m"].notna()]
-        self.gaps.append(known["gap_m"].to_numpy(dtype=float))
-        self.behind_cav.append((known["leader_kind"] == metrics.CAV).to_numpy())
+        self.gaps.append(_own(known["gap_m"]))
+        self.behind_cav.append(_own(known["leader_kind"] == metrics.CAV, bool))
 
     def speed(self) -> dict:
         return metrics.speed_stats(_joined(self.speeds), len(self.vehicles))
@@ -338,8 +342,17 @@ class _CavSamples:
         return metrics.gap_stats(_joined(self.gaps), _joined(self.behind_cav, bool))
 
 
+def _own(column: pd.Series, dtype: type = float) -> np.ndarray:
+    """``column``'s values in an array of their own (not a view of the slice's block)."""
+    return np.array(column.to_numpy(dtype=dtype), dtype=dtype, copy=True)
+
+
 def _joined(arrays: list[np.ndarray], dtype: type = float) -> np.ndarray:
-    return np.concatenate(arrays) if arrays else np.empty(0, dtype=dtype)
+    """``arrays`` in one, emptying the list: the pieces go as the whole comes, so the samples
+    are held once (not twice) while their statistics are taken."""
+    joined = np.concatenate(arrays) if arrays else np.empty(0, dtype=dtype)
+    arrays.clear()
+    return joined
 
 
 def _first_passes(passed: dict[str, float | None], track: pd.DataFrame, target: str | None) -> None:
