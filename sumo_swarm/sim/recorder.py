@@ -424,6 +424,7 @@ class RunRecorder:
                 overtake.get("target") or self.scene.target_id,
                 overtake.get("t_start_s"),
                 speed_field=field_of,
+                scratch_dir=self._file.path.parent,
             )
             rows_of = rows_between_cavs(self._slices)
         summary = build_summary(

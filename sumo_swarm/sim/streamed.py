@@ -21,9 +21,12 @@ functions on the few rows each needs:
 Each measure is taken on its own (:mod:`~sumo_swarm.sim.measured`): one that fails on a slice
 stops there and is None in the summary, with its reason; the others go on.
 
-Held in memory: a slice at a time, the CAVs' speeds and gaps as arrays (16 bytes per CAV
-sample), the upstream vehicles' rows and the speed field's cells. An hour of the corridor
-(5.6 million rows, 1.1 million CAV samples) is read with 61 MB more than the process held.
+Held in memory: a slice at a time, the upstream vehicles' rows and the speed field's cells;
+the CAVs' speeds and gaps wait on disk for their statistics (``_Samples``). The hour of the
+corridor under sumo-cacc (7.8 million rows, 2.9 million CAV samples) is read with 115 MB more
+than the process held: ~65 MB the first slices' working set, whatever the length, and for a
+moment at the end the speeds read back with numpy's variance of them, 16 bytes a CAV sample
+(docs/bench/memory.md).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from __future__ import annotations
 import functools
 import os
 import shutil
+import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -152,10 +156,13 @@ def streamed_measures(
     target: str | None,
     t_start_s: float | None,
     speed_field: Callable[[pd.DataFrame], pd.DataFrame] | None = None,
+    scratch_dir: Path | None = None,
 ) -> tuple[TableMeasures, list[pd.DataFrame]]:
     """:func:`~sumo_swarm.sim.summary.table_measures` of the table that ``slices()`` yields a
     slice of whole steps at a time (called once, or twice when the overtake's regrouping must
-    be checked); also the speed field of each slice (``speed_field``, when given)."""
+    be checked); also the speed field of each slice (``speed_field``, when given).
+    ``scratch_dir``: where the CAVs' samples wait for their statistics (default: the system's
+    temporary folder)."""
     ev = scenario.evaluation
     w = EvaluationWindow(ev.start_s, ev.end_s)
     ref_time = t_start_s if t_start_s is not None else ev.start_s
@@ -164,7 +171,7 @@ def streamed_measures(
     followed = set(cav_ids) | ({target} if target else set())
     excluded = {target} if target else set()
 
-    cav = _CavSamples(ev.travel_distance_m)
+    cav = _CavSamples(ev.travel_distance_m, scratch_dir)
     passed: dict[str, float | None] = dict.fromkeys(cav_ids)
     fields: list[pd.DataFrame] = []
     ttc = _SmallestTtc()
@@ -299,21 +306,22 @@ class _UpstreamRows:
 
 class _CavSamples:
     """The CAV rows and pairs of the evaluation window, as little as their measures read: the
-    speeds and gaps as arrays (in the table's order, so the same sums as the whole table's),
-    the CAVs seen, and each CAV's travel clock."""
+    speeds and gaps as samples on disk (in the table's order, read back whole for their
+    statistics: the same sums as the whole table's), the CAVs seen, and each CAV's travel
+    clock."""
 
-    def __init__(self, travel_distance_m: float) -> None:
-        self.speeds: list[np.ndarray] = []
+    def __init__(self, travel_distance_m: float, scratch_dir: Path | None = None) -> None:
+        self.speeds = _Samples(float, scratch_dir)
         self.vehicles: set[str] = set()
         self.clock = metrics.TravelClock(travel_distance_m)
-        self.gaps: list[np.ndarray] = []
-        self.behind_cav: list[np.ndarray] = []
+        self.gaps = _Samples(float, scratch_dir)
+        self.behind_cav = _Samples(bool, scratch_dir)
 
     def add_speeds(self, rows: pd.DataFrame) -> None:
         """CAV rows of a slice (whole steps, in time order): their speeds."""
         if rows.empty:
             return
-        self.speeds.append(rows["speed_mps"].to_numpy(dtype=float))
+        self.speeds.add(rows["speed_mps"])
         self.vehicles.update(rows["vehicle"].astype(str).unique())
 
     def add_travel(self, rows: pd.DataFrame) -> None:
@@ -328,18 +336,51 @@ class _CavSamples:
     def add_pairs(self, pairs: pd.DataFrame) -> None:
         """CAV followers' pairs of a slice (:func:`metrics.gaps`)."""
         known = pairs[pairs["gap_m"].notna()]
-        self.gaps.append(known["gap_m"].to_numpy(dtype=float))
-        self.behind_cav.append((known["leader_kind"] == metrics.CAV).to_numpy())
+        self.gaps.add(known["gap_m"])
+        self.behind_cav.add(known["leader_kind"] == metrics.CAV)
 
     def speed(self) -> dict:
-        return metrics.speed_stats(_joined(self.speeds), len(self.vehicles))
+        return metrics.speed_stats(self.speeds.read(), len(self.vehicles))
 
     def gap(self) -> dict:
-        return metrics.gap_stats(_joined(self.gaps), _joined(self.behind_cav, bool))
+        return metrics.gap_stats(self.gaps.read(), self.behind_cav.read())
 
 
-def _joined(arrays: list[np.ndarray], dtype: type = float) -> np.ndarray:
-    return np.concatenate(arrays) if arrays else np.empty(0, dtype=dtype)
+class _Samples:
+    """Values of one dtype gathered a slice at a time, kept in an unnamed scratch file (in
+    ``scratch_dir``, else the system's; gone when closed) until :meth:`read` gives them back
+    in one array, once.
+
+    Why not running sums: the statistics must be numpy's own over the whole array (the table
+    in memory takes them so), and numpy sums in an order that changes between releases (1.26
+    in blocks of 8192 values one after another, 2.4 pairwise over the whole array), so no
+    running total gives the same last digits on each. Held in memory instead, the samples
+    grew with the run (17 bytes a CAV sample: 50 MB of the corridor's hour under sumo-cacc,
+    docs/bench/memory.md); on disk they take memory only while their statistics are taken."""
+
+    def __init__(self, dtype: type, scratch_dir: Path | None) -> None:
+        self.dtype, self.scratch_dir = np.dtype(dtype), scratch_dir
+        self.count = 0
+        self._file = None
+
+    def add(self, column: pd.Series) -> None:
+        values = np.ascontiguousarray(column.to_numpy(dtype=self.dtype))
+        if not values.size:
+            return
+        if self._file is None:  # open across calls, closed by read(); never named on POSIX
+            self._file = tempfile.TemporaryFile(dir=self.scratch_dir, prefix=".samples-")  # noqa: SIM115
+        self._file.write(values.tobytes())
+        self.count += values.size
+
+    def read(self) -> np.ndarray:
+        """Every value added, in order; the file is closed (and gone)."""
+        if self._file is None:
+            return np.empty(0, dtype=self.dtype)
+        with self._file as f:
+            self._file, count, self.count = None, self.count, 0
+            f.flush()
+            f.seek(0)
+            return np.fromfile(f, dtype=self.dtype, count=count)
 
 
 def _first_passes(passed: dict[str, float | None], track: pd.DataFrame, target: str | None) -> None:
