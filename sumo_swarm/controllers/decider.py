@@ -163,6 +163,15 @@ class Decider:
         leader = states[self.leader(states, platoon)]
         tail = min((states[v] for v in platoon), key=lambda st: st.rear_s_m)
         wish, blocked = ctx.session.lane_wish(target.vehicle_id)
+        # A driver that keeps right, the lane on its right free for it by the time its wish
+        # builds up (SUMO's keep-right model, read through libsumo), moves there.
+        keeps_right = (
+            road.lane_of(target) > 0
+            and self._keeps_right(target)
+            and self._right_lane_free(target, states)
+        )
+        if keeps_right and not wish:
+            wish, blocked = -1, False
         # Its route leaves the road within the horizon (an exit ahead): it goes, as a wish.
         target_left_m = self._road_left_m(target)
         exits = target_left_m is not None and target_left_m <= sw.horizon_s * max(
