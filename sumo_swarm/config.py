@@ -505,8 +505,9 @@ class SwarmSettings:
         How the swarm chooses what to do about a slow vehicle ahead: ``"weigh"`` predicts
         following, waiting for it to leave the lane, a lane pass and the cells over
         ``horizon_s`` and takes the best for everyone on the road
-        (:mod:`sumo_swarm.core.swarming.arbiter`); ``"paper"`` is the paper's trigger (the
-        cells, or a lane pass that beats them), the reproduce run's.
+        (:mod:`sumo_swarm.core.swarming.arbiter`); ``"paper"`` is the paper's trigger: the
+        cells (or a lane pass that beats them) on a slow vehicle, after the earlier rules for
+        one that catches up or keeps right. On the paper scene both start the same cells.
     horizon_s
         The horizon the candidates are predicted over [s].
     others_weight
