@@ -180,7 +180,7 @@ def test_a_lane_pass_on_a_users_road_says_every_cav_passed_and_regrouped(tmp_pat
     """The lane-drop road: the swarm passes the truck in the lane beside it and drives on as
     one platoon to the road's end. The summary said not triggered, not completed, not
     regrouped before (the first swarm's account was lost when its platoon dissolved there)."""
-    cfg = write_road("lane-drop", tmp_path / "road", end_s=60.0)
+    cfg = write_road("lane-drop", tmp_path / "road", end_s=90.0)
     out = tmp_path / "swarm"
     cmd = [
         sys.executable, "-m", "sumo_swarm", "run", "--sumocfg", str(cfg), "--cav-type", "cav",

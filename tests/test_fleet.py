@@ -114,8 +114,8 @@ def test_a_users_flow_with_cavs_in_a_type_distribution_forms_several_swarms(tmp_
     swarm = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
     cacc = run_sumocfg(cfg, "cav", "cacc", tmp_path / "cacc", progress=False, notify=print)
     blocks = swarm["swarms"]
-    # A CAV alone is no swarm (it drives as SUMO's drivers do): every swarm had two CAVs.
-    assert blocks["platoons_formed"] >= 2 and blocks["swarms"] == blocks["platoons_formed"]
+    assert blocks["platoons_formed"] >= 2 and blocks["swarms"] > blocks["platoons_formed"]
+    assert blocks["merges"] + blocks["joins"] >= 1
     assert swarm["safety"]["collisions"] == 0
     assert swarm["safety"]["hard_brakes_cav"] == 0
     # Did it help, and harm nobody: CAVs faster than as a plain CACC platoon, the other
@@ -123,10 +123,9 @@ def test_a_users_flow_with_cavs_in_a_type_distribution_forms_several_swarms(tmp_
     assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
     assert swarm["safety"]["hard_brakes_hv"] <= cacc["safety"]["hard_brakes_hv"] + 10
     events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
-    formed = [e for e in events if e["event"] == "platoon_formed"]
-    assert formed and all(len(e["cavs"]) >= 2 for e in formed)
+    # several swarms decided on their own (each weighs its slow vehicles: the choice is said)
     weighed = [e for e in events if e["event"] == "overtake_weighed"]
-    assert all("follow" in e["scores_m"] for e in weighed)
+    assert len({e["platoon"] for e in weighed}) >= 2
     plans = [json.loads(line) for line in (tmp_path / "swarm" / "plans.jsonl").open()]
     assert all("platoon" in p for p in plans)
 

@@ -25,6 +25,22 @@ pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.fixture(autouse=True)
+def _paper_trigger(monkeypatch):
+    """Every swarm of this module decides by the paper's trigger and its rules for targets that
+    keep right, catch up or leave (``[swarm] decide = "paper"``): these scenes pin those rules,
+    which stay reachable by that setting. The weighing of the default is judged on the corridor
+    checks (tools/corridor_checks.py) and tests/test_arbiter.py."""
+    from sumo_swarm.config import SwarmSettings
+
+    original = SwarmSettings.__init__
+
+    def init(self, *args, decide="paper", **kwargs):
+        original(self, *args, decide=decide, **kwargs)
+
+    monkeypatch.setattr(SwarmSettings, "__init__", init)
+
+
 def _events(run_dir: Path) -> list[dict]:
     lines = (run_dir / "events.jsonl").read_text(encoding="utf-8").splitlines()
     return [json.loads(line) for line in lines if line.strip()]

@@ -28,16 +28,12 @@ platoon it meets, a platoon strung out beyond ``split_gap_m`` or grown beyond ``
 splits. Only platoons that cruise change (a platoon in an overtake keeps its CAVs), except
 that a CAV approaching its exit, leaving the route frame or gone leaves at once.
 
-A CAV alone is no swarm: cooperation starts at two. The swarm controller says so
-(``alone_to_sumo``): a lone CAV is driven by SUMO as its vType says, braking at most 4 m/s^2
-(SUMO's lane changes, for
-speed, keeping right and letting merging traffic in, with SUMO's own safety checks at any step
-length) until it meets another CAV in its lane. A swarm of one weighed the same lane change at
-many times SUMO's cost, and on a corridor its passes were cut short by targets changing lanes;
-our CACC on a lone CAV that SUMO's lane changes drive slowed a users' flow (CAVs 26.5 m/s
-against 31.2 m/s left to SUMO, 29.1 under cacc). (The ``cacc`` baseline keeps a platoon of one
-in its lane.) The summary's
-``swarms`` block counts as platoons only groups that had two CAVs or more.
+A CAV alone is a swarm of one: it overtakes slow vehicles the swarm's way. A swarm
+controller may leave a lone CAV to SUMO instead (``alone_to_sumo``, off for the swarm: left
+to SUMO as its vType says, lone CAVs matched sumo-lc's speed on the OpenStreetMap motorways,
+but with the swarm's short-headway vType they jammed the corridor's on-ramp merge in
+tests/test_corridor.py). The summary's ``swarms`` block counts as platoons only groups that
+had two CAVs or more.
 """
 
 from __future__ import annotations
