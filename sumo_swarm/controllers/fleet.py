@@ -28,11 +28,15 @@ platoon it meets, a platoon strung out beyond ``split_gap_m`` or grown beyond ``
 splits. Only platoons that cruise change (a platoon in an overtake keeps its CAVs), except
 that a CAV approaching its exit, leaving the route frame or gone leaves at once.
 
-A CAV alone is a swarm of one: it overtakes slow vehicles the swarm's way. A swarm
-controller may leave a lone CAV to SUMO instead (``alone_to_sumo``, off for the swarm: left
-to SUMO as its vType says, lone CAVs matched sumo-lc's speed on the OpenStreetMap motorways,
-but with the swarm's short-headway vType they jammed the corridor's on-ramp merge in
-tests/test_corridor.py). The summary's ``swarms`` block counts as platoons only groups that
+A CAV alone is no swarm: cooperation starts at two. The swarm controller says so
+(``alone_to_sumo``): a lone CAV is driven by SUMO (its lane changes for speed, keeping right and
+letting merging traffic in, with SUMO's own safety checks at any step length), braking at most
+4 m/s^2 and keeping at least SUMO's default gaps (tau 1 s, minGap 2.5 m: the swarm's own vType
+has a short headway meant for its commands, with which lone CAVs jammed an on-ramp merge),
+until it meets another CAV in its lane. On the corridor checks (tools/corridor_checks.py, 16
+runs) a swarm of one gave 49 of 112 checks and 2 collisions, a CAV left to SUMO 80 of 112 and
+none. (The ``cacc`` baseline keeps a platoon of one in its lane.)
+The summary's ``swarms`` block counts as platoons only groups that
 had two CAVs or more.
 """
 
@@ -237,6 +241,7 @@ class PlatoonSession:
     set_modes = _Same()
     release = _Same()
     cap_type_braking = _Same()
+    keep_sumo_gaps = _Same()
     reclaim = _Same()
     miss_exit = _Same()
 
@@ -367,6 +372,7 @@ class Fleet:
                 if vid in states and states[vid].is_cav and vid not in self._alone:
                     self._alone.add(vid)
                     session.cap_type_braking(vid)  # from the next CAV's insertion on
+                    session.keep_sumo_gaps(vid)  # until a platoon takes it (configure_cav)
         new = any(vid in states and self._platoon_of(vid) is None for vid in session.departed)
         if new or t_s - self._reviewed_s >= self.settings.review_every_s - 1e-9:
             self._reviewed_s = t_s

@@ -154,6 +154,10 @@ class SessionView(Protocol):
         alone, from their insertion on)."""
         ...
 
+    def keep_sumo_gaps(self, vid: str) -> None:
+        """``vid`` keeps at least SUMO's default headway and minGap while SUMO drives it."""
+        ...
+
     def reclaim(self, vid: str) -> None:
         """``vid``, released before, is a swarm's CAV again."""
         ...
@@ -286,6 +290,9 @@ class SessionBase:
         self.released.add(vid)
 
     def cap_type_braking(self, vid: str) -> None:
+        pass
+
+    def keep_sumo_gaps(self, vid: str) -> None:
         pass
 
     def reclaim(self, vid: str) -> None:

@@ -86,8 +86,8 @@ class SwarmController:
     """The method of the paper: cruise, swarm past a slow vehicle, regroup, cruise."""
 
     name = "swarm"
-    # Many swarms (controllers.fleet): a CAV alone is a swarm of one (see the fleet's module).
-    alone_to_sumo = False
+    # Many swarms (controllers.fleet): a CAV alone is driven by SUMO (see the fleet module).
+    alone_to_sumo = True
 
     def __init__(self, planner: CellPlanner | None = None, tracker: Tracker | None = None) -> None:
         """``planner`` and ``tracker`` replace the ones built from the scenario."""

@@ -51,6 +51,7 @@ KEEP_RIGHT_RATE_WINDOW_S = 1.0
 STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
 HARD_BRAKE_LINE_MPS2 = 4.0  # the contract's hard-brake line (sim.metrics.HARD_BRAKE_MPS2)
+SUMO_TAU_S, SUMO_MIN_GAP_M = 1.0, 2.5  # SUMO's default headway [s] and minGap [m]
 
 
 def sumo_binary(gui: bool = False) -> str:
@@ -688,6 +689,17 @@ class SumoSession(SessionBase):
             decel = self.api.vehicletype.getDecel(vehicle.getTypeID(vid))
             vehicle.setDecel(vid, min(decel, RELEASED_DECEL_MPS2))
         except Exception:  # vanished: nothing to hand back
+            pass
+
+    def keep_sumo_gaps(self, vid: str) -> None:
+        """``vid`` keeps at least SUMO's default headway and minGap (SUMO_TAU_S, SUMO_MIN_GAP_M)
+        while SUMO drives it: its vType's where larger (a user's type as it is)."""
+        vehicle, vtypes = self.api.vehicle, self.api.vehicletype
+        try:
+            type_id = vehicle.getTypeID(vid).split("@")[0]
+            vehicle.setTau(vid, max(vtypes.getTau(type_id), SUMO_TAU_S))
+            vehicle.setMinGap(vid, max(vtypes.getMinGap(type_id), SUMO_MIN_GAP_M))
+        except Exception:  # vanished: nothing to set
             pass
 
     def cap_type_braking(self, vid: str) -> None:
