@@ -34,7 +34,7 @@ letting merging traffic in, with SUMO's own safety checks at any step length), b
 4 m/s^2 and keeping at least SUMO's default gaps (tau 1 s, minGap 2.5 m: the swarm's own vType
 has a short headway meant for its commands, with which lone CAVs jammed an on-ramp merge),
 until it meets another CAV in its lane. On the corridor checks (tools/corridor_checks.py, 16
-runs) a swarm of one gave 49 of 112 checks and 2 collisions, a CAV left to SUMO 80 of 112 and
+runs) a swarm of one gave 49 of 112 checks and 2 collisions, a CAV left to SUMO 72 of 112 and
 none. (The ``cacc`` baseline keeps a platoon of one in its lane.)
 The summary's ``swarms`` block counts as platoons only groups that
 had two CAVs or more.
