@@ -74,7 +74,12 @@ if TYPE_CHECKING:
     from sumo_swarm.controllers.replanner import BlockWatch
 
 __all__ = [
-    "Fleet", "PlatoonSession", "SwarmMember", "can_follow", "in_lane_neighbours", "strung_out",
+    "Fleet",
+    "PlatoonSession",
+    "SwarmMember",
+    "can_follow",
+    "in_lane_neighbours",
+    "strung_out",
 ]
 
 log = logging.getLogger(__name__)

@@ -271,7 +271,8 @@ def choose(
         clear_s = max(
             (
                 (front.s_m + MIN_GAP_M - o.rear_s_m) / (o.speed_mps - follow_mps)
-                if o.speed_mps > follow_mps + 0.5 else math.inf
+                if o.speed_mps > follow_mps + 0.5
+                else math.inf
                 for o in first
             ),
             default=0.0,
