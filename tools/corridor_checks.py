@@ -63,6 +63,9 @@ from sumo_swarm.sim.userroads import (  # noqa: E402
     write_osm_road,
 )
 
+sys.path.insert(0, str(ROOT / "tools"))  # the users' roads tool, beside this one
+from user_roads import git_commit  # noqa: E402
+
 SWARM = "swarm"
 BASELINES = ("sumo-cacc", "sumo-lc")
 CONTROLLERS = (SWARM, *BASELINES)
@@ -472,20 +475,6 @@ def _made(run_commits: Sequence[str], commit: str) -> str:
     if not others:
         return ""
     return " (runs kept from " + ", ".join(f"`{c}`" for c in others) + ")"
-
-
-def git_commit() -> str:
-    """The commit of this checkout, ``+dirty`` when tracked files differ from it."""
-    rev = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
-    ).stdout.strip()
-    dirty = subprocess.run(
-        ["git", "status", "--porcelain", "--untracked-files=no"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-    ).stdout.strip()
-    return rev + ("+dirty" if dirty else "")
 
 
 def plan(
