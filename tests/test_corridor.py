@@ -303,6 +303,17 @@ def test_cavs_merge_and_exit_without_a_collision(runs, controller):
     assert summary["network"]["exits_missed"] == missed
 
 
+# A CAV SUMO drives alone keeps SUMO's default gaps: set on each CAV after its insertion, the
+# CAVs inserted at departSpeed="max" at the scenario type's short tau braked beyond 4 m/s^2 to
+# open that gap (here 37 CAV hard brakes, sumo-lc's CAVs 5); set on the vType, SUMO inserts them
+# within it (bridge.SumoSession.drive_alone): 2. What remains is SUMO's own driving (a CAV cut
+# in on by another changing lanes for its exit), as under sumo-lc.
+@pytest.mark.sumo
+def test_cavs_brake_hard_no_more_often_than_sumos(runs):
+    swarm, sumo = runs["swarm"][0]["safety"], runs["sumo-lc"][0]["safety"]
+    assert swarm["hard_brakes_cav"] <= sumo["hard_brakes_cav"]
+
+
 @pytest.mark.sumo
 def test_every_controller_gets_the_same_traffic(runs):
     planned = {}

@@ -245,8 +245,7 @@ class PlatoonSession:
     change_sublane = _Same()
     set_modes = _Same()
     release = _Same()
-    cap_type_braking = _Same()
-    keep_sumo_gaps = _Same()
+    drive_alone = _Same()
     reclaim = _Same()
     miss_exit = _Same()
 
@@ -376,8 +375,7 @@ class Fleet:
             for vid in session.departed:
                 if vid in states and states[vid].is_cav and vid not in self._alone:
                     self._alone.add(vid)
-                    session.cap_type_braking(vid)  # from the next CAV's insertion on
-                    session.keep_sumo_gaps(vid)  # until a platoon takes it (configure_cav)
+                    session.drive_alone(vid)  # until a platoon takes it (configure_cav)
         new = any(vid in states and self._platoon_of(vid) is None for vid in session.departed)
         if new or t_s - self._reviewed_s >= self.settings.review_every_s - 1e-9:
             self._reviewed_s = t_s

@@ -149,13 +149,9 @@ class SessionView(Protocol):
         """``vid`` leaves the swarm: SUMO changes its lanes again (its speed stays ours)."""
         ...
 
-    def cap_type_braking(self, vid: str) -> None:
-        """Cap the deceleration of ``vid``'s vType at the hard-brake line (the CAVs SUMO drives
-        alone, from their insertion on)."""
-        ...
-
-    def keep_sumo_gaps(self, vid: str) -> None:
-        """``vid`` keeps at least SUMO's default headway and minGap while SUMO drives it."""
+    def drive_alone(self, vid: str) -> None:
+        """SUMO drives CAV ``vid`` alone: at least SUMO's default headway and minGap, braking
+        within the hard-brake line, set on its vType too (the next CAVs are inserted so)."""
         ...
 
     def reclaim(self, vid: str) -> None:
@@ -289,10 +285,7 @@ class SessionBase:
     def release(self, vid: str) -> None:
         self.released.add(vid)
 
-    def cap_type_braking(self, vid: str) -> None:
-        pass
-
-    def keep_sumo_gaps(self, vid: str) -> None:
+    def drive_alone(self, vid: str) -> None:
         pass
 
     def reclaim(self, vid: str) -> None:

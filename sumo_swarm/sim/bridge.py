@@ -284,7 +284,7 @@ class SumoSession(SessionBase):
         self.collisions: list[Collision] = []
         self.teleports: int = 0
         self.departed: list[str] = []
-        self._braking_capped: set[str] = set()  # vTypes cap_type_braking saw
+        self._alone_types: set[str] = set()  # vTypes drive_alone set
         self.arrived: list[str] = []
         self.time_s = 0.0
         self.step_length_s = 0.0
@@ -691,30 +691,29 @@ class SumoSession(SessionBase):
         except Exception:  # vanished: nothing to hand back
             pass
 
-    def keep_sumo_gaps(self, vid: str) -> None:
-        """``vid`` keeps at least SUMO's default headway and minGap (SUMO_TAU_S, SUMO_MIN_GAP_M)
-        while SUMO drives it: its vType's where larger (a user's type as it is)."""
+    def drive_alone(self, vid: str) -> None:
+        """SUMO drives CAV ``vid`` alone until a platoon takes it (:func:`configure_cav`): it
+        keeps at least SUMO's default headway and minGap (SUMO_TAU_S, SUMO_MIN_GAP_M; its vType's
+        where larger, a user's type as it is) and brakes at most at the hard-brake line
+        (HARD_BRAKE_LINE_MPS2). Set on its vType too, once per vType, so that SUMO inserts the
+        next CAVs of that type within them: set on each CAV only after its insertion, a CAV
+        inserted at departSpeed="max" at the short tau of the scenarios' CAV type then braked
+        beyond 4 m/s^2 to open SUMO's gap (693 of 1101 CAV hard-brake steps of a corridor run at
+        40 % CAVs, all within 2 s of departure)."""
         vehicle, vtypes = self.api.vehicle, self.api.vehicletype
         try:
-            type_id = vehicle.getTypeID(vid).split("@")[0]
-            vehicle.setTau(vid, max(vtypes.getTau(type_id), SUMO_TAU_S))
-            vehicle.setMinGap(vid, max(vtypes.getMinGap(type_id), SUMO_MIN_GAP_M))
-        except Exception:  # vanished: nothing to set
-            pass
-
-    def cap_type_braking(self, vid: str) -> None:
-        """Cap the deceleration of ``vid``'s vType (only CAVs have it) at the hard-brake line,
-        HARD_BRAKE_LINE_MPS2, once per vType: SUMO then inserts and drives the CAVs it drives
-        alone within it (SUMO inserted CAVs at departSpeed="max" and braked them at 4.2 m/s^2
-        on their first step). A vType within it already (the scenarios' CAVs) is unchanged."""
-        vtypes = self.api.vehicletype
-        try:
-            base = self.api.vehicle.getTypeID(vid).split("@")[0]
-            if base not in self._braking_capped:
-                self._braking_capped.add(base)
+            base = vehicle.getTypeID(vid).split("@")[0]
+            tau = max(vtypes.getTau(base), SUMO_TAU_S)
+            min_gap = max(vtypes.getMinGap(base), SUMO_MIN_GAP_M)
+            if base not in self._alone_types:
+                self._alone_types.add(base)
+                vtypes.setTau(base, tau)
+                vtypes.setMinGap(base, min_gap)
                 if vtypes.getDecel(base) > HARD_BRAKE_LINE_MPS2:
                     vtypes.setDecel(base, HARD_BRAKE_LINE_MPS2)
-        except Exception:  # vanished: nothing to cap
+            vehicle.setTau(vid, tau)
+            vehicle.setMinGap(vid, min_gap)
+        except Exception:  # vanished: nothing to set
             pass
 
     def reclaim(self, vid: str) -> None:
