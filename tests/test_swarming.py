@@ -529,6 +529,39 @@ def test_lateral_guard_keeps_a_cav_follower_from_braking_hard():
     assert refusal(ego, [car("c5", 85.0, 0, 10.0, cav=True)], dlat=-0.3) is None
 
 
+def test_gap_lost_to_a_cav_follower_counts_what_ego_does_in_the_lane():
+    from sumo_swarm.core.swarming.guards import gap_lost
+
+    # ego keeps its speed: the follower's closing, 5^2 / (2 * 2)
+    assert gap_lost(15.0, 2.0, 10.0, 0.0, 10.0) == pytest.approx(6.25)
+    # ego brakes to a stop at 4 from 14.9, the follower at 2 from 20.5: 20.5^2/4 - 14.9^2/8
+    assert gap_lost(20.5, 2.0, 14.9, 4.0, 0.0) == pytest.approx(105.0625 - 27.75125)
+    # ego slows at 1 from 25 to 20, the follower at 2 from 30: equal speeds after 5 s, when
+    # the follower drove 125 m and ego 112.5 m
+    assert gap_lost(30.0, 2.0, 25.0, 1.0, 20.0) == pytest.approx(12.5)
+    # a slower follower loses nothing, even as ego brakes harder than it
+    assert gap_lost(10.0, 2.0, 15.0, 4.0, 0.0) == 0.0
+
+
+def test_a_cav_braking_as_it_moves_over_is_not_cut_in_ahead_of_a_faster_cav():
+    # ego brakes at 4 m/s^2 (for something in its own lane) as it moves right; a CAV 20 m
+    # behind in lane 0 at 20.5 m/s: 5.6 m/s faster, 5 + 5.6^2 / 4 = 12.8 m would do if ego
+    # kept its speed, but it may brake on to a stop: held.
+    braking = VehicleState("c4", 100.0, 1, -1.0, 14.9, 5.0, -4.0, True)
+    follower = car("c5", 75.0, 0, 20.5, cav=True)
+    assert refusal(braking, [follower], dlat=-0.3) == "follower_gap"
+    cruising = VehicleState("c4", 100.0, 1, -1.0, 14.9, 5.0, 0.0, True)
+    assert refusal(cruising, [follower], dlat=-0.3) is None
+    # A CAV 17 m behind: 12.8 m do for an ego keeping its speed. Closing in on a leader at
+    # 10 m/s 21 m ahead there, ego slows 14.9 -> 10 m/s at 4.9^2 / (2 * 16) = 0.75 m/s^2; the
+    # speeds meet after 5.6 / 1.25 = 4.48 s, 12.5 m closer: 17.5 m needed.
+    near = car("c5", 78.0, 0, 20.5, cav=True)
+    assert refusal(cruising, [near], dlat=-0.3) is None
+    leader = car("h", 126.0, 0, 10.0)
+    assert refusal(cruising, [near, leader], dlat=-0.3) == "follower_gap"
+    assert refusal(cruising, [follower, leader], dlat=-0.3) is None  # 20 m: enough
+
+
 def test_lateral_guard_sees_the_hv_behind_a_cav_that_only_leans_into_the_lane():
     ego = car("c5", 100.0, 1, 17.0, cav=True, lat=1.0)  # moving left, into lane 2
     # c6 leans 1.3 m into lane 2 from lane 1, 8 m behind ego at its speed: for the guard it is

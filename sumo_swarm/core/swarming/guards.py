@@ -241,6 +241,44 @@ def gap_accel_limit(
     return limit
 
 
+# A CAV decelerating harder than this [m/s^2] as it moves over is braking for something (its
+# lane's leader), not easing off: the lateral guard takes it to brake on to a stop.
+BRAKING_MPS2 = 1.0
+
+
+def _travelled(v0: float, brake: float, v_floor: float, t: float) -> float:
+    """Distance [m] driven in ``t`` [s] from ``v0`` [m/s], braking at ``brake`` [m/s^2] down to
+    ``v_floor`` [m/s] and holding it."""
+    if brake <= 0.0 or v0 <= v_floor:
+        return v0 * t
+    t_floor = (v0 - v_floor) / brake
+    if t <= t_floor:
+        return v0 * t - 0.5 * brake * t * t
+    return (v0 * v0 - v_floor * v_floor) / (2.0 * brake) + v_floor * (t - t_floor)
+
+
+def gap_lost(
+    follower_mps: float, follower_brake: float, ego_mps: float, ego_brake: float, ego_end_mps: float
+) -> float:
+    """The most [m] a follower's gap to ego shrinks while ego slows from ``ego_mps`` to
+    ``ego_end_mps`` at ``ego_brake`` [m/s^2] (0: it keeps its speed) and the follower brakes at
+    ``follower_brake`` [m/s^2] from ``follower_mps`` to no slower than ego ends. The gap shrinks
+    while the follower is faster: the most is where their speeds meet (exact, piecewise)."""
+    floor = min(follower_mps, ego_end_mps)
+    t_ego = (ego_mps - ego_end_mps) / ego_brake if ego_brake > 0.0 else 0.0
+    times = [(follower_mps - floor) / follower_brake]  # the follower down to ego's end speed
+    if follower_brake != ego_brake:
+        t = (follower_mps - ego_mps) / (follower_brake - ego_brake)  # equal while ego slows
+        if 0.0 < t < t_ego:
+            times.append(t)
+    lost = (
+        _travelled(follower_mps, follower_brake, floor, t)
+        - _travelled(ego_mps, ego_brake, ego_end_mps, t)
+        for t in times
+    )
+    return max(0.0, *lost)
+
+
 def lateral_refusal(
     ego: VehicleState,
     y: float,
@@ -308,8 +346,21 @@ def lateral_refusal(
         # A CAV follower cooperates, but only within its own braking: closing in faster than
         # b_safe can absorb above the minimum gap, it would brake hard (a CAV slowing to drop
         # in behind another cut in 10 m ahead of a CAV 4.7 m/s faster: -4 m/s^2, gap 4.5 m).
-        closing = max(0.0, follower.speed_mps - ego.speed_mps)
-        if gap < min_gap_m + closing * closing / (2.0 * max(b_safe_mps2, 0.1)):
+        # Judged against what ego will do once in the lane, not its speed now: close in on the
+        # leader there, and, braking as it moves over, maybe brake on to a stop for what it
+        # leaves behind (a CAV braking at 4 m/s^2 for a truck standing in its lane moved over
+        # 20 m ahead of a CAV 5.6 m/s faster, stayed across both lanes and braked on; the CAV
+        # behind ran into it).
+        v_end, ego_brake = ego.speed_mps, 0.0
+        if ego_accel_mps2 <= 0.0:
+            if ahead is not None and ahead[0].speed_mps < ego.speed_mps:
+                v_end = ahead[0].speed_mps
+                room = max(ahead[1] - min_gap_m, 0.1)
+                ego_brake = min(brake_mps2, (ego.speed_mps - v_end) ** 2 / (2.0 * room))
+            if ego.accel_mps2 < -BRAKING_MPS2:
+                v_end, ego_brake = 0.0, max(ego_brake, -ego.accel_mps2)
+        lost = gap_lost(follower.speed_mps, max(b_safe_mps2, 0.1), ego.speed_mps, ego_brake, v_end)
+        if gap < min_gap_m + lost:
             return "follower_gap"
         behind = _hv_behind_straddling_cav(ego, y, dlat, follower, others, road, width_m, settings)
         if behind is None:
