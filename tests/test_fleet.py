@@ -241,3 +241,17 @@ def test_a_cav_joins_the_one_ahead_only_where_it_can_follow_it():
     assert can_follow(25.0, 25.0, 2.0) and not can_follow(25.0, 25.0, 1.0)
     # a slower CAV behind a faster one: always, at the minimum gap
     assert can_follow(10.0, 20.0, 2.0)
+
+
+def test_a_cav_off_centre_in_its_lane_joins_nobody():
+    from sumo_swarm.controllers.fleet import may_join
+    from sumo_swarm.core.model import VehicleState
+
+    def cav(s, lat, v=25.0):
+        return VehicleState(f"c{s}", s, 0, lat, v, 5.0, 0.0, True)
+
+    assert may_join(cav(0.0, 0.0), cav(30.0, 0.1), 25.0)
+    # SUMO has the front one 0.4 m right of centre, passing a truck across the lane line
+    assert not may_join(cav(0.0, 0.0), cav(30.0, -0.4), 25.0)
+    assert not may_join(cav(0.0, 0.3), cav(30.0, 0.0), 25.0)
+    assert not may_join(cav(0.0, 0.0, v=25.0), cav(30.0, 0.0, v=0.0), 25.0)  # cannot follow

@@ -79,6 +79,7 @@ __all__ = [
     "SwarmMember",
     "can_follow",
     "in_lane_neighbours",
+    "may_join",
     "strung_out",
 ]
 
@@ -118,6 +119,10 @@ def in_lane_neighbours(vehicles: Iterable[Placed]) -> list[tuple[str, str, float
 # braking (at most 4 m/s^2) could not stop it in time.
 JOIN_DECEL_MPS2 = 3.0
 JOIN_MIN_GAP_M = 2.0
+# ...and only where both drive centred in their lane, within this [m]: SUMO may have a CAV it
+# drives alone off-centre, squeezing past a truck half across the lane line; taken into a
+# platoon 0.4 m off-centre, the swarm's tracker centred it into the truck's side at 31.7 m/s.
+JOIN_LATERAL_M = 0.2
 
 
 def can_follow(rear_mps: float, front_mps: float, gap_m: float) -> bool:
@@ -125,6 +130,13 @@ def can_follow(rear_mps: float, front_mps: float, gap_m: float) -> bool:
     at most JOIN_DECEL_MPS2 and keeping JOIN_MIN_GAP_M (the front one holding its speed)?"""
     closing = max(0.0, rear_mps * rear_mps - front_mps * front_mps) / (2.0 * JOIN_DECEL_MPS2)
     return gap_m - closing >= JOIN_MIN_GAP_M
+
+
+def may_join(rear: VehicleState, front: VehicleState, gap_m: float) -> bool:
+    """May CAV ``rear`` join CAV ``front``, ``gap_m`` [m] ahead of it in its lane: can it follow
+    it (:func:`can_follow`), both centred in their lane (JOIN_LATERAL_M)?"""
+    centred = abs(rear.lat_m) <= JOIN_LATERAL_M and abs(front.lat_m) <= JOIN_LATERAL_M
+    return centred and can_follow(rear.speed_mps, front.speed_mps, gap_m)
 
 
 def strung_out(
@@ -518,7 +530,7 @@ class Fleet:
         for rear, front, gap in sorted(in_lane_neighbours(placed), key=lambda p: p[2]):
             if (
                 gap <= st.join_gap_m and rear in eligible and front in eligible
-                and can_follow(states[rear].speed_mps, states[front].speed_mps, gap)
+                and may_join(states[rear], states[front], gap)
             ):  # fmt: skip
                 self._meet(t_s, rear, front, states)
         # Every other eligible CAV drives as a swarm of one; or, where the swarms leave a CAV
