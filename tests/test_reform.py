@@ -889,3 +889,13 @@ def test_a_cav_lets_in_a_vehicle_that_must_change_into_its_lane_for_its_route(wa
         assert gentle <= bound < 0.0
     else:
         assert bound == math.inf
+
+
+def test_a_goal_lane_the_road_does_not_have_steers_to_the_nearest_one():
+    r = reformer()
+    road = RoadSection(lane_widths_m=(3.5, 3.5, 3.5))
+    ego = car("c0", 100.0, 2, 15.0, cav=True, lat=0.3)  # in the leftmost lane, off-centre
+    dlat, _ = r._steer(ego, 3, [ego], road, 0.1)  # lane 3: only on an edge with four lanes
+    assert dlat < 0.0  # back towards lane 2's centre, not off the road
+    dlat, _ = r._steer(car("c0", 100.0, 0, 15.0, cav=True, lat=-0.3), -1, [], road, 0.1)
+    assert dlat > 0.0
