@@ -243,6 +243,23 @@ def test_a_cav_joins_the_one_ahead_only_where_it_can_follow_it():
     assert can_follow(10.0, 20.0, 2.0)
 
 
+def test_a_platoon_takes_over_no_cav_with_a_straddler_ahead_it_cannot_follow():
+    from sumo_swarm.controllers.fleet import straddled
+    from sumo_swarm.core.model import RoadSection, VehicleState
+
+    road = RoadSection(lane_widths_m=(3.5, 3.5, 3.5))
+    ego = VehicleState("c", 100.0, 1, 0.15, 29.0, 5.0, 0.0, True)
+    # a CAV of lane 0 on the line to lane 1 (0.85 m into it), 3 m ahead, 10 m/s slower
+    line = VehicleState("s", 108.0, 0, 1.7, 19.0, 5.0, 0.0, True)
+    assert straddled(ego, [ego, line], road)
+    # in the middle of lane 0: nothing reaches into ego's lane
+    assert not straddled(ego, [ego, VehicleState("s", 108.0, 0, 0.0, 19.0, 5.0)], road)
+    # on the line 120 m ahead: ego brakes for it within 3 m/s^2
+    assert not straddled(ego, [ego, VehicleState("s", 225.0, 0, 1.7, 19.0, 5.0)], road)
+    # a slow vehicle in ego's own lane is the platoon's to follow, not a straddler
+    assert not straddled(ego, [ego, VehicleState("s", 108.0, 1, 0.0, 19.0, 5.0)], road)
+
+
 def test_a_cav_off_centre_in_its_lane_joins_nobody():
     from sumo_swarm.controllers.fleet import may_join
     from sumo_swarm.core.model import VehicleState

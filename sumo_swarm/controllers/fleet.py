@@ -61,8 +61,8 @@ from sumo_swarm.controllers.base import (
 )
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.session import SessionView
-from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.neighbours import ordered_platoon
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.neighbours import ordered_platoon, snapshot_of, vehicle_ahead
 from sumo_swarm.core.swarming.account import (
     manoeuvres_from_events,
     overtake_counts,
@@ -80,6 +80,7 @@ __all__ = [
     "can_follow",
     "in_lane_neighbours",
     "may_join",
+    "straddled",
     "strung_out",
 ]
 
@@ -137,6 +138,20 @@ def may_join(rear: VehicleState, front: VehicleState, gap_m: float) -> bool:
     it (:func:`can_follow`), both centred in their lane (JOIN_LATERAL_M)?"""
     centred = abs(rear.lat_m) <= JOIN_LATERAL_M and abs(front.lat_m) <= JOIN_LATERAL_M
     return centred and can_follow(rear.speed_mps, front.speed_mps, gap_m)
+
+
+def straddled(ego: VehicleState, others: Iterable[VehicleState], road: RoadSection) -> bool:
+    """Does a vehicle of another lane reach into CAV ``ego``'s lane ahead of it (ego centred,
+    as a platoon drives it) closer than ego can follow it (:func:`can_follow`)? A platoon does
+    not take such a CAV over: SUMO drove one past a CAV straddling the lane line, 10 m/s faster
+    and 3 m behind it; taken into a platoon and centred, it could no longer brake for it when
+    that one completed its lane change (corridor, 20 % CAVs). The vehicle ahead in ego's own
+    lane is the platoon's to follow (:func:`may_join`)."""
+    lane = road.lane_of(ego)
+    ahead = vehicle_ahead(ego, others, road, y_m=road.y_of(ego.lane, 0.0), width_m=ego.width_m)
+    if ahead is None or road.lane_of(ahead[0]) == lane:
+        return False
+    return not can_follow(ego.speed_mps, ahead[0].speed_mps, ahead[1])
 
 
 def strung_out(
@@ -527,12 +542,17 @@ class Fleet:
                     self.ctx.event("platoon_split", platoon=platoon.id, parts=parts)
         # Meeting in a lane: joins and merges, nearest first.
         placed = [p for p in (self._placed(v, states) for v in states) if p is not None]
+        everyone = None
         for rear, front, gap in sorted(in_lane_neighbours(placed), key=lambda p: p[2]):
             if (
                 gap <= st.join_gap_m and rear in eligible and front in eligible
                 and may_join(states[rear], states[front], gap)
             ):  # fmt: skip
-                self._meet(t_s, rear, front, states)
+                road = session.road_at(rear) or self.ctx.road
+                if everyone is None:
+                    everyone = snapshot_of(states, road)
+                if not any(straddled(states[v], everyone, road) for v in (rear, front)):
+                    self._meet(t_s, rear, front, states)
         # Every other eligible CAV drives as a swarm of one; or, where the swarms leave a CAV
         # alone to SUMO (``alone_to_sumo``), as SUMO drives it (one that left a platoon: SUMO's
         # lane changes, our CACC for the speed, as every CAV leaving a platoon).
