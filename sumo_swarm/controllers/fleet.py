@@ -147,9 +147,8 @@ def straddled(ego: VehicleState, others: Iterable[VehicleState], road: RoadSecti
     and 3 m behind it; taken into a platoon and centred, it could no longer brake for it when
     that one completed its lane change (corridor, 20 % CAVs). The vehicle ahead in ego's own
     lane is the platoon's to follow (:func:`may_join`)."""
-    lane = road.lane_of(ego)
     ahead = vehicle_ahead(ego, others, road, y_m=road.y_of(ego.lane, 0.0), width_m=ego.width_m)
-    if ahead is None or road.lane_of(ahead[0]) == lane:
+    if ahead is None or road.lane_of(ahead[0]) == road.lane_of(ego):
         return False
     return not can_follow(ego.speed_mps, ahead[0].speed_mps, ahead[1])
 
@@ -542,15 +541,13 @@ class Fleet:
                     self.ctx.event("platoon_split", platoon=platoon.id, parts=parts)
         # Meeting in a lane: joins and merges, nearest first.
         placed = [p for p in (self._placed(v, states) for v in states) if p is not None]
-        everyone = None
         for rear, front, gap in sorted(in_lane_neighbours(placed), key=lambda p: p[2]):
             if (
                 gap <= st.join_gap_m and rear in eligible and front in eligible
                 and may_join(states[rear], states[front], gap)
             ):  # fmt: skip
                 road = session.road_at(rear) or self.ctx.road
-                if everyone is None:
-                    everyone = snapshot_of(states, road)
+                everyone = snapshot_of(states, road)  # sorted once per table and road
                 if not any(straddled(states[v], everyone, road) for v in (rear, front)):
                     self._meet(t_s, rear, front, states)
         # Every other eligible CAV drives as a swarm of one; or, where the swarms leave a CAV
