@@ -107,3 +107,26 @@ def test_a_vehicle_removed_and_added_again_starts_afresh(tmp_path):
         mine = rows[rows["vehicle"] == vid]
         assert (mine.loc[mine["time_s"] < 2.0, "length_m"] == 5.0).all()
         assert (mine.loc[mine["time_s"] > sumo.time_s - 0.6, "length_m"] == 9.5).all()
+
+
+def test_a_sideways_move_stops_when_the_next_command_is_no_move(tmp_path):
+    # SUMO carries a sublane command on, over the next steps, until the whole distance is
+    # covered: a CAV commanded across a lane and then held (the guard refused the rest) went on
+    # moving into a car alongside. No move after a move must stop it where it is.
+    with _session(tmp_path) as sumo:
+        veh = sumo.api.vehicle
+        while not sumo.columns.ids:
+            sumo.step()
+        vid = sumo.columns.ids[0]
+        veh.setLaneChangeMode(vid, 0)
+        veh.setMaxSpeedLat(vid, 1.0)
+        veh.setParameter(vid, "laneChangeModel.lcAccelLat", "40")  # as configure_cav
+        lane = veh.getLaneIndex(vid)
+        sumo.change_sublane(vid, 2.5 if lane == 0 else -2.5)  # 2.5 s of moving
+        sumo.step()
+        moved = veh.getLateralLanePosition(vid)
+        assert abs(moved) > 0.05  # it started moving
+        for _ in range(5):
+            sumo.change_sublane(vid, 0.0)
+            sumo.step()
+            assert veh.getLateralLanePosition(vid) == moved and veh.getLaneIndex(vid) == lane

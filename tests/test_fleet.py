@@ -13,12 +13,14 @@ import pytest
 
 from sumo_swarm.config import PlatoonSettings
 from sumo_swarm.controllers.fleet import (
+    VIEW_M,
     Fleet,
     Placed,
     in_lane_neighbours,
     strung_out,
 )
-from sumo_swarm.core.model import VehicleState
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.neighbours import snapshot_of
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
 from sumo_swarm.sim.runner import run_sumocfg
@@ -57,8 +59,27 @@ def test_each_swarm_sees_the_other_swarms_cavs_as_vehicles():
     view = fleet.view(frozenset({"a"}))
     assert view["a"].is_cav and not view["b"].is_cav and not view["h"].is_cav
     assert view["b"].s_m == 80 and states["b"].is_cav  # the session's states untouched
-    assert fleet.relabel(states, frozenset({"a", "b"})) is states  # nobody foreign: no copy
     assert fleet.view(frozenset({"a"})) is view  # once per step and platoon
+    assert fleet.view(frozenset({"a", "b"})) is fleet.ctx.session.states  # none foreign: no copy
+
+
+def test_a_swarm_sees_the_vehicles_within_its_view_only():
+    far = VIEW_M + 50.0
+    states = {
+        "a": _state("a", 2000.0),
+        "b": _state("b", 2000.0 + far),  # another swarm's CAV, beyond the view
+        "c": _state("c", 1990.0),  # another swarm's CAV, near
+        "h": _state("h", 2000.0 - far, cav=False),
+        "k": _state("k", 2000.0 - VIEW_M, cav=False),  # exactly at the view's end: in it
+    }
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(FakeSession(states))
+    view = fleet.view(frozenset({"a"}))
+    assert list(view) == ["a", "c", "k"]  # the session's order
+    assert view["a"] is states["a"] and view["k"] is states["k"] and not view["c"].is_cav
+    assert [v.vehicle_id for v in snapshot_of(view, RoadSection((3.2, 3.2, 3.2)))] == [
+        "k", "c", "a"
+    ]  # fmt: skip
 
 
 @pytest.mark.parametrize(

@@ -138,7 +138,8 @@ class SessionView(Protocol):
         ...
 
     def change_sublane(self, vid: str, lateral_m: float) -> None:
-        """Move ``vid`` sideways by ``lateral_m`` (left positive) [m]."""
+        """Move ``vid`` sideways by ``lateral_m`` (left positive) [m]; 0: stop a move under
+        way."""
         ...
 
     def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> bool:

@@ -285,6 +285,7 @@ class SumoSession(SessionBase):
         self.teleports: int = 0
         self.departed: list[str] = []
         self._alone_types: set[str] = set()  # vTypes drive_alone set
+        self._moving_sideways: set[str] = set()  # vehicles whose last sublane command moved
         self.arrived: list[str] = []
         self.time_s = 0.0
         self.step_length_s = 0.0
@@ -650,6 +651,7 @@ class SumoSession(SessionBase):
         same id read later starts afresh, as one that departs."""
         self.states.pop(vid, None)
         self._speeds.pop(vid, None)
+        self._moving_sideways.discard(vid)
         self._forgotten.add(vid)
 
     def route_of(self, vid: str) -> tuple[tuple[str, ...], int] | None:
@@ -773,9 +775,19 @@ class SumoSession(SessionBase):
         self._command(vid, self.api.vehicle.setSpeed, -1.0)
 
     def change_sublane(self, vid: str, lateral_m: float) -> None:
-        """Move ``vid`` sideways by ``lateral_m`` (left positive), within maxSpeedLat per second."""
+        """Move ``vid`` sideways by ``lateral_m`` (left positive), within maxSpeedLat per second;
+        0: no further. SUMO carries a sublane command on until the whole distance is covered,
+        whatever comes after, unless a new command replaces it: so a move that stops after one
+        that moved is commanded too (a CAV commanded 6.8 m across, then held beside a car
+        moving alongside, went on moving into it at a step of 0.5 s)."""
         if abs(lateral_m) > 1e-4:
-            self._command(vid, self.api.vehicle.changeSublane, lateral_m)
+            self._moving_sideways.add(vid)
+        elif vid in self._moving_sideways:
+            self._moving_sideways.discard(vid)
+            lateral_m = 0.0
+        else:
+            return
+        self._command(vid, self.api.vehicle.changeSublane, lateral_m)
 
     def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> bool:
         """Set SUMO's speed mode and lane-change mode of ``vid`` (None: leave it); False if the
