@@ -131,7 +131,9 @@ def test_idle_hold_settings_are_checked():
 # a 12.56 m/s truck, side lanes wanting 21.5 and 22.4 m/s, 4 HVs per lane upstream 19.5 m
 # apart that change lanes. With the paper's delta the CAVs past the truck sat in both side
 # lanes at the truck's speed while two upstream HVs came up beside it, level with the three
-# CAVs still behind: nobody could move for 18 s and the swarm gave up (cavs_stranded).
+# CAVs still behind: nobody could move for 18 s and the swarm gave up (cavs_stranded). That
+# was the CAVs held by the lateral guard moving on: SUMO carried their last sublane command
+# on past the hold (sim/bridge.py, SumoSession.change_sublane, now stops a move under way).
 STRANDED = {
     # The cells' idle holds are what is tested: the paper's trigger starts the cells (weighed,
     # one by one passes this truck without blocking anybody, 7 of 7 past at 29.9 s).
@@ -177,10 +179,8 @@ STRANDED = {
 }
 
 
-@pytest.mark.parametrize("release", [True, "stranded"])
-def test_released_holds_let_the_stranded_platoon_through_and_slow_the_traffic_less(
-    tmp_path, release
-):
+@pytest.mark.parametrize("release", [False, "stranded"])
+def test_held_cavs_stop_so_the_paper_holds_strand_the_platoon_no_more(tmp_path, release):
     import copy
     from pathlib import Path
 
@@ -188,26 +188,16 @@ def test_released_holds_let_the_stranded_platoon_through_and_slow_the_traffic_le
     from sumo_swarm.sim.runner import run_scenario
 
     paper = Path(__file__).resolve().parent.parent / "scenarios" / "paper.toml"
-    runs = {}
-    for mode in (False, release):
-        overrides = copy.deepcopy(STRANDED)
-        overrides["planner"] = {"release_idle_holds": mode}
-        scenario = load_scenario(paper, overrides=overrides)
-        runs[mode] = run_scenario(scenario, "swarm", tmp_path / str(mode), seed=42,
-                                  progress=False)  # fmt: skip
+    overrides = copy.deepcopy(STRANDED)
+    overrides["planner"] = {"release_idle_holds": release}
+    swarm = run_scenario(load_scenario(paper, overrides=overrides), "swarm", tmp_path / "swarm",
+                         seed=42, progress=False)  # fmt: skip
     cacc = run_scenario(load_scenario(paper, overrides=copy.deepcopy(STRANDED)), "cacc",
                         tmp_path / "cacc", seed=42, progress=False)  # fmt: skip
-
-    def slowed(summary) -> float:  # the upstream HVs' mean speed reduction [%]
-        rows = [r["speed_reduction_pct"] for r in summary["upstream"]]
-        return sum(rows) / len(rows)
-
-    held, released = runs[False], runs[release]
-    stranded = [json.loads(line) for line in (tmp_path / "False" / "events.jsonl").open()]
-    assert any(e.get("reason") == "cavs_stranded" for e in stranded)
-    assert released["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
-    assert released["cav"]["mean_speed_mps"] > held["cav"]["mean_speed_mps"] + 0.5
-    assert slowed(released) < 0.9 * slowed(held)
-    for summary in (held, released):
-        assert summary["safety"]["collisions"] == 0 and summary["safety"]["hard_brakes"] == 0
-        assert summary["cav"]["gap_min_cav_m"] >= 5.0
+    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    # Before the fix, with the paper's holds (release False): stranded, CAV speed 16.5 m/s
+    # against cacc's 17.4.
+    assert not any(e.get("reason") == "cavs_stranded" for e in events)
+    assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]  # before: below
+    assert swarm["safety"]["collisions"] == 0 and swarm["safety"]["hard_brakes"] == 0
+    assert swarm["cav"]["gap_min_cav_m"] >= 5.0

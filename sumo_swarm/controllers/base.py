@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from sumo_swarm.controllers.session import SessionView
 from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.stepsafe import CAV_TAU_S
 from sumo_swarm.core.swarming.guards import lateral_refusal
 from sumo_swarm.errors import ConfigError
 
@@ -36,8 +37,8 @@ SPEED_MODE_SAFE = 31
 # (docs/closed-loop.md) [m/s^2]
 CAV_LC_ACCEL_LAT_MPS2 = 40.0
 # tau and minGap so small that SUMO's safe-speed check is a last-resort net binding only within
-# a few metres of the vehicle ahead [s], [m]
-CAV_TAU_S = 0.2
+# a few metres of the vehicle ahead [s], [m]; at longer SUMO steps than that tau the bridge caps
+# the commanded speeds itself (core.stepsafe)
 CAV_MIN_GAP_M = 0.5
 # [cav] speeds = "world": speed changes below this are ignored [m/s]
 WORLD_SPEED_TOLERANCE_MPS = 0.05
@@ -287,6 +288,11 @@ class StandDown:
             except Exception as exc:
                 log.debug("the fallback failed at t = %.2f s: %s", t_s, exc)
                 self._hand_back_all()
+        if self.ctx is not None:  # the step's speeds, safe for the whole step
+            try:
+                self.ctx.session.flush_commands()
+            except Exception as exc:
+                self.stand_down(t_s, exc)
 
     def stand_down(self, t_s: float, exc: Exception, *, attached: bool = True) -> None:
         """Stop calling the controller (at ``t_s`` [s], for ``exc``); ``attached``: whether

@@ -267,6 +267,7 @@ class PlatoonSession:
     must_change = _Same()
     keep_right_due_s = _Same()
     set_speed = _Same()
+    flush_commands = _Same()
     release_speed = _Same()
     change_sublane = _Same()
     set_modes = _Same()

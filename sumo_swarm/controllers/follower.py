@@ -89,11 +89,6 @@ class PlanFollower:
             self.lat_errors.append(cmd.lat_error_m)
             y = road.y_of(ego.lane, ego.lat_m)
             step_m = sc.cav.max_lateral_speed_mps * dt
-            if abs(cmd.dlat_m) > step_m:
-                # What the CAV can move within the step, so that the guards judge the move it
-                # makes: SUMO carries a longer one on over the next steps, past the guards (a
-                # tracker's 6.8 m at a step of 0.5 s went on into a car alongside).
-                cmd = replace(cmd, dlat_m=clip(cmd.dlat_m, step_m))
             escape = self.lanes.end_escape(ego, cmd.dlat_m, step_m)
             if escape != cmd.dlat_m:
                 cmd = replace(cmd, dlat_m=escape)

@@ -130,7 +130,11 @@ class SessionView(Protocol):
 
     # ---------------------------------------------------------------- commands
     def set_speed(self, vid: str, speed_mps: float) -> None:
-        """Command ``vid``'s speed for the next step [m/s]."""
+        """Command ``vid``'s speed for the next step [m/s] (sent by :meth:`flush_commands`)."""
+        ...
+
+    def flush_commands(self) -> None:
+        """Send the step's speed commands, made safe for the whole step."""
         ...
 
     def release_speed(self, vid: str) -> None:
@@ -272,6 +276,9 @@ class SessionBase:
         return None
 
     def set_speed(self, vid: str, speed_mps: float) -> None:
+        pass
+
+    def flush_commands(self) -> None:
         pass
 
     def release_speed(self, vid: str) -> None:

@@ -24,7 +24,9 @@ from sumo_swarm.checks import unknown_name
 from sumo_swarm.controllers.session import SessionBase
 from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
 from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.neighbours import snapshot_of, vehicle_ahead
 from sumo_swarm.core.routeframe import RouteFrame
+from sumo_swarm.core.stepsafe import capped_speeds, net_applies
 from sumo_swarm.core.swarming.decision import keep_right_due_s
 from sumo_swarm.errors import ConfigError, SimulationError
 
@@ -51,6 +53,9 @@ KEEP_RIGHT_RATE_WINDOW_S = 1.0
 STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
 HARD_BRAKE_LINE_MPS2 = 4.0  # the contract's hard-brake line (sim.metrics.HARD_BRAKE_MPS2)
+# What a commanded CAV keeps to the vehicle ahead once both stopped [m]: the controllers' SUMO
+# minGap (controllers.base.CAV_MIN_GAP_M), under which SUMO's own check would brake it anyway
+STEP_SAFE_MARGIN_M = 0.5
 SUMO_TAU_S, SUMO_MIN_GAP_M = 1.0, 2.5  # SUMO's default headway [s] and minGap [m]
 
 
@@ -286,6 +291,8 @@ class SumoSession(SessionBase):
         self.departed: list[str] = []
         self._alone_types: set[str] = set()  # vTypes drive_alone set
         self._moving_sideways: set[str] = set()  # vehicles whose last sublane command moved
+        self._speeds_commanded: dict[str, float] = {}  # this step's, until flush_commands
+        self._sideways: dict[str, float] = {}  # this step's sublane moves [m], by vehicle
         self.arrived: list[str] = []
         self.time_s = 0.0
         self.step_length_s = 0.0
@@ -434,6 +441,7 @@ class SumoSession(SessionBase):
     # ------------------------------------------------------------------ stepping
     def step(self) -> None:
         """Advance SUMO by one step and refresh :attr:`states` (bulk, by subscription)."""
+        self.flush_commands()
         try:
             self.api.simulation.step()
         except Exception as exc:
@@ -768,11 +776,82 @@ class SumoSession(SessionBase):
         return was
 
     def set_speed(self, vid: str, speed_mps: float) -> None:
-        self._command(vid, self.api.vehicle.setSpeed, max(0.0, speed_mps))
+        """Command ``vid``'s speed for the next step [m/s]: sent by :meth:`flush_commands`,
+        capped so that it is safe for the whole step (:mod:`sumo_swarm.core.stepsafe`)."""
+        self._speeds_commanded[vid] = max(0.0, speed_mps)
 
     def release_speed(self, vid: str) -> None:
         """Hand the speed back to SUMO's car-following model."""
+        self._speeds_commanded.pop(vid, None)
         self._command(vid, self.api.vehicle.setSpeed, -1.0)
+
+    def flush_commands(self) -> None:
+        """Send this step's speed commands; at steps longer than the CAVs' tau
+        (:func:`~sumo_swarm.core.stepsafe.net_applies`), each capped by the step-safety net
+        (:func:`~sumo_swarm.core.stepsafe.capped_speeds`) towards the vehicle ahead in its lane
+        and, moving sideways, in the lane it moves to; a commanded leader at its capped
+        command. Called once the controllers have commanded the step (and before SUMO steps)."""
+        commands, self._speeds_commanded = self._speeds_commanded, {}
+        sideways, self._sideways = self._sideways, {}
+        if not net_applies(self.step_length_s):  # SUMO's own check holds within the step
+            for vid, speed in commands.items():
+                self._command(vid, self.api.vehicle.setSpeed, speed)
+            return
+        if not commands:
+            return
+        states = self.states
+        decels: dict[str, float] = {}
+
+        def decel_of(vid: str) -> float:
+            decel = decels.get(vid)
+            if decel is None:
+                try:
+                    decel = decels[vid] = self.api.vehicle.getDecel(vid)
+                except Exception:  # vanished: it brakes as SUMO's default
+                    decel = decels[vid] = DriverModel.decel_mps2
+            return decel
+
+        moved: dict[int, tuple[dict, dict]] = {}  # by table id: (table, table moved)
+
+        def after_moves(table: dict[str, VehicleState]) -> dict[str, VehicleState]:
+            """``table`` with every vehicle moving sideways this step where it ends up."""
+            entry = moved.get(id(table))
+            if entry is None or entry[0] is not table:
+                end = dict(table)
+                for vid, dlat in sideways.items():
+                    st = end.get(vid)
+                    if st is not None:
+                        end[vid] = dataclasses.replace(st, lat_m=st.lat_m + dlat)
+                entry = moved[id(table)] = (table, end)
+            return entry[1]
+
+        def leaders_of(vid: str) -> list[tuple[VehicleState, float]]:
+            road = self.road_at(vid)
+            if road is None:
+                return []
+            table = self.states_in_lanes_of(vid)
+            ego = table.get(vid)
+            if ego is None:
+                return []
+            # Where ego and the others are now, and where those moving sideways end the step
+            # (two CAVs moving into one lane in the same step, one behind the other, each saw
+            # the lane free and met there).
+            y = road.y_of(ego.lane, ego.lat_m)
+            ys = (y, y + sideways[vid]) if vid in sideways else (y,)
+            layouts = (table, after_moves(table)) if sideways else (table,)
+            found = []
+            for layout in layouts:
+                others = snapshot_of(layout, road)
+                for y_m in ys:
+                    ahead = vehicle_ahead(ego, others, road, y_m=y_m, width_m=ego.width_m)
+                    if ahead is not None:
+                        found.append(ahead)
+            return found
+
+        dt = self.step_length_s
+        capped = capped_speeds(commands, states, leaders_of, decel_of, dt, STEP_SAFE_MARGIN_M)
+        for vid, speed in capped.items():
+            self._command(vid, self.api.vehicle.setSpeed, speed)
 
     def change_sublane(self, vid: str, lateral_m: float) -> None:
         """Move ``vid`` sideways by ``lateral_m`` (left positive), within maxSpeedLat per second;
@@ -782,6 +861,7 @@ class SumoSession(SessionBase):
         moving alongside, went on moving into it at a step of 0.5 s)."""
         if abs(lateral_m) > 1e-4:
             self._moving_sideways.add(vid)
+            self._sideways[vid] = lateral_m
         elif vid in self._moving_sideways:
             self._moving_sideways.discard(vid)
             lateral_m = 0.0

@@ -1,0 +1,94 @@
+"""Speeds that stay safe for a whole SUMO step: the net under every speed our controllers give.
+
+A speed commanded through TraCI holds for the whole step, and the CAV reacts to what happens in
+it only at the next one. SUMO's own check (speed mode 31) assumes the reaction time is the
+vType's tau, which for the controllers' CAVs (0.2 s) is shorter than SUMO's usual steps of
+0.5-1 s: at those steps a platoon's CAV accelerated on the speed its leader had, while the
+leader braked within the same step, and ran into it. The net caps each CAV's speed for the step
+so that, whatever its leader does, the CAV can still stop behind it braking at its own
+deceleration from the next step on. A leader whose command for this step is known (a CAV of
+ours) is taken at that speed; any other vehicle may brake at its deceleration within the step.
+The net applies at steps longer than the CAVs' tau (:func:`net_applies`); at shorter ones
+SUMO's own check holds within the step, and the commands are sent as they are.
+
+Distances follow SUMO's default (Euler) update: a vehicle moves ``v' * dt`` in a step in which
+its speed becomes ``v'``, and braking at ``b`` from ``v`` it covers
+
+    D(v) = v^2 / (2 b) - v dt / 2 + b dt^2 f (1 - f) / 2,   f = frac(v / (b dt)),
+
+between ``v^2/(2b) - v dt/2`` and that plus ``b dt^2 / 8``: the net takes the upper bound for
+the CAV and the lower one for its leader. At 1 s it keeps a CAV following a human driver about
+one step's travel further back, and a platoon's CAVs as close as their commands allow.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping
+
+from sumo_swarm.core.model import VehicleState
+
+# The controllers' CAVs' SUMO tau [s] (controllers.base.configure_cav): so short that SUMO's
+# safe-speed check binds only within a few metres of the vehicle ahead. At steps up to it that
+# check holds within the step, and the net is not applied (the paper's 0.1 s runs, the corridor
+# studies' 0.2 s, stay as they were); at longer steps it is.
+CAV_TAU_S = 0.2
+
+
+def net_applies(step_s: float) -> bool:
+    """Does the net cap speeds at SUMO steps of ``step_s`` [s]?"""
+    return step_s > CAV_TAU_S + 1e-9
+
+
+def safe_speed(
+    gap_m: float, lead_mps: float, lead_decel_mps2: float, decel_mps2: float, dt_s: float
+) -> float:
+    """The highest speed [m/s] a vehicle can drive for the next step of ``dt_s`` [s] and still
+    stop, braking at ``decel_mps2`` from the step after, behind a leader ``gap_m`` [m] ahead
+    that drives ``lead_mps`` in the step and may brake at ``lead_decel_mps2`` from then on.
+
+    Solves ``v dt + D_up(v) <= gap + lead dt + D_low(lead)`` (the module's bounds of D), the
+    leader braking at least as hard as the vehicle: then the gap only shrinks once it does
+    (the leader is never faster again), so the stops are the closest the two come. A leader
+    that brakes less gently only leaves more room; one that brakes harder than the vehicle
+    can was taken at its stop alone, and a vehicle faster than it could come closer on the
+    way there than at the end."""
+    b, dt = max(decel_mps2, 1e-6), max(dt_s, 0.0)
+    lead = max(lead_mps, 0.0)
+    lead_decel = max(lead_decel_mps2, b)
+    room = gap_m + 0.5 * lead * dt + lead * lead / (2.0 * lead_decel) - b * dt * dt / 8.0
+    if room <= 0.0:
+        return 0.0
+    # v^2 / (2b) + v dt / 2 <= room
+    return b * (-0.5 * dt + math.sqrt(0.25 * dt * dt + 2.0 * room / b))
+
+
+def capped_speeds(
+    commands: Mapping[str, float],
+    states: Mapping[str, VehicleState],
+    leaders_of: Callable[[str], Iterable[tuple[VehicleState, float]]],
+    decel_of: Callable[[str], float],
+    dt_s: float,
+    margin_m: float,
+) -> dict[str, float]:
+    """``commands`` (speed [m/s] for the next step, by vehicle), each capped by
+    :func:`safe_speed` towards each of its leaders (``leaders_of``: (state, bumper gap [m]);
+    a leader alongside, gap <= 0, is the lateral guards' to judge) keeping ``margin_m`` [m].
+    A commanded leader is taken at its capped command: the commands are capped front to back.
+    Any other leader may brake at ``decel_of`` its id [m/s^2] within the step."""
+    out: dict[str, float] = {}
+    front_first = sorted(commands, key=lambda v: -states[v].s_m if v in states else math.inf)
+    for vid in front_first:
+        speed = commands[vid]
+        if vid in states:
+            own = decel_of(vid)
+            for leader, gap in leaders_of(vid):
+                if gap <= 0.0:
+                    continue
+                lead_decel = decel_of(leader.vehicle_id)
+                lead = out.get(leader.vehicle_id)
+                if lead is None:
+                    lead = max(leader.speed_mps - lead_decel * dt_s, 0.0)
+                speed = min(speed, safe_speed(gap - margin_m, lead, lead_decel, own, dt_s))
+        out[vid] = speed
+    return out

@@ -1,0 +1,91 @@
+"""The step-safety net (core/stepsafe.py): hand-made cases with known answers, and the speed it
+gives checked against the very update SUMO makes (Euler: a step moves the new speed times dt)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sumo_swarm.core.model import VehicleState
+from sumo_swarm.core.stepsafe import capped_speeds, safe_speed
+
+
+def _closest_approach(v: float, gap: float, lead: float, b_lead: float, b: float, dt: float):
+    """The smallest gap [m] when the follower drives ``v`` for one step and the leader
+    ``lead``, then both brake at their decelerations to a stop, as SUMO moves them."""
+    smallest = gap = gap + (lead - v) * dt
+    while v > 0.0 or lead > 0.0:
+        v, lead = max(v - b * dt, 0.0), max(lead - b_lead * dt, 0.0)
+        gap += (lead - v) * dt
+        smallest = min(smallest, gap)
+    return smallest
+
+
+def test_without_a_step_it_is_the_stopping_distance_behind_the_leaders():
+    # v^2 / (2 b) = gap + lead^2 / (2 b_lead)
+    assert safe_speed(10.0, 0.0, 4.0, 4.0, 0.0) == pytest.approx(math.sqrt(80.0))
+    assert safe_speed(10.0, 20.0, 4.0, 4.0, 0.0) == pytest.approx(math.sqrt(80.0 + 400.0))
+
+
+def test_a_standing_leader_ten_metres_ahead_at_one_second_steps():
+    # room = 10 - 4 / 8 = 9.5 m; v^2 / 8 + v / 2 = 9.5: v = 4 (sqrt(5) - 0.5) = 6.944 m/s.
+    v = safe_speed(10.0, 0.0, 4.0, 4.0, 1.0)
+    assert v == pytest.approx(4.0 * (math.sqrt(5.0) - 0.5))
+    # SUMO moves it 6.94 m, then 2.94 m, then stands: 0.11 m short of the leader.
+    assert _closest_approach(v, 10.0, 0.0, 4.0, 4.0, 1.0) == pytest.approx(10.0 - v - (v - 4.0))
+
+
+def test_no_room_no_speed():
+    assert safe_speed(-1.0, 0.0, 4.0, 4.0, 0.5) == 0.0
+    assert safe_speed(0.0, 0.0, 4.0, 4.0, 1.0) == 0.0  # the step's own braking eats 0.5 m
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.floats(0.0, 80.0),  # gap
+    st.floats(0.0, 35.0),  # leader's speed in the step
+    st.floats(1.0, 9.0),  # leader's deceleration
+    st.floats(1.0, 9.0),  # follower's deceleration
+    st.sampled_from([0.05, 0.1, 0.2, 0.5, 1.0]),
+)
+def test_the_speed_given_never_runs_into_the_leader_as_sumo_moves_them(gap, lead, b_lead, b, dt):
+    v = safe_speed(gap, lead, b_lead, b, dt)
+    assert _closest_approach(v, gap, lead, b_lead, b, dt) >= -1e-9
+    # ... and, behind a leader braking at least as hard, not far below the fastest that does
+    # not: the bounds of the stopping distances are (b + b_lead) dt^2 / 8 apart, and a faster
+    # step costs at least dt / 2 per m/s of them.
+    if b_lead >= b:
+        slack = (b + b_lead) * dt / 4.0
+        assert _closest_approach(v + slack + 1e-3, gap, lead, b_lead, b, dt) < 0.0
+
+
+def _car(vid: str, s: float, speed: float, lane: int = 1) -> VehicleState:
+    return VehicleState(vid, s, lane, 0.0, speed, 5.0, 0.0, vid.startswith("c"))
+
+
+def test_a_platoon_is_capped_front_to_back_on_its_leaders_capped_commands():
+    # c1 wants 20 m/s, 15 m (bumper) behind a truck standing; c2 wants 20 m/s 10 m behind c1.
+    states = {v.vehicle_id: v for v in (_car("h", 100.0, 0.0), _car("c1", 80.0, 12.0),
+                                        _car("c2", 65.0, 12.0))}  # fmt: skip
+    ahead = {"c1": [(states["h"], 15.0)], "c2": [(states["c1"], 10.0)]}
+    decel = {"h": 4.5, "c1": 4.0, "c2": 4.0}
+    out = capped_speeds({"c2": 20.0, "c1": 20.0}, states, lambda v: ahead.get(v, []),
+                        decel.__getitem__, 1.0, 0.5)  # fmt: skip
+    c1 = safe_speed(14.5, 0.0, 4.5, 4.0, 1.0)  # the standing truck: it brakes no further
+    assert out["c1"] == pytest.approx(c1) and c1 < 20.0
+    assert out["c2"] == pytest.approx(safe_speed(9.5, c1, 4.0, 4.0, 1.0))  # c1 at its cap
+
+
+def test_a_leader_of_no_command_may_brake_within_the_step_and_one_alongside_is_skipped():
+    states = {v.vehicle_id: v for v in (_car("h", 100.0, 20.0), _car("c", 80.0, 20.0),
+                                        _car("x", 82.0, 20.0, lane=2))}  # fmt: skip
+    ahead = [(states["h"], 15.0), (states["x"], -3.0)]  # x alongside: the lateral guards' case
+    out = capped_speeds({"c": 25.0}, states, lambda v: ahead, {"h": 4.5, "c": 4.0, "x": 9.0}.get,
+                        0.5, 0.5)  # fmt: skip
+    assert out["c"] == pytest.approx(safe_speed(14.5, 20.0 - 4.5 * 0.5, 4.5, 4.0, 0.5))
+    # A command already below the cap is left as it is.
+    assert capped_speeds({"c": 5.0}, states, lambda v: ahead, {"h": 4.5, "c": 4.0}.get, 0.5,
+                         0.5) == {"c": 5.0}  # fmt: skip
