@@ -10,6 +10,7 @@ from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import (
     Snapshot,
     cav_alongside_behind,
+    overlapping_ahead,
     snapshot_of,
     vehicle_ahead,
     vehicle_behind,
@@ -148,3 +149,18 @@ def test_an_hv_standing_off_its_lane_centre_counts_by_its_body_only():
     inside = VehicleState("merging", 110.0, 0, 1.5, 0.0, 5.0, 0.0, False)
     for others in both([ego, inside]):
         assert vehicle_ahead(ego, others, ROAD)[0].vehicle_id == "merging"
+
+
+def test_every_vehicle_ahead_in_reach_not_only_the_nearest():
+    # An HV drifting in (0.8 m off its lane centre, moving) 3 m ahead of ego hides a CAV 5 m
+    # ahead in ego's lane from vehicle_ahead; both are there, the far one out of reach is not.
+    ego = car("e", 100.0, 1, cav=True)
+    drifting = car("h", 108.0, 2, lat=-1.6)
+    cav = car("c", 110.0, 1, cav=True)
+    far = car("f", 200.0, 1)
+    beside = car("b", 104.0, 0)  # another lane, no drift: not overlapping
+    snap = Snapshot([ego, drifting, cav, far, beside], ROAD)
+    y = ROAD.y_of(1, 0.0)
+    found = overlapping_ahead(ego, snap, ROAD, y, 1.8, reach_m=60.0)
+    assert found == [(drifting, 3.0), (cav, 5.0)]
+    assert vehicle_ahead(ego, snap, ROAD, y_m=y) == (drifting, 3.0)  # the nearest of them

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.stepsafe import capped_speeds, safe_speed
+from sumo_swarm.core.stepsafe import Footprint, capped_speeds, safe_speed, sideways_conflicts
 
 
 def _closest_approach(v: float, gap: float, lead: float, b_lead: float, b: float, dt: float):
@@ -89,3 +89,29 @@ def test_a_leader_of_no_command_may_brake_within_the_step_and_one_alongside_is_s
     # A command already below the cap is left as it is.
     assert capped_speeds({"c": 5.0}, states, lambda v: ahead, {"h": 4.5, "c": 4.0}.get, 0.5,
                          0.5) == {"c": 5.0}  # fmt: skip
+
+
+def _print(s, y, ds=0.0, dy=0.0, length=5.0):
+    return Footprint(s, y, s + ds, y + dy, length, 1.8)
+
+
+def test_two_cavs_moving_into_one_lane_level_with_each_other_are_both_held():
+    # Lanes 3.2 m wide: a from the lane to the left, b from the lane to the right, fronts 2 m
+    # apart, each 2.2 m across in a step (1 s): they end 1.48 m apart, centre to centre.
+    prints = {"a": _print(621.3, 7.58, 16.6, -2.2), "b": _print(619.5, 1.7, 17.6, 2.2),
+              "h": _print(660.0, 4.6, 15.0)}  # fmt: skip
+    assert sideways_conflicts(["a", "b"], prints, 0.3) == {"a", "b"}
+    # 12 m apart lengthwise at the end: both may go.
+    prints["b"] = _print(607.5, 1.7, 17.6, 2.2)
+    assert sideways_conflicts(["a", "b"], prints, 0.3) == set()
+
+
+def test_a_move_is_held_only_for_what_it_brings_about():
+    # c already 0.2 m beside a truck (SUMO's sublane drivers squeeze past), moving along it,
+    # away from it: not held; towards it, closer than at the start: held only if it was clear
+    # before (it was not: the guards' business, not the net's).
+    truck = _print(400.0, 4.8, 15.0, 0.0, length=12.0)
+    away = {"t": truck, "c": _print(395.0, 2.55, 15.0, -0.5)}
+    assert sideways_conflicts(["c"], away, 0.3) == set()
+    into = {"t": truck, "c": _print(395.0, 1.6, 15.0, 1.5)}  # 3.2 m apart, then 1.7 m
+    assert sideways_conflicts(["c"], into, 0.3) == {"c"}

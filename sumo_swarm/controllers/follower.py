@@ -22,6 +22,7 @@ from sumo_swarm.controllers.reform import clip
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import Snapshot, snapshot_of
+from sumo_swarm.core.stepsafe import net_applies
 from sumo_swarm.core.swarming.guards import (
     gap_accel_limit,
     gentle_for_follower,
@@ -89,6 +90,12 @@ class PlanFollower:
             self.lat_errors.append(cmd.lat_error_m)
             y = road.y_of(ego.lane, ego.lat_m)
             step_m = sc.cav.max_lateral_speed_mps * dt
+            if net_applies(dt) and abs(cmd.dlat_m) > step_m:
+                # At steps where a command holds long enough to matter, the guards judge the
+                # move the CAV makes within the step, not the tracker's whole wish: at 1 s the
+                # tracker asked 9.95 m across, the guards judged its end three lanes over and
+                # passed it, and the CAV moved into the truck beside it.
+                cmd = replace(cmd, dlat_m=clip(cmd.dlat_m, step_m))
             escape = self.lanes.end_escape(ego, cmd.dlat_m, step_m)
             if escape != cmd.dlat_m:
                 cmd = replace(cmd, dlat_m=escape)

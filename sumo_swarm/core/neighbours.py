@@ -155,6 +155,27 @@ def vehicle_ahead(
     return _nearest(ego, others, road, y_m, width_m, ahead=True)
 
 
+def overlapping_ahead(
+    ego: VehicleState,
+    others: Snapshot,
+    road: RoadSection,
+    y_m: float,
+    width_m: float,
+    reach_m: float,
+) -> list[tuple[VehicleState, float]]:
+    """Every vehicle whose front is ahead of ``ego``'s, less than ``reach_m`` [m] ahead, that
+    overlaps ego placed at ``y_m`` laterally as :func:`vehicle_ahead` counts it, with its bumper
+    gap [m]: not only the nearest (an HV cutting in ahead of a CAV hid the CAV braking hard
+    behind it). The nearest of them is :func:`vehicle_ahead`'s."""
+    lo, hi = bisect_right(others.s, ego.s_m), bisect_left(others.s, ego.s_m + reach_m)
+    found = []
+    for j in range(lo, hi):
+        other = others[j]
+        if other.vehicle_id != ego.vehicle_id and abs(y_m - others.y[j]) < _band(width_m, other):
+            found.append((other, other.rear_s_m - ego.s_m))
+    return found
+
+
 def within(others: Iterable[VehicleState], s_m: float, reach_m: float) -> list[VehicleState]:
     """The vehicles of ``others`` whose front is less than ``reach_m`` from ``s_m``, in the
     order of ``others`` (of a :class:`Snapshot`: a slice found by bisection)."""

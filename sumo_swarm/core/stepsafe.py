@@ -24,7 +24,9 @@ one step's travel further back, and a platoon's CAVs as close as their commands 
 from __future__ import annotations
 
 import math
+from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 
 from sumo_swarm.core.model import VehicleState
 
@@ -92,3 +94,49 @@ def capped_speeds(
                 speed = min(speed, safe_speed(gap - margin_m, lead, lead_decel, own, dt_s))
         out[vid] = speed
     return out
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """Where a vehicle's body is at the start and at the end of a step: its front [m] along
+    the road and its centre [m] across it (the road's y), with its size [m]."""
+
+    s_m: float
+    y_m: float
+    s_end_m: float
+    y_end_m: float
+    length_m: float
+    width_m: float
+
+
+def _overlap(a: Footprint, b: Footprint, end: bool, clearance_m: float) -> bool:
+    sa, ya = (a.s_end_m, a.y_end_m) if end else (a.s_m, a.y_m)
+    sb, yb = (b.s_end_m, b.y_end_m) if end else (b.s_m, b.y_m)
+    lengthwise = sa - a.length_m < sb + clearance_m and sb - b.length_m < sa + clearance_m
+    return lengthwise and abs(ya - yb) < 0.5 * (a.width_m + b.width_m) + clearance_m
+
+
+def sideways_conflicts(
+    movers: Iterable[str], footprints: Mapping[str, Footprint], clearance_m: float
+) -> set[str]:
+    """The vehicles of ``movers`` (moving sideways this step) whose body at the end of the step
+    comes within ``clearance_m`` [m] of another's, at its own end of the step, when it was not
+    at the start: two CAVs moving into one lane from either side, level with each other, each
+    judged against where the other was and met in the middle (a step of 1 s). Their moves are
+    to be held, every mover of such a pair."""
+    ordered = sorted(footprints.items(), key=lambda item: item[1].s_end_m)
+    fronts = [fp.s_end_m for _, fp in ordered]
+    reach = max((fp.length_m for fp in footprints.values()), default=0.0) + clearance_m
+    held = set()
+    for vid in movers:
+        a = footprints.get(vid)
+        if a is None:
+            continue
+        lo = bisect_left(fronts, a.s_end_m - a.length_m - clearance_m)
+        hi = bisect_right(fronts, a.s_end_m + reach)
+        for other, b in ordered[lo:hi]:
+            new = _overlap(a, b, True, clearance_m) and not _overlap(a, b, False, clearance_m)
+            if other != vid and new:
+                held.add(vid)
+                break
+    return held

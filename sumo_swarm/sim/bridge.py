@@ -24,9 +24,9 @@ from sumo_swarm.checks import unknown_name
 from sumo_swarm.controllers.session import SessionBase
 from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import snapshot_of, vehicle_ahead
+from sumo_swarm.core.neighbours import overlapping_ahead, snapshot_of, within
 from sumo_swarm.core.routeframe import RouteFrame
-from sumo_swarm.core.stepsafe import capped_speeds, net_applies
+from sumo_swarm.core.stepsafe import Footprint, capped_speeds, net_applies, sideways_conflicts
 from sumo_swarm.core.swarming.decision import keep_right_due_s
 from sumo_swarm.errors import ConfigError, SimulationError
 
@@ -56,6 +56,9 @@ HARD_BRAKE_LINE_MPS2 = 4.0  # the contract's hard-brake line (sim.metrics.HARD_B
 # What a commanded CAV keeps to the vehicle ahead once both stopped [m]: the controllers' SUMO
 # minGap (controllers.base.CAV_MIN_GAP_M), under which SUMO's own check would brake it anyway
 STEP_SAFE_MARGIN_M = 0.5
+LEADER_REACH_EXTRA_M = 30.0  # beyond a CAV's stopping reach, for a truck's length [m]
+SIDEWAYS_REACH_M = 60.0  # vehicles whose fronts are this near a CAV moving sideways [m]
+SIDEWAYS_CLEARANCE_M = 0.3  # what two bodies keep at the end of a step (guards' side_clearance)
 SUMO_TAU_S, SUMO_MIN_GAP_M = 1.0, 2.5  # SUMO's default headway [s] and minGap [m]
 
 
@@ -293,6 +296,7 @@ class SumoSession(SessionBase):
         self._moving_sideways: set[str] = set()  # vehicles whose last sublane command moved
         self._speeds_commanded: dict[str, float] = {}  # this step's, until flush_commands
         self._sideways: dict[str, float] = {}  # this step's sublane moves [m], by vehicle
+        self._stays: set[str] = set()  # this step's vehicles told to move no further
         self.arrived: list[str] = []
         self.time_s = 0.0
         self.step_length_s = 0.0
@@ -790,14 +794,16 @@ class SumoSession(SessionBase):
         (:func:`~sumo_swarm.core.stepsafe.net_applies`), each capped by the step-safety net
         (:func:`~sumo_swarm.core.stepsafe.capped_speeds`) towards the vehicle ahead in its lane
         and, moving sideways, in the lane it moves to; a commanded leader at its capped
-        command. Called once the controllers have commanded the step (and before SUMO steps)."""
+        command; and each sublane move that would bring the CAV's body against another's by the
+        end of the step held (:func:`~sumo_swarm.core.stepsafe.sideways_conflicts`). Called once
+        the controllers have commanded the step (and before SUMO steps)."""
         commands, self._speeds_commanded = self._speeds_commanded, {}
         sideways, self._sideways = self._sideways, {}
+        stays, self._stays = self._stays, set()
         if not net_applies(self.step_length_s):  # SUMO's own check holds within the step
             for vid, speed in commands.items():
                 self._command(vid, self.api.vehicle.setSpeed, speed)
-            return
-        if not commands:
+            self._send_sideways(sideways, stays)
             return
         states = self.states
         decels: dict[str, float] = {}
@@ -836,6 +842,10 @@ class SumoSession(SessionBase):
             # Where ego and the others are now, and where those moving sideways end the step
             # (two CAVs moving into one lane in the same step, one behind the other, each saw
             # the lane free and met there).
+            # Every vehicle ahead within what ego covers stopping from a step at its command,
+            # not only the nearest.
+            v = max(commands[vid], ego.speed_mps)
+            reach = 2.0 * v * dt + v * v / (2.0 * decel_of(vid)) + LEADER_REACH_EXTRA_M
             y = road.y_of(ego.lane, ego.lat_m)
             ys = (y, y + sideways[vid]) if vid in sideways else (y,)
             layouts = (table, after_moves(table)) if sideways else (table,)
@@ -843,15 +853,29 @@ class SumoSession(SessionBase):
             for layout in layouts:
                 others = snapshot_of(layout, road)
                 for y_m in ys:
-                    ahead = vehicle_ahead(ego, others, road, y_m=y_m, width_m=ego.width_m)
-                    if ahead is not None:
-                        found.append(ahead)
+                    found += overlapping_ahead(ego, others, road, y_m, ego.width_m, reach)
             return found
 
         dt = self.step_length_s
         capped = capped_speeds(commands, states, leaders_of, decel_of, dt, STEP_SAFE_MARGIN_M)
         for vid, speed in capped.items():
             self._command(vid, self.api.vehicle.setSpeed, speed)
+        held = set()
+        for vid in sideways:  # moves that meet another vehicle's at the end of the step
+            road = self.road_at(vid)
+            table = self.states_in_lanes_of(vid)
+            if road is None or vid not in table:
+                continue
+            prints = {}
+            for other in within(snapshot_of(table, road), table[vid].s_m, SIDEWAYS_REACH_M):
+                y = road.y_of(other.lane, other.lat_m)
+                v = capped.get(other.vehicle_id, other.speed_mps)
+                prints[other.vehicle_id] = Footprint(
+                    other.s_m, y, other.s_m + v * dt, y + sideways.get(other.vehicle_id, 0.0),
+                    other.length_m, other.width_m,
+                )  # fmt: skip
+            held |= sideways_conflicts([vid], prints, SIDEWAYS_CLEARANCE_M)
+        self._send_sideways({v: d for v, d in sideways.items() if v not in held}, stays | held)
 
     def change_sublane(self, vid: str, lateral_m: float) -> None:
         """Move ``vid`` sideways by ``lateral_m`` (left positive), within maxSpeedLat per second;
@@ -860,14 +884,21 @@ class SumoSession(SessionBase):
         that moved is commanded too (a CAV commanded 6.8 m across, then held beside a car
         moving alongside, went on moving into it at a step of 0.5 s)."""
         if abs(lateral_m) > 1e-4:
-            self._moving_sideways.add(vid)
             self._sideways[vid] = lateral_m
-        elif vid in self._moving_sideways:
-            self._moving_sideways.discard(vid)
-            lateral_m = 0.0
         else:
-            return
-        self._command(vid, self.api.vehicle.changeSublane, lateral_m)
+            self._sideways.pop(vid, None)
+            self._stays.add(vid)
+
+    def _send_sideways(self, moves: Mapping[str, float], stays: Iterable[str]) -> None:
+        """Send the step's sublane moves; a vehicle that stays and moved at the last step is
+        told to stop (:meth:`change_sublane`)."""
+        for vid, lateral_m in moves.items():
+            self._moving_sideways.add(vid)
+            self._command(vid, self.api.vehicle.changeSublane, lateral_m)
+        for vid in stays:
+            if vid in self._moving_sideways and vid not in moves:
+                self._moving_sideways.discard(vid)
+                self._command(vid, self.api.vehicle.changeSublane, 0.0)
 
     def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> bool:
         """Set SUMO's speed mode and lane-change mode of ``vid`` (None: leave it); False if the
