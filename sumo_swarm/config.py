@@ -51,7 +51,7 @@ class SimulationSettings:
         The SUMO network file, relative to the scenario file; a copied file whose network is not
         beside it falls back to the built-in network of that name.
     step_length_s
-        SUMO's step length [s] (the paper: 0.03 s; the swarm needs 0.3 s or less).
+        SUMO's step length [s] (the paper: 0.03 s; the swarm needs 0.5 s or less).
     duration_s
         How long the simulation runs [s].
     seed

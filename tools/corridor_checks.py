@@ -10,7 +10,7 @@ project's own corridor (scenarios/corridor.toml, cut to the run's length, its
                    --cav-share-of passenger --controller C --seed S --out DIR
     sumo-swarm run corridor.toml --controller C --seed S --out DIR
 
-at the step length 0.2 s for every controller (the swarm refuses steps above 0.3 s). ``P`` is
+at the step length 0.2 s for every controller (``--step``: another, every controller). ``P`` is
 the share of passenger vehicles that makes the asked share of all vehicles CAVs, the trucks
 keeping theirs. Per road and share, the checks (the swarm's run against the baselines'):
 
@@ -73,7 +73,8 @@ CORRIDOR = "corridor"  # the project's own corridor
 CORRIDOR_TOML = ROOT / "scenarios" / "corridor.toml"
 OSM_DIR = ROOT / "networks" / "osm"
 ROADS = (*OSM_ROADS, CORRIDOR)
-STEP_LENGTH_S = 0.2  # every controller's; the swarm refuses steps above 0.3 s
+DEFAULT_STEP_S = 0.2  # every controller's (--step)
+STEP_LENGTH_S = DEFAULT_STEP_S
 
 # The thresholds of issue 51's checks
 SPEED_OF_LC = 0.97  # CAV mean speed >= this x sumo-lc's (and >= sumo-cacc's)
@@ -237,6 +238,7 @@ def corridor_toml(end_s: float, share: float) -> str:
     ``corridor.cav_share`` = ``share``, as TOML text."""
     data = tomllib.loads(CORRIDOR_TOML.read_text(encoding="utf-8"))
     data["simulation"]["duration_s"] = float(end_s)
+    data["simulation"]["step_length_s"] = STEP_LENGTH_S
     data["corridor"]["cav_share"] = float(share)
     return toml_text(data)
 
@@ -491,6 +493,8 @@ def plan(
     for road in roads:
         for share in shares:
             where = out / road / f"end-{end_s:g}"
+            if STEP_LENGTH_S != DEFAULT_STEP_S:  # runs at another step apart
+                where = where.with_name(f"{where.name}-step-{STEP_LENGTH_S:g}")
             args = road_args(road, share, end_s, where / "road")
             for seed in seeds:
                 folder = where / f"share-{share_name(share)}" / f"seed-{seed}"
@@ -529,6 +533,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--roads", nargs="+", choices=ROADS, default=list(ROADS))
     ap.add_argument("--shares", nargs="+", type=float, default=[0.2, 0.4], help="CAV shares")
     ap.add_argument("--end", type=float, default=300.0, help="simulated seconds per run")
+    ap.add_argument("--step", type=float, default=DEFAULT_STEP_S, help="SUMO's step [s], all runs")
     ap.add_argument("--seeds", nargs="+", type=int, default=[42], help="SUMO's seeds")
     ap.add_argument("--out", type=Path, default=Path("/tmp/corridor_checks"), help="run folders")
     ap.add_argument("--workers", type=int, default=2, help="runs at once (one process each)")
@@ -545,6 +550,8 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         print(f"corridor_checks: --shares must be > 0 and < 0.85, got {bad}", file=sys.stderr)
         return 2
+    global STEP_LENGTH_S
+    STEP_LENGTH_S = args.step
     if args.end <= 0:
         print(f"corridor_checks: --end must be > 0, got {args.end:g}", file=sys.stderr)
         return 2

@@ -40,7 +40,7 @@ from sumo_swarm.sim.userroads import CAV_TYPE, ROADS, write_road  # noqa: E402
 
 CONTROLLERS = ("swarm", "cacc", "sumo-cacc", "sumo-lc")
 # Step lengths [s]; None is SUMO's default (1 s): the sumocfg does not name a step.
-STEPS: dict[str, float | None] = {"0.1": 0.1, "1 (default)": None}
+STEPS: dict[str, float | None] = {"0.1": 0.1, "0.5": 0.5, "1 (default)": None}
 EXIT_BAD_INPUT = 2
 # SUMO's warning for a collision: "Warning: Vehicle 'a'; collision with vehicle 'b', lane=...".
 COLLISION_WARNING = "collision with"
@@ -349,7 +349,8 @@ def main(argv: list[str] | None = None) -> int:
     jobs = []
     for road in args.roads:
         for step_name in args.steps:
-            folder = args.out / road / ("step-0.1" if STEPS[step_name] else "step-default")
+            step = STEPS[step_name]
+            folder = args.out / road / (f"step-{step:g}" if step else "step-default")
             cfg = folder / "user.sumocfg"
             if not args.report_only:
                 write_road(road, folder, end_s=args.end, step_length_s=STEPS[step_name])
