@@ -115,3 +115,17 @@ def test_a_move_is_held_only_for_what_it_brings_about():
     assert sideways_conflicts(["c"], away, 0.3) == set()
     into = {"t": truck, "c": _print(395.0, 1.6, 15.0, 1.5)}  # 3.2 m apart, then 1.7 m
     assert sideways_conflicts(["c"], into, 0.3) == {"c"}
+
+
+def test_a_cacc_command_held_for_a_step_closes_no_more_than_the_law_would():
+    from sumo_swarm.config import CaccSettings
+    from sumo_swarm.controllers.cacc import held_share
+
+    law = CaccSettings()  # k_speed 1.1 /s
+    assert law.k_speed == pytest.approx(1.1)
+    # Below a step of 1 / k_speed (0.91 s) the held command closes less than the whole error.
+    for dt in (0.03, 0.1, 0.2, 0.5, 0.9):
+        assert held_share(law, dt) == 1.0
+    # At 1 s it would close 110 % of it: it closes what the law does over 1 s, 1 - exp(-1.1).
+    assert held_share(law, 1.0) * 1.1 == pytest.approx(1.0 - math.exp(-1.1))
+    assert held_share(law, 1.0) == pytest.approx(0.6065, abs=1e-4)
