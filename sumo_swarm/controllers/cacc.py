@@ -141,6 +141,7 @@ def command_cacc(
     others = snapshot_of(states, ctx.road) if everyone is None else everyone
     sc, cav = ctx.scenario, ctx.cav  # the CAVs' speeds in force
     released = ctx.session.released
+    step_s = ctx.dt_s * held_share(sc.cacc, ctx.dt_s)  # what one held command covers [s]
     for vid in platoon:
         ego = states[vid]
         cruise = leader_cruise_mps if vid == platoon[0] else cruise_mps
@@ -164,7 +165,7 @@ def command_cacc(
             bound = lane_end_accel(ctx, vid, ego.speed_mps)
             if bound is not None:
                 a = max(min(a, bound), cav.accel_min_mps2)
-        ctx.session.set_speed(vid, ego.speed_mps + a * ctx.dt_s * held_share(sc.cacc, ctx.dt_s))
+        ctx.session.set_speed(vid, ego.speed_mps + a * step_s)
 
 
 class CaccController:

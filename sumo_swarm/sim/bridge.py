@@ -839,22 +839,23 @@ class SumoSession(SessionBase):
             ego = table.get(vid)
             if ego is None:
                 return []
-            # Where ego and the others are now, and where those moving sideways end the step
-            # (two CAVs moving into one lane in the same step, one behind the other, each saw
-            # the lane free and met there).
             # Every vehicle ahead within what ego covers stopping from a step at its command,
-            # not only the nearest.
+            # not only the nearest; where ego and the others are now, and where those moving
+            # sideways end the step (two CAVs moving into one lane in the same step, one behind
+            # the other, each saw the lane free and met there). A vehicle found in several of
+            # these is one leader: a sideways move changes no gap along the road.
             v = max(commands[vid], ego.speed_mps)
             reach = 2.0 * v * dt + v * v / (2.0 * decel_of(vid)) + LEADER_REACH_EXTRA_M
             y = road.y_of(ego.lane, ego.lat_m)
             ys = (y, y + sideways[vid]) if vid in sideways else (y,)
             layouts = (table, after_moves(table)) if sideways else (table,)
-            found = []
+            found: dict[str, tuple[VehicleState, float]] = {}
             for layout in layouts:
                 others = snapshot_of(layout, road)
                 for y_m in ys:
-                    found += overlapping_ahead(ego, others, road, y_m, ego.width_m, reach)
-            return found
+                    for leader in overlapping_ahead(ego, others, road, y_m, ego.width_m, reach):
+                        found.setdefault(leader[0].vehicle_id, leader)
+            return list(found.values())
 
         dt = self.step_length_s
         capped = capped_speeds(commands, states, leaders_of, decel_of, dt, STEP_SAFE_MARGIN_M)
