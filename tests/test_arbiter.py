@@ -12,9 +12,7 @@ from sumo_swarm.core.swarming.arbiter import (
     choose,
     insertion_loss_m,
     lane_pace_mps,
-    leave_time_s,
     mean_speed_mps,
-    secure_gap_m,
 )
 
 ROAD = RoadSection(lane_widths_m=(3.5, 3.5, 3.5))
@@ -33,7 +31,7 @@ def platoon(n: int = 3, lane: int = 1, front_m: float = 200.0, v: float = 20.0) 
 def weigh(view, target, others, desired=None, **kw):
     desired = desired or {}
     args = dict(
-        side_lanes=[0, 2], cells_pace_mps=5.0,
+        side_lanes=[0, 2], leaves=False, cells_pace_mps=5.0,
         desired_of=lambda v: desired.get(v.vehicle_id, 30.0), horizon_s=20.0, range_m=90.0,
         others_weight=1.0, min_gain_mps=2.0,
     )  # fmt: skip
@@ -79,73 +77,23 @@ def test_a_free_lane_beside_a_truck_is_passed_in():
     assert choice.best.gain_m == pytest.approx(3 * 10.0 * (20.0 - 1.75))
 
 
-def test_secure_gap_is_sumos_with_its_default_headway_and_braking():
-    assert secure_gap_m(20.0, 20.0) == pytest.approx(2.5 + 20.0)  # one second of travel
-    # braking from 20 to 11 m/s at 4.5 m/s^2 takes (400 - 121) / 9 = 31 m more
-    assert secure_gap_m(20.0, 11.0) == pytest.approx(2.5 + 20.0 + 31.0)
-    assert secure_gap_m(10.0, 30.0) == 2.5  # a leader pulling away: the standstill gap
-
-
-def test_a_driver_leaves_when_a_gap_beside_it_comes():
-    target = car("t", 215.0, 1, 20.0)  # front 215, rear 210
-    # lane 2 free: it moves over at once, LEAVE_S (3 s)
-    assert leave_time_s(target, [target], ROAD, 2, horizon_s=20.0) == pytest.approx(3.0)
-    # a car alongside at its speed: never a gap
-    beside = car("b", 214.0, 2, 20.0)
-    assert leave_time_s(target, [beside], ROAD, 2, horizon_s=20.0) is None
-    # a car alongside 4 m/s faster: once ahead, it must be secure_gap(20, 24) = 2.5 + 20 -
-    # (576 - 400) / 9 = 2.94 m ahead of the target's front: its rear 209 + 24 t against
-    # 215 + 20 t + 2.94 at t = 2.24 s, first looked at 2.5 s: out at 5.5 s
-    faster = car("f", 214.0, 2, 24.0)
-    assert leave_time_s(target, [faster], ROAD, 2, horizon_s=20.0) == pytest.approx(5.5)
-    assert leave_time_s(target, [faster], ROAD, 2, horizon_s=5.0) is None  # not within it
-    # 4 m/s slower, its front just behind the target's: it must be secure_gap(16, 20) = 2.5 +
-    # max(0, 16 - (400 - 256) / 9) = 2.5 m behind the target's rear: 210 + 20 t - (214 + 16 t)
-    # >= 2.5 at t = 1.625 s, first looked at 2 s: out at 5 s
-    slower = car("s", 214.0, 2, 16.0)
-    assert leave_time_s(target, [slower], ROAD, 2, horizon_s=20.0) == pytest.approx(5.0)
-
-
 def test_a_car_that_will_pass_its_own_leader_is_waited_for():
     view = platoon()
     target = car("t", 215.0, 1, 20.0)
     # it wants 30 m/s, a car at 21 m/s holds it, lane 2 beside it is free: SUMO's speed gain
-    # will take it there at once; no pass in the lane it moves into (it would be ahead again)
+    # will take it there
     ahead, right = car("x", 250.0, 1, 21.0), car("r", 230.0, 0, 20.0)
     desired = {"t": 30.0, "x": 21.0, "r": 20.0}
     choice = weigh(view, target, [target, ahead, right], desired=desired)
-    assert "wait" in {o.kind for o in choice.weighed}
-    assert {o.lane for o in choice.weighed if o.kind == "lane_pass"} <= {0}
-    assert choice.best.kind in ("follow", "wait")
-    # the same car wanting only what its lane ahead gives: it stays, and is passed
+    assert choice.best.kind == "wait"
+    assert [o.kind for o in choice.weighed] == ["follow", "wait"]  # nothing else weighed
+    # the same car wanting only what its lane ahead gives: it stays, and is weighed for
     desired["t"] = 20.0
     stays = weigh(view, target, [target, ahead, right], desired=desired)
     assert "wait" not in {o.kind for o in stays.weighed}
-    assert stays.best.kind == "lane_pass" and stays.best.lane == 2
-    # SUMO shows a wish to keep right, the lane on its right free, nothing ahead: it is gone
-    # in 3 s and the platoon at its 30 m/s (3 x 10 x 17 = 510 vehicle-metres); a lane pass on
-    # its left gains 3 x 10 x 18.25 = 547.5, not the incentive (3 x 2 x 10 = 60) more
-    truck = weigh(view, target, [target], desired=desired, wished_lanes=[0])
-    assert truck.best.kind == "wait" and truck.best.gain_m == pytest.approx(510.0)
-
-
-def test_a_driver_boxed_in_beside_a_dense_lane_is_passed_not_waited_for():
-    # The truck wants to keep right, but lane 0 is a stream at its own speed, 30 m apart:
-    # no gap comes; lane 2 is free. (Waiting for it on a motorway: 25 of 35 such waits saw
-    # the target stay in its lane 30 s and longer, scenarios/corridor.toml at 40 % CAVs.)
-    view = platoon()
-    truck = car("truck", 215.0, 1, 20.0)
-    stream = [car(f"r{i}", 340.0 - 25.0 * i, 0, 20.0) for i in range(10)]
-    desired = {"truck": 20.0, **{o.vehicle_id: 20.0 for o in stream}}
-    choice = weigh(view, truck, [truck, *stream], desired=desired, wished_lanes=[0])
-    assert "wait" not in {o.kind for o in choice.weighed}
-    assert choice.best.kind == "lane_pass" and choice.best.lane == 2
-    # its exit just ahead: it is gone within a second, waited for (3 x 10 m/s x 19 s = 570
-    # vehicle-metres against the lane pass's 3 x 10 x 18.25 = 547.5)
-    leaving = weigh(view, truck, [truck, *stream], desired=desired, wished_lanes=[0],
-                    leaves_within_s=1.0)  # fmt: skip
-    assert leaving.best.kind == "wait"
-    assert leaving.best.gain_m == pytest.approx(570.0)
+    # SUMO shows a wish: a truck that keeps right, the lane on its right free
+    truck = weigh(view, target, [target, ahead, right], desired=desired, leaves=True)
+    assert truck.best.kind == "wait"
 
 
 def test_when_every_lane_is_as_slow_the_platoon_follows():

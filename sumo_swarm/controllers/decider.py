@@ -39,6 +39,10 @@ from sumo_swarm.core.swarming.decision import (
 States = Mapping[str, VehicleState]
 
 
+# A blocked lane-change wish of a slow vehicle is waited for this long [s] (then it is passed):
+# about twice SUMO's keep-right build-up, time for a gap to come by.
+WISH_BLOCKED_S = 10.0
+
 # How long [s] an answer of Decider.moves_right_soon holds: the sampling step of its
 # prediction (decision.right_lane_opens_within).
 RECHECK_S = 0.5
@@ -75,6 +79,7 @@ class Decider:
         self._moves_right: dict[str, tuple[float, bool]] = {}  # vehicle -> (time, answer)
         self._target_lane: tuple[str | None, int] | None = None
         self._weighed: tuple[str, str, int | None] | None = None  # the last choice said
+        self._wish_since: dict[str, float] = {}  # vehicle -> when its lane-change wish began
 
     # ------------------------------------------------------------------ speeds
     def slow_below(self) -> float:
@@ -157,7 +162,7 @@ class Decider:
         sw = sc.swarm
         leader = states[self.leader(states, platoon)]
         tail = min((states[v] for v in platoon), key=lambda st: st.rear_s_m)
-        wish, _ = ctx.session.lane_wish(target.vehicle_id)  # blocked or not: leave_time_s
+        wish, blocked = ctx.session.lane_wish(target.vehicle_id)
         # A driver that keeps right, the lane on its right free for it by the time its wish
         # builds up (SUMO's keep-right model, read through libsumo), moves there.
         keeps_right = (
@@ -166,11 +171,11 @@ class Decider:
             and self._right_lane_free(target, states)
         )
         if keeps_right and not wish:
-            wish = -1
-        # Its route leaves the road (an exit ahead): it is gone by then at the latest.
+            wish, blocked = -1, False
+        # Its route leaves the road within the horizon (an exit ahead): it goes, as a wish.
         target_left_m = self._road_left_m(target)
-        leaves_within_s = (
-            None if target_left_m is None else target_left_m / max(target.speed_mps, 1.0)
+        exits = target_left_m is not None and target_left_m <= sw.horizon_s * max(
+            target.speed_mps, 1.0
         )
         lane = road.lane_of(leader)
         side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
@@ -199,8 +204,7 @@ class Decider:
             horizon_s = max(0.0, min(horizon_s, left_m / max(leader.speed_mps, 1.0)))
         choice = choose(
             view, target, [st for v, st in states.items() if v not in members], road,
-            side_lanes=side, wished_lanes=[] if wished is None else [wished],
-            leaves_within_s=leaves_within_s,
+            side_lanes=side, leaves=self._wish_holds(target.vehicle_id, wish, blocked) or exits,
             cells_pace_mps=cells_mps,
             desired_of=self.reformer.desired_speed, horizon_s=horizon_s,
             range_m=sw.detect_range_m + 2.0 * sc.cell_length_m,
@@ -215,6 +219,17 @@ class Decider:
                                 [round(o.gain_m, 1), round(o.loss_m, 1)]
                                 for o in choice.weighed})  # fmt: skip
         return choice.best
+
+    def _wish_holds(self, vid: str, wish: int, blocked: bool) -> bool:
+        """Is a lane-change wish of ``vid`` (``wish``: +1, -1; 0 none) one it will act on: free
+        to move, or blocked for less than WISH_BLOCKED_S since the wish was first seen (a truck
+        that wants to keep right moves once the gap on its right comes; one blocked for long
+        by a dense right lane is passed)."""
+        if not wish:
+            self._wish_since.pop(vid, None)
+            return False
+        since = self._wish_since.setdefault(vid, self.ctx.session.time_s)
+        return not blocked or self.ctx.session.time_s - since <= WISH_BLOCKED_S
 
     def _road_left_m(self, vehicle: VehicleState) -> float | None:
         """How far [m] ``vehicle`` still drives on the road (the session's route frame): to

@@ -10,14 +10,12 @@ horizon of ``horizon_s`` with plain kinematics, and scored in vehicle-metres:
   the slow vehicle's, rising to what the lane ahead of it allows (a car catching up with a
   line ahead is not slow for long).
 - **wait**: the slow vehicle's driver will leave the lane: SUMO shows the wish (whatever the
-  reason: keeping right, its route, a faster lane), its route leaves the road, or it is held back
-  below its desired speed and a lane beside is faster by ``HV_SPEED_GAIN_MPS`` (SUMO's
-  speed-gain model weighs the same). When it leaves is predicted (:func:`leave_time_s`): the
-  first moment, everyone keeping their speed, that the lane it wants has a gap it may take
-  (SUMO's secure gaps ahead and behind), plus ``LEAVE_S`` to move over; a driver whose lane
-  stays full does not leave within the horizon. The platoon then drives at the pace ahead of
-  it; nobody else loses. Waiting is weighed beside the passes: a vehicle that leaves soon is
-  waited for (passing it gains little more), one that is boxed in is passed.
+  reason: keeping right, its route, a faster lane), or it is held back below its desired
+  speed and a lane beside is faster by ``HV_SPEED_GAIN_MPS`` (SUMO's speed-gain model weighs
+  the same): only a vehicle slow by its driver's own choice stays to be passed.
+  It does so within ``LEAVE_S`` and the platoon then drives at the pace ahead of it. Nobody
+  else loses, and nothing else is weighed: a target that leaves is not passed (whatever passing
+  it gains, waiting gains too; on a motorway, manoeuvres on such targets ended when they left).
 - **lane_pass**: the platoon moves over to a lane beside it and drives at that lane's pace,
   once the vehicles beside it there (or too close behind it) have passed: the guards let them
   by, and a lane whose vehicles never pass (no faster than the platoon) is not weighed. The
@@ -31,9 +29,8 @@ horizon of ``horizon_s`` with plain kinematics, and scored in vehicle-metres:
   drive at the pace ahead of it. The blocked vehicles lose the speed they give up for as long
   as the pass lasts.
 
-A manoeuvre is taken when its score beats doing nothing (following, or waiting for the target
-to go) by ``min_gain_mps`` per CAV for half the horizon (MOBIL's incentive threshold for the
-platoon as a whole); else the platoon follows, and
+A manoeuvre is taken when its score beats following by ``min_gain_mps`` per CAV for half the
+horizon (MOBIL's incentive threshold for the platoon as a whole); else the platoon follows, and
 the vehicles around are no worse off than under SUMO's own drivers. Units: m, s, m/s.
 """
 
@@ -52,12 +49,9 @@ __all__ = [
     "choose",
     "insertion_loss_m",
     "lane_pace_mps",
-    "leave_time_s",
     "mean_speed_mps",
 ]
 
-# The candidates that are no manoeuvre: the platoon follows in its lane.
-IDLE_KINDS = ("follow", "wait")
 # How long [s] a driver that wants to leave its lane takes to be out of it: SUMO's default
 # lane-change duration (lcDuration... the sublane model moves at maxSpeedLat 1 m/s over half a
 # 3.2-3.5 m lane before the vehicle counts in the next) plus a second to find its gap.
@@ -69,10 +63,6 @@ HV_ACCEL_MPS2 = 1.0
 # one-second headway (SUMO's default tau), for the secure gap the others keep.
 MIN_GAP_M = 2.5
 HEADWAY_S = 1.0
-# The braking SUMO's drivers assume when they check a gap for a lane change [m/s^2] (SUMO's
-# default passenger decel), and how often a gap is looked for over the horizon [s].
-GAP_DECEL_MPS2 = 4.5
-GAP_LOOK_S = 0.5
 # A driver moves to a lane beside for this much more speed [m/s]: one driver changes lanes for
 # less than a platoon needs to coordinate a manoeuvre (min_gain_mps); with the platoon's 2 m/s,
 # targets moved into the lane the platoon was passing in within 1-4 s of the start.
@@ -171,50 +161,6 @@ def secure_room_m(speed_mps: float) -> float:
     return MIN_GAP_M + HEADWAY_S * max(speed_mps, 0.0)
 
 
-def secure_gap_m(v_follower_mps: float, v_leader_mps: float) -> float:
-    """The bumper gap [m] a driver at ``v_follower_mps`` needs behind one at ``v_leader_mps`` to
-    change lanes in front of it or behind it (SUMO's secure gap with its default headway and
-    braking): the standstill gap, one headway of travel and what braking to the leader's speed
-    takes beyond the leader's own."""
-    v_f, v_l = max(v_follower_mps, 0.0), max(v_leader_mps, 0.0)
-    return MIN_GAP_M + max(0.0, v_f * HEADWAY_S + (v_f * v_f - v_l * v_l) / (2.0 * GAP_DECEL_MPS2))
-
-
-def leave_time_s(
-    target: VehicleState,
-    others: Sequence[VehicleState],
-    road: RoadSection,
-    lane: int,
-    *,
-    horizon_s: float,
-) -> float | None:
-    """How soon [s] ``target`` is out of its lane into ``lane`` beside it: the first moment
-    (looked at every ``GAP_LOOK_S``), every vehicle keeping its speed, that the vehicle ahead of
-    it there and the one behind it leave it their secure gaps (:func:`secure_gap_m`), plus
-    ``LEAVE_S`` to move over; None when no such gap comes within ``horizon_s``."""
-    there = [o for o in others if o.vehicle_id != target.vehicle_id and road.lane_of(o) == lane]
-    v = max(target.speed_mps, 0.0)
-    t = 0.0
-    while t + LEAVE_S <= horizon_s + 1e-9:
-        front = target.s_m + v * t
-        rear = front - target.length_m
-        fits = True
-        for o in there:
-            o_front = o.s_m + max(o.speed_mps, 0.0) * t
-            o_rear = o_front - o.length_m
-            if o_front >= front:  # ahead of it (or alongside, front first)
-                if o_rear - front < secure_gap_m(v, o.speed_mps):
-                    fits = False
-                    break
-            elif rear - o_front < secure_gap_m(o.speed_mps, v):
-                fits = False
-                break
-        if fits:
-            return t + LEAVE_S
-        t += GAP_LOOK_S
-    return None
-
-
 def insertion_loss_m(
     others: Sequence[VehicleState],
     road: RoadSection,
@@ -253,8 +199,7 @@ def choose(
     road: RoadSection,
     *,
     side_lanes: Sequence[int],
-    wished_lanes: Sequence[int] = (),
-    leaves_within_s: float | None = None,
+    leaves: bool,
     cells_pace_mps: float | None,
     desired_of: Callable[[VehicleState], float],
     horizon_s: float,
@@ -262,11 +207,10 @@ def choose(
     others_weight: float,
     min_gain_mps: float,
 ) -> Choice:
-    """Weigh following, waiting for the target to leave its lane (``wished_lanes``: the lanes
-    its driver wants, as SUMO shows; ``leaves_within_s``: its route leaves the road within this
-    long), a lane pass in each of ``side_lanes`` and the cells (``cells_pace_mps``: the plan's
-    pace past the target above the target's speed; None: no cell plan possible) and take the
-    best (see the module docstring). ``others``: every vehicle but the platoon's CAVs."""
+    """Weigh following, waiting (``leaves``: the target's driver wants to leave the lane), a
+    lane pass in each of ``side_lanes`` and the cells (``cells_pace_mps``: the plan's pace past
+    the target above the target's speed; None: no cell plan possible) and take the best (see
+    the module docstring). ``others``: every vehicle but the platoon's CAVs."""
     n = platoon.n_cavs
     cavs = platoon.cavs
     cap = platoon.cruise_mps
@@ -286,11 +230,10 @@ def choose(
     weighed = [Outlook("follow", None, 0.0, 0.0, 0.0)]
     # The target's driver, too, moves to a faster lane beside it when it gains there (MOBIL's
     # incentive, as SUMO's speed-gain model weighs it, for one driver): held back below its
-    # desired speed, it wants a lane beside that is faster, as seen from it or from the
-    # platoon's front, by HV_SPEED_GAIN_MPS. Only a vehicle slow by its driver's own choice
-    # stays to be passed; one that wants to leave does so when a gap lets it (leave_time_s).
+    # desired speed, it takes a lane beside that is faster, as seen from it or from the
+    # platoon's front, by HV_SPEED_GAIN_MPS; it leaves. Only a vehicle slow by its driver's own
+    # choice stays to be passed.
     here = road.lane_of(target)
-    wanted = {q for q in wished_lanes if 0 <= q < road.n_lanes and q != here}
     held_back = desired_of(target) - target.speed_mps >= HV_SPEED_GAIN_MPS
     for q in (here - 1, here + 1):
         if not 0 <= q < road.n_lanes or not held_back:
@@ -300,23 +243,18 @@ def choose(
             lane_pace_mps(platoon.front.s_m, others, road, q, **pace),
         )
         if min(desired_of(target), faster) - target.speed_mps >= HV_SPEED_GAIN_MPS:
-            wanted.add(q)
-    leave_s, leave_lane = math.inf, None
-    for q in sorted(wanted):
-        t = leave_time_s(target, others, road, q, horizon_s=horizon_s)
-        if t is not None and t < leave_s:
-            leave_s, leave_lane = t, q
-    if leaves_within_s is not None and leaves_within_s < leave_s:
-        leave_s = leaves_within_s
+            leaves = True
 
     def add(kind: str, lane: int | None, gain: float, loss: float) -> None:
         weighed.append(Outlook(kind, lane, gain, loss, gain - others_weight * loss))
 
-    if leave_s < horizon_s:
-        # Once it has gone, the platoon drives at the pace ahead of it (as a lane pass at its
-        # lane's, once moved over). Passing in the lane it moves into would put it ahead again.
-        add("wait", None, n * max(0.0, beyond - follow_mps) * (horizon_s - leave_s), 0.0)
-        side_lanes = [q for q in side_lanes if q != leave_lane]
+    if leaves:
+        # A target that leaves is not passed: whatever passing it gains, waiting gains too, and
+        # a manoeuvre on it ends when it goes (on a motorway most of them did).
+        rest = max(0.0, horizon_s - LEAVE_S)
+        # Half: the platoon rises to the pace ahead over the rest of the horizon.
+        add("wait", None, n * max(0.0, beyond - follow_mps) * rest * 0.5, 0.0)
+        return Choice(weighed[-1], tuple(weighed))
     move_s = 0.5 * platoon.lane_width_m / max(platoon.lateral_speed_mps, 0.1)
 
     def move_over(front: VehicleState, rear_s_m: float, lane: int, after_s: float):
@@ -391,11 +329,8 @@ def choose(
             if lo < o.s_m < hi and road.lane_of(o) in side_lanes:
                 loss += max(0.0, min(o.speed_mps, desired_of(o)) - grid_mps) * during
         add("cells", None, gain, loss)
-    # A manoeuvre must beat doing nothing (following, or waiting for the target to go: no
-    # coordination, nobody else loses) by the incentive threshold.
     threshold = n * min_gain_mps * 0.5 * horizon_s
-    idle = max((o for o in weighed if o.kind in IDLE_KINDS), key=lambda o: o.score_m)
     best = max(weighed, key=lambda o: o.score_m)
-    if best.kind not in IDLE_KINDS and best.score_m < idle.score_m + threshold:
-        best = idle
+    if best.kind != "follow" and best.score_m < threshold:
+        best = weighed[0]
     return Choice(best, tuple(weighed))
