@@ -364,3 +364,53 @@ def test_the_direct_osqp_path_gives_the_wrappers_answer():
     b = lat_slow.solve(0.1, 0.0, y, np.arctan(dy), kappa, ds)
     assert a.status == b.status == "solved"
     np.testing.assert_array_equal(a.inputs, b.inputs)
+
+
+def _tracker_holding(deltas, accels, dt_s):
+    """A Tracker whose CAV "c" has ``deltas`` [rad] and ``accels`` [m/s^2] solved at t = 0 for
+    the MPC's steps (0.1 s), heading straight; a reference is not asked for (no solve)."""
+    from sumo_swarm.core.swarming.tracker import Tracker
+
+    tracker = Tracker(LongitudinalSettings(), LateralSettings(), interval_steps=10)
+    tracker.add("c")
+    tracker._inputs["c"] = (0.0, np.asarray(accels, float), np.asarray(deltas, float))
+    return tracker
+
+
+class _Flat:
+    def y_at_s(self, s_m):
+        return 0.0
+
+
+@pytest.mark.parametrize("dt_s", [0.1, 0.3])
+def test_a_long_sumo_step_is_driven_on_the_mpcs_clock(dt_s):
+    from sumo_swarm.core.model import VehicleState
+
+    road = RoadSection(lane_widths_m=(3.5, 3.5))
+    wheelbase = LateralSettings().wheelbase_m
+    # A wheel angle turning the CAV at 0.01 rad per metre, 10 m/s: 0.01 rad per MPC step.
+    delta = math.atan(0.01 * wheelbase)
+    tracker = _tracker_holding([delta] * 5, [0.0] * 5, dt_s)
+    ego = VehicleState("c", 100.0, 0, 0.0, 10.0, 5.0, is_cav=True)
+    cmd = tracker.command(0.0, ego, _Flat(), road, dt_s, solve=False)
+    if dt_s == 0.1:  # the paper's step: one MPC step, straight ahead until it turns
+        assert cmd.dlat_m == 0.0 and cmd.phi_end_rad == pytest.approx(0.01)
+    else:  # three MPC steps: 1 m at headings 0, 0.01 and 0.02 rad (held: 0 m, then a jump)
+        assert cmd.dlat_m == pytest.approx(math.sin(0.01) + math.sin(0.02))
+        assert cmd.phi_end_rad == pytest.approx(0.03)
+    tracker.commit(ego, cmd, False, road, dt_s)
+    assert tracker.phi["c"] == pytest.approx(cmd.phi_end_rad)
+    tracker.commit(ego, cmd, True, road, dt_s)  # a held move stops turning
+    assert tracker.phi["c"] == 0.0
+
+
+def test_a_long_step_commands_the_mean_of_the_mpcs_accelerations():
+    from sumo_swarm.core.model import VehicleState
+
+    road = RoadSection(lane_widths_m=(3.5,))
+    tracker = _tracker_holding([0.0] * 5, [1.0, 2.0, 3.0, 4.0, 5.0], 0.3)
+    ego = VehicleState("c", 100.0, 0, 0.0, 10.0, 5.0, is_cav=True)
+    cmd = tracker.command(0.0, ego, _Flat(), road, 0.3, solve=False)
+    assert cmd.accel_mps2 == pytest.approx(2.0)  # (1 + 2 + 3) x 0.1 s over 0.3 s
+    later = tracker.command(0.2, ego, _Flat(), road, 0.1, solve=False)
+    assert later.accel_mps2 == pytest.approx(3.0)  # one step: the input of its MPC step

@@ -5,6 +5,13 @@ The longitudinal MPC works in time, the lateral one in space; both are re-solved
 applied in between (zero-order hold on the MPC's own step). :meth:`Tracker.command` returns
 what the CAV should do this step; the controller applies the guards, then
 :meth:`Tracker.commit` integrates the heading.
+
+A SUMO step longer than the MPC's own step (``dt_s``, 0.1 s) is driven on the MPC's clock:
+the inputs solved for each of its steps within the SUMO step are applied in turn to the
+kinematic model (eqs. 33-35), and SUMO is handed the step's whole lateral move, the mean
+acceleration and the heading at its end. Holding the first input for the whole step instead
+turned the CAV 10 MPC steps' worth at 1 s: the front CAV of the paper scene's variants swung
+across the lane line and back every step, and the CAVs behind it braked to a standstill.
 """
 
 from __future__ import annotations
@@ -30,10 +37,11 @@ from sumo_swarm.core.trajectory import Reference
 class TrackCommand:
     """What the tracker asks of one CAV for one SUMO step."""
 
-    accel_mps2: float  # longitudinal acceleration
+    accel_mps2: float  # longitudinal acceleration (mean over the step)
     dlat_m: float  # lateral move over the step
-    delta_rad: float  # front-wheel angle (for the heading update)
+    delta_rad: float  # front-wheel angle (the last within the step)
     lat_error_m: float  # lateral distance from the reference now
+    phi_end_rad: float = 0.0  # heading at the end of the step, moving as commanded
 
 
 class Tracker:
@@ -106,22 +114,27 @@ class Tracker:
             self._inputs[vid] = (t_s, res.inputs, lres.inputs)
             self.solve_ms.append(res.solve_ms + lres.solve_ms)
         t_solved, accels, deltas = self._inputs[vid]
-        accel = float(accels[min(int((t_s - t_solved) / self.lon.dt_s + 1e-9), len(accels) - 1)])
-        delta = float(deltas[min(int((t_s - t_solved) / self.lat.dt_s + 1e-9), len(deltas) - 1)])
-        # The lateral move of this SUMO step from the kinematic model (eqs. 33-35).
-        dlat = ego.speed_mps * dt_s * math.sin(self.phi[vid])
-        return TrackCommand(accel, dlat, delta, y - ref.y_at_s(centre))
+        # The lateral move of this SUMO step from the kinematic model (eqs. 33-35), on the
+        # MPC's clock: one sub-step per MPC step within the SUMO step (one at the paper's).
+        n = max(1, round(dt_s / self.lat.dt_s))
+        h = dt_s / n
+        v, phi, dlat, dv = ego.speed_mps, self.phi[vid], 0.0, 0.0
+        for k in range(n):
+            t = t_s - t_solved + k * h
+            accel = float(accels[min(int(t / self.lon.dt_s + 1e-9), len(accels) - 1)])
+            delta = float(deltas[min(int(t / self.lat.dt_s + 1e-9), len(deltas) - 1)])
+            speed = max(v + dv, 0.0)
+            dlat += speed * h * math.sin(phi)
+            phi += speed * h * (math.tan(delta) / self.lat.wheelbase_m - road.curvature_1pm)
+            dv += accel * h
+        return TrackCommand(dv / dt_s, dlat, delta, y - ref.y_at_s(centre), phi)
 
     def commit(
         self, ego: VehicleState, cmd: TrackCommand, held: bool, road: RoadSection, dt_s: float
     ) -> None:
         """Integrate the heading; a move held by the guard stops turning towards the lane."""
         vid = ego.vehicle_id
-        if held:
-            self.phi[vid] = 0.0
-            return
-        ds = ego.speed_mps * dt_s
-        self.phi[vid] += ds * (math.tan(cmd.delta_rad) / self.lat.wheelbase_m - road.curvature_1pm)
+        self.phi[vid] = 0.0 if held else cmd.phi_end_rad
 
     def straighten(self, vids: Mapping[str, object] | list[str]) -> None:
         for vid in vids:
