@@ -832,29 +832,41 @@ class SumoSession(SessionBase):
             return entry[1]
 
         def leaders_of(vid: str) -> list[tuple[VehicleState, float]]:
-            road = self.road_at(vid)
-            if road is None:
-                return []
-            table = self.states_in_lanes_of(vid)
-            ego = table.get(vid)
+            ego = states.get(vid)
             if ego is None:
                 return []
-            # Every vehicle ahead within what ego covers stopping from a step at its command,
-            # not only the nearest; where ego and the others are now, and where those moving
-            # sideways end the step (two CAVs moving into one lane in the same step, one behind
-            # the other, each saw the lane free and met there). A vehicle found in several of
-            # these is one leader: a sideways move changes no gap along the road.
             v = max(commands[vid], ego.speed_mps)
             reach = 2.0 * v * dt + v * v / (2.0 * decel_of(vid)) + LEADER_REACH_EXTRA_M
-            y = road.y_of(ego.lane, ego.lat_m)
-            ys = (y, y + sideways[vid]) if vid in sideways else (y,)
-            layouts = (table, after_moves(table)) if sideways else (table,)
             found: dict[str, tuple[VehicleState, float]] = {}
-            for layout in layouts:
-                others = snapshot_of(layout, road)
-                for y_m in ys:
-                    for leader in overlapping_ahead(ego, others, road, y_m, ego.width_m, reach):
-                        found.setdefault(leader[0].vehicle_id, leader)
+            road = self.road_at(vid)
+            table = self.states_in_lanes_of(vid) if road is not None else {}
+            here = table.get(vid)
+            if road is not None and here is not None:
+                # Every vehicle ahead within what ego covers stopping from a step at its
+                # command, not only the nearest; where ego and the others are now, and where
+                # those moving sideways end the step (two CAVs moving into one lane in the same
+                # step, one behind the other, each saw the lane free and met there). A vehicle
+                # found in several of these is one leader: a sideways move changes no gap along
+                # the road.
+                y = road.y_of(here.lane, here.lat_m)
+                ys = (y, y + sideways[vid]) if vid in sideways else (y,)
+                layouts = (table, after_moves(table)) if sideways else (table,)
+                for layout in layouts:
+                    others = snapshot_of(layout, road)
+                    for y_m in ys:
+                        for leader in overlapping_ahead(here, others, road, y_m, here.width_m,
+                                                        reach):  # fmt: skip
+                            found.setdefault(leader[0].vehicle_id, leader)
+            # And the leader SUMO sees along ego's route, across junctions and onto the next
+            # edges: the search above looks within the road section only (a CAV on the junction
+            # towards an off-ramp saw nobody, and at 1 s ran into a CAV standing beyond it).
+            try:
+                sumo_leader = self.api.vehicle.getLeader(vid, reach)
+            except Exception:  # vanished
+                sumo_leader = None
+            if sumo_leader and sumo_leader[0] in states:
+                # SUMO's gap is the bumper gap less ego's minGap: the smaller, the safer
+                found.setdefault(sumo_leader[0], (states[sumo_leader[0]], max(sumo_leader[1], 0.0)))
             return list(found.values())
 
         dt = self.step_length_s

@@ -13,18 +13,19 @@ from __future__ import annotations
 from sumo_swarm.errors import ConfigError
 
 # The commands hold for a whole step; at steps longer than the CAVs' tau the bridge makes them
-# safe for it (core/stepsafe.py: speeds capped on the leaders' commands or worst braking,
-# sublane moves that meet another body by the end of the step held, a move under way stopped
-# when the next command is no move). Measured at 5e83ad6 with the swarm, collisions counted
-# with --collision.mingap-factor 0:
-#   0.5 s: the 40 paper-scene variants of scenarios/variants.toml 0 collisions, 0 hard brakes
-#          (family gain over cacc +18.4 %, 90 % of scenes within 1 %, worst -5.1 %); the paper
-#          scene 20.50 m/s, +17.1 % over cacc at 0.5 s, regrouped, gap 5.5 m; the seven users'
-#          roads 0 collisions, 0 CAV hard brakes; the corridor checks (4 roads x 2 shares x 2
-#          seeds, 300 s) 0 swarm collisions, 16 CAV hard brakes in 16 runs (31 at 0.2 s;
-#          sumo-cacc 950, sumo-lc 661), 80 of 112 checks (76 at 0.2 s).
-#   1 s:   the 40 variants 1 collision (a CAV into an HV braking at 7.6 m/s^2, beyond its
-#          decel), 74 HV hard brakes (cacc's run: 30); the paper scene +8.5 %, not regrouped.
+# safe for it (core/stepsafe.py: speeds capped on the leaders' commands or worst braking, SUMO's
+# own leader along the route among them, sublane moves that meet another body by the end of the
+# step held, a move under way stopped when the next command is no move), and the tracker drives
+# the step on the MPC's clock (core/swarming/tracker.py). Measured with the swarm, collisions
+# counted with --collision.mingap-factor 0 (docs/results.md, "SUMO's step length"):
+#   0.5 s: the 40 paper-scene variants of scenarios/variants.toml 0 collisions, 0 hard brakes;
+#          the paper scene +16.2 % over cacc at 0.5 s, regrouped; the seven users' roads 0
+#          collisions, 0 CAV hard brakes; the corridor checks (4 roads x 2 shares x 2 seeds,
+#          300 s) 0 swarm collisions.
+#   1 s:   the paper scene +15.3 %, regrouped; the 40 variants 0 collisions, 0 CAV hard brakes,
+#          but 12 human drivers brake harder than 4 m/s^2 behind a platoon's tail (cacc: 0); the
+#          users' roads 0 collisions, 0 CAV hard brakes; the corridor checks 1 collision (a CAV
+#          and a car moving into the middle lane in the same step, side by side).
 MAX_SWARM_STEP_S = 0.5  # [s]
 STEP_TOLERANCE_S = 1e-9  # [s] SUMO keeps the step in milliseconds; float noise is no excess
 
