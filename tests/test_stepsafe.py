@@ -3,6 +3,7 @@ gives checked against the very update SUMO makes (Euler: a step moves the new sp
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -10,7 +11,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sumo_swarm.core.model import VehicleState
-from sumo_swarm.core.stepsafe import Footprint, capped_speeds, safe_speed, sideways_conflicts
+from sumo_swarm.core.stepsafe import (
+    Footprint,
+    braking_short_m,
+    capped_speeds,
+    safe_speed,
+    sideways_conflicts,
+)
 
 
 def _closest_approach(v: float, gap: float, lead: float, b_lead: float, b: float, dt: float):
@@ -129,3 +136,20 @@ def test_a_cacc_command_held_for_a_step_closes_no_more_than_the_law_would():
     # At 1 s it would close 110 % of it: it closes what the law does over 1 s, 1 - exp(-1.1).
     assert held_share(law, 1.0) * 1.1 == pytest.approx(1.0 - math.exp(-1.1))
     assert held_share(law, 1.0) == pytest.approx(0.6065, abs=1e-4)
+
+
+def test_a_vehicle_of_no_command_may_end_the_step_anywhere_its_braking_allows():
+    # 25 m/s braking at 4.5 m/s^2 over 1 s ends 2.25 m short of 25 m; from 2 m/s it stops
+    # within the step, 2 - 4 / 9 = 1.56 m short of 2 m.
+    assert braking_short_m(25.0, 4.5, 1.0) == pytest.approx(2.25)
+    assert braking_short_m(2.0, 4.5, 1.0) == pytest.approx(2.0 - 4.0 / 9.0)
+    assert braking_short_m(25.0, 4.5, 0.1) == pytest.approx(0.0225)
+    # The corridor's side collision at 1 s (corridor, 40 %, seed 42): a CAV moving 1.5 m into
+    # the middle lane ends at 981.9 m; a car moving into it from the other side, 1.5 m across
+    # from it at the end, ends at 988.5 m at its speed: 1.6 m ahead of the CAV's front, clear.
+    # Braking within the step (it did: 25.3 -> 22.6 m/s), its rear comes level with the CAV.
+    cav = Footprint(961.18, 5.0, 981.90, 3.5, 5.0, 1.8)
+    car = Footprint(963.24, 1.0, 988.54, 2.0, 5.0, 1.8)
+    assert sideways_conflicts(["cav"], {"cav": cav, "car": car}, 0.3) == set()
+    braking = dataclasses.replace(car, short_m=braking_short_m(25.3, 4.5, 1.0))
+    assert sideways_conflicts(["cav"], {"cav": cav, "car": braking}, 0.3) == {"cav"}

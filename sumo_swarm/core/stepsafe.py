@@ -99,7 +99,9 @@ def capped_speeds(
 @dataclass(frozen=True)
 class Footprint:
     """Where a vehicle's body is at the start and at the end of a step: its front [m] along
-    the road and its centre [m] across it (the road's y), with its size [m]."""
+    the road and its centre [m] across it (the road's y), with its size [m]. ``short_m``: how
+    far behind ``s_end_m`` its front may end the step (a vehicle of no command braking within
+    it: :func:`braking_short_m`)."""
 
     s_m: float
     y_m: float
@@ -107,12 +109,27 @@ class Footprint:
     y_end_m: float
     length_m: float
     width_m: float
+    short_m: float = 0.0
+
+
+def braking_short_m(speed_mps: float, decel_mps2: float, dt_s: float) -> float:
+    """How far [m] short of ``speed * dt`` a vehicle at ``speed_mps`` ends a step of ``dt_s``
+    braking at ``decel_mps2`` from its start (to a stop at most)."""
+    v, b = max(speed_mps, 0.0), max(decel_mps2, 0.0)
+    if b <= 0.0 or dt_s <= 0.0:
+        return 0.0
+    if v <= b * dt_s:  # it stops within the step
+        return v * dt_s - v * v / (2.0 * b)
+    return 0.5 * b * dt_s * dt_s
 
 
 def _overlap(a: Footprint, b: Footprint, end: bool, clearance_m: float) -> bool:
     sa, ya = (a.s_end_m, a.y_end_m) if end else (a.s_m, a.y_m)
     sb, yb = (b.s_end_m, b.y_end_m) if end else (b.s_m, b.y_m)
-    lengthwise = sa - a.length_m < sb + clearance_m and sb - b.length_m < sa + clearance_m
+    # At the end, each body anywhere from where it brakes to where it keeps its speed.
+    la = a.length_m + (a.short_m if end else 0.0)
+    lb = b.length_m + (b.short_m if end else 0.0)
+    lengthwise = sa - la < sb + clearance_m and sb - lb < sa + clearance_m
     return lengthwise and abs(ya - yb) < 0.5 * (a.width_m + b.width_m) + clearance_m
 
 
@@ -126,13 +143,14 @@ def sideways_conflicts(
     to be held, every mover of such a pair."""
     ordered = sorted(footprints.items(), key=lambda item: item[1].s_end_m)
     fronts = [fp.s_end_m for _, fp in ordered]
-    reach = max((fp.length_m for fp in footprints.values()), default=0.0) + clearance_m
+    reach = max((fp.length_m + fp.short_m for fp in footprints.values()), default=0.0)
+    reach += clearance_m
     held = set()
     for vid in movers:
         a = footprints.get(vid)
         if a is None:
             continue
-        lo = bisect_left(fronts, a.s_end_m - a.length_m - clearance_m)
+        lo = bisect_left(fronts, a.s_end_m - a.length_m - a.short_m - clearance_m)
         hi = bisect_right(fronts, a.s_end_m + reach)
         for other, b in ordered[lo:hi]:
             new = _overlap(a, b, True, clearance_m) and not _overlap(a, b, False, clearance_m)

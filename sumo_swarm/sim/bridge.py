@@ -26,7 +26,13 @@ from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import overlapping_ahead, snapshot_of, within
 from sumo_swarm.core.routeframe import RouteFrame
-from sumo_swarm.core.stepsafe import Footprint, capped_speeds, net_applies, sideways_conflicts
+from sumo_swarm.core.stepsafe import (
+    Footprint,
+    braking_short_m,
+    capped_speeds,
+    net_applies,
+    sideways_conflicts,
+)
 from sumo_swarm.core.swarming.decision import keep_right_due_s
 from sumo_swarm.errors import ConfigError, SimulationError
 
@@ -873,6 +879,25 @@ class SumoSession(SessionBase):
         capped = capped_speeds(commands, states, leaders_of, decel_of, dt, STEP_SAFE_MARGIN_M)
         for vid, speed in capped.items():
             self._command(vid, self.api.vehicle.setSpeed, speed)
+        lateral: dict[str, float] = {}
+
+        def sideways_of(vid: str) -> float:
+            """How far [m] ``vid`` moves sideways this step: as commanded (a CAV told to stay,
+            not at all), any other vehicle at SUMO's lateral speed now (a car changing lanes
+            moves on: at 1 s a CAV moving into the middle lane met a car moving in from the
+            other side)."""
+            if vid in sideways:
+                return sideways[vid]
+            if vid in stays:
+                return 0.0
+            move = lateral.get(vid)
+            if move is None:
+                try:
+                    move = lateral[vid] = self.api.vehicle.getLateralSpeed(vid) * dt
+                except Exception:  # vanished
+                    move = lateral[vid] = 0.0
+            return move
+
         held = set()
         for vid in sideways:  # moves that meet another vehicle's at the end of the step
             road = self.road_at(vid)
@@ -883,9 +908,16 @@ class SumoSession(SessionBase):
             for other in within(snapshot_of(table, road), table[vid].s_m, SIDEWAYS_REACH_M):
                 y = road.y_of(other.lane, other.lat_m)
                 v = capped.get(other.vehicle_id, other.speed_mps)
+                # A vehicle of no command may brake within the step (as the speeds' net takes
+                # it): its front anywhere from there to where it keeps its speed (a car moving
+                # into the middle lane braked, 25.3 -> 22.6 m/s in the 1 s step, and came level
+                # with a CAV moving in from the other side).
+                short = 0.0 if other.vehicle_id in capped else braking_short_m(
+                    v, decel_of(other.vehicle_id), dt
+                )  # fmt: skip
                 prints[other.vehicle_id] = Footprint(
-                    other.s_m, y, other.s_m + v * dt, y + sideways.get(other.vehicle_id, 0.0),
-                    other.length_m, other.width_m,
+                    other.s_m, y, other.s_m + v * dt, y + sideways_of(other.vehicle_id),
+                    other.length_m, other.width_m, short,
                 )  # fmt: skip
             held |= sideways_conflicts([vid], prints, SIDEWAYS_CLEARANCE_M)
         self._send_sideways({v: d for v, d in sideways.items() if v not in held}, stays | held)

@@ -15,7 +15,7 @@ from sumo_swarm.errors import ConfigError
 # The commands hold for a whole step; at steps longer than the CAVs' tau the bridge makes them
 # safe for it (core/stepsafe.py: speeds capped on the leaders' commands or worst braking, SUMO's
 # own leader along the route among them, sublane moves that meet another body by the end of the
-# step held, a move under way stopped when the next command is no move), and the tracker drives
+# step held, the others moving on sideways and maybe braking, a move under way stopped when the next command is no move), and the tracker drives
 # the step on the MPC's clock (core/swarming/tracker.py). Measured with the swarm, collisions
 # counted with --collision.mingap-factor 0 (docs/results.md, "SUMO's step length"):
 #   0.5 s: the 40 paper-scene variants of scenarios/variants.toml 0 collisions, 0 hard brakes;
@@ -24,8 +24,8 @@ from sumo_swarm.errors import ConfigError
 #          300 s) 0 swarm collisions.
 #   1 s:   the paper scene +15.3 %, regrouped; the 40 variants 0 collisions, 0 CAV hard brakes,
 #          but 12 human drivers brake harder than 4 m/s^2 behind a platoon's tail (cacc: 0); the
-#          users' roads 0 collisions, 0 CAV hard brakes; the corridor checks 1 collision (a CAV
-#          and a car moving into the middle lane in the same step, side by side).
+#          users' roads 0 collisions, 0 CAV hard brakes; the corridor checks 0 swarm collisions
+#          (sumo-cacc: 136).
 MAX_SWARM_STEP_S = 0.5  # [s]
 STEP_TOLERANCE_S = 1e-9  # [s] SUMO keeps the step in milliseconds; float noise is no excess
 
