@@ -15,8 +15,9 @@ from sumo_swarm.errors import ConfigError
 # The commands hold for a whole step; at steps longer than the CAVs' tau the bridge makes them
 # safe for it (core/stepsafe.py: speeds capped on the leaders' commands or worst braking, SUMO's
 # own leader along the route among them, sublane moves that meet another body by the end of the
-# step held, the others moving on sideways and maybe braking, a move under way stopped when the next command is no move), and the tracker drives
-# the step on the MPC's clock (core/swarming/tracker.py). Measured with the swarm, collisions
+# step held, the others moving on sideways and maybe braking, a move under way stopped when
+# the next command is no move), and the tracker drives the step on the MPC's clock
+# (core/swarming/tracker.py). Measured with the swarm, collisions
 # counted with --collision.mingap-factor 0 (docs/results.md, "SUMO's step length"):
 #   0.5 s: the 40 paper-scene variants of scenarios/variants.toml 0 collisions, 0 hard brakes;
 #          the paper scene +16.2 % over cacc at 0.5 s, regrouped; the seven users' roads 0
