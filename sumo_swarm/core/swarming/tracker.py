@@ -4,7 +4,7 @@ The longitudinal MPC works in time, the lateral one in space; both are re-solved
 ``[swarm] control_interval_s`` (rounded to whole SUMO steps) and their input sequences
 applied in between (zero-order hold on the MPC's own step). :meth:`Tracker.command` returns
 what the CAV should do this step; the controller applies the guards, then
-:meth:`Tracker.commit` integrates the heading.
+:meth:`Tracker.commit` takes the heading it ends the step with.
 
 A SUMO step longer than the MPC's own step (``dt_s``, 0.1 s) is driven on the MPC's clock:
 the inputs solved for each of its steps within the SUMO step are applied in turn to the
@@ -39,7 +39,6 @@ class TrackCommand:
 
     accel_mps2: float  # longitudinal acceleration (mean over the step)
     dlat_m: float  # lateral move over the step
-    delta_rad: float  # front-wheel angle (the last within the step)
     lat_error_m: float  # lateral distance from the reference now
     phi_end_rad: float = 0.0  # heading at the end of the step, moving as commanded
 
@@ -127,12 +126,13 @@ class Tracker:
             dlat += speed * h * math.sin(phi)
             phi += speed * h * (math.tan(delta) / self.lat.wheelbase_m - road.curvature_1pm)
             dv += accel * h
-        return TrackCommand(dv / dt_s, dlat, delta, y - ref.y_at_s(centre), phi)
+        return TrackCommand(dv / dt_s, dlat, y - ref.y_at_s(centre), phi)
 
     def commit(
         self, ego: VehicleState, cmd: TrackCommand, held: bool, road: RoadSection, dt_s: float
     ) -> None:
-        """Integrate the heading; a move held by the guard stops turning towards the lane."""
+        """The heading at the end of the step (:meth:`command` integrated it); a move held by
+        the guard stops turning towards the lane."""
         vid = ego.vehicle_id
         self.phi[vid] = 0.0 if held else cmd.phi_end_rad
 
