@@ -51,7 +51,8 @@ class SimulationSettings:
         The SUMO network file, relative to the scenario file; a copied file whose network is not
         beside it falls back to the built-in network of that name.
     step_length_s
-        SUMO's step length [s] (the paper: 0.03 s; the swarm needs 0.5 s or less).
+        SUMO's step length [s] (the paper: 0.03 s; the swarm runs at 1 s, SUMO's default, or
+        less; the baselines at any step).
     duration_s
         How long the simulation runs [s].
     seed
@@ -76,7 +77,7 @@ class SimulationSettings:
 
     def __post_init__(self) -> None:
         check_positive(self, "duration_s", "lateral_resolution_m")
-        check_fields(self, "step_length_s", gt=0.0, le=1.0)
+        check_fields(self, "step_length_s", gt=0.0)
         check_fields(self, "seed", ge=0, le=SEED_MAX, integer=True)
         if not self.route_edges:
             raise ConfigError("route_edges must name at least one edge")

@@ -194,8 +194,9 @@ def test_settings_reference_reads_ranges_from_the_checks() -> None:
     """The range comes from the class's own checks: a check changed is a page changed."""
     reference = load_tool("settings_reference")
     by_key = {(k.section, k.name): k for k in reference.all_keys()}
-    assert by_key[("simulation", "step_length_s")].range == "> 0 and <= 1"
+    assert by_key[("simulation", "step_length_s")].range == "> 0"
     assert by_key[("simulation", "step_length_s")].unit == "s"
+    assert by_key[("simulation", "seed")].range.startswith(">= 0 and <= ")  # both bounds
     assert by_key[("cav", "accel_min_mps2")].range == "< 0"
     assert by_key[("longitudinal", "v_min")].range == "< v_max"
     assert by_key[("outputs", "trajectories")].range == '"all", "cavs"'

@@ -15,6 +15,7 @@ from sumo_swarm.core.stepsafe import (
     Footprint,
     braking_short_m,
     capped_speeds,
+    leader_cap,
     safe_speed,
     sideways_conflicts,
 )
@@ -93,6 +94,9 @@ def test_a_leader_of_no_command_may_brake_within_the_step_and_one_alongside_is_s
     out = capped_speeds({"c": 25.0}, states, lambda v: ahead, {"h": 4.5, "c": 4.0, "x": 9.0}.get,
                         0.5, 0.5)  # fmt: skip
     assert out["c"] == pytest.approx(safe_speed(14.5, 20.0 - 4.5 * 0.5, 4.5, 4.0, 0.5))
+    assert out["c"] == leader_cap(14.5, 20.0, None, 4.5, 4.0, 0.5)  # what a controller asks
+    # One commanded for the step is taken at its command (a CAV ahead, commanded first).
+    assert leader_cap(14.5, 20.0, 18.0, 4.5, 4.0, 0.5) == safe_speed(14.5, 18.0, 4.5, 4.0, 0.5)
     # A command already below the cap is left as it is.
     assert capped_speeds({"c": 5.0}, states, lambda v: ahead, {"h": 4.5, "c": 4.0}.get, 0.5,
                          0.5) == {"c": 5.0}  # fmt: skip

@@ -6,6 +6,7 @@ import dataclasses
 import json
 import math
 
+import numpy as np
 import pytest
 
 from sumo_swarm.core.hvmodel import DriverModel, braking_needed
@@ -367,6 +368,71 @@ def test_gap_guard_keeps_the_minimum_gap_behind_a_leader_braking_steadily():
         gaps.append(s_lead - 5.0 - s_ego)
     assert min(gaps) >= 5.0
     assert min(gaps) < 6.0  # it did close in: the guard, not a wide start, kept the gap
+
+
+@pytest.mark.parametrize(
+    ("gap_gain", "speed_gain", "step_s"),
+    [(0.8, 1.5, 0.5), (0.8, 1.5, 1.0), (1.0, 3.0, 0.3), (1.0, 3.0, 1.0)],  # complex, real poles
+)
+def test_gap_gains_at_a_long_step_have_the_continuous_laws_poles(gap_gain, speed_gain, step_s):
+    # Applied once per step (a speed held for the step, SUMO's Euler update), the guard's loop
+    # is z^2 + (kv dt + kg dt^2 - 2) z + (1 - kv dt); its roots must be the continuous law's
+    # (s^2 + kv s + kg) mapped to exp(s dt).
+    kg, kv = GuardSettings(gap_gain=gap_gain, speed_gain=speed_gain).gap_gains(step_s)
+    got = np.sort_complex(np.roots([1.0, kv * step_s + kg * step_s**2 - 2.0, 1.0 - kv * step_s]))
+    want = np.sort_complex(np.exp(np.roots([1.0, speed_gain, gap_gain]) * step_s))
+    assert np.allclose(got, want, atol=1e-9)
+
+
+def test_gap_gains_known_values():
+    g = GuardSettings()
+    assert g.gap_gains(0.1) == (0.8, 1.5)  # up to the CAVs' tau: the gains as given
+    assert g.gap_gains(0.2) == (0.8, 1.5)
+    # By hand at 1 s: exp(-1.5) = 0.22313 (pole product), 2 exp(-0.75) cos(0.48734) = 0.83475
+    # (pole sum): kv = 1 - 0.22313, kg = 1 - 0.83475 + 0.22313.
+    assert g.gap_gains(1.0) == pytest.approx((0.38838, 0.77687), abs=1e-5)
+
+
+def _column_under_the_gap_guard(step_s: float, discrete: bool, n: int = 12) -> tuple[float, float]:
+    """(tail's lowest speed, smallest gap) of ``n`` CAVs 6 m apart at 18 m/s, each driven by
+    the gap guard alone (it wants +3 m/s^2, brakes at most 4), commanded front to back and
+    moved by SUMO's Euler update, behind a leader braking at 3 m/s^2 to 12 m/s, holding it 1 s
+    and speeding up again; ``discrete``: the guard at the step with the speeds already
+    commanded, else the continuous law on the last step's speeds."""
+    y = ROAD.lane_centre_y(1)
+    s, v, a = [300.0 - 11.0 * i for i in range(n)], [18.0] * n, [0.0] * n
+    tail_mps, gap_m = 18.0, 6.0
+    for k in range(round(20.0 / step_s)):
+        t = (k + 1) * step_s
+        now = {"c0": min(18.0, max(12.0, 18.0 - 3.0 * t), max(12.0, 3.0 + 3.0 * t))}
+        states = [VehicleState(f"c{i}", s[i], 1, 0.0, v[i], 5.0, a[i], True) for i in range(n)]
+        for i in range(1, n):
+            limit = gap_accel_limit(
+                states[i], y, y, states, ROAD, 5.0, 1.8,
+                step_s=step_s if discrete else 0.0, speeds_now=now if discrete else None,
+            )  # fmt: skip
+            now[f"c{i}"] = max(0.0, v[i] + max(-4.0, min(3.0, limit)) * step_s)
+        for i in range(n):
+            a[i], v[i] = (now[f"c{i}"] - v[i]) / step_s, now[f"c{i}"]
+            s[i] += v[i] * step_s
+        tail_mps = min(tail_mps, v[-1])
+        gap_m = min(gap_m, *(s[i - 1] - 5.0 - s[i] for i in range(1, n)))
+    return tail_mps, gap_m
+
+
+@pytest.mark.parametrize("step_s", [0.5, 1.0])
+def test_gap_guard_at_long_steps_passes_a_dip_down_a_column_no_deeper_than_at_01s(step_s):
+    # At the paper's 0.1 s the twelfth CAV dips to 7.8 m/s and the column closes to 1.2 m.
+    # At 1 s the law as given, on the last step's speeds, drove the column through itself
+    # (12-CAV paper-scene variants at 1 s: the tail stopped, the drivers behind braked beyond
+    # 4 m/s^2); the discrete guard keeps the tail at the leader's 12 m/s less the 2 a step can
+    # not follow.
+    paper_tail, paper_gap = _column_under_the_gap_guard(0.1, discrete=False)
+    assert (paper_tail, paper_gap) == pytest.approx((7.82, 1.2), abs=0.01)
+    tail, gap = _column_under_the_gap_guard(step_s, discrete=True)
+    assert tail >= 10.0 - 1e-9
+    assert gap > paper_gap + 1.0
+    assert _column_under_the_gap_guard(1.0, discrete=False)[1] < 0.0  # why: a collision
 
 
 def refusal(ego, others, dlat=0.3):

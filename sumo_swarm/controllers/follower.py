@@ -21,8 +21,8 @@ from sumo_swarm.controllers.lanes import LaneView
 from sumo_swarm.controllers.reform import clip
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import Snapshot, snapshot_of
-from sumo_swarm.core.stepsafe import net_applies
+from sumo_swarm.core.neighbours import Snapshot, snapshot_of, vehicle_ahead
+from sumo_swarm.core.stepsafe import STEP_SAFE_MARGIN_M, leader_cap, net_applies
 from sumo_swarm.core.swarming.guards import (
     gap_accel_limit,
     gentle_for_follower,
@@ -81,6 +81,7 @@ class PlanFollower:
         solve = self.tracker.tick()
         cap = cap_mps if math.isfinite(cap_mps) else ctx.cav.max_speed_mps
         gentle = sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2
+        commanded: dict[str, float] = {}  # this step's speeds, front to back
         for vid in platoon:
             ego = states[vid]
             ref = references.get(vid)
@@ -127,15 +128,50 @@ class PlanFollower:
                 accel, gentle_for_follower(ego, others, road, sc.cav.width_m, gentle, sc.guards)
             )
             limit = gap_accel_limit(
-                ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
-            )
+                ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards,
+                step_s=dt, speeds_now=commanded,
+            )  # fmt: skip
             accel = min(max(min(accel, limit), sc.cav.accel_min_mps2), sc.cav.accel_max_mps2)
             # Above the cap (a CAV that departed faster, a lower limit ahead) it comes down to
             # it gently, never by a jump in the commanded speed (SUMO would brake at decel).
             floor = ego.speed_mps - CAP_DECEL_MPS2 * dt
             v_cmd = min(ego.speed_mps + accel * dt, max(cap, floor))
-            ctx.session.set_speed(vid, max(v_cmd, 0.0))
+            if net_applies(dt):
+                # What the step-safety net will let it drive behind the vehicles the gap guard
+                # looks at (SumoSession.flush_commands): the speed handed on to the CAVs behind
+                # is then the one SUMO gets (a CAV commanded 21.8 m/s, capped to 19.5 behind the
+                # truck ahead, was taken at 21.8 by the CAV behind it, which closed to 3.6 m).
+                v_cmd = min(v_cmd, self._net_cap(ego, {y, y + dlat}, others, road, commanded))
+            commanded[vid] = max(v_cmd, 0.0)
+            ctx.session.set_speed(vid, commanded[vid])
             ctx.session.change_sublane(vid, dlat)
+
+    def _net_cap(
+        self,
+        ego: VehicleState,
+        ys: set[float],
+        others: Snapshot,
+        road: RoadSection,
+        commanded: Mapping[str, float],
+    ) -> float:
+        """The step-safety net's cap [m/s] (:func:`~sumo_swarm.core.stepsafe.leader_cap`) on
+        ego behind the nearest vehicle ahead at each of ``ys``, a CAV commanded this step at
+        its command."""
+        sc = self.ctx.scenario
+        dt = self.ctx.dt_s
+        own = -sc.cav.accel_min_mps2
+        cap = math.inf
+        for y in ys:
+            ahead = vehicle_ahead(ego, others, road, y_m=y, width_m=sc.cav.width_m)
+            if ahead is None or ahead[1] <= 0.0:  # alongside: the lateral guards' to judge
+                continue
+            lead, gap = ahead
+            decel = own if lead.is_cav else self.model_of(lead.vehicle_id).decel_mps2
+            command = commanded.get(lead.vehicle_id)
+            cap = min(
+                cap, leader_cap(gap - STEP_SAFE_MARGIN_M, lead.speed_mps, command, decel, own, dt)
+            )
+        return cap
 
     def _refusal(
         self,

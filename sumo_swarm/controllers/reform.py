@@ -799,7 +799,7 @@ class Reformer:
         if refusal is None and commit is not None and dlat != 0.0:
             self.floors[ego.vehicle_id] = commit[0]  # as the guard was told: it speeds up
         limit = gap_accel_limit(
-            ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards
+            ego, y, y + dlat, others, road, sc.cav.min_gap_m, sc.cav.width_m, sc.guards, step_s
         )
         bound = min(accel, limit)
         if ego.vehicle_id in self.floors:

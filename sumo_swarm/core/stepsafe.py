@@ -35,6 +35,9 @@ from sumo_swarm.core.model import VehicleState
 # check holds within the step, and the net is not applied (the paper's 0.1 s runs, the corridor
 # studies' 0.2 s, stay as they were); at longer steps it is.
 CAV_TAU_S = 0.2
+# What a commanded CAV keeps to the vehicle ahead once both stopped [m]: the controllers' SUMO
+# minGap (controllers.base.CAV_MIN_GAP_M), under which SUMO's own check would brake it anyway
+STEP_SAFE_MARGIN_M = 0.5
 
 
 def net_applies(step_s: float) -> bool:
@@ -88,12 +91,30 @@ def capped_speeds(
                 if gap <= 0.0:
                     continue
                 lead_decel = decel_of(leader.vehicle_id)
-                lead = out.get(leader.vehicle_id)
-                if lead is None:
-                    lead = max(leader.speed_mps - lead_decel * dt_s, 0.0)
-                speed = min(speed, safe_speed(gap - margin_m, lead, lead_decel, own, dt_s))
+                lead_cap = leader_cap(
+                    gap - margin_m, leader.speed_mps, out.get(leader.vehicle_id), lead_decel,
+                    own, dt_s,
+                )  # fmt: skip
+                speed = min(speed, lead_cap)
         out[vid] = speed
     return out
+
+
+def leader_cap(
+    gap_m: float,
+    lead_mps: float,
+    lead_command_mps: float | None,
+    lead_decel_mps2: float,
+    decel_mps2: float,
+    dt_s: float,
+) -> float:
+    """:func:`safe_speed` behind one leader as :func:`capped_speeds` takes it: at its command
+    for the step (``lead_command_mps``, a CAV commanded first) or, with none, braking at its
+    decel within the step from ``lead_mps``."""
+    lead = lead_command_mps
+    if lead is None:
+        lead = max(lead_mps - lead_decel_mps2 * dt_s, 0.0)
+    return safe_speed(gap_m, lead, lead_decel_mps2, decel_mps2, dt_s)
 
 
 @dataclass(frozen=True)

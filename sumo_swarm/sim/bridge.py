@@ -27,6 +27,7 @@ from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import overlapping_ahead, snapshot_of, within
 from sumo_swarm.core.routeframe import RouteFrame
 from sumo_swarm.core.stepsafe import (
+    STEP_SAFE_MARGIN_M,
     Footprint,
     braking_short_m,
     capped_speeds,
@@ -59,9 +60,6 @@ KEEP_RIGHT_RATE_WINDOW_S = 1.0
 STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
 HARD_BRAKE_LINE_MPS2 = 4.0  # the contract's hard-brake line (sim.metrics.HARD_BRAKE_MPS2)
-# What a commanded CAV keeps to the vehicle ahead once both stopped [m]: the controllers' SUMO
-# minGap (controllers.base.CAV_MIN_GAP_M), under which SUMO's own check would brake it anyway
-STEP_SAFE_MARGIN_M = 0.5
 LEADER_REACH_EXTRA_M = 30.0  # beyond a CAV's stopping reach, for a truck's length [m]
 SIDEWAYS_REACH_M = 60.0  # vehicles whose fronts are this near a CAV moving sideways [m]
 SIDEWAYS_CLEARANCE_M = 0.3  # what two bodies keep at the end of a step (guards' side_clearance)
