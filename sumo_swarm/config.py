@@ -651,7 +651,7 @@ class HvModelSettings:
     predictor
         How HVs are predicted: by their car-following model, or at constant speed.
     prediction_dt_s
-        Time step of the HV prediction [s].
+        Time step of the HV prediction [s] (SUMO's step where that is longer).
     """
 
     b_safe_mps2: float = 2.0

@@ -125,13 +125,18 @@ class SwarmController:
         self.book = ManoeuvreBook(ctx.event, sc.cav.min_gap_m)
         self.planner_settings = sc.planner
         planner = self._planner_override or make_planner(self.planner_settings)
+        # The HVs are predicted on SUMO's clock where it is coarser than the prediction's own:
+        # SUMO moves them once a step (at 1 s, predicted in 0.25 s steps, they were off their
+        # predictions by more than PREDICTION_ERROR_M six times as often as at 0.5 s, each a
+        # replan).
+        prediction_dt_s = max(sc.hvmodel.prediction_dt_s, ctx.dt_s)
         manoeuvre = ManoeuvrePlanner(
             planner,
             ManoeuvreSettings(
                 planner=self.planner_settings, grid=sc.grid,
                 b_safe_mps2=sc.hvmodel.b_safe_mps2, planner_share=sc.hvmodel.planner_share,
                 margin_rule=sc.hvmodel.margin_rule, predictor=sc.hvmodel.predictor,
-                prediction_dt_s=sc.hvmodel.prediction_dt_s, target_b_mps2=sc.hvmodel.target_b_mps2,
+                prediction_dt_s=prediction_dt_s, target_b_mps2=sc.hvmodel.target_b_mps2,
                 block_decel_share=sc.hvmodel.block_decel_share,
                 entry_speed_gain_mps=sc.hvmodel.entry_speed_gain_mps,
                 a_min_mps2=sc.cav.accel_min_mps2, a_max_mps2=sc.cav.accel_max_mps2,
