@@ -25,10 +25,11 @@ from sumo_swarm.errors import ConfigError
 #          0 CAV hard brakes; the corridor checks (4 roads x 2 shares x 2 seeds, 300 s) 0 swarm
 #          collisions.
 #   1 s:   the paper scene +17.0 %, regrouped, min CAV gap 5.8 m; the 40 variants 0 collisions,
-#          0 CAV hard brakes, one human driver braking beyond 4 m/s^2 (an HV changing lanes
-#          1.7 m behind another, in SUMO's sublane model; 12 behind platoons' tails before the
-#          discrete gap guard); the users' roads 0 collisions, 0 CAV hard brakes; the corridor
-#          checks 0 swarm collisions (sumo-cacc: 136).
+#          0 CAV hard brakes, two human drivers braking beyond 4 m/s^2 (an HV changing lanes
+#          1.7 m behind another, in SUMO's sublane model; one that moved in 11 m behind a
+#          braking platoon; 12 behind platoons' tails before the discrete gap guard); the users'
+#          roads 0 collisions, 0 CAV hard brakes; the corridor checks 0 swarm collisions
+#          (sumo-cacc: 136).
 MAX_SWARM_STEP_S = 1.0  # [s]
 STEP_TOLERANCE_S = 1e-9  # [s] SUMO keeps the step in milliseconds; float noise is no excess
 
