@@ -144,3 +144,21 @@ def test_the_swarm_controller_offers_the_fleet_every_declared_name():
     for name in (*Controller.__annotations__, *SwarmMember.__annotations__):
         assert hasattr(swarm, name), name
     assert swarm.idle() and swarm.planned_paths() == {} and swarm.manoeuvre_region(0.0) is None
+
+
+@pytest.mark.parametrize(
+    ("step_s", "predicted_s"), [(0.03, 0.25), (0.25, 0.25), (0.5, 0.5), (1.0, 1.0)]
+)
+def test_the_swarm_predicts_the_hvs_on_sumos_clock_where_it_is_coarser(
+    tmp_path, step_s, predicted_s
+):
+    # SUMO moves its drivers once a step: at 1 s, predicted in 0.25 s steps, they were off
+    # their predictions six times as often as at 0.5 s (a replan each time).
+    ctx = RunContext(SessionBase(step_length_s=step_s), Scenario(name="t", path=None), (),
+                     RoadSection((3.2, 3.2, 3.2)))  # fmt: skip
+    ctx.out_dir = tmp_path
+    swarm = SwarmController()
+    swarm.attach(ctx)
+    assert swarm.replanner.manoeuvre.settings.prediction_dt_s == predicted_s
+    assert ctx.scenario.hvmodel.prediction_dt_s == 0.25  # the setting as given
+    swarm.close()
