@@ -239,6 +239,9 @@ def test_two_swarms_overtaking_near_each_other_never_plan_into_the_same_space(tm
     targets = {e["platoon"]: e["target"] for e in events if e["event"] == "overtake_start"}
     assert len(targets) >= 2
     plans = [json.loads(line) for line in (tmp_path / "swarm" / "plans.jsonl").open()]
+    # The summary's planner block counts every swarm's plans (it counted the first swarm's).
+    assert sum(out["planner"]["statuses"].values()) == len(plans)
+    assert out["planner"]["solves"] == len(plans)
     plans = [p for p in plans if p.get("cells")]
     assert len({p["platoon"] for p in plans}) >= 2
     # No cell of one swarm's plan overlaps a cell of another swarm's plan at the same time.
@@ -293,3 +296,26 @@ def test_a_cav_off_centre_in_its_lane_joins_nobody():
     assert not may_join(cav(0.0, 0.0), cav(30.0, -0.4), 25.0)
     assert not may_join(cav(0.0, 0.3), cav(30.0, 0.0), 25.0)
     assert not may_join(cav(0.0, 0.0, v=25.0), cav(30.0, 0.0, v=0.0), 25.0)  # cannot follow
+
+
+def test_plan_stats_add_up_across_swarms():
+    from collections import Counter
+
+    from sumo_swarm.controllers.replanner import PlanStats
+
+    a = PlanStats([10.0, 30.0], [9.0, 29.0], Counter(optimal=2), Counter(initial=2), 0,
+                  Counter(), Counter(tried=1))  # fmt: skip
+    b = PlanStats([20.0], [19.0], Counter(infeasible=1), Counter(prediction=1), 1,
+                  Counter(guard=1), Counter(tried=1, planned=1))  # fmt: skip
+    total = PlanStats()
+    total.add(a)
+    total.add(b)
+    block = total.block()
+    assert (
+        block["solves"] == 3 and block["solve_ms_median"] == 20.0 and block["solve_ms_max"] == 30.0
+    )
+    assert block["statuses"] == {"optimal": 2, "infeasible": 1}
+    assert block["triggers"] == {"initial": 2, "prediction": 1}
+    assert block["fallbacks"] == 1 and block["relaxations"] == {"guard": 1}
+    assert block["grid_retries"] == {"tried": 2, "planned": 1}
+    assert a.solve_ms == [10.0, 30.0]  # the swarms' own stats are left as they were

@@ -60,6 +60,7 @@ from sumo_swarm.controllers.base import (
     restore_gaps,
 )
 from sumo_swarm.controllers.cacc import command_cacc
+from sumo_swarm.controllers.replanner import PlanStats
 from sumo_swarm.controllers.session import SessionView
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import ordered_platoon, snapshot_of, vehicle_ahead
@@ -183,6 +184,7 @@ class SwarmMember(Controller, Protocol):
     t_start_s: float | None  # when its first manoeuvre started [s] (None: none yet)
     routes: RouteWatch  # its CAVs whose routes part leave it
     blocks: BlockWatch  # the HVs its plans blocked, with their strongest braking
+    stats: PlanStats  # its planning calls (the summary's planner block sums every swarm's)
     planlog: Any  # where it writes its plans (plans.jsonl), or None
     drawer: Any  # a sumo-gui plan drawer, or None
 
@@ -352,6 +354,7 @@ class Fleet:
         # table can take its id while the entry is kept (one step)
         self._views: dict[tuple[int, frozenset[str]], tuple[dict, dict[str, VehicleState]]] = {}
         self._handed: set[str] = set()  # CAVs once in a platoon, now free: CACC for the speed
+        self._plan_stats = PlanStats()  # the planning calls of the swarms retired
         self._off_frame: set[str] = set()  # ... that left the route frame: SUMO drives them
         self._single: SwarmMember | None = None  # grouping = "one"
         self._parted: set[str] = set()  # CAVs whose exit came near: no platoon again
@@ -706,6 +709,7 @@ class Fleet:
         self._note_first()  # before it goes: the summary's overtake block may be its
         platoon.controller.dissolve(self.ctx.session.time_s)  # what it had under way ends
         _merge_min(counts.blocked_min, _blocked_of(platoon.controller))
+        self._plan_stats.add(platoon.controller.stats)
         if platoon is self._first:
             self._first_summary = platoon.controller.summary()
         close_controller(platoon.controller)
@@ -773,6 +777,13 @@ class Fleet:
         else:
             out = dict(self._kind.summary())
         out["swarms"] = self.swarms_block()
+        # Every swarm's planning calls, not the first's alone (a corridor's summary showed 0
+        # solves of a run that planned 106 times).
+        stats = PlanStats()
+        stats.add(self._plan_stats)
+        for platoon in self.platoons:
+            stats.add(platoon.controller.stats)
+        out["planner"] = stats.block()
         manoeuvres = self.manoeuvres()
         out["manoeuvres"] = manoeuvres
         overtake = out.get("overtake")

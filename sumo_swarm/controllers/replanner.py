@@ -79,6 +79,16 @@ class PlanStats:
     relaxations: Counter[str] = field(default_factory=Counter)
     grid_retries: Counter[str] = field(default_factory=Counter)  # "tried", "planned"
 
+    def add(self, other: PlanStats) -> None:
+        """Count ``other``'s planning calls in with these (every swarm of a run)."""
+        self.solve_ms += other.solve_ms
+        self.solve_cpu_ms += other.solve_cpu_ms
+        self.statuses += other.statuses
+        self.triggers += other.triggers
+        self.fallbacks += other.fallbacks
+        self.relaxations += other.relaxations
+        self.grid_retries += other.grid_retries
+
     def block(self) -> dict[str, Any]:
         return {
             "solves": len(self.solve_ms),
