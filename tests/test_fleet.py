@@ -150,6 +150,11 @@ def test_a_users_flow_with_cavs_in_a_type_distribution_forms_several_swarms(tmp_
     assert all("follow" in e["scores_m"] for e in weighed)
     plans = [json.loads(line) for line in (tmp_path / "swarm" / "plans.jsonl").open()]
     assert all("platoon" in p for p in plans)
+    # Every swarm's plans and tracking in the summary (they were the first swarm's alone).
+    assert swarm["planner"]["solves"] == len(plans)
+    if any(p.get("cells") for p in plans):
+        assert swarm["tracking"]["solve_ms_per_cav_median"] is not None
+        assert swarm["cav"]["lat_error_rms_m"] is not None
 
 
 def _cavs(ids, lane, first_pos, speed):

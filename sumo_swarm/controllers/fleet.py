@@ -46,6 +46,7 @@ import functools
 import itertools
 import logging
 import math
+from array import array
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
@@ -64,6 +65,7 @@ from sumo_swarm.controllers.replanner import PlanStats
 from sumo_swarm.controllers.session import SessionView
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import ordered_platoon, snapshot_of, vehicle_ahead
+from sumo_swarm.core.stats import lateral_rms, summarise_ms
 from sumo_swarm.core.swarming.account import (
     manoeuvres_from_events,
     overtake_counts,
@@ -198,6 +200,10 @@ class SwarmMember(Controller, Protocol):
 
     def dissolve(self, t_s: float) -> None:
         """It has no CAV left: what it had under way ends."""
+        ...
+
+    def tracking_samples(self) -> tuple[list[float], list[float]]:
+        """(lateral tracking errors [m], MPC solve times [ms]) of its CAVs so far."""
         ...
 
     def planned_paths(self) -> Mapping[str, Callable[[float], float]]:
@@ -355,6 +361,8 @@ class Fleet:
         self._views: dict[tuple[int, frozenset[str]], tuple[dict, dict[str, VehicleState]]] = {}
         self._handed: set[str] = set()  # CAVs once in a platoon, now free: CACC for the speed
         self._plan_stats = PlanStats()  # the planning calls of the swarms retired
+        self._lat_errors = array("d")  # ... their CAVs' lateral tracking errors [m]
+        self._mpc_ms = array("d")  # ... and their MPC solve times [ms]
         self._off_frame: set[str] = set()  # ... that left the route frame: SUMO drives them
         self._single: SwarmMember | None = None  # grouping = "one"
         self._parted: set[str] = set()  # CAVs whose exit came near: no platoon again
@@ -710,6 +718,9 @@ class Fleet:
         platoon.controller.dissolve(self.ctx.session.time_s)  # what it had under way ends
         _merge_min(counts.blocked_min, _blocked_of(platoon.controller))
         self._plan_stats.add(platoon.controller.stats)
+        lat_errors, mpc_ms = platoon.controller.tracking_samples()
+        self._lat_errors.extend(e for e in lat_errors if e is not None)
+        self._mpc_ms.extend(mpc_ms)
         if platoon is self._first:
             self._first_summary = platoon.controller.summary()
         close_controller(platoon.controller)
@@ -784,6 +795,13 @@ class Fleet:
         for platoon in self.platoons:
             stats.add(platoon.controller.stats)
         out["planner"] = stats.block()
+        lat_errors, mpc_ms = list(self._lat_errors), list(self._mpc_ms)
+        for platoon in self.platoons:
+            lat, ms = platoon.controller.tracking_samples()
+            lat_errors += lat
+            mpc_ms += ms
+        out["lat_error_rms_m"] = lateral_rms(lat_errors)
+        out["mpc"] = summarise_ms(mpc_ms, prefix="solve_ms_per_cav_")
         manoeuvres = self.manoeuvres()
         out["manoeuvres"] = manoeuvres
         overtake = out.get("overtake")

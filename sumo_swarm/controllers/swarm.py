@@ -581,6 +581,12 @@ class SwarmController:
         if self.planlog is not None:  # never attached: nothing to close
             self.planlog.close()
 
+    def tracking_samples(self) -> tuple[list[float], list[float]]:
+        """(lateral tracking errors [m], MPC solve times [ms]) of its CAVs so far."""
+        if self.ctx is None:
+            return [], []
+        return self.follower.lat_errors, self.tracker.solve_ms
+
     def summary(self) -> dict[str, Any]:
         if self.ctx is None:  # never attached: the manoeuvre counters only, no parts yet
             interval, unit, speeds = None, 3.0, {"cap_mps": None, "cap_sources": {}}
