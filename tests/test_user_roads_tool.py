@@ -104,3 +104,12 @@ def test_over_seeds_sums_up_each_road_and_step():
     assert "## Over the seeds" not in ur.markdown(
         df[df["seed"] == "1"].assign(commit="abc"), "cmd", 90.0
     )
+
+
+def test_table_files_keep_a_dot_in_the_name():
+    # --table /work/runs/cost0.5 wrote cost0.md and cost0.csv (Path.with_suffix), and the
+    # table of the next step's run (cost0.2) overwrote them.
+    assert ur.table_file(Path("runs/cost0.5"), ".md") == Path("runs/cost0.5.md")
+    assert ur.table_file(Path("runs/cost0.5"), ".runs.csv") == Path("runs/cost0.5.runs.csv")
+    assert ur.table_file(Path("docs/bench/user_roads"), ".csv") == Path("docs/bench/user_roads.csv")
+    assert ur.table_file(Path("t.md"), ".csv") == Path("t.csv")  # an extension given: replaced

@@ -64,7 +64,7 @@ from sumo_swarm.sim.userroads import (  # noqa: E402
 )
 
 sys.path.insert(0, str(ROOT / "tools"))  # the users' roads tool, beside this one
-from user_roads import git_commit  # noqa: E402
+from user_roads import git_commit, table_file  # noqa: E402
 
 SWARM = "swarm"
 BASELINES = ("sumo-cacc", "sumo-lc")
@@ -568,11 +568,11 @@ def main(argv: list[str] | None = None) -> int:
     text = report(wide, shown, command.strip(), commit, args.end, made)
     print(text)
     args.table.parent.mkdir(parents=True, exist_ok=True)
-    args.table.with_suffix(".md").write_text(text, encoding="utf-8")
+    table_file(args.table, ".md").write_text(text, encoding="utf-8")
     wide.insert(0, "commit", commit)
-    wide.to_csv(args.table.with_suffix(".csv"), index=False)
+    wide.to_csv(table_file(args.table, ".csv"), index=False)
     runs.insert(0, "commit", commit)
-    runs.to_csv(args.table.with_name(args.table.name + ".runs.csv"), index=False)
+    runs.to_csv(table_file(args.table, ".runs.csv"), index=False)
     return 0
 
 

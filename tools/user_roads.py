@@ -307,6 +307,18 @@ def report_again(jobs: list[Job], csv: Path) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def table_file(table: Path, ext: str) -> Path:
+    """``table`` (a path without its extension, as ``--table`` takes it) with ``ext``
+    (".md", ".csv", ".runs.csv"): a dot in the name stays ("cost0.5" gives "cost0.5.md", not
+    "cost0.md"); an extension given (".md" or ".csv") is replaced."""
+    name = table.name
+    for known in (".runs.csv", ".md", ".csv"):
+        if name.endswith(known):
+            name = name[: -len(known)]
+            break
+    return table.with_name(name + ext)
+
+
 def git_commit() -> str:
     """The commit of this checkout, ``+dirty`` when tracked files differ from it."""
     rev = subprocess.run(
@@ -359,7 +371,7 @@ def main(argv: list[str] | None = None) -> int:
                 jobs += [Job(road, step_name, c, cfg, base / c, seed) for c in args.controllers]
     # The slowest runs (the swarm at 0.1 s) first, so that the workers finish together.
     if args.report_only:
-        df = report_again(jobs, args.table.with_suffix(".csv"))
+        df = report_again(jobs, table_file(args.table, ".csv"))
     else:
         order = sorted(jobs, key=lambda j: (j.controller != "swarm", j.step != "0.1"))
         with ThreadPoolExecutor(max_workers=max(1, args.workers)) as pool:
@@ -371,12 +383,12 @@ def main(argv: list[str] | None = None) -> int:
     text = markdown(df, command.strip(), args.end)
     print(text)
     args.table.parent.mkdir(parents=True, exist_ok=True)
-    args.table.with_suffix(".md").write_text(text, encoding="utf-8")
+    table_file(args.table, ".md").write_text(text, encoding="utf-8")
     csv = df.copy()
     for col in ("collision_lines", "hard_brake_episodes_cav"):
         if col in csv:
             csv[col] = csv[col].map(lambda v: " | ".join(v) if isinstance(v, list) else "")
-    csv.to_csv(args.table.with_suffix(".csv"), index=False)
+    csv.to_csv(table_file(args.table, ".csv"), index=False)
     return 0
 
 
