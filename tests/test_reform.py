@@ -305,29 +305,6 @@ def test_after_a_give_up_the_leader_too_passes_the_target_on_its_own():
     assert r2.goals(61.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 1}
 
 
-def test_passing_one_by_one_the_leader_passes_a_driver_that_moved_in_ahead_of_the_target():
-    # The swarm decided to pass the truck one by one; a car moved in between the leader and
-    # the truck: the leader passes it (it waited for the truck to be the one ahead, and on the
-    # corridor the passes one by one timed out so).
-    events = []
-    r = reformer(events)
-    r.singly = ("truck", 60.0)
-    st = states(
-        car("truck", 290.0, 1, 12.0),
-        car("x", 260.0, 1, 12.0),
-        car("c0", 240.0, 1, 12.0, cav=True),
-        car("c1", 225.0, 1, 12.0, cav=True),
-    )  # fmt: skip
-    goals = r.goals(1.0, st, ["c0", "c1"], ROAD, 1, cap_mps=25.0)
-    assert goals["c0"] == 0
-    assert events == [("passing_start", {"vehicle": "c0", "slow": "x", "lane": 0})]
-    # ... but not a slow vehicle beyond the target (the truck now behind, in another lane)
-    r2 = reformer()
-    r2.singly = ("truck", 60.0)
-    st["truck"] = car("truck", 200.0, 2, 12.0)
-    assert r2.goals(1.0, st, ["c0", "c1"], ROAD, 1, cap_mps=25.0)["c0"] == 1
-
-
 def test_no_passing_when_no_lane_beside_is_faster_by_the_gain():
     r = reformer()
     st = states(

@@ -478,16 +478,9 @@ class Reformer:
                 continue  # leaving ego's lane (its centre is out already): nothing to pass
             train = None if i == 0 else self._train_lane(platoon[i - 1], slow.vehicle_id)
             if i == 0:
-                # The swarm decides for the leader: while its CAVs pass one by one, the leader
-                # passes the target and whatever slow vehicle is between them (another driver
-                # moved in ahead of it 89 % of the time of the passes one by one on the
-                # corridor, and waiting for the target to be the one ahead, they timed out).
                 singly = self.singly
-                target = None if singly is None else states.get(singly[0])
-                if singly is None or t_s > singly[1] or target is None:
-                    continue
-                if slow.vehicle_id != target.vehicle_id and slow.s_m > target.s_m:
-                    continue
+                if singly is None or singly[0] != slow.vehicle_id or t_s > singly[1]:
+                    continue  # the swarm decides for the leader
             elif states[platoon[i - 1]].rear_s_m <= slow.s_m and (
                 train is None or road.lane_of(states[platoon[i - 1]]) != train
             ):
