@@ -226,6 +226,16 @@ def _paper_at(step_s: float, **more):
     return base.scenario(base.overrides({"simulation.step_length_s": step_s, **more}))
 
 
+def _variant_at(case: int, step_s: float, **more):
+    """Case ``case`` (from 0) of scenarios/variants.toml, with its ``[fixed]`` keys and
+    ``more``, at SUMO steps of ``step_s`` [s]."""
+    from sumo_swarm.study.batch.sweep import load_sweep
+
+    sweep = load_sweep(Path(__file__).resolve().parent.parent / "scenarios" / "variants.toml")
+    params = [r.params for r in sweep.runs if r.controller == "swarm"][case]
+    return _paper_at(step_s, **{**sweep.fixed, **params, **more})
+
+
 def test_the_paper_scene_at_the_largest_step_beats_cacc_at_that_step(tmp_path):
     # At 1 s: +17.0 % over cacc, regrouped, min CAV gap 5.8 m (+7.9 % and not regrouped before
     # the tracker drove a long step on the MPC's clock; gap 3.6 m while the gap guard took the
@@ -248,18 +258,7 @@ def test_the_paper_cacc_platoon_at_one_second_steps_keeps_clear_of_itself(tmp_pa
     # with each speed capped for the whole step, the platoon keeps 4.9 m.
     from sumo_swarm.sim.runner import run_scenario
 
-    scene = {
-        "cav.count": 12, "scene.leader_front_m": 415.0, "scene.initial_speed_mps": 14.41,
-        "scene.hv.hv_target.front_m": 436.5, "scene.hv.hv_target.length_m": 11.5,
-        "scene.hv.hv_target.speed_mps": 14.41, "scene.hv.hv_target.desired_speed_mps": 14.41,
-        "scene.hv.hv_left.front_m": 370.0, "scene.hv.hv_left.speed_mps": 17.5,
-        "scene.hv.hv_left.desired_speed_mps": 17.75, "scene.hv.hv_right.front_m": 355.0,
-        "scene.hv.hv_right.speed_mps": 17.5, "scene.hv.hv_right.desired_speed_mps": 22.31,
-        "scene.upstream_gap_m": 29.2, "scene.upstream_per_lane": 7,
-        "scene.upstream_speed_mps": 14.41, "hv.lane_changes": True,
-        "simulation.duration_s": 150.0, "evaluation.end_s": 150.0,
-    }  # fmt: skip
-    summary = run_scenario(_paper_at(1.0, **scene), "cacc", tmp_path / "c", progress=False)
+    summary = run_scenario(_variant_at(29, 1.0), "cacc", tmp_path / "c", progress=False)
     assert summary["safety"]["collisions"] == 0
     assert summary["cav"]["gap_min_m"] > 2.0
 
@@ -270,22 +269,12 @@ def test_a_long_platoon_at_one_second_steps_passes_no_dip_on_to_its_tail(tmp_pat
     # CAV ahead drove the step before, every CAV dipped 2 m/s deeper than the one ahead while
     # the first cut through: the tail stopped and four drivers behind it braked at 4.4-4.8
     # m/s^2. With the guard in discrete time (the speeds ahead this step, matched gains) the
-    # tail keeps 6.4 m/s and nobody brakes beyond 4.
+    # tail keeps 13.6 m/s and nobody brakes beyond 4.
     from sumo_swarm.sim.runner import run_scenario
 
-    scene = {
-        "cav.count": 12, "scene.leader_front_m": 300.0, "scene.initial_speed_mps": 13.68,
-        "scene.hv.hv_target.front_m": 319.0, "scene.hv.hv_target.length_m": 9.0,
-        "scene.hv.hv_target.speed_mps": 13.68, "scene.hv.hv_target.desired_speed_mps": 13.68,
-        "scene.hv.hv_left.front_m": 255.0, "scene.hv.hv_left.speed_mps": 17.5,
-        "scene.hv.hv_left.desired_speed_mps": 23.67, "scene.hv.hv_right.front_m": 240.0,
-        "scene.hv.hv_right.speed_mps": 17.5, "scene.hv.hv_right.desired_speed_mps": 19.08,
-        "scene.upstream_gap_m": 24.6, "scene.upstream_per_lane": 4,
-        "scene.upstream_speed_mps": 13.68, "hv.lane_changes": False,
-        "simulation.duration_s": 60.0, "evaluation.end_s": 60.0,
-    }  # fmt: skip
     out = tmp_path / "s"
-    summary = run_scenario(_paper_at(1.0, **scene), "swarm", out, progress=False)
+    scene = _variant_at(3, 1.0, **{"simulation.duration_s": 60.0, "evaluation.end_s": 60.0})
+    summary = run_scenario(scene, "swarm", out, progress=False)
     assert summary["safety"]["collisions"] == 0
     assert summary["safety"]["hard_brakes"] == 0
     tail = pd.read_parquet(out / "trajectories.parquet").query("vehicle == 'cav11'")
