@@ -682,9 +682,12 @@ class PlatoonSettings:
     """How CAVs group into platoons, each a swarm that decides and overtakes on its own
     (:mod:`sumo_swarm.controllers.fleet`).
 
-    ``grouping = "many"``: CAVs that meet in a lane form a platoon: a CAV joins a platoon whose
-    CAV it follows (or leads) in its lane within ``join_gap_m`` (bumper to bumper); two platoons
-    that meet so merge; none grows beyond ``max_size`` CAVs. A cruising platoon whose CAVs are
+    ``grouping = "many"``: CAVs that meet in a lane, held by a slow vehicle, form a platoon: a
+    CAV joins a platoon whose CAV it follows (or leads) in its lane within ``join_gap_m``
+    (bumper to bumper), where a slow vehicle holds the front CAV of that column; two platoons
+    that meet so merge; none grows beyond ``max_size`` CAVs. A platoon for which nothing the
+    CAVs do together pays parts, and SUMO drives its CAVs alone (see the fleet module). A
+    cruising platoon whose CAVs are
     strung out with a gap beyond ``split_gap_m`` between two of them (along the road, any lane)
     splits there. CAVs group only where they drive on the session's route frame, in a lane
     that goes on for ``exit_reach_s`` at their speed (at least ``exit_reach_min_m``), with
@@ -694,8 +697,8 @@ class PlatoonSettings:
     Membership is reviewed every ``review_every_s``; a platoon in the middle of an overtake
     keeps its CAVs (but loses one that approaches its exit).
 
-    ``grouping = "one"``: every CAV of the run is one swarm (the paper's scene; the behaviour
-    before many swarms).
+    ``grouping = "one"``: every CAV of the run is one swarm, from the start, whatever it meets
+    (the paper's scene: scenarios/paper.toml sets it).
 
     Attributes
     ----------

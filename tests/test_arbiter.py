@@ -181,3 +181,66 @@ def test_the_paper_trigger_and_the_weighing_start_the_same_paper_overtake(tmp_pa
     weighed = [e for e in events["weigh"] if e["event"] == "overtake_weighed"]
     assert [e["chosen"] for e in weighed] == ["cells"]
     assert not any(e["event"] == "overtake_weighed" for e in events["paper"])
+
+
+def test_the_cells_pass_no_faster_than_the_lanes_beside_let_them():
+    view = platoon(n=2, v=20.0)  # fronts at 200 and 185: the footprint 180..200
+    target = car("t", 215.0, 1, 20.0)
+    # Lanes beside with cars ahead at the target's speed: the CAVs cannot get ahead there, the
+    # cells are not weighed (timed at the plan's 5 m/s they were a pass of 5 s).
+    level = [car("l", 230.0, 2, 20.0), car("r", 230.0, 0, 20.0)]
+    desired = {"t": 20.0, "l": 20.0, "r": 20.0}
+    choice = weigh(view, target, [target, *level], desired=desired)
+    assert "cells" not in [o.kind for o in choice.weighed]
+    # At 22 m/s beside (the plan's 25 m/s is more): 2 m/s past the grid over the footprint
+    # and the target (25 m) takes 12.5 s after the first move over (1.75 s); then the lane
+    # ahead of the target, free (the 30 m/s cap), for the 5.75 s left:
+    # gain 2 x (2 x 12.5 + 10 x 5.75) = 165 m; the two cars beside give up 2 m/s each while
+    # the pass lasts: 50 m.
+    faster = [car("l", 230.0, 2, 22.0), car("r", 230.0, 0, 22.0)]
+    desired = {"t": 20.0, "l": 22.0, "r": 22.0}
+    choice = weigh(view, target, [target, *faster], desired=desired)
+    cells = next(o for o in choice.weighed if o.kind == "cells")
+    assert cells.gain_m == pytest.approx(165.0)
+    assert cells.loss_m == pytest.approx(50.0)
+
+
+def test_apart_each_cav_moves_over_where_sumo_lets_it_on_its_own():
+    # Two CAVs at 15 m/s behind a 15 m/s truck; a car at 30 m/s in lane 2, 60 m behind the
+    # tail: outside the secure room a platoon's guards keep (2.5 + 30 = 32.5 m), inside the
+    # secure gap SUMO's lane-change model wants in front of it for a CAV at 15 m/s
+    # (2.5 + 30 + (30^2 - 15^2) / 9 = 107.5 m).
+    view = platoon(n=2, v=15.0)
+    truck = car("truck", 215.0, 1, 15.0)
+    fast = car("f", 120.0, 2, 30.0)
+    desired = {"truck": 15.0, "f": 30.0}
+    choice = weigh(view, truck, [truck, fast], desired=desired, side_lanes=[2],
+                   cells_pace_mps=None, apart=True)  # fmt: skip
+    kinds = {o.kind: o for o in choice.weighed}
+    # As a platoon at once, 15 m/s up for 18.25 s each: 547.5 m.
+    assert kinds["lane_pass"].gain_m == pytest.approx(547.5)
+    # Apart, each waits for the car to pass: c0 (front 200) 87.5 m / 15 m/s, c1 (front 185)
+    # 72.5 m / 15 m/s, then 15 m/s up for what is left of the 20 s less 1.75 s of moving
+    # over: 186.25 + 201.25 m; less the 7.5 m c1 drops back to a driver's own gap
+    # (2.5 + 15 = 17.5 m against the platoon's 10 m).
+    assert kinds["apart"].gain_m == pytest.approx(186.25 + 201.25 - 7.5)
+    assert "one_by_one" not in kinds  # apart, a CAV passing on its own does not re-form
+    assert choice.best.kind == "lane_pass"
+
+
+def test_apart_is_taken_where_only_some_cavs_can_move_over():
+    # A car as slow as the platoon in lane 2, 15 m behind the tail's front: it never passes,
+    # so the platoon as a whole cannot move over; the front CAV, 30 m ahead of it, can.
+    view = platoon(n=2, v=15.0)
+    truck = car("truck", 215.0, 1, 15.0)
+    slow = car("s", 165.0, 2, 15.0)
+    desired = {"truck": 15.0, "s": 15.0}
+    choice = weigh(view, truck, [truck, slow], desired=desired, side_lanes=[2],
+                   cells_pace_mps=None, apart=True)  # fmt: skip
+    kinds = {o.kind: o for o in choice.weighed}
+    assert "lane_pass" not in kinds
+    # c0 alone: 15 m/s up for 18.25 s, the car behind it keeps its room (no loss); c1 stays
+    # behind the truck; c1 drops back 7.5 m.
+    assert kinds["apart"].gain_m == pytest.approx(15.0 * 18.25 - 7.5)
+    assert kinds["apart"].loss_m == 0.0
+    assert choice.best.kind == "apart"

@@ -1,7 +1,8 @@
 """Many swarms in one simulation (controllers.fleet): the grouping on hand-made cases, and real
-SUMO runs: a user's flow with CAVs inside a vTypeDistribution forms several swarms; two
-platoons that meet merge; two swarms that overtake near each other never plan into the same
-space."""
+SUMO runs: a user's flow with CAVs inside a vTypeDistribution forms several swarms; CAVs form
+one only where a slow vehicle holds them; a platoon for which nothing together pays goes back
+to SUMO without a hard brake; two platoons that meet merge; two swarms that overtake near each
+other never plan into the same space."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from sumo_swarm.controllers.fleet import (
     Fleet,
     Placed,
     in_lane_neighbours,
+    opening_accel,
     strung_out,
 )
 from sumo_swarm.core.model import RoadSection, VehicleState
@@ -24,6 +26,7 @@ from sumo_swarm.core.neighbours import snapshot_of
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
 from sumo_swarm.sim.runner import run_sumocfg
+from sumo_swarm.sim.userroads import write_road
 from tests.fakes import FakeSession, run_context
 
 # --------------------------------------------------------------------------- pure parts
@@ -42,6 +45,20 @@ def test_in_lane_neighbours_pairs_only_vehicles_directly_behind_one_another():
 
 def _state(vid: str, s: float, lane: int = 1, cav: bool = True) -> VehicleState:
     return VehicleState(vid, s, lane, 0.0, 20.0, 5.0, is_cav=cav)
+
+
+def test_a_parted_cav_drops_back_gently_unless_it_must_brake_harder():
+    # 1.5 m/s below the car ahead, braking at most 2 m/s^2 for that...
+    assert opening_accel(20.0, 30.0, (20.0, 10.0), 2.0) == pytest.approx(-1.5)
+    assert opening_accel(23.0, 30.0, (15.0, 44.0), 2.0) == pytest.approx(-2.0)
+    # ...harder where it must not close in below the minimum gap: 5 m/s faster, 1 m of room
+    assert opening_accel(25.0, 30.0, (20.0, 3.0), 2.0) == pytest.approx(-12.5)
+    # slower than the car ahead already: the gap opens by itself
+    assert opening_accel(15.0, 30.0, (20.0, 10.0), 2.0) == 0.0
+    # above the speed SUMO will drive it at: a second's worth of the difference, at most 2
+    assert opening_accel(29.0, 28.2, None, 2.0) == pytest.approx(-0.8)
+    assert opening_accel(33.0, 28.0, None, 2.0) == pytest.approx(-2.0)
+    assert opening_accel(20.0, 28.0, None, 2.0) == 0.0  # SUMO speeds it up itself
 
 
 def test_strung_out_cuts_at_long_gaps_and_at_the_largest_size():
@@ -157,6 +174,55 @@ def test_a_users_flow_with_cavs_in_a_type_distribution_forms_several_swarms(tmp_
         assert swarm["cav"]["lat_error_rms_m"] is not None
 
 
+HELD_AND_FREE = """<routes>
+  <vType id="cav" sigma="0" maxSpeed="30"/>
+  <vType id="truck" vClass="truck" maxSpeed="15"/>
+  <route id="r" edges="e0"/>
+  <vehicle id="slow" type="truck" route="r" depart="0" departLane="0" departPos="330"
+           departSpeed="15"/>
+  <vehicle id="a0" type="cav" route="r" depart="0" departLane="0" departPos="300"
+           departSpeed="15"/>
+  <vehicle id="a1" type="cav" route="r" depart="0" departLane="0" departPos="280"
+           departSpeed="15"/>
+  <vehicle id="b0" type="cav" route="r" depart="0" departLane="2" departPos="300"
+           departSpeed="28"/>
+  <vehicle id="b1" type="cav" route="r" depart="0" departLane="2" departPos="260"
+           departSpeed="28"/>
+</routes>
+"""
+
+
+@pytest.mark.sumo
+def test_cavs_form_a_swarm_only_where_a_slow_vehicle_holds_them(tmp_path):
+    # a0, a1 behind a 15 m/s truck; b0, b1 in a free lane at their 28 m/s: only the held
+    # pair has something to decide together.
+    cfg = _config(tmp_path / "net", HighwaySpec(length_m=3000, lanes=3), HELD_AND_FREE, 12)
+    out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
+    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    formed = [e for e in events if e["event"] == "platoon_formed"]
+    assert [sorted(e["cavs"]) for e in formed] == [["a0", "a1"]]
+    assert out["safety"]["collisions"] == 0 and out["safety"]["hard_brakes_cav"] == 0
+
+
+@pytest.mark.sumo
+def test_a_platoon_for_which_nothing_together_pays_goes_back_to_sumo_gently(tmp_path):
+    # A user's road (SUMO's seed 4): the CAVs close in on a 15 m/s truck at 23-32 m/s; the
+    # swarm weighs moving over apart best, parts, and each CAV drops back to the gap SUMO
+    # wants before SUMO drives it. Handed over at once, SUMO braked three CAVs at 4.7 m/s^2.
+    cfg = write_road("3-lane-cav-flow", tmp_path / "road", end_s=25.0)
+    out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", seed=4, progress=False,
+                      notify=print)  # fmt: skip
+    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    parted = [e for e in events if e["event"] == "platoon_apart"]
+    assert parted, [e["event"] for e in events]
+    weighed = [e for e in events if e["event"] == "overtake_weighed"]
+    assert weighed[-1]["chosen"] in ("apart", "follow")
+    assert out["safety"]["collisions"] == 0
+    assert out["safety"]["hard_brakes_cav"] == 0
+    # ...and then SUMO drives them: none of them in a platoon at the end
+    assert out["swarms"]["platoons_now"] == 0
+
+
 def _cavs(ids, lane, first_pos, speed):
     return "\n".join(
         f'  <vehicle id="{vid}" type="cav" route="r" depart="0" departLane="{lane}" '
@@ -185,9 +251,11 @@ def test_two_platoons_that_meet_in_a_lane_merge(tmp_path):
     events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
     formed = [e for e in events if e["event"] == "platoon_formed"]
     merges = [e for e in events if e["event"] == "platoon_merge"]
-    # a0-a2 and b0-b2 start apart: two platoons (each formed by its first two CAVs)
-    assert len(formed) == 2
-    assert sorted(sorted(e["cavs"]) for e in formed) == [["a0", "a1"], ["b0", "b1"]]
+    # a0-a2, held by the truck, form a platoon at once; b0-b2, free until they reach it, only
+    # then (at 10 m/s more, 200 m back), and the two merge
+    assert sorted(formed[0]["cavs"]) == ["a0", "a1"] and formed[0]["time_s"] <= 1.0
+    assert len(formed) == 2 and set(formed[1]["cavs"]) <= {"b0", "b1", "b2"}
+    assert formed[1]["time_s"] > 10.0
     assert len(merges) == 1 and set(merges[0]["cavs"]) == {"a0", "a1", "a2", "b0", "b1", "b2"}
     assert out["swarms"]["merges"] == 1 and out["swarms"]["platoons_now"] == 1
     assert out["safety"]["collisions"] == 0 and out["safety"]["hard_brakes"] == 0

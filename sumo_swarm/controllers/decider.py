@@ -152,7 +152,9 @@ class Decider:
             wait_s = sw.keep_right_wait_s
         return self.watch.update(t_s, candidate, wait_s)
 
-    def choose(self, target: VehicleState, states: States, platoon: list[str]) -> Outlook:
+    def choose(
+        self, target: VehicleState, states: States, platoon: list[str], *, apart: bool = False
+    ) -> Outlook:
         """What to do about ``target`` (``[swarm] decide = "weigh"``): the best of following,
         waiting for it to leave the lane, a lane pass beside and the cells, for everyone on the
         road (:func:`~sumo_swarm.core.swarming.arbiter.choose`). An event
@@ -208,7 +210,7 @@ class Decider:
             cells_pace_mps=cells_mps,
             desired_of=self.reformer.desired_speed, horizon_s=horizon_s,
             range_m=sw.detect_range_m + 2.0 * sc.cell_length_m,
-            others_weight=sw.others_weight, min_gain_mps=sw.min_speed_gain_mps,
+            others_weight=sw.others_weight, min_gain_mps=sw.min_speed_gain_mps, apart=apart,
         )  # fmt: skip
         said = (target.vehicle_id, choice.best.kind, choice.best.lane)
         if said != self._weighed:

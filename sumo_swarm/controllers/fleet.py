@@ -1,10 +1,24 @@
-"""Many swarms in one simulation: CAVs that meet in a lane form a platoon, each platoon a swarm.
+"""Many swarms in one simulation: CAVs held by a slow vehicle form a platoon, each a swarm.
 
 A :class:`Fleet` stands where one controller stood (the run loop and the plugin API call it
 after every SUMO step). It groups the CAVs into platoons (``[platoons]``, see
 :class:`~sumo_swarm.config.PlatoonSettings`) and gives every platoon a controller of its own,
 made by ``make`` (a :class:`~sumo_swarm.controllers.swarm.SwarmController`, or the CACC
 baseline): each decides, overtakes and regroups on its own.
+
+- **A swarm lives while acting together pays.** CAVs that meet in a lane form a platoon only
+  where a slow vehicle holds the column of CAVs they drive in (its front CAV, by the decider's
+  own test, :func:`~sumo_swarm.core.swarming.decision.slow_vehicle_ahead`): there is
+  something to decide together. The swarm weighs what it can do
+  (:mod:`~sumo_swarm.core.swarming.arbiter`), each CAV on its own among it; where nothing the
+  CAVs do together pays (it would follow, or each CAV does better on its own), the platoon
+  parts: each CAV drops back to the gap SUMO wants ahead of it and SUMO drives it alone
+  (:meth:`Fleet._open_gaps`), in no platoon for the decision's horizon. A platoon that started
+  nothing and is held by nothing for ``trigger_after_s`` parts too. A platoon that passed
+  and regrouped (the paper's end) cruises on as one. On the corridor checks
+  (tools/corridor_checks.py) platoons formed wherever CAVs met gave 78 of 112 checks; formed
+  and parted so, 91 (CAVs never in a platoon: 95, but then no swarm ever passes a truck on
+  the users' roads).
 
 - **Each swarm sees only its own CAVs as CAVs.** Its session is a :class:`PlatoonSession`: the
   CAVs of other platoons, and CAVs in no platoon, are vehicles like the human-driven ones (the
@@ -71,6 +85,7 @@ from sumo_swarm.core.swarming.account import (
     overtake_counts,
     overtake_outcome,
 )
+from sumo_swarm.core.swarming.decision import slow_vehicle_ahead
 from sumo_swarm.core.swarming.planlog import PlanLog
 
 if TYPE_CHECKING:
@@ -83,6 +98,7 @@ __all__ = [
     "can_follow",
     "in_lane_neighbours",
     "may_join",
+    "opening_accel",
     "straddled",
     "strung_out",
 ]
@@ -127,6 +143,13 @@ JOIN_MIN_GAP_M = 2.0
 # drives alone off-centre, squeezing past a truck half across the lane line; taken into a
 # platoon 0.4 m off-centre, the swarm's tracker centred it into the truck's side at 31.7 m/s.
 JOIN_LATERAL_M = 0.2
+# A CAV whose platoon parted drops back to SUMO's gap this much slower than the vehicle
+# ahead [m/s], braking at most this much for it [m/s^2] (:meth:`Fleet._open_gaps`).
+OPEN_RATE_MPS = 1.5
+OPEN_DECEL_MPS2 = 2.0
+# ...and is handed over once at most this much above the speed SUMO drives it at [m/s] (SUMO
+# brakes the rest at once: 1 m/s^2 at a 0.1 s step).
+HANDOVER_MPS = 0.1
 
 
 def can_follow(rear_mps: float, front_mps: float, gap_m: float) -> bool:
@@ -175,6 +198,24 @@ def strung_out(
     return parts
 
 
+def opening_accel(
+    speed_mps: float, desired_mps: float, lead: tuple[float, float] | None, min_gap_m: float
+) -> float:
+    """Acceleration [m/s^2] of a CAV handed from a platoon to SUMO, before SUMO drives it:
+    down to ``desired_mps`` (SUMO's speed for it) and to OPEN_RATE_MPS below the vehicle
+    ahead (``lead``: its speed [m/s] and the gap to it [m]; None: none), braking at most
+    OPEN_DECEL_MPS2 for either (one second's worth of the difference), and as much more as
+    not closing in below ``min_gap_m`` needs (safety first); never speeding up (SUMO does)."""
+    accel = max(min(desired_mps - speed_mps, 0.0), -OPEN_DECEL_MPS2)
+    if lead is None:
+        return accel
+    lead_mps, gap_m = lead
+    closing = speed_mps - lead_mps
+    need = closing * closing / (2.0 * max(gap_m - min_gap_m, 0.1)) if closing > 0.0 else 0.0
+    drop = max(min(lead_mps - OPEN_RATE_MPS - speed_mps, 0.0), -OPEN_DECEL_MPS2)
+    return min(accel, drop, -need)
+
+
 # --------------------------------------------------------------------------- the swarms
 
 
@@ -182,6 +223,8 @@ class SwarmMember(Controller, Protocol):
     """What the fleet asks of each platoon's controller (the swarm controller offers it)."""
 
     alone_to_sumo: bool  # a CAV alone is driven by SUMO, not as a swarm of one
+    may_part: bool  # set by the fleet: it may find that nothing together pays (below)
+    nothing_pays: bool  # ...and has: the fleet hands its CAVs back to SUMO
     target_id: str | None  # the target of its manoeuvre (None: none yet)
     t_start_s: float | None  # when its first manoeuvre started [s] (None: none yet)
     routes: RouteWatch  # its CAVs whose routes part leave it
@@ -281,6 +324,7 @@ class PlatoonSession:
     set_modes = _Same()
     release = _Same()
     drive_alone = _Same()
+    alone_gap_m = _Same()
     reclaim = _Same()
     miss_exit = _Same()
 
@@ -329,6 +373,7 @@ class FleetCounts:
     joins: int = 0
     merges: int = 0
     splits: int = 0
+    parted: int = 0  # platoons handed back to SUMO: nothing they did together paid
     # (swarm, target) of overtakes held back by another swarm's manoeuvre nearby
     deferred_for: set[tuple[int | None, str]] = field(default_factory=set)
     blocked_min: dict[str, float] = field(default_factory=dict)
@@ -367,6 +412,9 @@ class Fleet:
         self._single: SwarmMember | None = None  # grouping = "one"
         self._parted: set[str] = set()  # CAVs whose exit came near: no platoon again
         self._alone: set[str] = set()  # CAVs left to SUMO alone, their braking limited
+        self._apart_until: dict[str, float] = {}  # CAVs parted: no platoon until then [s]
+        self._free_since: dict[int, float] = {}  # platoons held by nothing since [s]
+        self._opening: set[str] = set()  # CAVs parted, opening their gap to SUMO's
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:
@@ -421,6 +469,8 @@ class Fleet:
             self._review(t_s, states)
         for platoon in list(self.platoons):
             platoon.controller.control(t_s)
+            if platoon.controller.nothing_pays and platoon.idle:
+                self._part(t_s, platoon, states)
         self._drive_free(states)
 
     def fallback(self, t_s: float) -> None:
@@ -520,12 +570,13 @@ class Fleet:
         cavs = [vid for vid in session.cav_ids if vid in states]
         self._parted &= set(cavs)
         self._relabelled = {v: pair for v, pair in self._relabelled.items() if v in states}
+        self._apart_until = {v: t for v, t in self._apart_until.items() if t > t_s}
         frame_edges = frozenset(session.frame.route_edges)
         where = {vid: self._where(vid, states, frame_edges) for vid in cavs}
         # may stay in a platoon: on the frame, its exit not near (a lane that ends ahead is
         # the swarm's to leave); may join one: also in a lane that goes on
         stays = {vid for vid, w in where.items() if w is not None and w[1] is None}
-        eligible = {vid for vid in stays if where[vid][2]}
+        eligible = {vid for vid in stays if where[vid][2] and vid not in self._apart_until}
         # Leaving at once, whatever the platoon does: gone, off the frame, or near the exit.
         for platoon in list(self.platoons):
             left = platoon.controller.routes.left
@@ -551,17 +602,28 @@ class Fleet:
                         self._new(t_s, part, states)
                         self.counts.splits += 1
                     self.ctx.event("platoon_split", platoon=platoon.id, parts=parts)
-        # Meeting in a lane: joins and merges, nearest first.
+        # Meeting in a lane: joins and merges, nearest first, where a slow vehicle holds the
+        # column of CAVs they drive in (its front CAV): there is something to decide together.
         placed = [p for p in (self._placed(v, states) for v in states) if p is not None]
-        for rear, front, gap in sorted(in_lane_neighbours(placed), key=lambda p: p[2]):
-            if (
-                gap <= st.join_gap_m and rear in eligible and front in eligible
-                and may_join(states[rear], states[front], gap)
-            ):  # fmt: skip
-                road = session.road_at(rear) or self.ctx.road
-                everyone = snapshot_of(states, road)  # sorted once per table and road
-                if not any(straddled(states[v], everyone, road) for v in (rear, front)):
-                    self._meet(t_s, rear, front, states)
+        meetings = [
+            (rear, front, gap) for rear, front, gap in in_lane_neighbours(placed)
+            if gap <= st.join_gap_m and rear in eligible and front in eligible
+            and may_join(states[rear], states[front], gap)
+        ]  # fmt: skip
+        ahead = {rear: front for rear, front, _ in meetings}
+        held: dict[str, bool] = {}
+        for rear, front, _ in sorted(meetings, key=lambda p: p[2]):
+            road = session.road_at(rear) or self.ctx.road
+            everyone = snapshot_of(states, road)  # sorted once per table and road
+            if any(straddled(states[v], everyone, road) for v in (rear, front)):
+                continue
+            lead = front
+            while lead in ahead:
+                lead = ahead[lead]
+            if lead not in held:
+                held[lead] = self._held(lead, states, everyone, road)
+            if held[lead]:
+                self._meet(t_s, rear, front, states)
         # Every other eligible CAV drives as a swarm of one; or, where the swarms leave a CAV
         # alone to SUMO (``alone_to_sumo``), as SUMO drives it (one that left a platoon: SUMO's
         # lane changes, our CACC for the speed, as every CAV leaving a platoon).
@@ -569,6 +631,18 @@ class Fleet:
         for vid in cavs:
             if not alone_to_sumo and vid in eligible and self._platoon_of(vid) is None:
                 self._new(t_s, [vid], states)
+        # A platoon with nothing to do together (cruising, no slow vehicle holding it) is handed
+        # back to SUMO.
+        for platoon in list(self.platoons):
+            if len(platoon.members) > 1 and platoon.idle and platoon.controller.t_start_s is None:
+                lead = platoon.members[0]
+                road = session.road_at(lead) or self.ctx.road
+                if self._held(lead, states, snapshot_of(states, road), road):
+                    self._free_since.pop(platoon.id, None)
+                    continue
+                since = self._free_since.setdefault(platoon.id, t_s)
+                if t_s - since >= self.ctx.scenario.swarm.trigger_after_s - 1e-9:
+                    self._part(t_s, platoon, states, embargo_s=0.0)
         self._alone &= set(cavs)
         if alone_to_sumo:
             for platoon in [p for p in self.platoons if len(p.members) == 1 and p.idle]:
@@ -578,6 +652,29 @@ class Fleet:
         self._retire_empty()
         live = sum(1 for p in self.platoons if len(p.members) > 1)
         self.counts.max_concurrent = max(self.counts.max_concurrent, live)
+
+    def _held(self, lead: str, states, everyone, road: RoadSection) -> bool:
+        """Is CAV ``lead`` held by a slow vehicle (:func:`slow_vehicle_ahead`, at the cruise and
+        cap its swarm's decider takes: ``Decider.slow_below``, ``speed_cap``)? Only there
+        have CAVs something to decide together; elsewhere SUMO drives them."""
+        st = states.get(lead)
+        if st is None:
+            return False
+        sw = self.ctx.scenario.swarm
+        try:
+            vtype_max, allowed = self.ctx.session.speed_limits(lead)
+        except Exception:  # vanished this step
+            return False
+        cav = self.ctx.scenario.cav
+        world = min(vtype_max, allowed)
+        cruise = world if cav.speeds == "world" else cav.cruising_speed_mps
+        cap = min(world, cruise if cav.speeds == "world" else cav.max_speed_mps)
+        return slow_vehicle_ahead(
+            st, everyone, road, slow_below_mps=cruise * sw.trigger_speed_ratio,
+            detect_range_m=sw.detect_range_m, cap_mps=cap,
+            min_gain_mps=sw.min_speed_gain_mps, width_m=st.width_m,
+            accelerating_mps2=sw.accelerating_mps2,
+        ) is not None  # fmt: skip
 
     def _meet(self, t_s: float, rear: str, front: str, states) -> None:
         """CAV ``rear`` drives right behind CAV ``front`` in a lane: one platoon, if both
@@ -658,6 +755,7 @@ class Fleet:
             speeds=CavSpeeds(self.ctx.cav), platoon_id=self._next_id,
         )  # fmt: skip
         controller = self._make()
+        controller.may_part = True
         if self.planlog is not None:
             controller.use_planlog(_Tagged(self.planlog, self._next_id))
         platoon = Platoon(self._next_id, controller, ctx, session, [])
@@ -708,6 +806,28 @@ class Fleet:
             except Exception as exc:
                 log.debug("releasing %s: %s", vid, exc)
 
+    def _part(self, t_s: float, platoon: Platoon, states, embargo_s: float | None = None) -> None:
+        """Nothing pays the CAVs of ``platoon`` doing together: SUMO drives each alone again,
+        once it has opened its gap to SUMO's (:meth:`_drive_free`); none joins a platoon for
+        ``embargo_s`` (default: the decision's horizon)."""
+        members = list(platoon.members)
+        self._set(platoon, [], states)
+        session = self.ctx.session
+        until = t_s + (self.ctx.scenario.swarm.horizon_s if embargo_s is None else embargo_s)
+        for vid in members:
+            _forget(platoon.controller, vid)
+            self._apart_until[vid] = until
+            if vid not in session.states:
+                continue
+            try:
+                session.release(vid)  # SUMO's lane changes at once
+            except Exception as exc:  # vanished meanwhile
+                log.debug("parting %s: %s", vid, exc)
+            self._opening.add(vid)
+        self.counts.parted += 1
+        self.ctx.event("platoon_apart", platoon=platoon.id, cavs=members)
+        self._retire(platoon)
+
     def _retire_empty(self) -> None:
         for platoon in [p for p in self.platoons if not p.members]:
             self._retire(platoon)
@@ -721,14 +841,17 @@ class Fleet:
         lat_errors, mpc_ms = platoon.controller.tracking_samples()
         self._lat_errors.extend(e for e in lat_errors if e is not None)
         self._mpc_ms.extend(mpc_ms)
+        self._free_since.pop(platoon.id, None)
         if platoon is self._first:
             self._first_summary = platoon.controller.summary()
         close_controller(platoon.controller)
         self.platoons.remove(platoon)
 
     def _drive_free(self, states: Mapping[str, VehicleState]) -> None:
-        """CAVs once in a platoon and now in none follow by CACC while on the route frame."""
+        """CAVs once in a platoon and now in none follow by CACC while on the route frame;
+        those parted open their gap to SUMO's first (:meth:`_open_gaps`)."""
         session = self.ctx.session
+        self._open_gaps(states)
         follow = []
         for vid in list(self._handed):
             if vid not in states:
@@ -746,6 +869,40 @@ class Fleet:
             self.ctx.follow_world_speeds(follow)
             road = session.road_at(follow[0]) or self.ctx.road
             command_cacc(replace(self.ctx, road=road), follow)
+
+    def _open_gaps(self, states: Mapping[str, VehicleState]) -> None:
+        """The CAVs of a platoon that parted first drop back from its short gaps to the gap
+        SUMO wants ahead of a CAV it drives alone (:meth:`SessionView.alone_gap_m`), and down
+        to the speed SUMO drives it at (its vType's and lane's, with its speedFactor), by
+        :func:`opening_accel`; there SUMO drives each alone. Handed to SUMO at once, SUMO's
+        car-following braked them at 4.1-4.7 m/s^2: closing in on a truck faster than SUMO's
+        headway allows, or cruising above that speed with the platoon."""
+        session = self.ctx.session
+        cav = self.ctx.cav
+        for vid in list(self._opening):
+            st = states.get(vid)
+            if st is None or self._platoon_of(vid) is not None:
+                self._opening.discard(vid)
+                continue
+            try:
+                desired = min(session.speed_limits(vid))
+            except Exception:  # vanished this step
+                continue
+            road = session.road_at(vid) or self.ctx.road
+            ahead = vehicle_ahead(st, snapshot_of(states, road), road)
+            lead = None if ahead is None else (ahead[0].speed_mps, ahead[1])
+            roomy = lead is None or lead[1] >= session.alone_gap_m(vid, st.speed_mps, lead[0])
+            if roomy and st.speed_mps <= desired + HANDOVER_MPS:
+                self._opening.discard(vid)
+                try:
+                    session.release_speed(vid)
+                    session.drive_alone(vid)
+                except Exception as exc:  # vanished meanwhile
+                    log.debug("handing %s to SUMO: %s", vid, exc)
+                continue
+            accel = opening_accel(st.speed_mps, desired, lead, cav.min_gap_m)
+            accel = min(max(accel, cav.accel_min_mps2), cav.accel_max_mps2)
+            session.set_speed(vid, max(0.0, st.speed_mps + accel * self.ctx.dt_s))
 
     # ------------------------------------------------------------------ outputs
     def _note_first(self) -> None:

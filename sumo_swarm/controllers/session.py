@@ -19,11 +19,18 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.swarming.decision import secure_gap_m
 
 if TYPE_CHECKING:
     from sumo_swarm.core.routeframe import RouteFrame
 
-__all__ = ["SESSION_DATA", "SESSION_METHODS", "SessionBase", "SessionView"]
+__all__ = [
+    "ALONE_DECEL_MPS2", "SESSION_DATA", "SESSION_METHODS", "SUMO_MIN_GAP_M", "SUMO_TAU_S",
+    "SessionBase", "SessionView",
+]  # fmt: skip
+
+SUMO_TAU_S, SUMO_MIN_GAP_M = 1.0, 2.5  # SUMO's default headway [s] and minGap [m]
+ALONE_DECEL_MPS2 = 4.0  # how hard SUMO brakes a CAV it drives alone (the hard-brake line)
 
 
 @runtime_checkable
@@ -157,6 +164,12 @@ class SessionView(Protocol):
     def drive_alone(self, vid: str) -> None:
         """SUMO drives CAV ``vid`` alone: at least SUMO's default headway and minGap, braking
         within the hard-brake line, set on its vType too (the next CAVs are inserted so)."""
+        ...
+
+    def alone_gap_m(self, vid: str, speed_mps: float, lead_mps: float) -> float:
+        """The gap [m] SUMO wants ahead of CAV ``vid`` driving alone (:meth:`drive_alone`) at
+        ``speed_mps`` behind a vehicle at ``lead_mps``: its minGap plus its secure gap
+        (:func:`~sumo_swarm.core.swarming.decision.secure_gap_m`)."""
         ...
 
     def reclaim(self, vid: str) -> None:
@@ -295,6 +308,9 @@ class SessionBase:
 
     def drive_alone(self, vid: str) -> None:
         pass
+
+    def alone_gap_m(self, vid: str, speed_mps: float, lead_mps: float) -> float:
+        return SUMO_MIN_GAP_M + secure_gap_m(SUMO_TAU_S, ALONE_DECEL_MPS2, speed_mps, lead_mps)
 
     def reclaim(self, vid: str) -> None:
         self.released.discard(vid)

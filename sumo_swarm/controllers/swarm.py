@@ -50,6 +50,7 @@ from sumo_swarm.core.swarming.account import (
     overtake_counts,
     overtake_outcome,
 )
+from sumo_swarm.core.swarming.arbiter import ALONE
 from sumo_swarm.core.swarming.decision import (
     LanePass,
     Mode,
@@ -108,6 +109,11 @@ class SwarmController:
         self.progress: Progress | None = None
         self._models: dict[str, tuple[str | None, DriverModel]] = {}
         self.lane_pass: LanePass | None = None  # a pass in a faster lane under way
+        # Many swarms (controllers.fleet, ``may_part``): where the decision finds that nothing
+        # the CAVs do together pays (it would follow, or each does better apart), the fleet
+        # hands them back to SUMO (``nothing_pays``).
+        self.may_part = False
+        self.nothing_pays = False
         # The parts, made by attach (the run's context): see their modules.
         self.decider: Decider | None = None
         self.replanner: Replanner | None = None
@@ -332,7 +338,10 @@ class SwarmController:
             target = self.decider.decide(t_s, states, platoon)
             if target is None or not self._may_start(t_s, target, platoon):
                 return
-            best = self.decider.choose(target, states, platoon)
+            best = self.decider.choose(target, states, platoon, apart=self.may_part)
+            if best.kind in ALONE and self.may_part:
+                self.nothing_pays = True
+                return
             if best.kind == "lane_pass":
                 self._start_lane_pass(t_s, target, best.lane, platoon)
             elif best.kind == "cells":

@@ -21,7 +21,12 @@ from pathlib import Path
 from types import ModuleType
 
 from sumo_swarm.checks import unknown_name
-from sumo_swarm.controllers.session import SessionBase
+from sumo_swarm.controllers.session import (
+    ALONE_DECEL_MPS2,
+    SUMO_MIN_GAP_M,
+    SUMO_TAU_S,
+    SessionBase,
+)
 from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import overlapping_ahead, snapshot_of, within
@@ -34,7 +39,7 @@ from sumo_swarm.core.stepsafe import (
     net_applies,
     sideways_conflicts,
 )
-from sumo_swarm.core.swarming.decision import keep_right_due_s
+from sumo_swarm.core.swarming.decision import keep_right_due_s, secure_gap_m
 from sumo_swarm.errors import ConfigError, SimulationError
 
 log = logging.getLogger(__name__)
@@ -63,7 +68,6 @@ HARD_BRAKE_LINE_MPS2 = 4.0  # the contract's hard-brake line (sim.metrics.HARD_B
 LEADER_REACH_EXTRA_M = 30.0  # beyond a CAV's stopping reach, for a truck's length [m]
 SIDEWAYS_REACH_M = 60.0  # vehicles whose fronts are this near a CAV moving sideways [m]
 SIDEWAYS_CLEARANCE_M = 0.3  # what two bodies keep at the end of a step (guards' side_clearance)
-SUMO_TAU_S, SUMO_MIN_GAP_M = 1.0, 2.5  # SUMO's default headway [s] and minGap [m]
 
 
 def sumo_binary(gui: bool = False) -> str:
@@ -733,6 +737,20 @@ class SumoSession(SessionBase):
             vehicle.setMinGap(vid, min_gap)
         except Exception:  # vanished: nothing to set
             pass
+
+    def alone_gap_m(self, vid: str, speed_mps: float, lead_mps: float) -> float:
+        """The gap [m] SUMO wants ahead of CAV ``vid`` once it drives alone (:meth:`drive_alone`)
+        at ``speed_mps`` behind a vehicle at ``lead_mps``; SUMO's defaults where SUMO cannot
+        tell."""
+        vtypes = self.api.vehicletype
+        try:
+            base = self.api.vehicle.getTypeID(vid).split("@")[0]
+            tau = max(vtypes.getTau(base), SUMO_TAU_S)
+            min_gap = max(vtypes.getMinGap(base), SUMO_MIN_GAP_M)
+            decel = min(self.api.vehicle.getDecel(vid), ALONE_DECEL_MPS2)
+        except Exception:  # vanished
+            tau, min_gap, decel = SUMO_TAU_S, SUMO_MIN_GAP_M, ALONE_DECEL_MPS2
+        return min_gap + secure_gap_m(tau, decel, speed_mps, lead_mps)
 
     def reclaim(self, vid: str) -> None:
         """``vid``, released before, is a swarm's CAV again (a platoon took it in: its

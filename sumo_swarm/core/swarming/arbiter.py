@@ -24,23 +24,31 @@ horizon of ``horizon_s`` with plain kinematics, and scored in vehicle-metres:
 - **one_by_one**: each CAV moves over where it is and passes in its fastest lane beside, the
   others losing what each CAV's own length takes; ahead, the platoon re-forms, each CAV but the
   first giving up a vehicle's spacing to close up.
+- **apart** (in its place where many swarms share the road, ``apart``: there a CAV alone is
+  SUMO's driver): each CAV moves over where SUMO's lane-change model lets it (in front of a
+  vehicle only at that one's secure gap, speed difference included) and stays apart, each
+  first dropping back from the platoon's short gap to a driver's own. Taken, the swarm parts
+  (controllers.fleet): what the CAVs do together did not pay more.
 - **cells**: the paper's manoeuvre: the CAVs move up one cell per behaving interval past the
   slow vehicle, blocking the side lanes' vehicles to the grid's speed while they pass, then
   drive at the pace ahead of it. The blocked vehicles lose the speed they give up for as long
   as the pass lasts.
 
-A manoeuvre is taken when its score beats following by ``min_gain_mps`` per CAV for half the
-horizon (MOBIL's incentive threshold for the platoon as a whole); else the platoon follows, and
-the vehicles around are no worse off than under SUMO's own drivers. Units: m, s, m/s.
+The best candidate is taken when its score beats following by ``min_gain_mps`` per CAV for
+half the horizon (MOBIL's incentive threshold for the platoon as a whole); else the platoon
+follows (or, with ``apart``, parts), and the vehicles around are no worse off than under
+SUMO's own drivers. Units: m, s, m/s.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.swarming.decision import secure_gap_m
 
 __all__ = [
     "Choice",
@@ -69,6 +77,11 @@ HEADWAY_S = 1.0
 HV_SPEED_GAIN_MPS = 1.0
 # Vehicles in a lane behind an entry point that can lose road to it: this far behind [m].
 BEHIND_M = 150.0
+# The deceleration SUMO's drivers take for a follower's secure gap [m/s^2] (its default
+# passenger vType's decel).
+SUMO_DECEL_MPS2 = 4.5
+# What the CAVs do without acting together: follow, or (many swarms) each on its own.
+ALONE = frozenset({"follow", "apart"})
 
 
 @dataclass(frozen=True)
@@ -206,6 +219,7 @@ def choose(
     range_m: float,
     others_weight: float,
     min_gain_mps: float,
+    apart: bool = False,
 ) -> Choice:
     """Weigh following, waiting (``leaves``: the target's driver wants to leave the lane), a
     lane pass in each of ``side_lanes`` and the cells (``cells_pace_mps``: the plan's pace past
@@ -257,16 +271,28 @@ def choose(
         return Choice(weighed[-1], tuple(weighed))
     move_s = 0.5 * platoon.lane_width_m / max(platoon.lateral_speed_mps, 0.1)
 
-    def move_over(front: VehicleState, rear_s_m: float, lane: int, after_s: float):
+    def move_over(
+        front: VehicleState, rear_s_m: float, lane: int, after_s: float, *, alone: bool = False
+    ):
         """``(gain per CAV, loss)`` of moving the CAVs from ``front`` back to ``rear_s_m``
         over to ``lane`` at ``after_s`` into the horizon; None: not within it. They move where
         nobody must brake for them: a vehicle beside them there, or closer behind than its own
         secure gap, passes first (the guards wait for it); one no faster than them never
-        does. The vehicles further behind lose the road they take (:func:`insertion_loss_m`)."""
+        does. The vehicles further behind lose the road they take (:func:`insertion_loss_m`).
+        ``alone``: a CAV SUMO drives moves where SUMO's lane-change model lets it, in front of
+        a vehicle only at that one's secure gap behind it at its own speed (SUMO's
+        getSecureGap: a follower much faster than the CAV needs far more room)."""
+
+        def room(o: VehicleState) -> float:
+            if alone:
+                v = o.speed_mps
+                return MIN_GAP_M + secure_gap_m(HEADWAY_S, SUMO_DECEL_MPS2, v, front.speed_mps)
+            return secure_room_m(o.speed_mps)
+
         first = [
             o for o in others
             if road.lane_of(o) == lane and o.rear_s_m < front.s_m + MIN_GAP_M
-            and o.s_m > rear_s_m - secure_room_m(o.speed_mps)
+            and o.s_m > rear_s_m - room(o)
         ]  # fmt: skip
         clear_s = max(
             (
@@ -291,44 +317,60 @@ def choose(
         moved = move_over(platoon.front, platoon.tail.rear_s_m, lane, 0.0)
         if moved is not None:
             add("lane_pass", lane, n * moved[0], moved[1])
-    # One by one: each CAV moves over on its own, one lane move after the other, into the lane
-    # beside that pays it most (as a lane pass of one); ahead, the platoon re-forms, each CAV
-    # but the first giving up a vehicle's spacing to close up again.
+    # One by one: each CAV moves over on its own, into the lane beside that pays it most (as a
+    # lane pass of one). ``apart`` (many swarms, where SUMO drives a CAV alone): each does so
+    # as SUMO's driver, when it can, and stays apart. Else one lane move after the other, and
+    # ahead the platoon re-forms, each CAV but the first giving up a vehicle's spacing to
+    # close up again.
     if n > 1 and side_lanes:
         gain = loss = 0.0
         for i, cav in enumerate(cavs):
-            options = [move_over(cav, cav.rear_s_m, q, move_s * i) for q in side_lanes]
+            after_s = 0.0 if apart else move_s * i
+            options = [move_over(cav, cav.rear_s_m, q, after_s, alone=apart) for q in side_lanes]
             best = max((o for o in options if o is not None),
                        key=lambda o: o[0] - others_weight * o[1], default=None)  # fmt: skip
             if best is not None:
                 gain, loss = gain + best[0], loss + best[1]
-        regroup = (n - 1) * (platoon.front.length_m + secure_room_m(follow_mps))
-        add("one_by_one", None, gain - regroup, loss)
+        if apart:
+            # ...each first dropping back from the platoon's short gap to the gap a driver
+            # keeps alone (the fleet hands it to SUMO there).
+            drop = sum(
+                max(0.0, secure_room_m(b.speed_mps) - (a.rear_s_m - b.s_m))
+                for a, b in itertools.pairwise(cavs)
+            )  # fmt: skip
+            add("apart", None, gain - drop, loss)
+        else:
+            regroup = (n - 1) * (platoon.front.length_m + secure_room_m(follow_mps))
+            add("one_by_one", None, gain - regroup, loss)
     # The cells pass through the same lanes beside (none usable: no way through).
     if cells_pace_mps is not None and cells_pace_mps > 0.0 and side_lanes:
         # The grid moves with the target: at its predicted pace (a target speeding up takes
         # the grid, and the CAVs in it, along; passing it then gains little).
         grid_mps = follow_mps
-        # Each CAV moves up past the target and the CAVs ahead of it: the platoon's
-        # footprint plus the target's length, at the plan's pace above the grid.
-        pass_s = (platoon.front.s_m - platoon.tail.rear_s_m + target.length_m) / cells_pace_mps
-        during = min(pass_s, horizon_s)
-        after = max(0.0, horizon_s - pass_s)
-        # ...and no faster than the lanes it passes in let it (blocking holds back who is
-        # behind, not who is ahead).
+        # The CAVs pass at the plan's pace above the grid, no faster than the lanes they pass
+        # in let them (blocking holds back who is behind, not who is ahead).
         side_mps = max(
             lane_pace_mps(platoon.front.s_m, others, road, q, **pace) for q in side_lanes
         )  # fmt: skip
         through_mps = min(cap, grid_mps + cells_pace_mps, max(side_mps, grid_mps))
-        # Every CAV moves up a cell per behaving interval at once: at the grid's speed plus the
-        # plan's pace while the pass lasts (the front ones are through sooner: a lower bound).
-        gain = n * ((through_mps - follow_mps) * during + (beyond - follow_mps) * after)
-        loss = 0.0
-        lo, hi = platoon.tail.rear_s_m - range_m, target.s_m + range_m
-        for o in others:
-            if lo < o.s_m < hi and road.lane_of(o) in side_lanes:
-                loss += max(0.0, min(o.speed_mps, desired_of(o)) - grid_mps) * during
-        add("cells", None, gain, loss)
+        # Each CAV moves up past the target and the CAVs ahead of it: the platoon's footprint
+        # plus the target's length, at that pace above the grid (timed at the plan's pace, a
+        # pass held to the grid's speed by the lanes beside was weighed as over in seconds:
+        # on the corridors such cells ran out of time).
+        closing_mps = through_mps - grid_mps
+        if closing_mps > 0.0:
+            pass_s = (platoon.front.s_m - platoon.tail.rear_s_m + target.length_m) / closing_mps
+            # ...once the first of them has moved over, as in any pass.
+            during = min(pass_s, max(0.0, horizon_s - move_s))
+            after = max(0.0, horizon_s - move_s - pass_s)
+            # Every CAV moves up at once (the front ones are through sooner: a lower bound).
+            gain = n * ((through_mps - follow_mps) * during + (beyond - follow_mps) * after)
+            loss = 0.0
+            lo, hi = platoon.tail.rear_s_m - range_m, target.s_m + range_m
+            for o in others:
+                if lo < o.s_m < hi and road.lane_of(o) in side_lanes:
+                    loss += max(0.0, min(o.speed_mps, desired_of(o)) - grid_mps) * during
+            add("cells", None, gain, loss)
     threshold = n * min_gain_mps * 0.5 * horizon_s
     best = max(weighed, key=lambda o: o.score_m)
     if best.kind != "follow" and best.score_m < threshold:
