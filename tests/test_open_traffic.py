@@ -385,8 +385,11 @@ def test_cavs_cut_off_by_a_slow_vehicle_pass_it_and_rejoin(tmp_path):
         "c2",
     }
     many = run_sumocfg(cfg, "cav", "swarm", tmp_path / "many", progress=False, notify=print)
-    # (each platoon a swarm; a CAV alone is SUMO's, no swarm)
-    assert many["swarms"]["swarms"] >= 1 and many["swarms"]["overtakes_completed"] >= 1
+    # (each platoon a swarm; a CAV alone is SUMO's, no swarm): the pair weighs passing together
+    # against passing apart, SUMO's drivers each, and does what pays; either way it gets past
+    assert many["swarms"]["swarms"] >= 1
+    parted = [e for e in _events(tmp_path / "many") if e["event"] == "platoon_apart"]
+    assert many["swarms"]["overtakes_completed"] >= 1 or parted
     last = pd.read_parquet(tmp_path / "many" / "trajectories.parquet")
     last = last[last["time_s"] == last["time_s"].max()].set_index("vehicle")
     assert (last.loc[["c1", "c2"], "s_m"] > last.loc["slow", "s_m"]).all()
