@@ -417,10 +417,11 @@ class SwarmController:
                 # The CAVs past it wait ahead for the others: the wait ends it (_wait_over).
                 self.book.start(t_s, "wait", self.target_id, platoon)
             singly = sc.swarm.pass_singly_s > 0.0 and give_up in PASS_SINGLY_AFTER
-            if singly and self.may_part:
+            if singly and self.may_part and self.book.current("wait") is None:
                 # No way past together, where SUMO drives a CAV alone: the platoon parts, each
                 # CAV passes as SUMO's driver (held one by one, two CAVs stayed behind a car
                 # for 56 s and the others' delay doubled: corridor checks, 5 lanes, seed 3).
+                # (Some CAVs past it wait for the others: that goes on, and ends regrouped.)
                 self.nothing_pays = True
             elif singly:
                 # No way past together: the CAVs pass it one by one, as SUMO's drivers do,
