@@ -24,6 +24,7 @@ from sumo_swarm.core.swarming.arbiter import Outlook, PlatoonView, choose
 from sumo_swarm.core.swarming.decision import (
     TargetWatch,
     behaving_interval_s,
+    held_by,
     lane_for_pass,
     lane_pass_pace,
     lane_speeds,
@@ -32,7 +33,6 @@ from sumo_swarm.core.swarming.decision import (
     right_lane_free,
     right_lane_opens_within,
     secure_gap_m,
-    slow_vehicle_ahead,
     speed_cap_mps,
 )
 
@@ -125,12 +125,9 @@ class Decider:
         # Sorted once for both look-ups (the vehicle ahead of the leader, then the line ahead of
         # a candidate): every cruise step asks, a plain list scanned every vehicle each time.
         vehicles = snapshot_of(states, ctx.road)
-        candidate = slow_vehicle_ahead(
-            leader, vehicles, ctx.road,
-            slow_below_mps=self.slow_below(), detect_range_m=sw.detect_range_m,
-            cap_mps=self.speed_cap(platoon[:1]),
-            min_gain_mps=sw.min_speed_gain_mps, width_m=ctx.scenario.cav.width_m,
-            accelerating_mps2=sw.accelerating_mps2,
+        candidate = held_by(
+            leader, vehicles, ctx.road, sw, cruise_mps=ctx.cav.cruising_speed_mps,
+            cap_mps=self.speed_cap(platoon[:1]), width_m=ctx.scenario.cav.width_m,
         )  # fmt: skip
         # Never another swarm's CAV (many swarms: each sees the others' CAVs as vehicles): a
         # platoon behind one merges with it, or waits for it to overtake.

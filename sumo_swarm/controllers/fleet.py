@@ -8,7 +8,7 @@ baseline): each decides, overtakes and regroups on its own.
 
 - **A swarm lives while acting together pays.** CAVs that meet in a lane form a platoon only
   where a slow vehicle holds the column of CAVs they drive in (its front CAV, by the decider's
-  own test, :func:`~sumo_swarm.core.swarming.decision.slow_vehicle_ahead`): there is
+  own test, :func:`~sumo_swarm.core.swarming.decision.held_by`): there is
   something to decide together. The swarm weighs what it can do
   (:mod:`~sumo_swarm.core.swarming.arbiter`), each CAV on its own among it; where nothing the
   CAVs do together pays (it would follow, or each CAV does better on its own), the platoon
@@ -85,7 +85,7 @@ from sumo_swarm.core.swarming.account import (
     overtake_counts,
     overtake_outcome,
 )
-from sumo_swarm.core.swarming.decision import slow_vehicle_ahead
+from sumo_swarm.core.swarming.decision import held_by
 from sumo_swarm.core.swarming.planlog import PlanLog
 
 if TYPE_CHECKING:
@@ -654,27 +654,23 @@ class Fleet:
         self.counts.max_concurrent = max(self.counts.max_concurrent, live)
 
     def _held(self, lead: str, states, everyone, road: RoadSection) -> bool:
-        """Is CAV ``lead`` held by a slow vehicle (:func:`slow_vehicle_ahead`, at the cruise and
+        """Is CAV ``lead`` held by a slow vehicle (:func:`held_by`, at the cruise and
         cap its swarm's decider takes: ``Decider.slow_below``, ``speed_cap``)? Only there
         have CAVs something to decide together; elsewhere SUMO drives them."""
         st = states.get(lead)
         if st is None:
             return False
-        sw = self.ctx.scenario.swarm
         try:
-            vtype_max, allowed = self.ctx.session.speed_limits(lead)
+            world = min(self.ctx.session.speed_limits(lead))
         except Exception:  # vanished this step
             return False
-        cav = self.ctx.scenario.cav
-        world = min(vtype_max, allowed)
+        sc = self.ctx.scenario
+        cav = sc.cav
         cruise = world if cav.speeds == "world" else cav.cruising_speed_mps
         cap = min(world, cruise if cav.speeds == "world" else cav.max_speed_mps)
-        return slow_vehicle_ahead(
-            st, everyone, road, slow_below_mps=cruise * sw.trigger_speed_ratio,
-            detect_range_m=sw.detect_range_m, cap_mps=cap,
-            min_gain_mps=sw.min_speed_gain_mps, width_m=st.width_m,
-            accelerating_mps2=sw.accelerating_mps2,
-        ) is not None  # fmt: skip
+        held = held_by(st, everyone, road, sc.swarm, cruise_mps=cruise, cap_mps=cap,
+                       width_m=st.width_m)  # fmt: skip
+        return held is not None
 
     def _meet(self, t_s: float, rear: str, front: str, states) -> None:
         """CAV ``rear`` drives right behind CAV ``front`` in a lane: one platoon, if both

@@ -30,7 +30,9 @@ __all__ = [
 ]  # fmt: skip
 
 SUMO_TAU_S, SUMO_MIN_GAP_M = 1.0, 2.5  # SUMO's default headway [s] and minGap [m]
-ALONE_DECEL_MPS2 = 4.0  # how hard SUMO brakes a CAV it drives alone (the hard-brake line)
+# How hard SUMO brakes a CAV it drives alone [m/s^2]: the contract's hard-brake line
+# (sim.metrics.HARD_BRAKE_MPS2).
+ALONE_DECEL_MPS2 = 4.0
 
 
 @runtime_checkable

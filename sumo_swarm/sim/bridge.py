@@ -64,7 +64,6 @@ LCA_BLOCKED = 0xF << 9
 KEEP_RIGHT_RATE_WINDOW_S = 1.0
 STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
-HARD_BRAKE_LINE_MPS2 = 4.0  # the contract's hard-brake line (sim.metrics.HARD_BRAKE_MPS2)
 LEADER_REACH_EXTRA_M = 30.0  # beyond a CAV's stopping reach, for a truck's length [m]
 SIDEWAYS_REACH_M = 60.0  # vehicles whose fronts are this near a CAV moving sideways [m]
 SIDEWAYS_CLEARANCE_M = 0.3  # what two bodies keep at the end of a step (guards' side_clearance)
@@ -717,22 +716,20 @@ class SumoSession(SessionBase):
         """SUMO drives CAV ``vid`` alone until a platoon takes it (:func:`configure_cav`): it
         keeps at least SUMO's default headway and minGap (SUMO_TAU_S, SUMO_MIN_GAP_M; its vType's
         where larger, a user's type as it is) and brakes at most at the hard-brake line
-        (HARD_BRAKE_LINE_MPS2). Set on its vType too, once per vType, so that SUMO inserts the
+        (ALONE_DECEL_MPS2). Set on its vType too, once per vType, so that SUMO inserts the
         next CAVs of that type within them: set on each CAV only after its insertion, a CAV
         inserted at departSpeed="max" at the short tau of the scenarios' CAV type then braked
         beyond 4 m/s^2 to open SUMO's gap (693 of 1101 CAV hard-brake steps of a corridor run at
         40 % CAVs, all within 2 s of departure)."""
         vehicle, vtypes = self.api.vehicle, self.api.vehicletype
         try:
-            base = vehicle.getTypeID(vid).split("@")[0]
-            tau = max(vtypes.getTau(base), SUMO_TAU_S)
-            min_gap = max(vtypes.getMinGap(base), SUMO_MIN_GAP_M)
+            base, tau, min_gap = self._alone_gaps(vid)
             if base not in self._alone_types:
                 self._alone_types.add(base)
                 vtypes.setTau(base, tau)
                 vtypes.setMinGap(base, min_gap)
-                if vtypes.getDecel(base) > HARD_BRAKE_LINE_MPS2:
-                    vtypes.setDecel(base, HARD_BRAKE_LINE_MPS2)
+                if vtypes.getDecel(base) > ALONE_DECEL_MPS2:
+                    vtypes.setDecel(base, ALONE_DECEL_MPS2)
             vehicle.setTau(vid, tau)
             vehicle.setMinGap(vid, min_gap)
         except Exception:  # vanished: nothing to set
@@ -742,15 +739,23 @@ class SumoSession(SessionBase):
         """The gap [m] SUMO wants ahead of CAV ``vid`` once it drives alone (:meth:`drive_alone`)
         at ``speed_mps`` behind a vehicle at ``lead_mps``; SUMO's defaults where SUMO cannot
         tell."""
-        vtypes = self.api.vehicletype
         try:
-            base = self.api.vehicle.getTypeID(vid).split("@")[0]
-            tau = max(vtypes.getTau(base), SUMO_TAU_S)
-            min_gap = max(vtypes.getMinGap(base), SUMO_MIN_GAP_M)
+            _, tau, min_gap = self._alone_gaps(vid)
             decel = min(self.api.vehicle.getDecel(vid), ALONE_DECEL_MPS2)
         except Exception:  # vanished
             tau, min_gap, decel = SUMO_TAU_S, SUMO_MIN_GAP_M, ALONE_DECEL_MPS2
         return min_gap + secure_gap_m(tau, decel, speed_mps, lead_mps)
+
+    def _alone_gaps(self, vid: str) -> tuple[str, float, float]:
+        """``(its user's vType, headway [s], minGap [m])`` of CAV ``vid`` driving alone: at
+        least SUMO's defaults, its vType's where larger."""
+        vtypes = self.api.vehicletype
+        base = self.api.vehicle.getTypeID(vid).split("@")[0]
+        return (
+            base,
+            max(vtypes.getTau(base), SUMO_TAU_S),
+            max(vtypes.getMinGap(base), SUMO_MIN_GAP_M),
+        )
 
     def reclaim(self, vid: str) -> None:
         """``vid``, released before, is a swarm's CAV again (a platoon took it in: its

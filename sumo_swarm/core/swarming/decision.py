@@ -23,9 +23,13 @@ from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from enum import Enum
+from typing import TYPE_CHECKING
 
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import Snapshot, vehicle_ahead, vehicle_behind
+
+if TYPE_CHECKING:
+    from sumo_swarm.config import SwarmSettings
 
 # Default of [swarm] accelerating_mps2 (see config.SwarmSettings).
 ACCELERATING_MPS2 = 0.5
@@ -136,6 +140,29 @@ def slow_vehicle_ahead(
     if vehicle.accel_mps2 > accelerating_mps2:
         return None  # speeding up (e.g. after merging): not a slow vehicle
     return vehicle
+
+
+def held_by(
+    leader: VehicleState,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    swarm: SwarmSettings,
+    *,
+    cruise_mps: float,
+    cap_mps: float,
+    width_m: float,
+) -> VehicleState | None:
+    """:func:`slow_vehicle_ahead` by the swarm's settings (``[swarm]``): slow below
+    ``trigger_speed_ratio`` of ``cruise_mps``, within ``detect_range_m``, ``min_speed_gain_mps``
+    below ``cap_mps``, not speeding up beyond ``accelerating_mps2``. One test for the decision
+    and for where swarms form (controllers.fleet)."""
+    return slow_vehicle_ahead(
+        leader, others, road,
+        slow_below_mps=cruise_mps * swarm.trigger_speed_ratio,
+        detect_range_m=swarm.detect_range_m, cap_mps=cap_mps,
+        min_gain_mps=swarm.min_speed_gain_mps, width_m=width_m,
+        accelerating_mps2=swarm.accelerating_mps2,
+    )  # fmt: skip
 
 
 # A slow vehicle is only catching up when the vehicles ahead of it in its lane, this far [m] and
