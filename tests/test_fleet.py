@@ -115,6 +115,22 @@ def test_platoon_settings_refuse_impossible_values(key, value, fragment):
 # --------------------------------------------------------------------------- SUMO runs
 
 
+def _lines(path: Path) -> list[dict]:
+    """A run's events.jsonl or plans.jsonl, one object per line."""
+    with path.open(encoding="utf-8") as f:
+        return [json.loads(line) for line in f]
+
+
+def _cavs(ids, lane, first_pos, speed, spacing=15.0):
+    """``<vehicle>`` lines of CAVs ``ids`` in ``lane``, the first at ``first_pos`` [m], the
+    others ``spacing`` [m] apart behind it."""
+    return "\n".join(
+        f'  <vehicle id="{vid}" type="cav" route="r" depart="0" departLane="{lane}" '
+        f'departPos="{first_pos - spacing * i:g}" departSpeed="{speed:g}"/>'
+        for i, vid in enumerate(ids)
+    )
+
+
 def _config(folder: Path, spec: HighwaySpec, routes: str, end_s: float) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     build_highway(spec, folder, "road")
@@ -160,12 +176,12 @@ def test_a_users_flow_with_cavs_in_a_type_distribution_forms_several_swarms(tmp_
     # vehicles braked hard no more often than among the plain platoons.
     assert swarm["cav"]["mean_speed_mps"] > cacc["cav"]["mean_speed_mps"]
     assert swarm["safety"]["hard_brakes_hv"] <= cacc["safety"]["hard_brakes_hv"] + 10
-    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    events = _lines(tmp_path / "swarm" / "events.jsonl")
     formed = [e for e in events if e["event"] == "platoon_formed"]
     assert formed and all(len(e["cavs"]) >= 2 for e in formed)
     weighed = [e for e in events if e["event"] == "overtake_weighed"]
     assert all("follow" in e["scores_m"] for e in weighed)
-    plans = [json.loads(line) for line in (tmp_path / "swarm" / "plans.jsonl").open()]
+    plans = _lines(tmp_path / "swarm" / "plans.jsonl")
     assert all("platoon" in p for p in plans)
     # Every swarm's plans and tracking in the summary (they were the first swarm's alone).
     assert swarm["planner"]["solves"] == len(plans)
@@ -174,20 +190,14 @@ def test_a_users_flow_with_cavs_in_a_type_distribution_forms_several_swarms(tmp_
         assert swarm["cav"]["lat_error_rms_m"] is not None
 
 
-HELD_AND_FREE = """<routes>
+HELD_AND_FREE = f"""<routes>
   <vType id="cav" sigma="0" maxSpeed="30"/>
   <vType id="truck" vClass="truck" maxSpeed="15"/>
   <route id="r" edges="e0"/>
   <vehicle id="slow" type="truck" route="r" depart="0" departLane="0" departPos="330"
            departSpeed="15"/>
-  <vehicle id="a0" type="cav" route="r" depart="0" departLane="0" departPos="300"
-           departSpeed="15"/>
-  <vehicle id="a1" type="cav" route="r" depart="0" departLane="0" departPos="280"
-           departSpeed="15"/>
-  <vehicle id="b0" type="cav" route="r" depart="0" departLane="2" departPos="300"
-           departSpeed="28"/>
-  <vehicle id="b1" type="cav" route="r" depart="0" departLane="2" departPos="260"
-           departSpeed="28"/>
+{_cavs(["a0", "a1"], 0, 300, 15, spacing=20)}
+{_cavs(["b0", "b1"], 2, 300, 28, spacing=40)}
 </routes>
 """
 
@@ -198,7 +208,7 @@ def test_cavs_form_a_swarm_only_where_a_slow_vehicle_holds_them(tmp_path):
     # pair has something to decide together.
     cfg = _config(tmp_path / "net", HighwaySpec(length_m=3000, lanes=3), HELD_AND_FREE, 12)
     out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
-    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    events = _lines(tmp_path / "swarm" / "events.jsonl")
     formed = [e for e in events if e["event"] == "platoon_formed"]
     assert [sorted(e["cavs"]) for e in formed] == [["a0", "a1"]]
     assert out["safety"]["collisions"] == 0 and out["safety"]["hard_brakes_cav"] == 0
@@ -212,7 +222,7 @@ def test_a_platoon_for_which_nothing_together_pays_goes_back_to_sumo_gently(tmp_
     cfg = write_road("3-lane-cav-flow", tmp_path / "road", end_s=25.0)
     out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", seed=4, progress=False,
                       notify=print)  # fmt: skip
-    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    events = _lines(tmp_path / "swarm" / "events.jsonl")
     parted = [e for e in events if e["event"] == "platoon_apart"]
     assert parted, [e["event"] for e in events]
     weighed = [e for e in events if e["event"] == "overtake_weighed"]
@@ -221,14 +231,6 @@ def test_a_platoon_for_which_nothing_together_pays_goes_back_to_sumo_gently(tmp_
     assert out["safety"]["hard_brakes_cav"] == 0
     # ...and then SUMO drives them: none of them in a platoon at the end
     assert out["swarms"]["platoons_now"] == 0
-
-
-def _cavs(ids, lane, first_pos, speed):
-    return "\n".join(
-        f'  <vehicle id="{vid}" type="cav" route="r" depart="0" departLane="{lane}" '
-        f'departPos="{first_pos - 15 * i:g}" departSpeed="{speed:g}"/>'
-        for i, vid in enumerate(ids)
-    )
 
 
 MERGE = f"""<routes>
@@ -248,7 +250,7 @@ def test_two_platoons_that_meet_in_a_lane_merge(tmp_path):
     # One lane: the front platoon stays behind the slow truck, the one behind catches up.
     cfg = _config(tmp_path / "net", HighwaySpec(length_m=3000, lanes=1), MERGE, 60)
     out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
-    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    events = _lines(tmp_path / "swarm" / "events.jsonl")
     formed = [e for e in events if e["event"] == "platoon_formed"]
     merges = [e for e in events if e["event"] == "platoon_merge"]
     # a0-a2, held by the truck, form a platoon at once; b0-b2, free until they reach it, only
@@ -308,10 +310,10 @@ def test_two_swarms_overtaking_near_each_other_never_plan_into_the_same_space(tm
     last = df[df["time_s"] == df["time_s"].max()].set_index("vehicle")["s_m"]
     assert all(last[c] > last["t1"] for c in ("a0", "a1", "a2"))
     assert all(last[c] > last["t2"] for c in ("b0", "b1", "b2"))
-    events = [json.loads(line) for line in (tmp_path / "swarm" / "events.jsonl").open()]
+    events = _lines(tmp_path / "swarm" / "events.jsonl")
     targets = {e["platoon"]: e["target"] for e in events if e["event"] == "overtake_start"}
     assert len(targets) >= 2
-    plans = [json.loads(line) for line in (tmp_path / "swarm" / "plans.jsonl").open()]
+    plans = _lines(tmp_path / "swarm" / "plans.jsonl")
     # The summary's planner block counts every swarm's plans (it counted the first swarm's).
     assert sum(out["planner"]["statuses"].values()) == len(plans)
     assert out["planner"]["solves"] == len(plans)
