@@ -8,6 +8,11 @@ alternated point by point so that each sees the same machine load:
   (``sumo/scenario.sumocfg`` of one untimed run per point: the same network, flows, step,
   sublane model, collision options and network outputs, tripinfo with emissions and edge
   data): the yardstick;
+- ``sumo-fcd``: the same, with the run's own outputs: a sumo-swarm run also writes every
+  vehicle at every step (``trajectories.parquet``); the sumo binary writes the same as its FCD
+  output in Parquet (``--fcd-output fcd.parquet`` with FCD_ATTRIBUTES: position, lane,
+  position along and across it, speed and acceleration): the yardstick of "the same
+  configuration and outputs";
 - ``libsumo``: the same configuration stepped through libsumo, nothing read, with the one
   command per CAV that defines sumo-cacc (its lane-change mode: SUMO's strategic changes
   only; tools/libsumo_plain.py). This is the same simulation as sumo-cacc's; ``sumo`` is not
@@ -27,6 +32,7 @@ Two axes: the simulated time (``--times``, at the scenario's CAV share) and the 
 process wall time, CPU time (user + system: without the waits for a core) and peak resident
 memory per point and mode (median, p95 and max over ``--repeats``), the ratios of wall and of
 CPU time run by run (sumo-cacc, libsumo and libsumo-reads against the sumo binary, sumo-cacc
+against it with FCD output,
 against libsumo and libsumo-reads, swarm against sumo-cacc), each
 mode's peak memory against its shortest run's, and what the runs did (CAVs that entered,
 platoons formed, collisions).
@@ -34,7 +40,7 @@ platoons formed, collisions).
 Usage: python tools/bench_corridor.py [--times 300,1200,3600] [--shares 0.1,0.2,0.4]
                                       [--share-time 300] [--repeats 1]
                                       [--out docs/bench/corridor]
-                                      [--modes sumo,libsumo,libsumo-reads,sumo-cacc,swarm]
+                                      [--modes sumo,sumo-fcd,libsumo,libsumo-reads,sumo-cacc,swarm]
 """
 
 from __future__ import annotations
@@ -59,8 +65,11 @@ from sumo_swarm.sim.scene import CAV_TYPE
 
 ROOT = Path(__file__).resolve().parent.parent
 CORRIDOR = ROOT / "scenarios" / "corridor.toml"
-MODES = ("sumo", "libsumo", "libsumo-reads", "sumo-cacc", "swarm", "cacc", "sumo-lc")
-DEFAULT_MODES = ("sumo", "libsumo", "sumo-cacc", "swarm")
+MODES = ("sumo", "sumo-fcd", "libsumo", "libsumo-reads", "sumo-cacc", "swarm", "cacc", "sumo-lc")
+DEFAULT_MODES = ("sumo", "sumo-fcd", "libsumo", "sumo-cacc", "swarm")
+# The FCD attributes that hold what trajectories.parquet holds of each vehicle at each step
+# (its edge and lane are SUMO's lane id; the distance along the route is the project's own).
+FCD_ATTRIBUTES = "x,y,lane,pos,posLat,speed,acceleration"
 
 
 def scenario_file(folder: Path, duration_s: float, share: float) -> Path:
@@ -83,10 +92,14 @@ def run_command(mode: str, scenario: Path, work: Path) -> list[str]:
 def command(mode: str, scenario: Path, work: Path, reference: Path) -> list[str]:
     """The process of ``mode``; ``reference``: the untimed sumo-cacc run of the point, whose
     saved configuration the sumo and libsumo modes run."""
-    if mode in ("sumo", "libsumo", "libsumo-reads"):
+    if mode in ("sumo", "sumo-fcd", "libsumo", "libsumo-reads"):
         cfg = str(reference / "sumo" / "scenario.sumocfg")
         if mode == "sumo":
             return [sumo_binary(), "-c", cfg]
+        if mode == "sumo-fcd":
+            work.mkdir(parents=True, exist_ok=True)
+            return [sumo_binary(), "-c", cfg, "--fcd-output", str(work / "fcd.parquet"),
+                    "--fcd-output.attributes", FCD_ATTRIBUTES]  # fmt: skip
         plain = ROOT / "tools" / "libsumo_plain.py"
         reads = ["--reads"] if mode == "libsumo-reads" else []
         return [sys.executable, str(plain), *reads, CAV_TYPE, str(LC_MODE_STRATEGIC), "-c", cfg]
@@ -94,7 +107,7 @@ def command(mode: str, scenario: Path, work: Path, reference: Path) -> list[str]
 
 
 def what_it_did(mode: str, work: Path) -> dict[str, float]:
-    if mode in ("sumo", "libsumo", "libsumo-reads"):
+    if mode in ("sumo", "sumo-fcd", "libsumo", "libsumo-reads"):
         return {}
     summary = json.loads((work / "summary.json").read_text(encoding="utf-8"))
     network = summary.get("network") or {}
@@ -172,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
                               **stats(sub[(column, mode)])})  # fmt: skip
         ratios = (
             ("sumo-cacc", "sumo", "the sumo binary's"),
+            ("sumo-cacc", "sumo-fcd", "the sumo binary's with FCD"),
             ("libsumo", "sumo", "the sumo binary's"),
             ("libsumo-reads", "sumo", "the sumo binary's"),
             ("sumo-cacc", "libsumo", "libsumo's"),
