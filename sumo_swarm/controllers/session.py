@@ -17,7 +17,7 @@ import inspect
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
-from sumo_swarm.core.hvmodel import DriverModel
+from sumo_swarm.core.hvmodel import SUMO_DEFAULTS, DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.decision import secure_gap_m
 
@@ -29,7 +29,7 @@ __all__ = [
     "SessionBase", "SessionView",
 ]  # fmt: skip
 
-SUMO_TAU_S, SUMO_MIN_GAP_M = 1.0, 2.5  # SUMO's default headway [s] and minGap [m]
+SUMO_TAU_S, SUMO_MIN_GAP_M = SUMO_DEFAULTS.tau_s, SUMO_DEFAULTS.min_gap_m  # [s], [m]
 # How hard SUMO brakes a CAV it drives alone [m/s^2]: the contract's hard-brake line
 # (sim.metrics.HARD_BRAKE_MPS2).
 ALONE_DECEL_MPS2 = 4.0

@@ -71,6 +71,11 @@ class DriverModel:
 
 
 # ---------------------------------------------------------------------- SUMO's formulas
+# SUMO's default passenger vType as a driver (its decel, tau and minGap are what the swarm
+# takes where it means "SUMO's own driver"). The class's own fields are slots, not these values.
+SUMO_DEFAULTS = DriverModel()
+
+
 def idm_follow_speed(
     m: DriverModel, v_mps: float, v_lead_mps: float, gap_m: float, step_s: float, v0_mps: float
 ) -> float:

@@ -27,7 +27,12 @@ from sumo_swarm.controllers.session import (
     SUMO_TAU_S,
     SessionBase,
 )
-from sumo_swarm.core.hvmodel import DriverModel, idm_follow_speed, krauss_follow_speed
+from sumo_swarm.core.hvmodel import (
+    SUMO_DEFAULTS,
+    DriverModel,
+    idm_follow_speed,
+    krauss_follow_speed,
+)
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import overlapping_ahead, snapshot_of, within
 from sumo_swarm.core.routeframe import RouteFrame
@@ -841,7 +846,7 @@ class SumoSession(SessionBase):
                 try:
                     decel = decels[vid] = self.api.vehicle.getDecel(vid)
                 except Exception:  # vanished: it brakes as SUMO's default
-                    decel = decels[vid] = DriverModel.decel_mps2
+                    decel = decels[vid] = SUMO_DEFAULTS.decel_mps2
             return decel
 
         moved: dict[int, tuple[dict, dict]] = {}  # by table id: (table, table moved)

@@ -47,6 +47,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from sumo_swarm.core.hvmodel import SUMO_DEFAULTS
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.decision import secure_gap_m
 
@@ -69,8 +70,8 @@ LEAVE_S = 3.0
 HV_ACCEL_MPS2 = 1.0
 # A vehicle's spacing in a lane at speed v: its length plus this standstill gap [m] plus a
 # one-second headway (SUMO's default tau), for the secure gap the others keep.
-MIN_GAP_M = 2.5
-HEADWAY_S = 1.0
+MIN_GAP_M = SUMO_DEFAULTS.min_gap_m
+HEADWAY_S = SUMO_DEFAULTS.tau_s
 # A driver moves to a lane beside for this much more speed [m/s]: one driver changes lanes for
 # less than a platoon needs to coordinate a manoeuvre (min_gain_mps); with the platoon's 2 m/s,
 # targets moved into the lane the platoon was passing in within 1-4 s of the start.
@@ -79,7 +80,7 @@ HV_SPEED_GAIN_MPS = 1.0
 BEHIND_M = 150.0
 # The deceleration SUMO's drivers take for a follower's secure gap [m/s^2] (its default
 # passenger vType's decel).
-SUMO_DECEL_MPS2 = 4.5
+SUMO_DECEL_MPS2 = SUMO_DEFAULTS.decel_mps2
 # What the CAVs do without acting together: follow, or (many swarms) each on its own.
 ALONE = frozenset({"follow", "apart"})
 
