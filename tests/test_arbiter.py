@@ -205,17 +205,21 @@ def test_the_cells_pass_no_faster_than_the_lanes_beside_let_them():
     assert cells.loss_m == pytest.approx(50.0)
 
 
+def _beside_two_cavs_held(other: VehicleState):
+    """The weighing, ``apart`` among it, of two CAVs at 15 m/s (fronts at 200 and 185 m, lane
+    1) behind a 15 m/s truck (front at 215 m), with ``other`` in lane 2 at its own speed."""
+    truck = car("truck", 215.0, 1, 15.0)
+    desired = {"truck": 15.0, other.vehicle_id: other.speed_mps}
+    return weigh(platoon(n=2, v=15.0), truck, [truck, other], desired=desired, side_lanes=[2],
+                 cells_pace_mps=None, apart=True)  # fmt: skip
+
+
 def test_apart_each_cav_moves_over_where_sumo_lets_it_on_its_own():
     # Two CAVs at 15 m/s behind a 15 m/s truck; a car at 30 m/s in lane 2, 60 m behind the
     # tail: outside the secure room a platoon's guards keep (2.5 + 30 = 32.5 m), inside the
     # secure gap SUMO's lane-change model wants in front of it for a CAV at 15 m/s
     # (2.5 + 30 + (30^2 - 15^2) / 9 = 107.5 m).
-    view = platoon(n=2, v=15.0)
-    truck = car("truck", 215.0, 1, 15.0)
-    fast = car("f", 120.0, 2, 30.0)
-    desired = {"truck": 15.0, "f": 30.0}
-    choice = weigh(view, truck, [truck, fast], desired=desired, side_lanes=[2],
-                   cells_pace_mps=None, apart=True)  # fmt: skip
+    choice = _beside_two_cavs_held(car("f", 120.0, 2, 30.0))
     kinds = {o.kind: o for o in choice.weighed}
     # As a platoon at once, 15 m/s up for 18.25 s each: 547.5 m.
     assert kinds["lane_pass"].gain_m == pytest.approx(547.5)
@@ -231,12 +235,7 @@ def test_apart_each_cav_moves_over_where_sumo_lets_it_on_its_own():
 def test_apart_is_taken_where_only_some_cavs_can_move_over():
     # A car as slow as the platoon in lane 2, 15 m behind the tail's front: it never passes,
     # so the platoon as a whole cannot move over; the front CAV, 30 m ahead of it, can.
-    view = platoon(n=2, v=15.0)
-    truck = car("truck", 215.0, 1, 15.0)
-    slow = car("s", 165.0, 2, 15.0)
-    desired = {"truck": 15.0, "s": 15.0}
-    choice = weigh(view, truck, [truck, slow], desired=desired, side_lanes=[2],
-                   cells_pace_mps=None, apart=True)  # fmt: skip
+    choice = _beside_two_cavs_held(car("s", 165.0, 2, 15.0))
     kinds = {o.kind: o for o in choice.weighed}
     assert "lane_pass" not in kinds
     # c0 alone: 15 m/s up for 18.25 s, the car behind it keeps its room (no loss); c1 stays

@@ -121,6 +121,12 @@ def _lines(path: Path) -> list[dict]:
         return [json.loads(line) for line in f]
 
 
+def _swarm_run(cfg: Path, folder: Path, seed: int | None = None) -> tuple[dict, list[dict]]:
+    """The swarm's run of ``cfg`` into ``folder``: its summary and its events."""
+    out = run_sumocfg(cfg, "cav", "swarm", folder, seed=seed, progress=False, notify=print)
+    return out, _lines(folder / "events.jsonl")
+
+
 def _cavs(ids, lane, first_pos, speed, spacing=15.0):
     """``<vehicle>`` lines of CAVs ``ids`` in ``lane``, the first at ``first_pos`` [m], the
     others ``spacing`` [m] apart behind it."""
@@ -207,8 +213,7 @@ def test_cavs_form_a_swarm_only_where_a_slow_vehicle_holds_them(tmp_path):
     # a0, a1 behind a 15 m/s truck; b0, b1 in a free lane at their 28 m/s: only the held
     # pair has something to decide together.
     cfg = _config(tmp_path / "net", HighwaySpec(length_m=3000, lanes=3), HELD_AND_FREE, 12)
-    out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
-    events = _lines(tmp_path / "swarm" / "events.jsonl")
+    out, events = _swarm_run(cfg, tmp_path / "swarm")
     formed = [e for e in events if e["event"] == "platoon_formed"]
     assert [sorted(e["cavs"]) for e in formed] == [["a0", "a1"]]
     assert out["safety"]["collisions"] == 0 and out["safety"]["hard_brakes_cav"] == 0
@@ -220,9 +225,7 @@ def test_a_platoon_for_which_nothing_together_pays_goes_back_to_sumo_gently(tmp_
     # swarm weighs moving over apart best, parts, and each CAV drops back to the gap SUMO
     # wants before SUMO drives it. Handed over at once, SUMO braked three CAVs at 4.7 m/s^2.
     cfg = write_road("3-lane-cav-flow", tmp_path / "road", end_s=25.0)
-    out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", seed=4, progress=False,
-                      notify=print)  # fmt: skip
-    events = _lines(tmp_path / "swarm" / "events.jsonl")
+    out, events = _swarm_run(cfg, tmp_path / "swarm", seed=4)
     parted = [e for e in events if e["event"] == "platoon_apart"]
     assert parted, [e["event"] for e in events]
     weighed = [e for e in events if e["event"] == "overtake_weighed"]
@@ -249,8 +252,7 @@ MERGE = f"""<routes>
 def test_two_platoons_that_meet_in_a_lane_merge(tmp_path):
     # One lane: the front platoon stays behind the slow truck, the one behind catches up.
     cfg = _config(tmp_path / "net", HighwaySpec(length_m=3000, lanes=1), MERGE, 60)
-    out = run_sumocfg(cfg, "cav", "swarm", tmp_path / "swarm", progress=False, notify=print)
-    events = _lines(tmp_path / "swarm" / "events.jsonl")
+    out, events = _swarm_run(cfg, tmp_path / "swarm")
     formed = [e for e in events if e["event"] == "platoon_formed"]
     merges = [e for e in events if e["event"] == "platoon_merge"]
     # a0-a2, held by the truck, form a platoon at once; b0-b2, free until they reach it, only
