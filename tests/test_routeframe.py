@@ -133,6 +133,11 @@ def test_lane_indices_across_a_dropped_right_lane():
     assert frame.route_edge(":j1_0") == "a" and frame.route_edge("b") == "b"
     assert frame.road_section(":j1_0") is frame.road_section("a")
     assert len(frame.road_section(":j1_0").lane_widths_m) == 3
+    # The answers are kept per route: a route given later (b -> c: b's lanes numbered from
+    # 0) answers anew, not from the first route's.
+    frame.set_route(["b", "c"])
+    assert frame.lane_as_on(0, "b", "a") is None  # a is off this route
+    assert frame.lane_as_on(1, "b", "c") == 1
 
 
 @pytest.mark.parametrize(

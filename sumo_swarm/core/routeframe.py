@@ -90,6 +90,7 @@ class RouteFrame:
         # junction lane -> offset of the lane it comes from (a lane that fans out into two
         # junction lanes is the same lane on both)
         self.via_lane_offset: dict[str, int] = {}
+        self._lanes_as_on: dict[tuple[int, str, str], int | None] = {}  # lane_as_on's answers
         offset = 0.0
         for i, edge in enumerate(edges):
             self.edge_offset_m[edge] = offset
@@ -137,13 +138,19 @@ class RouteFrame:
     def lane_as_on(self, lane: int, edge: str, reference: str) -> int | None:
         """Index on ``reference`` of the lane that is lane ``lane`` of ``edge`` (both on the
         route, junction edges included); None where either is off the route. May fall outside
-        ``reference``'s lanes: a lane that ended before it, or begins after it."""
+        ``reference``'s lanes: a lane that ended before it, or begins after it. Worked out
+        once per route (the controllers ask for every vehicle near a lane shift at each step)."""
+        key = (lane, edge, reference)
+        try:
+            return self._lanes_as_on[key]
+        except KeyError:
+            pass
         a = self.via_lane_offset.get(f"{edge}_{lane}") if edge in self.junction_from else None
         a = self.lane_offset.get(edge) if a is None else a
         b = self.lane_offset.get(reference)
-        if a is None or b is None:
-            return None
-        return lane + a - b
+        found = None if a is None or b is None else lane + a - b
+        self._lanes_as_on[key] = found
+        return found
 
     def route_edge(self, edge: str) -> str:
         """``edge`` itself, or for a junction edge on the route the route edge it leaves: the

@@ -73,10 +73,17 @@ class Tracker:
         return self._kappa[1]
 
     def add(self, vid: str) -> None:
-        if vid not in self._lon:
-            self._lon[vid] = LongitudinalMpc(self.lon)
+        """Track CAV ``vid`` from now on. Its two MPCs are set up at its first solve
+        (:meth:`_mpcs`): most CAVs of a corridor's platoons only ever cruise, and setting up
+        OSQP for each CAV that joined one took a tenth of the swarm's time there."""
+        self.phi.setdefault(vid, 0.0)
+
+    def _mpcs(self, vid: str) -> tuple[LongitudinalMpc, LateralMpc]:
+        lon = self._lon.get(vid)
+        if lon is None:
+            lon = self._lon[vid] = LongitudinalMpc(self.lon)
             self._lat[vid] = LateralMpc(self.lat)
-            self.phi[vid] = 0.0
+        return lon, self._lat[vid]
 
     def reset(self) -> None:
         """Forget the solved inputs (a new plan: solve at the next call)."""
@@ -103,11 +110,12 @@ class Tracker:
         y = road.y_of(ego.lane, ego.lat_m)
         if solve or vid not in self._inputs:
             s_ref, v_ref = ref.targets_time(t_s, self.lon.dt_s, self.lon.horizon)
-            res = self._lon[vid].solve(centre, ego.speed_mps, s_ref, v_ref)
+            lon, lat = self._mpcs(vid)
+            res = lon.solve(centre, ego.speed_mps, s_ref, v_ref)
             ds = max(ego.speed_mps, 1.0) * self.lat.dt_s
             y_ref, dy_ref = ref.targets_space(centre, ds, self.lat.horizon)
             kappa = self._curvature(road.curvature_1pm)
-            lres = self._lat[vid].solve(y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds)
+            lres = lat.solve(y, self.phi[vid], y_ref, np.arctan(dy_ref), kappa, ds)
             if lres.status == STEADY:
                 self.phi[vid] = 0.0  # centred and straight on: straight ahead
             self._inputs[vid] = (t_s, res.inputs, lres.inputs)
