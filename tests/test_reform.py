@@ -899,3 +899,29 @@ def test_a_goal_lane_the_road_does_not_have_steers_to_the_nearest_one():
     assert dlat < 0.0  # back towards lane 2's centre, not off the road
     dlat, _ = r._steer(car("c0", 100.0, 0, 15.0, cav=True, lat=-0.3), -1, [], road, 0.1)
     assert dlat > 0.0
+
+
+def test_a_target_driving_on_has_not_changed_lanes_when_the_swarms_lane_numbering_shifts():
+    """The swarm's states number lanes as on its lead CAV's edge; past an on-ramp's added
+    lane that numbering shifts by one. The target, on one edge in one lane all along, has not
+    changed lanes; moved to another lane of its edge, it has (once settled in it)."""
+    from sumo_swarm.controllers.decider import Decider
+    from sumo_swarm.controllers.lanes import LaneView
+    from tests.fakes import FakeSession, run_context
+
+    # lane 1 of its own edge "acc"
+    own = {"truck": VehicleState("truck", 300.0, 1, 0.0, 15.0, 12.0)}
+    session = FakeSession(own, edges={"truck": "acc"})
+    ctx = run_context(session, SCENARIO, ROAD)
+    decider = Decider(ctx, lanes=LaneView(ctx), reformer=None, planner=SCENARIO.planner,
+                      model_of=lambda vid: DriverModel(model="unknown"))  # fmt: skip
+    # As the swarm sees it: lane 0 while its lead CAV is on the edge before the ramp, then 1.
+    before_ramp = replace(own["truck"], lane=0)
+    assert not decider.target_changed_lane(before_ramp)
+    assert not decider.target_changed_lane(before_ramp)
+    assert not decider.target_changed_lane(own["truck"])  # the lead CAV is past the ramp now
+    # It moves to lane 2 of its edge: changed once its centre is in it.
+    session.states = {"truck": VehicleState("truck", 310.0, 2, -1.2, 15.0, 12.0)}
+    assert not decider.target_changed_lane(session.states["truck"])  # still moving over
+    session.states = {"truck": VehicleState("truck", 320.0, 2, 0.1, 15.0, 12.0)}
+    assert decider.target_changed_lane(session.states["truck"])

@@ -310,15 +310,21 @@ class Decider:
 
     def target_changed_lane(self, target: VehicleState | None) -> bool:
         """Has the target changed lanes on its own since the decision? Lane indices change
-        where a lane ends (netconvert drops the rightmost), so only a new lane on the same edge,
-        with the target settled in it, counts."""
+        where a lane ends or one is added on the right (netconvert numbers from the right), so
+        only a new lane on the same edge, with the target settled in it, counts: its lane on
+        its own edge (:meth:`LaneView.own`). The swarm's states number lanes as on its lead
+        CAV's edge, which changes when the lead CAV passes such a place: read there, a target
+        driving on past an on-ramp "changed lanes" as the CAVs behind it reached the
+        acceleration lane, and five of the seven lane passes ended so on the corridors were
+        none."""
         if target is None:
             return False
         edge = self.lanes.edge_of(target.vehicle_id)
+        own = self.lanes.own(target)
         if self._target_lane is None or self._target_lane[0] != edge:
-            self._target_lane = (edge, target.lane)
+            self._target_lane = (edge, own.lane)
             return False
-        return target.lane != self._target_lane[1] and abs(target.lat_m) < 0.5
+        return own.lane != self._target_lane[1] and abs(own.lat_m) < 0.5
 
     # ------------------------------------------------------------------ keeping right
     def may_keep_right(self, target: VehicleState, states: States) -> bool:
