@@ -315,8 +315,7 @@ class Decider:
         its own edge (:meth:`LaneView.own`). The swarm's states number lanes as on its lead
         CAV's edge, which changes when the lead CAV passes such a place: read there, a target
         driving on past an on-ramp "changed lanes" as the CAVs behind it reached the
-        acceleration lane, and five of the seven lane passes ended so on the corridors were
-        none."""
+        acceleration lane (all seven manoeuvres that ended so in 40 corridor runs)."""
         if target is None:
             return False
         edge = self.lanes.edge_of(target.vehicle_id)
