@@ -32,8 +32,7 @@ Two axes: the simulated time (``--times``, at the scenario's CAV share) and the 
 process wall time, CPU time (user + system: without the waits for a core) and peak resident
 memory per point and mode (median, p95 and max over ``--repeats``), the ratios of wall and of
 CPU time run by run (sumo-cacc, libsumo and libsumo-reads against the sumo binary, sumo-cacc
-against it with FCD output,
-against libsumo and libsumo-reads, swarm against sumo-cacc), each
+against it with FCD output, against libsumo and libsumo-reads, swarm against sumo-cacc), each
 mode's peak memory against its shortest run's, and what the runs did (CAVs that entered,
 platoons formed, collisions).
 
@@ -67,6 +66,8 @@ ROOT = Path(__file__).resolve().parent.parent
 CORRIDOR = ROOT / "scenarios" / "corridor.toml"
 MODES = ("sumo", "sumo-fcd", "libsumo", "libsumo-reads", "sumo-cacc", "swarm", "cacc", "sumo-lc")
 DEFAULT_MODES = ("sumo", "sumo-fcd", "libsumo", "sumo-cacc", "swarm")
+# The modes that run the saved configuration without sumo-swarm (no summary to read).
+PLAIN_MODES = ("sumo", "sumo-fcd", "libsumo", "libsumo-reads")
 # The FCD attributes that hold what trajectories.parquet holds of each vehicle at each step
 # (its edge and lane are SUMO's lane id; the distance along the route is the project's own).
 FCD_ATTRIBUTES = "x,y,lane,pos,posLat,speed,acceleration"
@@ -92,7 +93,7 @@ def run_command(mode: str, scenario: Path, work: Path) -> list[str]:
 def command(mode: str, scenario: Path, work: Path, reference: Path) -> list[str]:
     """The process of ``mode``; ``reference``: the untimed sumo-cacc run of the point, whose
     saved configuration the sumo and libsumo modes run."""
-    if mode in ("sumo", "sumo-fcd", "libsumo", "libsumo-reads"):
+    if mode in PLAIN_MODES:
         cfg = str(reference / "sumo" / "scenario.sumocfg")
         if mode == "sumo":
             return [sumo_binary(), "-c", cfg]
@@ -107,7 +108,7 @@ def command(mode: str, scenario: Path, work: Path, reference: Path) -> list[str]
 
 
 def what_it_did(mode: str, work: Path) -> dict[str, float]:
-    if mode in ("sumo", "sumo-fcd", "libsumo", "libsumo-reads"):
+    if mode in PLAIN_MODES:
         return {}
     summary = json.loads((work / "summary.json").read_text(encoding="utf-8"))
     network = summary.get("network") or {}
