@@ -546,8 +546,6 @@ class SwarmSettings:
     interval_rule
         Behaving interval: long enough that a one-row move never needs a speed above the cap
         ("drivable"), or always planner.behaving_interval_s ("fixed").
-    speed_margin_mps
-        Room kept under the speed cap for tracking [m/s].
     cooldown_s
         No new overtaking decision for this long after a give-up [s].
     pass_singly_s
@@ -593,7 +591,6 @@ class SwarmSettings:
     lane_pass_beats: Literal["cells", "free"] = "free"
     min_speed_gain_mps: float = 2.0
     interval_rule: Literal["drivable", "fixed"] = "drivable"
-    speed_margin_mps: float = 0.3
     cooldown_s: float = 15.0
     pass_singly_s: float = 60.0
     keep_right_wait_s: float = 10.0
@@ -611,7 +608,7 @@ class SwarmSettings:
         )  # fmt: skip
         check_non_negative(
             self, "others_weight", "trigger_after_s", "start_after_s", "min_speed_gain_mps",
-            "speed_margin_mps", "cooldown_s", "pass_singly_s", "in_lane_tolerance_m",
+            "cooldown_s", "pass_singly_s", "in_lane_tolerance_m",
             "keep_right_wait_s", "accelerating_mps2", "catching_up_ahead_m", "keep_right_move_s",
             "keep_right_soon_s", "keep_right_ahead_s", "lane_pass_stall_s",
         )  # fmt: skip

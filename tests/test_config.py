@@ -49,7 +49,6 @@ def test_paper_scenario_holds_section_iv_c(paper_path):
         ("[hvmodel]\nplanner_share = 1.5\n", "planner_share must be <= 1"),
         ("[swarm]\ncontrol_interval_s = 0.0\n", "control_interval_s must be > 0"),
         ("[planner]\nregroup_lane = -1\n", "regroup_lane must be an integer >= 0"),
-        ("[swarm]\nspeed_margin_mps = -0.1\n", "speed_margin_mps must be >= 0"),
         ("[guards]\nclearing_mps = -0.5\n", "clearing_mps must be >= 0"),
         ("[swarm]\nkeep_right_wait_s = -1\n", "keep_right_wait_s"),
         ("[swarm]\npass_open_side_s = 1.0\n", "unknown key 'swarm.pass_open_side_s'"),

@@ -192,11 +192,12 @@ def test_right_lane_opens_when_the_last_car_of_a_stream_has_passed():
 
 def test_speed_cap_and_drivable_interval():
     assert speed_cap_mps([25.0, 44.4, 22.2, math.inf]) == 22.2
-    # 15 m cells, target at 17.5, cap 20, margin 0.5: 2 m/s of room -> 7.5 s per row.
-    assert behaving_interval_s(3.0, 15.0, 17.5, 20.0, 0.5, "drivable") == pytest.approx(7.5)
-    assert behaving_interval_s(3.0, 15.0, 17.5, 25.0, 0.5, "drivable") == pytest.approx(3.0)
-    assert behaving_interval_s(3.0, 15.0, 17.5, 20.0, 0.5, "fixed") == 3.0
-    assert behaving_interval_s(3.0, 15.0, 19.8, 20.0, 0.5, "drivable") == math.inf
+    # 15 m cells, target at 17.5, cap 20: 2.5 m/s of room -> 6 s per row.
+    assert behaving_interval_s(3.0, 15.0, 17.5, 20.0, "drivable") == pytest.approx(6.0)
+    assert behaving_interval_s(3.0, 15.0, 17.5, 25.0, "drivable") == pytest.approx(3.0)
+    assert behaving_interval_s(3.0, 15.0, 17.5, 20.0, "fixed") == 3.0
+    assert behaving_interval_s(3.0, 15.0, 19.8, 20.0, "drivable") == pytest.approx(75.0)
+    assert behaving_interval_s(3.0, 15.0, 20.0, 20.0, "drivable") == math.inf
 
 
 def test_target_stops_blocking():

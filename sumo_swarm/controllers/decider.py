@@ -184,7 +184,7 @@ class Decider:
         side = [q for q in side if q not in ending and q != wished]
         interval = behaving_interval_s(
             self.planner.behaving_interval_s, sc.cell_length_m, target.speed_mps,
-            self.cap_mps, sw.speed_margin_mps, sw.interval_rule,
+            self.cap_mps, sw.interval_rule,
         )  # fmt: skip
         cells_mps = sc.cell_length_m / interval if math.isfinite(interval) else None
         view = PlatoonView(
@@ -514,7 +514,7 @@ class Decider:
         side = [q for q in side if q not in self.lanes.ending(leader, leader.vehicle_id)]
         interval = behaving_interval_s(
             self.planner.behaving_interval_s, sc.cell_length_m, target.speed_mps,
-            self.cap_mps, sw.speed_margin_mps, sw.interval_rule,
+            self.cap_mps, sw.interval_rule,
         )  # fmt: skip
         return lane_for_pass(
             leader, states[platoon[-1]], target, [st for st in states.values() if not st.is_cav],

@@ -332,7 +332,7 @@ class Replanner:
         def interval_at(speed: float) -> float:
             return behaving_interval_s(
                 self.settings.behaving_interval_s, sc.cell_length_m, speed, cap,
-                sc.swarm.speed_margin_mps, sc.swarm.interval_rule,
+                sc.swarm.interval_rule,
             )  # fmt: skip
 
         interval = interval_at(grid_speed)

@@ -56,14 +56,16 @@ def behaving_interval_s(
     cell_length_m: float,
     grid_speed_mps: float,
     cap_mps: float,
-    margin_mps: float,
     rule: str,
 ) -> float:
-    """Behaving interval [s] of a plan: long enough that a one-row move per interval stays
-    under the cap (``rule = "drivable"``), never shorter than the configured one."""
+    """Behaving interval [s] of a plan: long enough that a one-row move per interval needs no
+    speed above the cap (``rule = "drivable"``), never shorter than the configured one. (Room
+    kept under the cap for tracking, 0.3 m/s, paced the paper scene's CAVs capped at its
+    cruising speed at 19.7 m/s, 19.19 m/s on average against 19.32 without it, and changed
+    nothing else: deleted.)"""
     if rule != "drivable":
         return configured_s
-    room = cap_mps - margin_mps - grid_speed_mps
+    room = cap_mps - grid_speed_mps
     if room <= 0:
         return math.inf
     return max(configured_s, cell_length_m / room)
