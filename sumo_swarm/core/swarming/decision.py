@@ -59,10 +59,7 @@ def behaving_interval_s(
     rule: str,
 ) -> float:
     """Behaving interval [s] of a plan: long enough that a one-row move per interval needs no
-    speed above the cap (``rule = "drivable"``), never shorter than the configured one. (Room
-    kept under the cap for tracking, 0.3 m/s, paced the paper scene's CAVs capped at its
-    cruising speed at 19.7 m/s, 19.19 m/s on average against 19.32 without it, and changed
-    nothing else: deleted.)"""
+    speed above the cap (``rule = "drivable"``), never shorter than the configured one."""
     if rule != "drivable":
         return configured_s
     room = cap_mps - grid_speed_mps
