@@ -3,6 +3,7 @@ answering exactly as a scan over every vehicle does."""
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -132,6 +133,18 @@ def test_one_snapshot_per_states_table_and_road_until_the_table_changes():
     assert [v.vehicle_id for v in snapshot_of(states, ROAD)] == ["b", "c"]
     states["b"] = car("b", 120.0, 1)
     assert [v.vehicle_id for v in snapshot_of(states, ROAD)] == ["c", "b"]
+
+
+def test_one_table_on_two_roads_keeps_each_roads_lateral_positions():
+    # Sorted once per table, but the lateral positions are each road's: lane 1's centre is
+    # 3.2 m from lane 0's on the first road, 3.5 m on the second; a lane beyond the section
+    # (a vehicle still on an edge with more lanes) extends the outermost width.
+    states = {v.vehicle_id: v for v in (car("a", 50.0, 1), car("b", 20.0, 0), car("c", 80.0, 4))}
+    narrow, wide = snapshot_of(states, ROAD), snapshot_of(states, RoadSection((3.5, 3.5, 3.5)))
+    assert [v.vehicle_id for v in narrow] == [v.vehicle_id for v in wide] == ["b", "a", "c"]
+    assert narrow.s == wide.s == [20.0, 50.0, 80.0]
+    assert narrow.y == pytest.approx([0.0, 3.2, 12.8])
+    assert wide.y == pytest.approx([0.0, 3.5, 14.0])
 
 
 def test_an_hv_standing_off_its_lane_centre_counts_by_its_body_only():

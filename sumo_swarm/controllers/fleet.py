@@ -78,7 +78,12 @@ from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.replanner import PlanStats
 from sumo_swarm.controllers.session import SessionView
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import ordered_platoon, snapshot_of, vehicle_ahead
+from sumo_swarm.core.neighbours import (
+    PassSnapshots,
+    ordered_platoon,
+    snapshot_of,
+    vehicle_ahead,
+)
 from sumo_swarm.core.stats import lateral_rms, summarise_ms
 from sumo_swarm.core.swarming.account import (
     manoeuvres_from_events,
@@ -612,9 +617,10 @@ class Fleet:
         ]  # fmt: skip
         ahead = {rear: front for rear, front, _ in meetings}
         held: dict[str, bool] = {}
+        snapshots = PassSnapshots()  # states hold still during the review
         for rear, front, _ in sorted(meetings, key=lambda p: p[2]):
             road = session.road_at(rear) or self.ctx.road
-            everyone = snapshot_of(states, road)  # sorted once per table and road
+            everyone = snapshots(states, road)  # sorted once per table and road
             if any(straddled(states[v], everyone, road) for v in (rear, front)):
                 continue
             lead = front
@@ -637,7 +643,7 @@ class Fleet:
             if len(platoon.members) > 1 and platoon.idle and platoon.controller.t_start_s is None:
                 lead = platoon.members[0]
                 road = session.road_at(lead) or self.ctx.road
-                if self._held(lead, states, snapshot_of(states, road), road):
+                if self._held(lead, states, snapshots(states, road), road):
                     self._free_since.pop(platoon.id, None)
                     continue
                 since = self._free_since.setdefault(platoon.id, t_s)

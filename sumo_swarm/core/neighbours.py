@@ -33,21 +33,50 @@ class Snapshot(list[VehicleState]):
     """The vehicles of one step sorted by position, with their lateral positions on ``road``:
     the look-ups below scan outward from ego's position and stop once nothing further can be
     nearer, instead of testing every vehicle (the guards ask several times per CAV and step).
-    A plain list of the same vehicles gives the same answers, only slower."""
+    A plain list of the same vehicles gives the same answers, only slower. ``ordered``: the
+    same vehicles already sorted (one table seen on several roads is sorted once)."""
 
-    def __init__(self, vehicles: Iterable[VehicleState], road: RoadSection) -> None:
-        super().__init__(sorted(vehicles, key=lambda v: v.s_m))
+    def __init__(
+        self,
+        vehicles: Iterable[VehicleState],
+        road: RoadSection,
+        ordered: _Ordered | None = None,
+    ) -> None:
+        if ordered is None:
+            ordered = _Ordered(vehicles)
+        super().__init__(ordered.vehicles)
         self.road = road
-        self.s = [v.s_m for v in self]
-        self.y = [road.y_of(v.lane, v.lat_m) for v in self]
-        self.max_length_m = max((v.length_m for v in self), default=0.0)
+        self.s = ordered.s
+        self.y = road.ys_of(ordered.lanes, ordered.lats)
+        self.max_length_m = ordered.max_length_m
 
+
+class _Ordered:
+    """Vehicles sorted by position, their positions, lanes and lateral offsets: what a
+    :class:`Snapshot` needs that does not depend on the road."""
+
+    __slots__ = ("lanes", "lats", "max_length_m", "s", "vehicles")
+
+    def __init__(self, vehicles: Iterable[VehicleState]) -> None:
+        self.vehicles = sorted(vehicles, key=_S_OF)
+        self.s = [v.s_m for v in self.vehicles]
+        self.lanes = [v.lane for v in self.vehicles]
+        self.lats = [v.lat_m for v in self.vehicles]
+        self.max_length_m = max((v.length_m for v in self.vehicles), default=0.0)
+
+
+_S_OF = operator.attrgetter("s_m")
 
 # Snapshots made by snapshot_of, by the identity of the states table and the road they were
 # made of; each entry holds both (so that no later table can take their ids while it is kept)
-# and the table's vehicles as they were.
+# and the table's vehicles as they were. _ORDERED: the same per table, whatever the road.
 _SNAPSHOTS: dict[tuple[int, int], tuple[Mapping, RoadSection, tuple, Snapshot]] = {}
+_ORDERED: dict[int, tuple[Mapping, tuple, _Ordered]] = {}
 _SNAPSHOTS_KEPT = 64  # a step's tables (one per platoon and lane numbering), then emptied
+
+
+def _same(seen: tuple, states: Mapping[str, VehicleState]) -> bool:
+    return len(seen) == len(states) and all(map(operator.is_, seen, states.values()))
 
 
 def snapshot_of(states: Mapping[str, VehicleState], road: RoadSection) -> Snapshot:
@@ -55,18 +84,42 @@ def snapshot_of(states: Mapping[str, VehicleState], road: RoadSection) -> Snapsh
     table holds the same vehicle states: a platoon's cruise, decision, plan following and
     CACC all ask for one of the same table in a step, and each sorted every vehicle of the
     road again (a corridor's 600, for each of 20 platoons). A table changed in place since (a
-    vehicle dropped, added or given a new state) gets a new one."""
+    vehicle dropped, added or given a new state) gets a new one. A table asked for on several
+    roads (one per CAV's edge in a membership review) is sorted once."""
     key = (id(states), id(road))
     entry = _SNAPSHOTS.get(key)
-    if entry is not None and entry[0] is states and entry[1] is road:
-        seen = entry[2]
-        if len(seen) == len(states) and all(map(operator.is_, seen, states.values())):
-            return entry[3]
+    if entry is not None and entry[0] is states and entry[1] is road and _same(entry[2], states):
+        return entry[3]
     if len(_SNAPSHOTS) >= _SNAPSHOTS_KEPT:
         _SNAPSHOTS.clear()
-    snap = Snapshot(states.values(), road)
-    _SNAPSHOTS[key] = (states, road, tuple(states.values()), snap)
+        _ORDERED.clear()
+    seen = tuple(states.values())
+    known = _ORDERED.get(id(states))
+    if known is not None and known[0] is states and _same(known[1], states):
+        ordered = known[2]
+    else:
+        ordered = _Ordered(seen)
+        _ORDERED[id(states)] = (states, seen, ordered)
+    snap = Snapshot(seen, road, ordered)
+    _SNAPSHOTS[key] = (states, road, seen, snap)
     return snap
+
+
+class PassSnapshots:
+    """:func:`snapshot_of` for one pass over tables that do not change during it (a step's
+    safety net, a membership review): each table and road checked once, then found by
+    identity (checking that a corridor's table of 600 vehicles still held the same states, at
+    each of a step's thousands of asks, was most of what the snapshots cost)."""
+
+    def __init__(self) -> None:
+        self._made: dict[tuple[int, int], tuple[Mapping, RoadSection, Snapshot]] = {}
+
+    def __call__(self, states: Mapping[str, VehicleState], road: RoadSection) -> Snapshot:
+        key = (id(states), id(road))
+        entry = self._made.get(key)
+        if entry is None:  # the entry holds the table and road: their ids stay theirs
+            entry = self._made[key] = (states, road, snapshot_of(states, road))
+        return entry[2]
 
 
 def _band(width_m: float, other: VehicleState) -> float:

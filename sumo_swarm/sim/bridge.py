@@ -34,7 +34,7 @@ from sumo_swarm.core.hvmodel import (
     krauss_follow_speed,
 )
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.neighbours import overlapping_ahead, snapshot_of, within
+from sumo_swarm.core.neighbours import PassSnapshots, overlapping_ahead, within
 from sumo_swarm.core.routeframe import RouteFrame
 from sumo_swarm.core.stepsafe import (
     STEP_SAFE_MARGIN_M,
@@ -849,6 +849,7 @@ class SumoSession(SessionBase):
                     decel = decels[vid] = SUMO_DEFAULTS.decel_mps2
             return decel
 
+        snapshot_of = PassSnapshots()  # the tables hold still until SUMO steps
         moved: dict[int, tuple[dict, dict]] = {}  # by table id: (table, table moved)
 
         def after_moves(table: dict[str, VehicleState]) -> dict[str, VehicleState]:
