@@ -55,6 +55,21 @@ def test_a_free_lane_runs_at_the_cap_and_a_line_ahead_holds_it_to_its_slowest_wi
     assert got == pytest.approx(25.0)  # never below the nearest one's speed now
 
 
+def test_a_slower_vehicle_beyond_the_range_holds_the_lane_from_when_it_is_reached():
+    # Front at 200, range 90, cap 30, horizon 20 s. A car at 24 m/s beyond the range, its
+    # rear at 355 - 5 = 350: reached when the platoon is its secure gap (2.5 + 24 = 26.5 m)
+    # behind it, after (350 - 200 - 26.5) / (30 - 24) = 20.58 s: beyond the horizon, the lane
+    # runs at the cap. At 320 (rear 315): after 88.5 / 6 = 14.75 s, then 5.25 s at 24 m/s:
+    # a mean of (30 * 14.75 + 24 * 5.25) / 20 = 28.425 m/s.
+    pace = dict(cap_mps=30.0, range_m=90.0, horizon_s=20.0, desired_of=lambda v: 30.0)
+    assert lane_pace_mps(200.0, [car("far", 355.0, 0, 24.0)], ROAD, 0, **pace) == 30.0
+    near = [car("near", 320.0, 0, 24.0)]
+    assert lane_pace_mps(200.0, near, ROAD, 0, **pace) == pytest.approx(28.425)
+    # one at 30 m/s or faster, or in another lane, never holds it
+    assert lane_pace_mps(200.0, [car("fast", 320.0, 0, 31.0)], ROAD, 0, **pace) == 30.0
+    assert lane_pace_mps(200.0, near, ROAD, 1, **pace) == 30.0
+
+
 def test_insertion_loss_is_what_the_followers_must_drop_back():
     # Platoon spans 170..200 in lane 0; a follower at 180 (20 m/s) must be 2.5 + 20 = 22.5 m
     # behind 170 - it drops back 180 + 22.5 - 170 = 32.5 m; the next, at 100 with 75 m of

@@ -157,17 +157,48 @@ def lane_pace_mps(
     """The mean speed [m/s] over ``horizon_s`` of a platoon whose front is at ``s_m`` in
     ``lane``: ``cap_mps`` on a free lane; else the nearest vehicle's, rising (at most
     ``HV_ACCEL_MPS2``) to the lowest desired speed of the vehicles ahead of it within
-    ``range_m`` of it (a line it is catching up with holds it to that line's speed)."""
+    ``range_m`` of it (a line it is catching up with holds it to that line's speed). A slower
+    vehicle further ahead that the platoon reaches within the horizon holds it from then on:
+    a lane is as fast as the traffic the platoon would meet in it (a lane at 24 m/s 74 m
+    ahead, beyond the range, was taken for a free lane and a 29 m/s car passed in it: the
+    plan found no way and gave up)."""
     ahead = _ahead_in_lane(s_m, others, road, lane, range_m)
     if not ahead:
-        return cap_mps
-    nearest = ahead[0]
-    line = [o for o in ahead if o.s_m - nearest.s_m <= range_m]
-    eventual = min(min(desired_of(o), o.speed_mps if o is not nearest else math.inf)
-                   for o in line)  # fmt: skip
-    eventual = min(max(eventual, nearest.speed_mps), cap_mps)
-    return min(cap_mps, mean_speed_mps(max(nearest.speed_mps, 0.0), eventual, horizon_s,
-                                       HV_ACCEL_MPS2))  # fmt: skip
+        pace = cap_mps
+    else:
+        nearest = ahead[0]
+        line = [o for o in ahead if o.s_m - nearest.s_m <= range_m]
+        eventual = min(min(desired_of(o), o.speed_mps if o is not nearest else math.inf)
+                       for o in line)  # fmt: skip
+        eventual = min(max(eventual, nearest.speed_mps), cap_mps)
+        pace = min(cap_mps, mean_speed_mps(max(nearest.speed_mps, 0.0), eventual, horizon_s,
+                                           HV_ACCEL_MPS2))  # fmt: skip
+    return min(pace, _met_ahead_mps(s_m, range_m, others, road, lane, pace, horizon_s))
+
+
+def _met_ahead_mps(
+    s_m: float,
+    range_m: float,
+    others: Sequence[VehicleState],
+    road: RoadSection,
+    lane: int,
+    pace_mps: float,
+    horizon_s: float,
+) -> float:
+    """The mean speed [m/s] over ``horizon_s`` of a platoon whose front is at ``s_m``, driving
+    at ``pace_mps``, that meets the vehicles of ``lane`` beyond ``range_m`` ahead: at its pace
+    until it reaches the first slower one it catches (at that one's secure gap behind it), at
+    that one's speed from then on."""
+    lo, hi = s_m + range_m, s_m + range_m + pace_mps * horizon_s
+    mean = pace_mps
+    for o in others:
+        v = max(o.speed_mps, 0.0)
+        if not lo < o.s_m <= hi or v >= mean or road.lane_of(o) != lane:
+            continue
+        catch_s = max(0.0, o.rear_s_m - s_m - secure_room_m(v)) / (pace_mps - v)
+        if catch_s < horizon_s:
+            mean = min(mean, (pace_mps * catch_s + v * (horizon_s - catch_s)) / horizon_s)
+    return mean
 
 
 def secure_room_m(speed_mps: float) -> float:
