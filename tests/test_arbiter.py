@@ -92,6 +92,17 @@ def test_a_free_lane_beside_a_truck_is_passed_in():
     assert choice.best.gain_m == pytest.approx(3 * 10.0 * (20.0 - 1.75))
 
 
+def test_no_lane_pass_is_weighed_where_one_stalled():
+    # The same truck, its lane pass stalled once: the lanes beside stay for the other ways
+    # past it (one by one, the cells), never for a lane pass again.
+    view = platoon()
+    truck = car("truck", 215.0, 1, 20.0)
+    choice = weigh(view, truck, [truck], desired={"truck": 20.0}, pass_lanes=[])
+    kinds = {o.kind for o in choice.weighed}
+    assert "lane_pass" not in kinds and {"cells", "one_by_one"} <= kinds
+    assert choice.best.kind == "one_by_one"
+
+
 def test_a_car_that_will_pass_its_own_leader_is_waited_for():
     view = platoon()
     target = car("t", 215.0, 1, 20.0)

@@ -519,11 +519,12 @@ def test_the_platoon_moves_over_to_a_faster_lane_and_passes_there(two_lane_runs)
     assert summary["safety"]["hard_brakes"] <= max(cells["safety"]["hard_brakes"], 1)
 
 
-def test_a_lane_pass_that_stalls_hands_the_target_to_the_cells(tmp_path):
+def test_a_lane_pass_that_stalls_is_weighed_again_and_the_cells_take_the_target(tmp_path):
     """Stress v2 scene 59 (2 lanes, a 12.7 m/s truck ahead of three CAVs, the cruise 20 m/s):
     the passing lane looks free enough at the decision, the platoon starts to move over,
-    but no CAV gets out of the truck's lane for lane_pass_stall_s; the cells then take the
-    truck over (blocking), and all CAVs get past it, safely."""
+    but no CAV gets out of the truck's lane for lane_pass_stall_s; the swarm weighs again at
+    once, with no lane pass on that truck, takes the cells (blocking), and all CAVs get past
+    it, safely."""
     sweep = load_sweep(ROOT / "scenarios" / "stress2.toml")
     spec = [r for r in sweep.runs if r.controller == "swarm"][59]
     summary = run_scenario(spec.scenario(), "swarm", tmp_path, seed=spec.seed, progress=False)

@@ -73,7 +73,7 @@ class Decider:
         self.watch = TargetWatch(ctx.scenario.swarm.trigger_after_s)
         self.cap_mps = math.inf
         self.cap_sources: dict[str, float] = {}
-        self.cells_for: str | None = None  # a target whose lane pass stalled: cells only
+        self.cells_for: str | None = None  # a target whose lane pass stalled: no lane pass again
         self._no_gain_target: str | None = None
         self._keep_right_target: str | None = None
         self._moves_right: dict[str, tuple[float, bool]] = {}  # vehicle -> (time, answer)
@@ -208,6 +208,7 @@ class Decider:
             desired_of=self.reformer.desired_speed, horizon_s=horizon_s,
             range_m=sw.detect_range_m + 2.0 * sc.cell_length_m,
             others_weight=sw.others_weight, min_gain_mps=sw.min_speed_gain_mps, apart=apart,
+            pass_lanes=[] if target.vehicle_id == self.cells_for else None,
         )  # fmt: skip
         said = (target.vehicle_id, choice.best.kind, choice.best.lane)
         if said != self._weighed:

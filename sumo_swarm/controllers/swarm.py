@@ -332,10 +332,11 @@ class SwarmController:
     def _cruise_decision(self, t_s: float, states, platoon: list[str]) -> None:
         """Follow a lane pass under way; else decide on a target: a lane pass or the cells."""
         target = self._lane_pass_target(t_s, states, platoon)
-        if target is None and self.lane_pass is None and self.ctx.scenario.swarm.decide == "weigh":
-            if self.book.open:
-                return  # a manoeuvre the cruise drives is under way: it is seen through
-            target = self.decider.decide(t_s, states, platoon)
+        if self.lane_pass is None and self._weighs():
+            if target is None:  # (else its lane pass stalled: weighed again at once)
+                if self.book.open:
+                    return  # a manoeuvre the cruise drives is under way: it is seen through
+                target = self.decider.decide(t_s, states, platoon)
             if target is None or not self._may_start(t_s, target, platoon):
                 return
             best = self.decider.choose(target, states, platoon, apart=self.may_part)

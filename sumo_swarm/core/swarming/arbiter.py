@@ -252,11 +252,13 @@ def choose(
     others_weight: float,
     min_gain_mps: float,
     apart: bool = False,
+    pass_lanes: Sequence[int] | None = None,
 ) -> Choice:
     """Weigh following, waiting (``leaves``: the target's driver wants to leave the lane), a
-    lane pass in each of ``side_lanes`` and the cells (``cells_pace_mps``: the plan's pace past
-    the target above the target's speed; None: no cell plan possible) and take the best (see
-    the module docstring). ``others``: every vehicle but the platoon's CAVs."""
+    lane pass in each of ``side_lanes`` (or of ``pass_lanes``: none where a lane pass on this
+    target stalled) and the cells (``cells_pace_mps``: the plan's pace past the target above
+    the target's speed; None: no cell plan possible) and take the best (see the module
+    docstring). ``others``: every vehicle but the platoon's CAVs."""
     n = platoon.n_cavs
     cavs = platoon.cavs
     cap = platoon.cruise_mps
@@ -345,7 +347,7 @@ def choose(
             rest, road, lane, front.s_m, rear_s_m
         )
 
-    for lane in side_lanes:
+    for lane in side_lanes if pass_lanes is None else pass_lanes:
         moved = move_over(platoon.front, platoon.tail.rear_s_m, lane, 0.0)
         if moved is not None:
             add("lane_pass", lane, n * moved[0], moved[1])
