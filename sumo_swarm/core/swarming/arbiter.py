@@ -158,10 +158,8 @@ def lane_pace_mps(
     ``lane``: ``cap_mps`` on a free lane; else the nearest vehicle's, rising (at most
     ``HV_ACCEL_MPS2``) to the lowest desired speed of the vehicles ahead of it within
     ``range_m`` of it (a line it is catching up with holds it to that line's speed). A slower
-    vehicle further ahead that the platoon reaches within the horizon holds it from then on:
-    a lane is as fast as the traffic the platoon would meet in it (a lane at 24 m/s 74 m
-    ahead, beyond the range, was taken for a free lane and a 29 m/s car passed in it: the
-    plan found no way and gave up)."""
+    vehicle further ahead that the platoon reaches within the horizon holds it from then on
+    (:func:`_met_ahead_mps`): a lane is as fast as the traffic the platoon would meet in it."""
     ahead = _ahead_in_lane(s_m, others, road, lane, range_m)
     if not ahead:
         pace = cap_mps
