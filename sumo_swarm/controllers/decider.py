@@ -73,7 +73,8 @@ class Decider:
         self.watch = TargetWatch(ctx.scenario.swarm.trigger_after_s)
         self.cap_mps = math.inf
         self.cap_sources: dict[str, float] = {}
-        self.cells_for: str | None = None  # a target whose lane pass stalled: no lane pass again
+        # A target whose lane pass stalled: no lane pass on it again.
+        self.lane_pass_stalled_on: str | None = None
         self._no_gain_target: str | None = None
         self._keep_right_target: str | None = None
         self._moves_right: dict[str, tuple[float, bool]] = {}  # vehicle -> (time, answer)
@@ -208,7 +209,7 @@ class Decider:
             desired_of=self.reformer.desired_speed, horizon_s=horizon_s,
             range_m=sw.detect_range_m + 2.0 * sc.cell_length_m,
             others_weight=sw.others_weight, min_gain_mps=sw.min_speed_gain_mps, apart=apart,
-            pass_lanes=[] if target.vehicle_id == self.cells_for else None,
+            pass_lanes=[] if target.vehicle_id == self.lane_pass_stalled_on else None,
         )  # fmt: skip
         said = (target.vehicle_id, choice.best.kind, choice.best.lane)
         if said != self._weighed:
@@ -507,7 +508,7 @@ class Decider:
         :func:`lane_for_pass`), or None: the cells."""
         sc = self.ctx.scenario
         road, sw = self.ctx.road, sc.swarm
-        if not sw.lane_pass or target.vehicle_id == self.cells_for:
+        if not sw.lane_pass or target.vehicle_id == self.lane_pass_stalled_on:
             return None
         leader = states[self.leader(states, platoon)]
         lane = road.lane_of(leader)

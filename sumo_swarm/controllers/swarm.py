@@ -575,7 +575,7 @@ class SwarmController:
             self._end_lane_pass(t_s, completed=False, reason=stop)
             return None
         if how == "stalled":
-            self.decider.cells_for = self.lane_pass.target_id
+            self.decider.lane_pass_stalled_on = self.lane_pass.target_id
             self._end_lane_pass(t_s, completed=False, reason="lane_pass_stalled")
             return target
         return None

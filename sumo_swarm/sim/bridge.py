@@ -849,7 +849,7 @@ class SumoSession(SessionBase):
                     decel = decels[vid] = SUMO_DEFAULTS.decel_mps2
             return decel
 
-        snapshot_of = PassSnapshots()  # the tables hold still until SUMO steps
+        snapshots = PassSnapshots()  # the tables hold still until SUMO steps
         moved: dict[int, tuple[dict, dict]] = {}  # by table id: (table, table moved)
 
         def after_moves(table: dict[str, VehicleState]) -> dict[str, VehicleState]:
@@ -885,7 +885,7 @@ class SumoSession(SessionBase):
                 ys = (y, y + sideways[vid]) if vid in sideways else (y,)
                 layouts = (table, after_moves(table)) if sideways else (table,)
                 for layout in layouts:
-                    others = snapshot_of(layout, road)
+                    others = snapshots(layout, road)
                     for y_m in ys:
                         for leader in overlapping_ahead(here, others, road, y_m, here.width_m,
                                                         reach):  # fmt: skip
@@ -932,7 +932,7 @@ class SumoSession(SessionBase):
             if road is None or vid not in table:
                 continue
             prints = {}
-            for other in within(snapshot_of(table, road), table[vid].s_m, SIDEWAYS_REACH_M):
+            for other in within(snapshots(table, road), table[vid].s_m, SIDEWAYS_REACH_M):
                 y = road.y_of(other.lane, other.lat_m)
                 v = capped.get(other.vehicle_id, other.speed_mps)
                 # A vehicle of no command may brake within the step (as the speeds' net takes

@@ -187,11 +187,10 @@ def _met_ahead_mps(
     at ``pace_mps``, that meets the vehicles of ``lane`` beyond ``range_m`` ahead: at its pace
     until it reaches the first slower one it catches (at that one's secure gap behind it), at
     that one's speed from then on."""
-    lo, hi = s_m + range_m, s_m + range_m + pace_mps * horizon_s
     mean = pace_mps
-    for o in others:
+    for o in _ahead_in_lane(s_m + range_m, others, road, lane, pace_mps * horizon_s):
         v = max(o.speed_mps, 0.0)
-        if not lo < o.s_m <= hi or v >= mean or road.lane_of(o) != lane:
+        if v >= mean:
             continue
         catch_s = max(0.0, o.rear_s_m - s_m - secure_room_m(v)) / (pace_mps - v)
         if catch_s < horizon_s:
