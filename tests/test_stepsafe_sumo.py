@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from sumo_swarm.controllers.base import configure_cav
 from sumo_swarm.sim.bridge import SumoSession
 from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
 
@@ -47,3 +48,47 @@ def test_a_cav_stops_for_a_vehicle_standing_beyond_the_road_it_knows(tmp_path: P
         assert veh.getSpeed("c") == 0.0
     assert collisions == 0
     assert fronts and max(fronts) < 8.0 - 5.0  # behind the standing car's rear
+
+
+BRAKING = """<routes>
+    <vType id="cav" tau="1" minGap="2.5" decel="4.5" sigma="0" length="5"/>
+    <vType id="car" tau="1" minGap="2.5" decel="4.5" sigma="0" length="5"/>
+    <route id="r" edges="e0"/>
+    <vehicle id="car" type="car" route="r" depart="0" departPos="100" departSpeed="20"/>
+    <vehicle id="c" type="cav" route="r" depart="0" departPos="89" departSpeed="20"
+             insertionChecks="none"/>
+</routes>
+"""
+
+
+def test_a_released_cav_still_commanded_brakes_at_the_controllers_floor(tmp_path: Path):
+    # A CAV that left its platoon: SUMO changes its lanes, a controller still commands its
+    # speed (opening the short gap the platoon left: 6 m at 20 m/s). The car ahead brakes at
+    # 4.5 m/s^2 to a stop, the controller at its floor of -4 m/s^2. SUMO holds a commanded
+    # speed's braking to the vehicle's decel (speed mode 31), which the release lowered to
+    # 3.5 m/s^2: the CAV ran 6.6 m into the car. Released at the hard-brake line, 4 m/s^2,
+    # it stops behind it.
+    net = build_highway(HighwaySpec(length_m=600.0, lanes=1), tmp_path)
+    routes = tmp_path / "r.rou.xml"
+    routes.write_text(BRAKING, encoding="utf-8")
+    args = ["-n", str(net), "-r", str(routes), "--step-length", "0.1", "--no-step-log", "true",
+            "--collision.mingap-factor", "0", "--collision.action", "warn",
+            "--lateral-resolution", "0.5"]  # fmt: skip
+    collisions, gaps, accels = 0, [], []
+    with SumoSession(args, route_edges=["e0"], is_cav=lambda v, t: t == "cav") as s:
+        veh = s.api.vehicle
+        s.step()
+        configure_cav(s, "c", lane_change_mode=0)
+        s.release("c")
+        veh.setSpeedMode("car", 0)
+        while s.time_s < 8.0:
+            veh.setSpeed("car", max(0.0, veh.getSpeed("car") - 0.45))
+            s.set_speed("c", max(0.0, s.states["c"].speed_mps - 0.4))
+            s.step()
+            collisions += s.api.simulation.getCollidingVehiclesNumber()
+            gaps.append(veh.getLanePosition("car") - 5.0 - veh.getLanePosition("c"))
+            accels.append(veh.getAcceleration("c"))
+        assert veh.getSpeed("car") == 0.0 and veh.getSpeed("c") == 0.0
+    assert collisions == 0
+    assert min(gaps) > 0.0
+    assert min(accels) == pytest.approx(-4.0)

@@ -331,7 +331,7 @@ class StandDown:
 
 def hand_back(session: SessionView, vid: str) -> None:
     """CAV ``vid`` driven by SUMO again: the lane changes its route needs, SUMO's speed mode,
-    its speed left to SUMO's car-following, braking within RELEASED_DECEL_MPS2
+    its speed left to SUMO's car-following, braking within ALONE_DECEL_MPS2
     (:meth:`SumoSession.release`).
     Its minGap is its vType's again; its tau stays the short one of :func:`configure_cav`:
     with its vType's (1 s), SUMO braked the CAVs hard to open the gaps at once. A vehicle that

@@ -30,8 +30,11 @@ __all__ = [
 ]  # fmt: skip
 
 SUMO_TAU_S, SUMO_MIN_GAP_M = SUMO_DEFAULTS.tau_s, SUMO_DEFAULTS.min_gap_m  # [s], [m]
-# How hard SUMO brakes a CAV it drives alone [m/s^2]: the contract's hard-brake line
-# (sim.metrics.HARD_BRAKE_MPS2).
+# How hard SUMO brakes a CAV it drives alone, or one that left its platoon [m/s^2]: the
+# contract's hard-brake line (sim.metrics.HARD_BRAKE_MPS2). One that left is still commanded by
+# our CACC for a while, down to [cav] accel_min_mps2 (-4), and SUMO holds a commanded speed's
+# braking to the vehicle's decel: at 3.5 m/s^2 a CAV just parted from a platoon, 9 m behind a
+# CAV braking at 4, ran into it (5-lane OSM motorway, 40 % CAVs, seed 8).
 ALONE_DECEL_MPS2 = 4.0
 
 

@@ -68,7 +68,6 @@ LCA_BLOCKED = 0xF << 9
 # The rate of a keep-right build-up is taken between readings at most this far apart [s].
 KEEP_RIGHT_RATE_WINDOW_S = 1.0
 STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
-RELEASED_DECEL_MPS2 = 3.5  # the comfortable deceleration of a CAV handed back to SUMO
 LEADER_REACH_EXTRA_M = 30.0  # beyond a CAV's stopping reach, for a truck's length [m]
 SIDEWAYS_REACH_M = 60.0  # vehicles whose fronts are this near a CAV moving sideways [m]
 SIDEWAYS_CLEARANCE_M = 0.3  # what two bodies keep at the end of a step (guards' side_clearance)
@@ -713,7 +712,7 @@ class SumoSession(SessionBase):
             # SUMO's own lane changes may brake at up to decel (4.5 m/s^2 by default): a CAV,
             # even one that left the swarm, stays inside the 4 m/s^2 hard-brake line.
             decel = self.api.vehicletype.getDecel(vehicle.getTypeID(vid))
-            vehicle.setDecel(vid, min(decel, RELEASED_DECEL_MPS2))
+            vehicle.setDecel(vid, min(decel, ALONE_DECEL_MPS2))
         except Exception:  # vanished: nothing to hand back
             pass
 
