@@ -122,6 +122,11 @@ def test_secure_gap_hand_computed():
     assert secure_gap_m(1.2, 4.5, 20.0, 10.0) == pytest.approx(24.0 + (400 - 100) / 9.0)
     assert secure_gap_m(1.2, 4.5, 10.0, 20.0) == 0.0  # the leader pulls away faster
     assert secure_gap_m(0.0, 4.5, 10.0, 10.0) == 0.0
+    # A follower braking at 4 behind a leader SUMO takes to brake at 4.5, both at 30 m/s:
+    # 30 + 900/8 - 900/9 = 42.5 m (SUMO's vehicle.getSecureGap: 42.49), not the 30 m of a
+    # leader braking as the follower does
+    assert secure_gap_m(1.0, 4.0, 30.0, 30.0, 4.5) == pytest.approx(42.5)
+    assert secure_gap_m(1.0, 4.0, 30.0, 30.0) == pytest.approx(30.0)
 
 
 def test_right_lane_free_hand_computed():

@@ -893,7 +893,9 @@ class Fleet:
             road = session.road_at(vid) or self.ctx.road
             ahead = vehicle_ahead(st, snapshot_of(states, road), road)
             lead = None if ahead is None else (ahead[0].speed_mps, ahead[1])
-            roomy = lead is None or lead[1] >= session.alone_gap_m(vid, st.speed_mps, lead[0])
+            roomy = lead is None or lead[1] >= session.alone_gap_m(
+                vid, st.speed_mps, lead[0], ahead[0].vehicle_id
+            )
             if roomy and st.speed_mps <= desired + HANDOVER_MPS:
                 self._opening.discard(vid)
                 try:

@@ -171,10 +171,13 @@ class SessionView(Protocol):
         within the hard-brake line, set on its vType too (the next CAVs are inserted so)."""
         ...
 
-    def alone_gap_m(self, vid: str, speed_mps: float, lead_mps: float) -> float:
+    def alone_gap_m(
+        self, vid: str, speed_mps: float, lead_mps: float, lead_id: str | None = None
+    ) -> float:
         """The gap [m] SUMO wants ahead of CAV ``vid`` driving alone (:meth:`drive_alone`) at
-        ``speed_mps`` behind a vehicle at ``lead_mps``: its minGap plus its secure gap
-        (:func:`~sumo_swarm.core.swarming.decision.secure_gap_m`)."""
+        ``speed_mps`` behind vehicle ``lead_id`` at ``lead_mps``: its minGap plus its secure gap
+        (:func:`~sumo_swarm.core.swarming.decision.secure_gap_m`), the leader braking at the
+        deceleration SUMO assumes of it (SUMO's default where unknown)."""
         ...
 
     def reclaim(self, vid: str) -> None:
@@ -314,8 +317,12 @@ class SessionBase:
     def drive_alone(self, vid: str) -> None:
         pass
 
-    def alone_gap_m(self, vid: str, speed_mps: float, lead_mps: float) -> float:
-        return SUMO_MIN_GAP_M + secure_gap_m(SUMO_TAU_S, ALONE_DECEL_MPS2, speed_mps, lead_mps)
+    def alone_gap_m(
+        self, vid: str, speed_mps: float, lead_mps: float, lead_id: str | None = None
+    ) -> float:
+        return SUMO_MIN_GAP_M + secure_gap_m(
+            SUMO_TAU_S, ALONE_DECEL_MPS2, speed_mps, lead_mps, SUMO_DEFAULTS.decel_mps2
+        )
 
     def reclaim(self, vid: str) -> None:
         self.released.discard(vid)

@@ -347,12 +347,23 @@ def _clear_at(
     return True
 
 
-def secure_gap_m(tau_s: float, decel_mps2: float, v_mps: float, v_lead_mps: float) -> float:
+def secure_gap_m(
+    tau_s: float,
+    decel_mps2: float,
+    v_mps: float,
+    v_lead_mps: float,
+    lead_decel_mps2: float | None = None,
+) -> float:
     """SUMO's secure gap [m] of a follower at ``v_mps`` (headway ``tau_s``, deceleration
-    ``decel_mps2``) behind a leader at ``v_lead_mps``: its headway distance plus the difference
-    of the two braking distances at its deceleration (never negative)."""
+    ``decel_mps2``) behind a leader at ``v_lead_mps`` that brakes at ``lead_decel_mps2`` (the
+    deceleration SUMO assumes of it, its apparentDecel; None: the follower's): its headway
+    distance plus its braking distance less the leader's (never negative; SUMO's
+    ``vehicle.getSecureGap``)."""
     b = max(decel_mps2, 0.1)
-    return max(0.0, tau_s * v_mps + (v_mps * v_mps - v_lead_mps * v_lead_mps) / (2.0 * b))
+    b_lead = b if lead_decel_mps2 is None else max(lead_decel_mps2, 0.1)
+    return max(
+        0.0, tau_s * v_mps + v_mps * v_mps / (2.0 * b) - v_lead_mps * v_lead_mps / (2.0 * b_lead)
+    )
 
 
 @dataclass
