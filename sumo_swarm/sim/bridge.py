@@ -9,6 +9,7 @@ pure :mod:`sumo_swarm.core.routeframe` (fed from the running network), trajector
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -753,12 +754,10 @@ class SumoSession(SessionBase):
             decel = min(vehicle.getDecel(vid), ALONE_DECEL_MPS2)
         except Exception:  # vanished
             tau, min_gap, decel = SUMO_TAU_S, SUMO_MIN_GAP_M, ALONE_DECEL_MPS2
-        try:
-            lead_decel = vehicle.getApparentDecel(lead_id) if lead_id else None
-        except Exception:  # vanished
-            lead_decel = None
-        if lead_decel is None:
-            lead_decel = SUMO_DEFAULTS.decel_mps2
+        lead_decel = SUMO_DEFAULTS.decel_mps2
+        if lead_id:
+            with contextlib.suppress(Exception):  # vanished: SUMO's default
+                lead_decel = vehicle.getApparentDecel(lead_id)
         return min_gap + secure_gap_m(tau, decel, speed_mps, lead_mps, lead_decel)
 
     def _alone_gaps(self, vid: str) -> tuple[str, float, float]:
