@@ -87,6 +87,18 @@ def test_lanes_ending_ahead_are_renumbered_as_the_leaders_edge_counts_them():
     assert view(own).ends_ahead(own) == {0}
 
 
+def test_no_pass_in_a_lane_that_ends_within_the_weighings_horizon():
+    # [swarm] horizon_s (20 s) at the cruise (20 m/s): 400 m. A lane ending 350 m ahead
+    # carries no pass (a pass there ends at the lane's end), one ending 450 m ahead does; the
+    # CAV's own speed counts where it is faster than the cruise (25 m/s: 500 m).
+    near = cav("c", 550.0, 1)
+    assert view(near).ends_ahead(near) == {0}
+    far = cav("c", 450.0, 1)
+    assert view(far).ends_ahead(far) == set()
+    fast = cav("c", 450.0, 1, v=25.0)
+    assert view(fast).ends_ahead(fast) == {0}
+
+
 def test_a_lane_that_ends_is_a_standing_obstacle_from_its_end_on():
     lanes = view(cav("c", 650.0, 1))
     (wall,) = lanes.end_obstacles("e", 600.0, 1000.0)

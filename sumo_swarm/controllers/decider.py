@@ -179,7 +179,7 @@ class Decider:
         )
         lane = road.lane_of(leader)
         side = [q for q in (lane - 1, lane + 1) if 0 <= q < road.n_lanes]
-        ending = self.lanes.ending(leader, leader.vehicle_id)
+        ending = self.lanes.ends_ahead(leader)  # a pass there would end at the lane's end
         # Not the lane the target is about to move into: it would take the lane passed in.
         wished = road.lane_of(target) + wish if wish else None
         side = [q for q in side if q not in ending and q != wished]

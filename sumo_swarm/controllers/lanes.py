@@ -62,11 +62,17 @@ class LaneView:
         return self.ending(ego, ego.vehicle_id, reach_m)
 
     def ends_ahead(self, ego: VehicleState) -> set[int]:
-        """Lanes that end within ``LANE_END_HOLD_S`` ahead of ``ego``, numbered as ``ego``'s
-        lane is (the leader's edge's numbering), for the reformer."""
+        """Lanes no pass of ``ego`` goes in: those that end within ``[swarm] horizon_s`` (the
+        weighing's horizon) ahead of it at the cruise, or at its speed if faster, numbered as
+        ``ego``'s lane is (the leader's edge's numbering). A pass there ends at the lane's end:
+        a CAV that passed a car in a lane dropping 550 m ahead met the next car beside it,
+        found no way back among the cars there and stood at the lane's end (the OSM Autobahn
+        at 40 % CAVs), where the lane ending within ``LANE_END_HOLD_S`` was refused."""
         own = self.own(ego)
         shift = ego.lane - own.lane
-        return {lane + shift for lane in self.ending_within(own, LANE_END_HOLD_S)}
+        speed = max(own.speed_mps, self.ctx.cav.cruising_speed_mps)
+        reach = max(LANE_END_MIN_M, self.ctx.scenario.swarm.horizon_s * speed)
+        return {lane + shift for lane in self.ending(own, own.vehicle_id, reach)}
 
     def lane_count(self, ego: VehicleState) -> int:
         """Lanes of ``ego``'s own edge (the road's, where the session cannot tell)."""

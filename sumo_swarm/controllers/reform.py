@@ -114,8 +114,9 @@ class Reformer:
     hold: Callable[[VehicleState, float, float], bool] = lambda ego, y, dlat: False
     # escape(ego, dlat, step): the lateral move instead of dlat when ego's lane ends ahead
     escape: Callable[[VehicleState, float, float], float] = lambda ego, dlat, step: dlat
-    # ends(ego): the lanes that end ahead of ego, where it never passes (the hold refuses them:
-    # a CAV waited 30 s to pass a truck in an on-ramp's acceleration lane)
+    # ends(ego): the lanes that end ahead of ego within a pass, where it never passes (the hold
+    # refuses them near their end: a CAV waited 30 s to pass a truck in an on-ramp's
+    # acceleration lane)
     ends: Callable[[VehicleState], Collection[int]] = lambda ego: ()
     # The lane on this vehicle's right it is about to move into (Decider.lane_wanted_right)
     lane_wanted_right: Callable[[VehicleState, Mapping[str, VehicleState], float], int | None] = (
