@@ -81,8 +81,9 @@ BEHIND_M = 150.0
 # The deceleration SUMO's drivers take for a follower's secure gap [m/s^2] (its default
 # passenger vType's decel).
 SUMO_DECEL_MPS2 = SUMO_DEFAULTS.decel_mps2
-# What the CAVs do without acting together: follow, or (many swarms) each on its own.
-ALONE = frozenset({"follow", "apart"})
+# What the CAVs do without acting together: follow, wait for the target to leave the lane
+# (what that gains, each CAV gains as well on its own), or (many swarms) each on its own.
+ALONE = frozenset({"follow", "wait", "apart"})
 
 
 @dataclass(frozen=True)
