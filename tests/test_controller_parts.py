@@ -19,6 +19,7 @@ from sumo_swarm.controllers.lanes import (
 )
 from sumo_swarm.controllers.reform import Reformer
 from sumo_swarm.controllers.replanner import RETRY_AFTER_S, BlockWatch, PlanStats, Replanner
+from sumo_swarm.controllers.swarm import SwarmController
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.swarming.decision import Progress
@@ -286,3 +287,34 @@ def test_a_lane_change_the_guard_refuses_is_held_and_counted_once_per_episode():
     # With the lane beside free the move goes ahead.
     _, tracker, commands, events = follower_run(ego, [], _FixedTracker(dlat_m=0.1))
     assert ("lat", "c", 0.1) in commands and tracker.held == [False] and events == []
+
+
+@pytest.mark.parametrize("may_part", [True, False])
+def test_a_swarm_waiting_for_its_target_to_leave_parts_where_it_may(may_part):
+    # The car holding the platoon back wants to move right and is free to (SUMO's wish): the
+    # weighing chooses to wait for it. What waiting gains, each CAV gains on its own, so a
+    # swarm that may part (many swarms) hands its CAVs back to SUMO once it has weighed; the
+    # paper's one swarm (may_part false) waits as a platoon.
+    states = {
+        "slow": VehicleState("slow", 140.0, 1, 0.0, 12.0, 5.0, 0.0, False),
+        "a0": cav("a0", 110.0, 1, v=12.0),
+        "a1": cav("a1", 95.0, 1, v=12.0),
+    }
+    session = FakeSession(
+        states, lane_wish=lambda vid: (-1, False) if vid == "slow" else (0, False)
+    )
+    ctx = run_context(session, cav_ids=("a0", "a1"))
+    swarm = SwarmController()
+    swarm.may_part = may_part
+    swarm.attach(ctx)
+    try:
+        for i in range(100):  # 10 s
+            session.time_s = 0.1 * i
+            swarm.control(session.time_s)
+            if swarm.nothing_pays:
+                break
+        chosen = [d["chosen"] for kind, d in said(ctx) if kind == "overtake_weighed"]
+        assert chosen == ["wait"]
+        assert swarm.nothing_pays is may_part and swarm.book.started == 0
+    finally:
+        swarm.close()

@@ -11,7 +11,8 @@ baseline): each decides, overtakes and regroups on its own.
   own test, :func:`~sumo_swarm.core.swarming.decision.held_by`): there is
   something to decide together. The swarm weighs what it can do
   (:mod:`~sumo_swarm.core.swarming.arbiter`), each CAV on its own among it; where nothing the
-  CAVs do together pays (it would follow, or each CAV does better on its own), the platoon
+  CAVs do together pays (it would follow, wait for the slow vehicle to leave its lane, or each
+  CAV does better on its own), the platoon
   parts: each CAV drops back to the gap SUMO wants ahead of it and SUMO drives it alone
   (:meth:`Fleet._open_gaps`), in no platoon for the decision's horizon. A platoon that started
   nothing and is held by nothing for ``trigger_after_s`` parts too. A platoon that passed

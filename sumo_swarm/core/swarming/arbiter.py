@@ -16,6 +16,8 @@ horizon of ``horizon_s`` with plain kinematics, and scored in vehicle-metres:
   It does so within ``LEAVE_S`` and the platoon then drives at the pace ahead of it. Nobody
   else loses, and nothing else is weighed: a target that leaves is not passed (whatever passing
   it gains, waiting gains too; on a motorway, manoeuvres on such targets ended when they left).
+  Taken where many swarms share the road, the swarm parts, as for **apart**: each CAV gains
+  the same waiting on its own.
 - **lane_pass**: the platoon moves over to a lane beside it and drives at that lane's pace,
   once the vehicles beside it there (or too close behind it) have passed: the guards let them
   by, and a lane whose vehicles never pass (no faster than the platoon) is not weighed. The
