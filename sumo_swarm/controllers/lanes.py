@@ -55,10 +55,13 @@ class LaneView:
         reach = leader.s_m + range_m
         return {lane for lane, _ in self.ctx.session.lanes_ending(edge, leader.rear_s_m, reach)}
 
-    def ending_within(self, ego: VehicleState, horizon_s: float) -> set[int]:
-        """Lanes of ``ego``'s own edge that end within ``horizon_s`` at its speed (at least
-        ``LANE_END_MIN_M``) ahead of it."""
-        reach_m = max(LANE_END_MIN_M, horizon_s * ego.speed_mps)
+    def ending_within(
+        self, ego: VehicleState, horizon_s: float, speed_mps: float | None = None
+    ) -> set[int]:
+        """Lanes of ``ego``'s own edge that end within ``horizon_s`` at its speed (or at
+        ``speed_mps``; at least ``LANE_END_MIN_M``) ahead of it."""
+        speed = ego.speed_mps if speed_mps is None else speed_mps
+        reach_m = max(LANE_END_MIN_M, horizon_s * speed)
         return self.ending(ego, ego.vehicle_id, reach_m)
 
     def ends_ahead(self, ego: VehicleState) -> set[int]:
@@ -67,12 +70,12 @@ class LaneView:
         ``ego``'s lane is (the leader's edge's numbering). A pass there ends at the lane's end:
         a CAV that passed a car in a lane dropping 550 m ahead met the next car beside it,
         found no way back among the cars there and stood at the lane's end (the OSM Autobahn
-        at 40 % CAVs), where the lane ending within ``LANE_END_HOLD_S`` was refused."""
+        at 40 % CAVs)."""
         own = self.own(ego)
         shift = ego.lane - own.lane
         speed = max(own.speed_mps, self.ctx.cav.cruising_speed_mps)
-        reach = max(LANE_END_MIN_M, self.ctx.scenario.swarm.horizon_s * speed)
-        return {lane + shift for lane in self.ending(own, own.vehicle_id, reach)}
+        ending = self.ending_within(own, self.ctx.scenario.swarm.horizon_s, speed)
+        return {lane + shift for lane in ending}
 
     def lane_count(self, ego: VehicleState) -> int:
         """Lanes of ``ego``'s own edge (the road's, where the session cannot tell)."""
