@@ -1,0 +1,323 @@
+"""Every ``[swarm]`` key at a value other than its default, with the answer that value gives.
+
+Issue 51: a key that no test sets to another value is a switch nobody checked. The keys set here
+are read where the swarm reads them (its decider, its controller, the function the key feeds);
+the others are set by the tests named in :data:`ELSEWHERE`. :func:`test_every_swarm_key_is_set`
+fails for a key that neither covers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import pytest
+
+from sumo_swarm.config import Scenario, SwarmSettings
+from sumo_swarm.controllers.swarm import SwarmController
+from sumo_swarm.core.hvmodel import DriverModel
+from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.swarming.decision import (
+    LanePass,
+    TargetWatch,
+    behaving_interval_s,
+    lane_pass_pace,
+    right_lane_free,
+)
+from tests.fakes import FakeSession, run_context
+
+TESTS = Path(__file__).parent
+DEFAULT = SwarmSettings()
+
+# Keys set to another value by tests elsewhere: key -> (test file, test function).
+# (``None``: set in a helper of that file that its tests use.)
+ELSEWHERE = {
+    "decide": (
+        "test_arbiter.py",
+        "test_the_paper_trigger_and_the_weighing_start_the_same_paper_overtake",
+    ),
+    "horizon_s": ("test_arbiter.py", "test_a_short_horizon_sees_no_pass_paying"),
+    "others_weight": (
+        "test_arbiter.py",
+        "test_others_weight_trades_their_loss_against_the_cavs_gain",
+    ),
+    "detect_range_m": (
+        "test_swarming.py",
+        "test_no_target_when_it_does_not_pay_or_is_far_or_a_cav",
+    ),
+    "accelerating_mps2": (
+        "test_swarming.py",
+        "test_no_target_when_it_does_not_pay_or_is_far_or_a_cav",
+    ),
+    "hand_over_in_lane": (
+        "test_open_traffic.py",
+        "test_the_swarm_passes_at_the_lanes_pace_once_in_one_faster_lane",
+    ),
+    "lane_pass": (
+        "test_open_traffic.py",
+        "test_the_swarm_passes_at_the_lanes_pace_once_in_one_faster_lane",
+    ),
+    "keep_right_wait_s": ("test_open_traffic.py", None),
+    "keep_right_middle": (
+        "test_swarming.py",
+        "test_the_wait_for_a_target_keeping_right_holds_in_the_leftmost_lane_only",
+    ),
+    "keep_right_due": (
+        "test_swarming.py",
+        "test_the_right_lane_is_judged_for_when_sumo_says_the_truck_will_move",
+    ),
+    "keep_right_wish": (
+        "test_swarming.py",
+        "test_the_right_lane_stays_closed_while_a_middle_lane_target_wants_to_move_there",
+    ),
+}
+
+
+def car(vid: str, s: float, lane: int, v: float, *, cav: bool = False, lat: float = 0.0):
+    return VehicleState(vid, s, lane, lat, v, 5.0, 0.0, cav, 1.8)
+
+
+def swarm_with(states, *, session_answers=None, **swarm) -> SwarmController:
+    """A swarm of the CAVs in ``states`` on three 3.2 m lanes, its ``[swarm]`` keys replaced by
+    ``swarm`` (the default scenario: cruise 20 m/s, cap 25 m/s, 15 m cells, 3 s intervals)."""
+    sc = Scenario(name="t", path=None)
+    sc = dataclasses.replace(sc, swarm=dataclasses.replace(sc.swarm, **swarm))
+    session = FakeSession(states, **(session_answers or {}))
+    cavs = tuple(v for v, st in states.items() if st.is_cav)
+    controller = SwarmController()
+    controller.attach(run_context(session, sc, cav_ids=cavs))
+    return controller
+
+
+def first_target_s(controller: SwarmController, states, platoon, until_s: float = 12.0):
+    """The first time [s] (0.1 s steps) the decider names a target, or None."""
+    for i in range(round(until_s / 0.1) + 1):
+        t = round(0.1 * i, 1)
+        controller.ctx.session.time_s = t
+        if controller.decider.decide(t, states, platoon) is not None:
+            return t
+    return None
+
+
+def held_platoon(slow_mps: float = 17.0):
+    """Two CAVs at 17 m/s, 25 m behind a car in their lane at ``slow_mps``."""
+    return {
+        "slow": car("slow", 140.0, 1, slow_mps),
+        "a0": car("a0", 110.0, 1, 17.0, cav=True),
+        "a1": car("a1", 95.0, 1, 17.0, cav=True),
+    }
+
+
+# ------------------------------------------------------------------ the decision point
+def test_trigger_speed_ratio_sets_how_slow_a_vehicle_must_be():
+    # Default 0.95 of the 20 m/s cruise: a car at 17 m/s is slow. At 0.8 (16 m/s) it is not.
+    states = held_platoon()
+    assert first_target_s(swarm_with(states), states, ["a0", "a1"]) == pytest.approx(3.0)
+    slow_only_below_16 = swarm_with(states, trigger_speed_ratio=0.8)
+    assert slow_only_below_16.decider.slow_below() == pytest.approx(16.0)
+    assert first_target_s(slow_only_below_16, states, ["a0", "a1"]) is None
+
+
+def test_start_after_s_holds_every_decision_until_then():
+    # No decision before start_after_s (default 1 s); then trigger_after_s (2 s) of the same
+    # candidate: 3 s by default, 7 s with start_after_s = 5.
+    states = held_platoon()
+    assert first_target_s(swarm_with(states, start_after_s=5.0), states, ["a0", "a1"]) == (
+        pytest.approx(7.0)
+    )
+
+
+def test_trigger_after_s_sets_how_long_the_same_vehicle_must_hold_the_platoon():
+    # From start_after_s (1 s): 2 s of the same candidate by default (3 s), 4 s (5 s).
+    states = held_platoon()
+    assert first_target_s(swarm_with(states, trigger_after_s=4.0), states, ["a0", "a1"]) == (
+        pytest.approx(5.0)
+    )
+
+
+def test_min_speed_gain_mps_sets_how_much_faster_than_the_target_the_cap_must_be():
+    # The cap (25 m/s) beats a car at 17 m/s by 8 m/s: a target at the default gain of 2 m/s,
+    # none at 10 m/s.
+    states = held_platoon()
+    assert first_target_s(swarm_with(states, min_speed_gain_mps=10.0), states, ["a0", "a1"]) is None
+    assert first_target_s(swarm_with(states, min_speed_gain_mps=8.0), states, ["a0", "a1"]) == (
+        pytest.approx(3.0)
+    )
+
+
+def test_catching_up_ahead_m_sets_how_far_ahead_a_slow_line_holds_the_target():
+    # The paper's trigger: a car at 17 m/s that wants 30, 250 m behind a truck that wants 17.
+    # Within the default 300 m the truck holds the car's lane back for good: the car is a
+    # target. Looking only 200 m ahead, the car is only catching up: no target.
+    states = {**held_platoon(), "truck": car("truck", 390.0, 1, 17.0)}
+    desired = {"slow": 30.0, "truck": 17.0}
+    answers = {"driver_model": lambda vid: DriverModel(desired_speed_mps=desired.get(vid, 30.0))}
+    platoon = ["a0", "a1"]
+    far = swarm_with(states, session_answers=answers, decide="paper")
+    assert first_target_s(far, states, platoon) == pytest.approx(3.0)
+    near = swarm_with(states, session_answers=answers, decide="paper", catching_up_ahead_m=200.0)
+    assert first_target_s(near, states, platoon) is None
+
+
+# ------------------------------------------------------------------ passing
+def test_in_lane_tolerance_m_sets_when_a_cav_counts_as_settled_in_a_lane():
+    # Both CAVs have moved to lane 2 beside a truck; one is still 0.5 m off its centre. Within
+    # the default 0.3 m it is not settled: no hand-over to the cruise; within 0.6 m it is.
+    states = {
+        "truck": car("truck", 140.0, 1, 12.0),
+        "a0": car("a0", 120.0, 2, 20.0, cav=True),
+        "a1": car("a1", 105.0, 2, 20.0, cav=True, lat=-0.5),
+    }
+    cavs = {v: states[v] for v in ("a0", "a1")}
+    strict = swarm_with(states)
+    assert not strict.decider.passing_in_lane(states["truck"], cavs, states, None, None)
+    loose = swarm_with(states, in_lane_tolerance_m=0.6)
+    assert loose.decider.passing_in_lane(states["truck"], cavs, states, None, None)
+
+
+def test_lane_pass_stall_s_sets_how_long_a_lane_pass_may_go_without_progress():
+    # Neither CAV gets out of the truck's lane: stalled once stall_s has gone by (default 15 s).
+    truck = car("truck", 140.0, 1, 12.0)
+    cavs = [car("a0", 120.0, 1, 12.0, cav=True), car("a1", 105.0, 1, 12.0, cav=True)]
+    road = RoadSection((3.2, 3.2, 3.2))
+
+    def stalled_at(stall_s: float) -> float:
+        lane_pass = LanePass("truck", 2, since_s=0.0)
+        for i in range(400):
+            t = 0.1 * i
+            if lane_pass.update(t, truck, cavs, road, min_gap_m=5.0, stall_s=stall_s):
+                return round(t, 1)
+        raise AssertionError("never stalled")
+
+    assert stalled_at(DEFAULT.lane_pass_stall_s) == pytest.approx(15.1)
+    assert stalled_at(SwarmSettings(lane_pass_stall_s=5.0).lane_pass_stall_s) == pytest.approx(5.1)
+
+
+def test_lane_pass_beats_sets_the_pace_a_lane_beside_must_beat():
+    # A 12 m/s truck, the plan's pace one 15 m cell per 3 s above it (17 m/s), a 20 m/s cruise,
+    # a 2 m/s gain: "free" (default) asks of a lane beside the lower of the plan's pace and the
+    # cruise less the gain (17 vs 18: 17); "cells" the plan's pace itself.
+    args = dict(cruise_mps=20.0, min_gain_mps=2.0)
+    assert lane_pass_pace(12.0, 5.0, rule=DEFAULT.lane_pass_beats, **args) == pytest.approx(17.0)
+    # With the plan faster than the cruise less the gain, the two differ.
+    assert lane_pass_pace(12.0, 8.0, rule="free", **args) == pytest.approx(18.0)
+    assert lane_pass_pace(12.0, 8.0, rule="cells", **args) == pytest.approx(20.0)
+
+
+def test_interval_rule_sets_whether_a_row_move_must_be_drivable():
+    # 15 m cells past a 17.5 m/s target under a 20 m/s cap: a row each 3 s needs 22.5 m/s.
+    # "drivable" (default) stretches the behaving interval to 6 s; "fixed" keeps the planner's.
+    assert behaving_interval_s(3.0, 15.0, 17.5, 20.0, DEFAULT.interval_rule) == pytest.approx(6.0)
+    assert behaving_interval_s(3.0, 15.0, 17.5, 20.0, "fixed") == pytest.approx(3.0)
+    # With room under the cap both give the planner's interval.
+    assert behaving_interval_s(3.0, 15.0, 12.0, 25.0, "drivable") == pytest.approx(3.0)
+
+
+def test_pass_singly_s_sets_how_long_the_cavs_pass_one_by_one():
+    # Started at 4 s: one by one until 64 s by default (60 s), until 24 s at 20 s.
+    states = held_platoon()
+    for swarm, until_s in ((swarm_with(states), 64.0),
+                           (swarm_with(states, pass_singly_s=20.0), 24.0)):  # fmt: skip
+        swarm._start_one_by_one(4.0, states["slow"], ["a0", "a1"])
+        assert swarm.reformer.singly == ("slow", pytest.approx(until_s))
+
+
+def test_cooldown_s_sets_how_long_no_target_is_taken_after_a_give_up():
+    # After a give-up at 10 s the watch takes no target until cooldown_s has gone by, then
+    # the same candidate for trigger_after_s again.
+    slow = car("slow", 140.0, 1, 17.0)
+
+    def next_target_s(cooldown_s: float) -> float:
+        watch = TargetWatch(trigger_after_s=DEFAULT.trigger_after_s)
+        watch.cool_down(10.0 + cooldown_s)
+        for i in range(101, 600):
+            t = round(0.1 * i, 1)
+            if watch.update(t, slow) is not None:
+                return t
+        raise AssertionError("no target")
+
+    assert next_target_s(DEFAULT.cooldown_s) == pytest.approx(27.0)
+    assert next_target_s(SwarmSettings(cooldown_s=3.0).cooldown_s) == pytest.approx(15.0)
+
+
+# ------------------------------------------------------------------ keeping right
+def test_keep_right_ahead_s_sets_how_far_ahead_the_right_lane_must_be_clear():
+    # A truck in the middle lane at 20 m/s; a car 65 m ahead of it in the right lane at 10 m/s.
+    # Moving over gains the truck nothing if something slower is within ahead_s at its speed:
+    # the default 4 s (80 m, plus the 5 m minimum gap) sees the car; 1 s (25 m) does not.
+    truck = car("truck", 200.0, 1, 20.0)
+    slow_right = car("c", 270.0, 0, 10.0)
+    road = RoadSection((3.2, 3.2, 3.2))
+
+    def free(ahead_s: float) -> bool:
+        return right_lane_free(
+            truck, [truck, slow_right], road, move_s=DEFAULT.keep_right_move_s, ahead_s=ahead_s,
+            min_gap_m=5.0, secure_gap=lambda follower, v_lead: 0.0,
+        )  # fmt: skip
+
+    assert not free(DEFAULT.keep_right_ahead_s)
+    assert free(SwarmSettings(keep_right_ahead_s=1.0).keep_right_ahead_s)
+
+
+def test_keep_right_move_s_sets_how_long_a_follower_there_closes_in_before_the_move():
+    # A truck in the middle lane at 20 m/s; 45 m behind it in the right lane a car at 30 m/s.
+    # Judged for the default 5 s, the car closes 50 m: the lane is not free for the truck; for
+    # 3 s it closes 30 m and leaves 15 m, above the 5 m minimum gap (no secure gap counted).
+    truck = car("truck", 200.0, 1, 20.0)
+    behind = car("c", 150.0, 0, 30.0)
+    road = RoadSection((3.2, 3.2, 3.2))
+
+    def free(move_s: float) -> bool:
+        return right_lane_free(
+            truck, [truck, behind], road, move_s=move_s, ahead_s=DEFAULT.keep_right_ahead_s,
+            min_gap_m=5.0, secure_gap=lambda follower, v_lead: 0.0,
+        )  # fmt: skip
+
+    assert not free(DEFAULT.keep_right_move_s)
+    assert free(SwarmSettings(keep_right_move_s=3.0).keep_right_move_s)
+
+
+def test_keep_right_soon_s_sets_how_soon_the_right_lane_must_open():
+    # A truck keeping right in the middle lane at 20 m/s, a car beside it on the right at 18:
+    # the right lane opens for the truck once the car has dropped 10 m behind its rear (the
+    # minimum gap; a slower car needs no secure gap), in 5 s. Within the default 10 s the lane
+    # opens soon enough (the plan keeps it closed); asked to open within 2 s, it does not.
+    states = {
+        "truck": car("truck", 200.0, 1, 20.0),
+        "c": car("c", 200.0, 0, 18.0),
+        "a0": car("a0", 170.0, 1, 20.0, cav=True),
+    }
+    soon = swarm_with(states)
+    assert soon.decider._right_lane_opens(states["truck"], states)
+    at_once = swarm_with(states, keep_right_soon_s=2.0)
+    assert not at_once.decider._right_lane_opens(states["truck"], states)
+
+
+# ------------------------------------------------------------------ the MPC's clock
+def test_control_interval_s_sets_how_often_the_mpcs_solve():
+    # At SUMO's 0.1 s step: every 2 steps by default (0.18 s), every 5 at 0.5 s.
+    states = held_platoon()
+    assert swarm_with(states).tracker.interval_steps == 2
+    assert swarm_with(states, control_interval_s=0.5).tracker.interval_steps == 5
+
+
+# ------------------------------------------------------------------ all of them
+def _defines(file: str, test: str | None, key: str) -> bool:
+    text = (TESTS / file).read_text(encoding="utf-8")
+    if test is not None and not re.search(rf"^def {re.escape(test)}\(", text, re.M):
+        return False
+    return re.search(rf"\b{key}\b\s*=|\"swarm\.{key}\"", text) is not None
+
+
+def test_every_swarm_key_is_set_to_another_value_by_a_test():
+    here = (TESTS / "test_swarm_keys.py").read_text(encoding="utf-8")
+    keys = [f.name for f in dataclasses.fields(SwarmSettings)]
+    untested = []
+    for key in keys:
+        if key in ELSEWHERE:
+            if not _defines(*ELSEWHERE[key], key):
+                untested.append(key)
+        elif not re.search(rf"^def test_{key}_", here, re.M):
+            untested.append(key)
+    assert untested == [], f"[swarm] keys no test sets to another value: {untested}"
