@@ -242,40 +242,41 @@ def test_cooldown_s_sets_how_long_no_target_is_taken_after_a_give_up():
 
 
 # ------------------------------------------------------------------ keeping right
+def right_free_for_truck(
+    other: VehicleState,
+    *,
+    move_s: float = DEFAULT.keep_right_move_s,
+    ahead_s: float = DEFAULT.keep_right_ahead_s,
+) -> bool:
+    """Is the right lane free for a truck in the middle lane at 20 m/s (front at 200 m) to
+    keep right, with ``other`` in that lane (:func:`right_lane_free`; no secure gap counted)?"""
+    truck = car("truck", 200.0, 1, 20.0)
+    return right_lane_free(
+        truck, [truck, other], RoadSection((3.2, 3.2, 3.2)), move_s=move_s, ahead_s=ahead_s,
+        min_gap_m=5.0, secure_gap=lambda follower, v_lead: 0.0,
+    )  # fmt: skip
+
+
 def test_keep_right_ahead_s_sets_how_far_ahead_the_right_lane_must_be_clear():
     # A truck in the middle lane at 20 m/s; a car 65 m ahead of it in the right lane at 10 m/s.
     # Moving over gains the truck nothing if something slower is within ahead_s at its speed:
     # the default 4 s (80 m, plus the 5 m minimum gap) sees the car; 1 s (25 m) does not.
-    truck = car("truck", 200.0, 1, 20.0)
     slow_right = car("c", 270.0, 0, 10.0)
-    road = RoadSection((3.2, 3.2, 3.2))
-
-    def free(ahead_s: float) -> bool:
-        return right_lane_free(
-            truck, [truck, slow_right], road, move_s=DEFAULT.keep_right_move_s, ahead_s=ahead_s,
-            min_gap_m=5.0, secure_gap=lambda follower, v_lead: 0.0,
-        )  # fmt: skip
-
-    assert not free(DEFAULT.keep_right_ahead_s)
-    assert free(SwarmSettings(keep_right_ahead_s=1.0).keep_right_ahead_s)
+    assert not right_free_for_truck(slow_right, ahead_s=DEFAULT.keep_right_ahead_s)
+    assert right_free_for_truck(
+        slow_right, ahead_s=SwarmSettings(keep_right_ahead_s=1.0).keep_right_ahead_s
+    )
 
 
 def test_keep_right_move_s_sets_how_long_a_follower_there_closes_in_before_the_move():
     # A truck in the middle lane at 20 m/s; 45 m behind it in the right lane a car at 30 m/s.
     # Judged for the default 5 s, the car closes 50 m: the lane is not free for the truck; for
     # 3 s it closes 30 m and leaves 15 m, above the 5 m minimum gap (no secure gap counted).
-    truck = car("truck", 200.0, 1, 20.0)
     behind = car("c", 150.0, 0, 30.0)
-    road = RoadSection((3.2, 3.2, 3.2))
-
-    def free(move_s: float) -> bool:
-        return right_lane_free(
-            truck, [truck, behind], road, move_s=move_s, ahead_s=DEFAULT.keep_right_ahead_s,
-            min_gap_m=5.0, secure_gap=lambda follower, v_lead: 0.0,
-        )  # fmt: skip
-
-    assert not free(DEFAULT.keep_right_move_s)
-    assert free(SwarmSettings(keep_right_move_s=3.0).keep_right_move_s)
+    assert not right_free_for_truck(behind, move_s=DEFAULT.keep_right_move_s)
+    assert right_free_for_truck(
+        behind, move_s=SwarmSettings(keep_right_move_s=3.0).keep_right_move_s
+    )
 
 
 def test_keep_right_soon_s_sets_how_soon_the_right_lane_must_open():
