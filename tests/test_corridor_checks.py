@@ -137,6 +137,45 @@ def test_a_failed_run_is_a_row_with_its_error():
     assert "Checks passed: 3 / 7" in text and "CAV speed" in text
 
 
+def _rows(seed: int, summaries: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    return [
+        {"road": "r", "share": 0.2, "seed": seed, "controller": c, "status": "ran",
+         **cc.measures(s)}
+        for c, s in summaries.items()
+    ]  # fmt: skip
+
+
+def test_a_road_and_share_is_judged_on_its_seeds_together():
+    # Seed 1 is BASE (every check passes on its margin). Seed 2: the swarm's others' delay
+    # 21.0 (> 1.05 x 19.5: its own check fails), 1 of 20 aborted, a CAV-CAV gap of 2.1 m; the
+    # TTC counts 30 / 20 / 35 again. Together: the mean delay 20.5 is above 1.05 x 19.5 =
+    # 20.475 (fail, one seed of two passing); 3 of 40 aborted (pass); the smallest gap 2.1 m;
+    # TTC 60 against the worse baseline's sum, 70.
+    second = copy.deepcopy(BASE)
+    second["swarm"]["network"]["delay_s_others"] = 21.0
+    second["swarm"]["swarms"]["overtakes_aborted"] = 1
+    second["swarm"]["cav"]["gap_min_cav_m"] = 2.1
+    runs = pd.DataFrame(_rows(1, BASE) + _rows(2, second))
+    wide, _ = cc.judged(runs)
+    roads = cc.judged_by_road(runs, wide)
+    row = roads.iloc[0]
+    assert row["seeds"] == 2 and row["passed"] == 6
+    assert row["check.others_delay"] == cc.FAIL and row["seeds_passing.others_delay"] == 0.5
+    assert row["check.others_delay.detail"] == "20.50 <= 1.05 x 19.50"
+    assert row["check.aborted.detail"] == "3 of 40" and row["check.aborted"] == cc.PASS
+    assert row["check.cav_gap.detail"] == "2.10 m" and row["check.ttc.detail"] == "60 <= 70"
+    # A seed a baseline failed in is left out of the road's measures.
+    failed = _rows(3, BASE)
+    failed[2] = {"road": "r", "share": 0.2, "seed": 3, "controller": "sumo-lc",
+                 "status": "failed", "error": "boom"}  # fmt: skip
+    runs = pd.DataFrame(_rows(1, BASE) + failed)
+    wide, shown = cc.judged(runs)
+    roads = cc.judged_by_road(runs, wide)
+    assert roads.iloc[0]["seeds"] == 1 and roads.iloc[0]["passed"] == 7
+    text = cc.report(wide, shown, "cmd", "abc", 30.0, roads=roads)
+    assert "Checks passed, per road and share: 7 / 7" in text
+
+
 def test_others_delay_of_an_older_summary_comes_from_its_trips(tmp_path: Path):
     trips = pd.DataFrame(
         {"vehicle_class": ["cav", "hv", "truck"], "time_loss_s": [50.0, 10.0, 20.0],

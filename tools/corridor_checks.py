@@ -28,7 +28,11 @@ A check that misses a value (a run failed, a baseline lacks the measure) is ``n/
 pass. Results are never lost: a failed run is a row with its error, and a run whose
 ``summary.json`` exists is kept, not run again, unless ``--force``. Prints a line per finished
 run, then the table (a row per road, share and seed: each controller's value side by side and
-PASS/FAIL per check) and the checks passed, and writes it as ``--table``.md and .csv::
+PASS/FAIL per check) and the checks passed; then each road and share with its seeds together
+(issue 51 asks the checks "for each of these, at 20 % and 40 % CAVs"): the means over the seeds
+(counts summed, the smallest CAV-CAV gap) judged the same way, and the share of seeds whose own
+check passed. Writes it as ``--table``.md, .csv (a row per seed), .roads.csv (a row per road
+and share) and .runs.csv::
 
     python tools/corridor_checks.py [--roads NAME ...] [--shares P ...] [--end S]
                                     [--seeds N ...] [--out DIR] [--workers N] [--force]
@@ -403,6 +407,88 @@ def judged(runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     return pd.DataFrame(wide), pd.DataFrame(shown)
 
 
+# How a road and share's seeds add up, per measure: summed (counts), the smallest (the gap),
+# else the mean over the seeds.
+_SUMMED = ("collisions", "ttc_events", "started", "aborted")
+# The measures the checks read (:func:`judge`).
+_JUDGED_KEYS = ("collisions", "cav_speed_mps", "throughput_vph", "others_delay_s", "ttc_events",
+                "cav_cav_gap_min_m", "started", "aborted")  # fmt: skip
+
+
+def _over_seeds(values: list[float | None], key: str) -> float | None:
+    known = [float(v) for v in values if v is not None]
+    if key == "cav_cav_gap_min_m":
+        return min(known) if known else None  # None: no CAV behind a CAV in any seed
+    if len(known) != len(values) or not known:
+        return None
+    return sum(known) if key in _SUMMED else sum(known) / len(known)
+
+
+def judged_by_road(runs: pd.DataFrame, wide: pd.DataFrame) -> pd.DataFrame:
+    """Per road and share, the seven checks of the seeds taken together (issue 51: "for each
+    of these, at 20 % and 40 % CAVs"): each controller's measures over the seeds where every
+    controller ran (means; counts summed; the smallest CAV-CAV gap), and per check the share
+    of those seeds whose own check passed."""
+    rows = []
+    for (road, share), group in runs.groupby(["road", "share"], sort=False):
+        seeds = [
+            seed for seed, r in group.groupby("seed", sort=False)
+            if set(r.loc[r["status"].isin(("ran", "kept")), "controller"]) >= set(CONTROLLERS)
+        ]  # fmt: skip
+        by = {}
+        for c in CONTROLLERS:
+            mine = group[(group["controller"] == c) & group["seed"].isin(seeds)]
+            by[c] = (
+                {
+                    k: _over_seeds([_clean(v) for v in mine.get(k, [None] * len(mine))], k)
+                    for k in _JUDGED_KEYS
+                }
+                if seeds else None
+            )  # fmt: skip
+        cells = wide[(wide["road"] == road) & (wide["share"] == share) & wide["seed"].isin(seeds)]
+        row: dict[str, Any] = {"road": road, "share": share, "seeds": len(seeds)}
+        for check in judge(by):
+            row[f"check.{check.key}"] = check.verdict
+            row[f"check.{check.key}.detail"] = check.detail
+            within = (cells[f"check.{check.key}"] == PASS).mean() if len(cells) else float("nan")
+            row[f"seeds_passing.{check.key}"] = within
+        row["passed"] = sum(row[f"check.{k}"] == PASS for k, _ in CHECKS)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def road_lines(roads: pd.DataFrame) -> list[str]:
+    """The report's section of :func:`judged_by_road`: a row per road and share, each check's
+    verdict on the seeds together with its values, and the share of seeds that passed it."""
+    if roads.empty:
+        return []
+    shown = []
+    for row in roads.to_dict("records"):
+        cells = {"road": row["road"], "CAV share": share_name(row["share"]),
+                 "seeds": row["seeds"]}  # fmt: skip
+        for key, title in CHECKS:
+            within = row[f"seeds_passing.{key}"]
+            share_of = "-" if math.isnan(within) else f"{100 * within:.0f} %"
+            cells[title] = f"{_mark(row[f'check.{key}'])} {row[f'check.{key}.detail']} ({share_of})"
+        cells["passed"] = f"{row['passed']}/{len(CHECKS)}"
+        shown.append(cells)
+    total = len(roads) * len(CHECKS)
+    passed = int(roads["passed"].sum())
+    return [
+        "## Per road and share, the seeds together",
+        "",
+        "Each controller's measures over the seeds where all three ran: the mean (CAV speed, "
+        "throughput, others' delay), the sum (collisions, TTC conflicts, manoeuvres started "
+        "and aborted), the smallest CAV-CAV gap; the same checks on them, then in brackets "
+        "the share of those seeds whose own check passed.",
+        "",
+        pd.DataFrame(shown).to_markdown(index=False, disable_numparse=True),
+        "",
+        f"**Checks passed, per road and share: {passed} / {total}.**",
+        "",
+    ]
+
+
 _MEASURE_KEYS = ("collisions", "cav_speed_mps", "throughput_vph", "others_delay_s", "ttc_events",
                  "cav_cav_gap_min_m", "started", "aborted", "cavs", "wall_s")  # fmt: skip
 
@@ -443,9 +529,11 @@ def report(
     commit: str,
     end_s: float,
     run_commits: Sequence[str] = (),
+    roads: pd.DataFrame | None = None,
 ) -> str:
     """The Markdown report: what was run, the table, the checks passed and those that were
-    not; ``run_commits``: the commits the runs were made at (kept runs: earlier ones)."""
+    not, then (``roads``, :func:`judged_by_road`) the checks of each road and share over its
+    seeds; ``run_commits``: the commits the runs were made at (kept runs: earlier ones)."""
     total = len(wide) * len(CHECKS)
     passed = int(wide["passed"].sum()) if len(wide) else 0
     lines = [
@@ -469,6 +557,8 @@ def report(
     missed = failures(wide)
     if missed:
         lines += ["Not passed:", "", *(f"- {m}" for m in missed), ""]
+    if roads is not None:
+        lines += road_lines(roads)
     return "\n".join(lines)
 
 
@@ -559,18 +649,21 @@ def main(argv: list[str] | None = None) -> int:
     jobs = plan(args.roads, args.shares, args.seeds, args.end, args.out, commit)
     runs = run_all(jobs, workers=args.workers, force=args.force, timeout_s=args.timeout)
     wide, shown = judged(runs)
+    roads = judged_by_road(runs, wide)
     command = "python tools/corridor_checks.py " + " ".join(
         argv if argv is not None else sys.argv[1:]
     )
     made = sorted(
         {c if isinstance(c, str) and c else "not recorded" for c in runs.get("run_commit", [])}
     )
-    text = report(wide, shown, command.strip(), commit, args.end, made)
+    text = report(wide, shown, command.strip(), commit, args.end, made, roads)
     print(text)
     args.table.parent.mkdir(parents=True, exist_ok=True)
     table_file(args.table, ".md").write_text(text, encoding="utf-8")
     wide.insert(0, "commit", commit)
     wide.to_csv(table_file(args.table, ".csv"), index=False)
+    roads.insert(0, "commit", commit)
+    roads.to_csv(table_file(args.table, ".roads.csv"), index=False)
     runs.insert(0, "commit", commit)
     runs.to_csv(table_file(args.table, ".runs.csv"), index=False)
     return 0
