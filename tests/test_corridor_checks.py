@@ -174,6 +174,13 @@ def test_a_road_and_share_is_judged_on_its_seeds_together():
     assert roads.iloc[0]["seeds"] == 1 and roads.iloc[0]["passed"] == 7
     text = cc.report(wide, shown, "cmd", "abc", 30.0, roads=roads)
     assert "Checks passed, per road and share: 7 / 7" in text
+    # A swarm run that failed leaves the road unjudged, however well the other seeds did.
+    failed[0] = {**failed[0], "status": "failed", "error": "boom"}
+    failed[2] = _rows(3, BASE)[2]
+    runs = pd.DataFrame(_rows(1, BASE) + failed)
+    wide, _ = cc.judged(runs)
+    roads = cc.judged_by_road(runs, wide)
+    assert roads.iloc[0]["passed"] == 0 and roads.iloc[0]["check.ttc"] == cc.NA
 
 
 def test_others_delay_of_an_older_summary_comes_from_its_trips(tmp_path: Path):

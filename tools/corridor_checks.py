@@ -428,13 +428,16 @@ def judged_by_road(runs: pd.DataFrame, wide: pd.DataFrame) -> pd.DataFrame:
     """Per road and share, the seven checks of the seeds taken together (issue 51: "for each
     of these, at 20 % and 40 % CAVs"): each controller's measures over the seeds where every
     controller ran (means; counts summed; the smallest CAV-CAV gap), and per check the share
-    of those seeds whose own check passed."""
+    of those seeds whose own check passed. A swarm run that failed in any seed leaves nothing
+    to judge (every check n/a): a road is not passed on the seeds that happened to run."""
     rows = []
     for (road, share), group in runs.groupby(["road", "share"], sort=False):
+        ok = group["status"].isin(("ran", "kept"))
         seeds = [
-            seed for seed, r in group.groupby("seed", sort=False)
-            if set(r.loc[r["status"].isin(("ran", "kept")), "controller"]) >= set(CONTROLLERS)
+            seed for seed, r in group[ok].groupby("seed", sort=False)
+            if set(r["controller"]) >= set(CONTROLLERS)
         ]  # fmt: skip
+        swarm_failed = bool(((group["controller"] == SWARM) & ~ok).any())
         by = {}
         for c in CONTROLLERS:
             mine = group[(group["controller"] == c) & group["seed"].isin(seeds)]
@@ -443,7 +446,7 @@ def judged_by_road(runs: pd.DataFrame, wide: pd.DataFrame) -> pd.DataFrame:
                     k: _over_seeds([_clean(v) for v in mine.get(k, [None] * len(mine))], k)
                     for k in _JUDGED_KEYS
                 }
-                if seeds else None
+                if seeds and not (c == SWARM and swarm_failed) else None
             )  # fmt: skip
         cells = wide[(wide["road"] == road) & (wide["share"] == share) & wide["seed"].isin(seeds)]
         row: dict[str, Any] = {"road": road, "share": share, "seeds": len(seeds)}
