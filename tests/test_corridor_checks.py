@@ -164,7 +164,8 @@ def test_a_road_and_share_is_judged_on_its_seeds_together():
     assert row["check.others_delay.detail"] == "20.50 <= 1.05 x 19.50"
     assert row["check.aborted.detail"] == "3 of 40" and row["check.aborted"] == cc.PASS
     assert row["check.cav_gap.detail"] == "2.10 m" and row["check.ttc.detail"] == "60 <= 70"
-    # A seed a baseline failed in is left out of the road's measures.
+    # A seed a baseline failed in is left out of the comparisons, not out of the swarm's own
+    # checks: its 3 collisions and 0.5 m gap fail the road.
     failed = _rows(3, BASE)
     failed[2] = {"road": "r", "share": 0.2, "seed": 3, "controller": "sumo-lc",
                  "status": "failed", "error": "boom"}  # fmt: skip
@@ -172,8 +173,17 @@ def test_a_road_and_share_is_judged_on_its_seeds_together():
     wide, shown = cc.judged(runs)
     roads = cc.judged_by_road(runs, wide)
     assert roads.iloc[0]["seeds"] == 1 and roads.iloc[0]["passed"] == 7
+    assert roads.iloc[0]["failed_runs"] == 1
     text = cc.report(wide, shown, "cmd", "abc", 30.0, roads=roads)
     assert "Checks passed, per road and share: 7 / 7" in text
+    failed[0] = {**failed[0], "collisions": 3, "cav_cav_gap_min_m": 0.5}
+    runs = pd.DataFrame(_rows(1, BASE) + failed)
+    wide, _ = cc.judged(runs)
+    row = cc.judged_by_road(runs, wide).iloc[0]
+    assert (row["check.collisions"], row["check.collisions.detail"]) == (cc.FAIL, "swarm 3")
+    assert (row["check.cav_gap"], row["check.cav_gap.detail"]) == (cc.FAIL, "0.50 m")
+    assert row["check.throughput"] == cc.PASS and row["passed"] == 5
+    failed[0] = _rows(3, BASE)[0]
     # A swarm run that failed leaves the road unjudged, however well the other seeds did.
     failed[0] = {**failed[0], "status": "failed", "error": "boom"}
     failed[2] = _rows(3, BASE)[2]

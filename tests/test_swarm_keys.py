@@ -2,8 +2,9 @@
 
 Issue 51: a key that no test sets to another value is a switch nobody checked. The keys set here
 are read where the swarm reads them (its decider, its controller, the function the key feeds);
-the others are set by the tests named in :data:`ELSEWHERE`. :func:`test_every_swarm_key_is_set`
-fails for a key that neither covers.
+the others are set by the tests named in :data:`ELSEWHERE`.
+:func:`test_every_swarm_key_is_set_to_another_value_by_a_test` fails for a key that neither
+covers.
 """
 
 from __future__ import annotations
@@ -17,13 +18,11 @@ import pytest
 from sumo_swarm.config import Scenario, SwarmSettings
 from sumo_swarm.controllers.swarm import SwarmController
 from sumo_swarm.core.hvmodel import DriverModel
-from sumo_swarm.core.model import RoadSection, VehicleState
+from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.swarming.decision import (
-    LanePass,
     TargetWatch,
     behaving_interval_s,
     lane_pass_pace,
-    right_lane_free,
 )
 from tests.fakes import FakeSession, run_context
 
@@ -36,19 +35,6 @@ ELSEWHERE = {
     "decide": (
         "test_arbiter.py",
         "test_the_paper_trigger_and_the_weighing_start_the_same_paper_overtake",
-    ),
-    "horizon_s": ("test_arbiter.py", "test_a_short_horizon_sees_no_pass_paying"),
-    "others_weight": (
-        "test_arbiter.py",
-        "test_others_weight_trades_their_loss_against_the_cavs_gain",
-    ),
-    "detect_range_m": (
-        "test_swarming.py",
-        "test_no_target_when_it_does_not_pay_or_is_far_or_a_cav",
-    ),
-    "accelerating_mps2": (
-        "test_swarming.py",
-        "test_no_target_when_it_does_not_pay_or_is_far_or_a_cav",
     ),
     "hand_over_in_lane": (
         "test_open_traffic.py",
@@ -100,6 +86,13 @@ def first_target_s(controller: SwarmController, states, platoon, until_s: float 
     return None
 
 
+def target_at(states=None, **swarm) -> float | None:
+    """:func:`first_target_s` of the CAVs a0, a1 of ``states`` (default :func:`held_platoon`)
+    with ``swarm`` keys."""
+    states = held_platoon() if states is None else states
+    return first_target_s(swarm_with(states, **swarm), states, ["a0", "a1"])
+
+
 def held_platoon(slow_mps: float = 17.0):
     """Two CAVs at 17 m/s, 25 m behind a car in their lane at ``slow_mps``."""
     return {
@@ -112,38 +105,81 @@ def held_platoon(slow_mps: float = 17.0):
 # ------------------------------------------------------------------ the decision point
 def test_trigger_speed_ratio_sets_how_slow_a_vehicle_must_be():
     # Default 0.95 of the 20 m/s cruise: a car at 17 m/s is slow. At 0.8 (16 m/s) it is not.
-    states = held_platoon()
-    assert first_target_s(swarm_with(states), states, ["a0", "a1"]) == pytest.approx(3.0)
-    slow_only_below_16 = swarm_with(states, trigger_speed_ratio=0.8)
-    assert slow_only_below_16.decider.slow_below() == pytest.approx(16.0)
-    assert first_target_s(slow_only_below_16, states, ["a0", "a1"]) is None
+    assert target_at() == pytest.approx(3.0)
+    assert swarm_with(held_platoon(), trigger_speed_ratio=0.8).decider.slow_below() == (
+        pytest.approx(16.0)
+    )
+    assert target_at(trigger_speed_ratio=0.8) is None
 
 
 def test_start_after_s_holds_every_decision_until_then():
     # No decision before start_after_s (default 1 s); then trigger_after_s (2 s) of the same
     # candidate: 3 s by default, 7 s with start_after_s = 5.
-    states = held_platoon()
-    assert first_target_s(swarm_with(states, start_after_s=5.0), states, ["a0", "a1"]) == (
-        pytest.approx(7.0)
-    )
+    assert target_at(start_after_s=5.0) == pytest.approx(7.0)
 
 
 def test_trigger_after_s_sets_how_long_the_same_vehicle_must_hold_the_platoon():
     # From start_after_s (1 s): 2 s of the same candidate by default (3 s), 4 s (5 s).
-    states = held_platoon()
-    assert first_target_s(swarm_with(states, trigger_after_s=4.0), states, ["a0", "a1"]) == (
-        pytest.approx(5.0)
-    )
+    assert target_at(trigger_after_s=4.0) == pytest.approx(5.0)
+
+
+def test_detect_range_m_sets_how_far_ahead_a_slow_vehicle_is_seen():
+    # The car is 25 m ahead of the front CAV: seen within the default 60 m, not within 20 m.
+    assert target_at(detect_range_m=20.0) is None
+    assert target_at(detect_range_m=30.0) == pytest.approx(3.0)
+
+
+def test_accelerating_mps2_sets_when_a_slow_vehicle_is_only_getting_up_to_speed():
+    # The car ahead speeds up at 0.8 m/s^2: beyond the default 0.5 it is getting up to speed,
+    # no target; below 1.0 it is slow.
+    states = {**held_platoon(), "slow": VehicleState("slow", 140.0, 1, 0.0, 17.0, 5.0, 0.8, False)}
+    assert target_at(states) is None
+    assert target_at(states, accelerating_mps2=1.0) == pytest.approx(3.0)
+
+
+def test_horizon_s_sets_how_long_a_manoeuvre_has_to_pay():
+    # Two CAVs behind a 12 m/s truck, both lanes beside free: over the default 20 s moving
+    # past it pays; within 0.5 s (less than moving over takes) nothing does: the swarm follows.
+    states = {
+        "truck": car("truck", 140.0, 1, 12.0),
+        "a0": car("a0", 120.0, 1, 12.0, cav=True),
+        "a1": car("a1", 105.0, 1, 12.0, cav=True),
+    }
+    platoon = ["a0", "a1"]
+    # (a truck that wants no more than its 12 m/s: it stays to be passed)
+    answers = {"driver_model": lambda vid: DriverModel(desired_speed_mps=12.0)}
+    default = swarm_with(states, session_answers=answers)
+    assert default.decider.choose(states["truck"], states, platoon).kind in ("lane_pass", "cells")
+    short = swarm_with(states, session_answers=answers, horizon_s=0.5)
+    assert short.decider.choose(states["truck"], states, platoon).kind == "follow"
+
+
+def test_others_weight_sets_what_a_metre_lost_by_the_others_counts():
+    # Two CAVs behind a 12 m/s truck; in both lanes beside, cars at 25 m/s 25 and 55 m behind
+    # the tail. The cells gain the CAVs the most (277 vehicle-metres) but block the cars (260
+    # lost): counted one for one (the default) the CAVs pass one by one (261, nobody loses);
+    # with the others' metres counted at 0.05, the cells.
+    states = {
+        "truck": car("truck", 140.0, 1, 12.0),
+        "a0": car("a0", 120.0, 1, 12.0, cav=True),
+        "a1": car("a1", 105.0, 1, 12.0, cav=True),
+        **{f"{v}{q}": car(f"{v}{q}", s, q, 25.0) for v, s in (("l", 80.0), ("m", 50.0))
+           for q in (0, 2)},
+    }  # fmt: skip
+    answers = {"driver_model": lambda vid: DriverModel(desired_speed_mps=12.0 if vid == "truck"
+                                                       else 25.0)}  # fmt: skip
+    platoon = ["a0", "a1"]
+    default = swarm_with(states, session_answers=answers)
+    assert default.decider.choose(states["truck"], states, platoon).kind == "one_by_one"
+    selfish = swarm_with(states, session_answers=answers, others_weight=0.05)
+    assert selfish.decider.choose(states["truck"], states, platoon).kind == "cells"
 
 
 def test_min_speed_gain_mps_sets_how_much_faster_than_the_target_the_cap_must_be():
     # The cap (25 m/s) beats a car at 17 m/s by 8 m/s: a target at the default gain of 2 m/s,
     # none at 10 m/s.
-    states = held_platoon()
-    assert first_target_s(swarm_with(states, min_speed_gain_mps=10.0), states, ["a0", "a1"]) is None
-    assert first_target_s(swarm_with(states, min_speed_gain_mps=8.0), states, ["a0", "a1"]) == (
-        pytest.approx(3.0)
-    )
+    assert target_at(min_speed_gain_mps=10.0) is None
+    assert target_at(min_speed_gain_mps=8.0) == pytest.approx(3.0)
 
 
 def test_catching_up_ahead_m_sets_how_far_ahead_a_slow_line_holds_the_target():
@@ -177,21 +213,25 @@ def test_in_lane_tolerance_m_sets_when_a_cav_counts_as_settled_in_a_lane():
 
 
 def test_lane_pass_stall_s_sets_how_long_a_lane_pass_may_go_without_progress():
-    # Neither CAV gets out of the truck's lane: stalled once stall_s has gone by (default 15 s).
-    truck = car("truck", 140.0, 1, 12.0)
-    cavs = [car("a0", 120.0, 1, 12.0, cav=True), car("a1", 105.0, 1, 12.0, cav=True)]
-    road = RoadSection((3.2, 3.2, 3.2))
+    # A lane pass into lane 2 past a 12 m/s truck; neither CAV gets out of the truck's lane:
+    # the swarm ends it as stalled (and hands the truck to the cells) once lane_pass_stall_s
+    # has gone by, 15 s by default, 5 s here.
+    states = {
+        "truck": car("truck", 140.0, 1, 12.0),
+        "a0": car("a0", 120.0, 1, 12.0, cav=True),
+        "a1": car("a1", 105.0, 1, 12.0, cav=True),
+    }
 
-    def stalled_at(stall_s: float) -> float:
-        lane_pass = LanePass("truck", 2, since_s=0.0)
-        for i in range(400):
-            t = 0.1 * i
-            if lane_pass.update(t, truck, cavs, road, min_gap_m=5.0, stall_s=stall_s):
-                return round(t, 1)
+    def stalled_at(swarm: SwarmController) -> float:
+        swarm._start_lane_pass(0.0, states["truck"], 2, ["a0", "a1"])
+        for i in range(1, 400):
+            t = round(0.1 * i, 1)
+            if swarm._lane_pass_target(t, states, ["a0", "a1"]) is not None:
+                return t
         raise AssertionError("never stalled")
 
-    assert stalled_at(DEFAULT.lane_pass_stall_s) == pytest.approx(15.1)
-    assert stalled_at(SwarmSettings(lane_pass_stall_s=5.0).lane_pass_stall_s) == pytest.approx(5.1)
+    assert stalled_at(swarm_with(states)) == pytest.approx(15.1)
+    assert stalled_at(swarm_with(states, lane_pass_stall_s=5.0)) == pytest.approx(5.1)
 
 
 def test_lane_pass_beats_sets_the_pace_a_lane_beside_must_beat():
@@ -242,57 +282,50 @@ def test_cooldown_s_sets_how_long_no_target_is_taken_after_a_give_up():
 
 
 # ------------------------------------------------------------------ keeping right
-def right_free_for_truck(
-    other: VehicleState,
-    *,
-    move_s: float = DEFAULT.keep_right_move_s,
-    ahead_s: float = DEFAULT.keep_right_ahead_s,
-) -> bool:
-    """Is the right lane free for a truck in the middle lane at 20 m/s (front at 200 m) to
-    keep right, with ``other`` in that lane (:func:`right_lane_free`; no secure gap counted)?"""
+def right_free_for_truck(other: VehicleState, **swarm) -> bool:
+    """Is the right lane free, as the swarm's decider judges it, for a truck in the middle lane
+    at 20 m/s (front at 200 m) to keep right, with ``other`` in that lane? Its follower there
+    needs the minimum gap (5 m) plus SUMO's secure gap of a default driver (1 s, 4.5 m/s^2)."""
     truck = car("truck", 200.0, 1, 20.0)
-    return right_lane_free(
-        truck, [truck, other], RoadSection((3.2, 3.2, 3.2)), move_s=move_s, ahead_s=ahead_s,
-        min_gap_m=5.0, secure_gap=lambda follower, v_lead: 0.0,
-    )  # fmt: skip
+    states = {"truck": truck, other.vehicle_id: other, "a0": car("a0", 170.0, 1, 20.0, cav=True)}
+    return swarm_with(states, **swarm).decider._right_lane_free(truck, states)
 
 
 def test_keep_right_ahead_s_sets_how_far_ahead_the_right_lane_must_be_clear():
-    # A truck in the middle lane at 20 m/s; a car 65 m ahead of it in the right lane at 10 m/s.
-    # Moving over gains the truck nothing if something slower is within ahead_s at its speed:
-    # the default 4 s (80 m, plus the 5 m minimum gap) sees the car; 1 s (25 m) does not.
+    # A car 65 m ahead of the truck in the right lane at 10 m/s. Moving over gains the truck
+    # nothing if something slower is within ahead_s at its speed: the default 4 s (80 m, plus
+    # the 5 m minimum gap) sees the car; 1 s (25 m) does not.
     slow_right = car("c", 270.0, 0, 10.0)
-    assert not right_free_for_truck(slow_right, ahead_s=DEFAULT.keep_right_ahead_s)
-    assert right_free_for_truck(
-        slow_right, ahead_s=SwarmSettings(keep_right_ahead_s=1.0).keep_right_ahead_s
-    )
+    assert not right_free_for_truck(slow_right)
+    assert right_free_for_truck(slow_right, keep_right_ahead_s=1.0)
 
 
 def test_keep_right_move_s_sets_how_long_a_follower_there_closes_in_before_the_move():
-    # A truck in the middle lane at 20 m/s; 45 m behind it in the right lane a car at 30 m/s.
-    # Judged for the default 5 s, the car closes 50 m: the lane is not free for the truck; for
-    # 3 s it closes 30 m and leaves 15 m, above the 5 m minimum gap (no secure gap counted).
-    behind = car("c", 150.0, 0, 30.0)
-    assert not right_free_for_truck(behind, move_s=DEFAULT.keep_right_move_s)
-    assert right_free_for_truck(
-        behind, move_s=SwarmSettings(keep_right_move_s=3.0).keep_right_move_s
-    )
+    # A car 44 m behind the truck's rear in the right lane at 22 m/s needs 5 + 31.3 m (22 s x 1
+    # + (22^2 - 20^2) / 9). Judged for the default 5 s it closes 10 m: 34 m, not enough; for
+    # 3 s it closes 6 m: 38 m, the lane is free.
+    behind = car("c", 151.0, 0, 22.0)
+    assert not right_free_for_truck(behind)
+    assert right_free_for_truck(behind, keep_right_move_s=3.0)
 
 
 def test_keep_right_soon_s_sets_how_soon_the_right_lane_must_open():
-    # A truck keeping right in the middle lane at 20 m/s, a car beside it on the right at 18:
-    # the right lane opens for the truck once the car has dropped 10 m behind its rear (the
-    # minimum gap; a slower car needs no secure gap), in 5 s. Within the default 10 s the lane
-    # opens soon enough (the plan keeps it closed); asked to open within 2 s, it does not.
+    # A truck keeping right in the middle lane at 20 m/s, a car beside it on the right at 15:
+    # the lane opens for the truck once the car is 5 m behind its rear (a follower that slow
+    # needs no secure gap), at 2 s. Within the default 10 s the lane opens soon enough (the
+    # plan keeps it closed); asked to open within 1 s, it does not.
     states = {
         "truck": car("truck", 200.0, 1, 20.0),
-        "c": car("c", 200.0, 0, 18.0),
+        "c": car("c", 200.0, 0, 15.0),
         "a0": car("a0", 170.0, 1, 20.0, cav=True),
     }
     soon = swarm_with(states)
     assert soon.decider._right_lane_opens(states["truck"], states)
-    at_once = swarm_with(states, keep_right_soon_s=2.0)
+    at_once = swarm_with(states, keep_right_soon_s=1.0)
     assert not at_once.decider._right_lane_opens(states["truck"], states)
+    assert swarm_with(states, keep_right_soon_s=2.0).decider._right_lane_opens(
+        states["truck"], states
+    )
 
 
 # ------------------------------------------------------------------ the MPC's clock
@@ -304,21 +337,36 @@ def test_control_interval_s_sets_how_often_the_mpcs_solve():
 
 
 # ------------------------------------------------------------------ all of them
-def _defines(file: str, test: str | None, key: str) -> bool:
-    text = (TESTS / file).read_text(encoding="utf-8")
-    if test is not None and not re.search(rf"^def {re.escape(test)}\(", text, re.M):
-        return False
-    return re.search(rf"\b{key}\b\s*=|\"swarm\.{key}\"", text) is not None
+def _block(text: str, test: str) -> str:
+    """The text of test function ``test`` with its decorators ("" if there is none)."""
+    found = re.search(rf"^def {re.escape(test)}\(", text, re.M)
+    if found is None:
+        return ""
+    start = text.rfind("\n\n\n", 0, found.start())
+    end = text.find("\n\n\n", found.end())
+    return text[start : None if end < 0 else end]
+
+
+def _sets(text: str, key: str) -> bool:
+    """Does ``text`` give ``[swarm] key`` a value: a keyword argument, a mapping key, a line
+    of a settings text (after a newline escape too), or the default read to pass on?"""
+    pattern = rf"(?:\\n|\b){key}\s*=|\"{key}\"\s*:|\bDEFAULT\.{key}\b"
+    return re.search(pattern, text) is not None
 
 
 def test_every_swarm_key_is_set_to_another_value_by_a_test():
+    # Each key is given a value inside its test here (test_<key>_...), or inside the test
+    # named in ELSEWHERE (its helper's file, for None).
     here = (TESTS / "test_swarm_keys.py").read_text(encoding="utf-8")
-    keys = [f.name for f in dataclasses.fields(SwarmSettings)]
     untested = []
-    for key in keys:
+    for key in (f.name for f in dataclasses.fields(SwarmSettings)):
         if key in ELSEWHERE:
-            if not _defines(*ELSEWHERE[key], key):
-                untested.append(key)
-        elif not re.search(rf"^def test_{key}_", here, re.M):
+            file, test = ELSEWHERE[key]
+            text = (TESTS / file).read_text(encoding="utf-8")
+            block = text if test is None else _block(text, test)
+        else:
+            named = re.findall(rf"^def (test_{key}_\w+)\(", here, re.M)
+            block = "".join(_block(here, name) for name in named)
+        if not _sets(block, key):
             untested.append(key)
     assert untested == [], f"[swarm] keys no test sets to another value: {untested}"

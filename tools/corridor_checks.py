@@ -410,6 +410,8 @@ def judged(runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
 # How a road and share's seeds add up, per measure: summed (counts), the smallest (the gap),
 # else the mean over the seeds.
 _SUMMED = ("collisions", "ttc_events", "started", "aborted")
+# The checks of the swarm's own measures, judged without a baseline.
+_SWARM_ALONE = ("collisions", "cav_gap", "aborted")
 # The measures the checks read (:func:`judge`).
 _JUDGED_KEYS = ("collisions", "cav_speed_mps", "throughput_vph", "others_delay_s", "ttc_events",
                 "cav_cav_gap_min_m", "started", "aborted")  # fmt: skip
@@ -424,12 +426,29 @@ def _over_seeds(values: list[float | None], key: str) -> float | None:
     return sum(known) if key in _SUMMED else sum(known) / len(known)
 
 
+def _measures_over(
+    done: pd.DataFrame, controller: str, seeds, swarm_failed: bool
+) -> dict[str, float | None] | None:
+    """``controller``'s measures over ``seeds`` (:func:`_over_seeds`) from the runs that ran
+    (``done``); None without any, or for the swarm when one of its runs failed."""
+    mine = done[(done["controller"] == controller) & done["seed"].isin(seeds)]
+    if mine.empty or (controller == SWARM and swarm_failed):
+        return None
+    return {
+        k: _over_seeds([_clean(v) for v in mine.get(k, [None] * len(mine))], k)
+        for k in _JUDGED_KEYS
+    }
+
+
 def judged_by_road(runs: pd.DataFrame, wide: pd.DataFrame) -> pd.DataFrame:
     """Per road and share, the seven checks of the seeds taken together (issue 51: "for each
     of these, at 20 % and 40 % CAVs"): each controller's measures over the seeds where every
     controller ran (means; counts summed; the smallest CAV-CAV gap), and per check the share
-    of those seeds whose own check passed. A swarm run that failed in any seed leaves nothing
-    to judge (every check n/a): a road is not passed on the seeds that happened to run."""
+    of those seeds whose own check passed. The checks of the swarm alone (collisions, CAV-CAV
+    gap, aborted) take every seed the swarm ran in. A "better" or "worse" baseline is the
+    controller that is so over the seeds (its mean, or its sum). A swarm run that failed in any
+    seed leaves nothing to judge (every check n/a): a road is not passed on the seeds that
+    happened to run."""
     rows = []
     for (road, share), group in runs.groupby(["road", "share"], sort=False):
         ok = group["status"].isin(("ran", "kept"))
@@ -438,22 +457,17 @@ def judged_by_road(runs: pd.DataFrame, wide: pd.DataFrame) -> pd.DataFrame:
             if set(r["controller"]) >= set(CONTROLLERS)
         ]  # fmt: skip
         swarm_failed = bool(((group["controller"] == SWARM) & ~ok).any())
-        by = {}
-        for c in CONTROLLERS:
-            mine = group[(group["controller"] == c) & group["seed"].isin(seeds)]
-            by[c] = (
-                {
-                    k: _over_seeds([_clean(v) for v in mine.get(k, [None] * len(mine))], k)
-                    for k in _JUDGED_KEYS
-                }
-                if seeds and not (c == SWARM and swarm_failed) else None
-            )  # fmt: skip
-        cells = wide[(wide["road"] == road) & (wide["share"] == share) & wide["seed"].isin(seeds)]
-        row: dict[str, Any] = {"road": road, "share": share, "seeds": len(seeds)}
-        for check in judge(by):
+        done = group[ok]
+        compared = judge({c: _measures_over(done, c, seeds, swarm_failed) for c in CONTROLLERS})
+        alone = judge({SWARM: _measures_over(done, SWARM, done["seed"].unique(), swarm_failed)})
+        checks = [a if a.key in _SWARM_ALONE else c for c, a in zip(compared, alone, strict=True)]
+        cells = wide[(wide["road"] == road) & (wide["share"] == share)]
+        row: dict[str, Any] = {"road": road, "share": share, "seeds": len(seeds),
+                               "failed_runs": int((~ok).sum())}  # fmt: skip
+        for check in checks:
             row[f"check.{check.key}"] = check.verdict
             row[f"check.{check.key}.detail"] = check.detail
-            within = (cells[f"check.{check.key}"] == PASS).mean() if len(cells) else float("nan")
+            within = (cells[f"check.{check.key}"] == PASS).mean() if len(cells) else math.nan
             row[f"seeds_passing.{check.key}"] = within
         row["passed"] = sum(row[f"check.{k}"] == PASS for k, _ in CHECKS)
         rows.append(row)
@@ -474,16 +488,20 @@ def road_lines(roads: pd.DataFrame) -> list[str]:
             share_of = "-" if math.isnan(within) else f"{100 * within:.0f} %"
             cells[title] = f"{_mark(row[f'check.{key}'])} {row[f'check.{key}.detail']} ({share_of})"
         cells["passed"] = f"{row['passed']}/{len(CHECKS)}"
+        cells["failed runs"] = row["failed_runs"]
         shown.append(cells)
     total = len(roads) * len(CHECKS)
     passed = int(roads["passed"].sum())
     return [
         "## Per road and share, the seeds together",
         "",
-        "Each controller's measures over the seeds where all three ran: the mean (CAV speed, "
-        "throughput, others' delay), the sum (collisions, TTC conflicts, manoeuvres started "
-        "and aborted), the smallest CAV-CAV gap; the same checks on them, then in brackets "
-        "the share of those seeds whose own check passed.",
+        "Each controller's measures over the seeds where all three ran (the swarm's own "
+        "checks, collisions, CAV-CAV gap and aborted, over every seed it ran in): the mean "
+        "(CAV speed, throughput, others' delay), the sum (collisions, TTC conflicts, "
+        "manoeuvres started and aborted), the smallest CAV-CAV gap; the same checks on them, "
+        "the better or worse baseline being the controller that is so over the seeds; then in "
+        "brackets the share of the seeds whose own check passed. A swarm run that failed "
+        "leaves its road and share unjudged (n/a).",
         "",
         pd.DataFrame(shown).to_markdown(index=False, disable_numparse=True),
         "",
