@@ -20,7 +20,6 @@ from sumo_swarm.controllers.swarm import SwarmController
 from sumo_swarm.core.hvmodel import DriverModel
 from sumo_swarm.core.model import VehicleState
 from sumo_swarm.core.swarming.decision import (
-    TargetWatch,
     behaving_interval_s,
     lane_pass_pace,
 )
@@ -264,21 +263,34 @@ def test_pass_singly_s_sets_how_long_the_cavs_pass_one_by_one():
 
 
 def test_cooldown_s_sets_how_long_no_target_is_taken_after_a_give_up():
-    # After a give-up at 10 s the watch takes no target until cooldown_s has gone by, then
-    # the same candidate for trigger_after_s again.
-    slow = car("slow", 140.0, 1, 17.0)
+    # The cells on a 12 m/s truck, given up at 4 s (no progress): the swarm names no target
+    # until cooldown_s has gone by, then the truck again after trigger_after_s (2 s): at 21 s
+    # by default (15 s), at 11 s with 5 s.
+    states = {
+        "truck": car("truck", 140.0, 1, 12.0),
+        "a0": car("a0", 120.0, 1, 12.0, cav=True),
+        "a1": car("a1", 105.0, 1, 12.0, cav=True),
+    }
 
-    def next_target_s(cooldown_s: float) -> float:
-        watch = TargetWatch(trigger_after_s=DEFAULT.trigger_after_s)
-        watch.cool_down(10.0 + cooldown_s)
-        for i in range(101, 600):
+    class NoProgress:
+        def update(self, *args, **kwargs) -> None:
+            pass
+
+        def give_up_reason(self, *args, **kwargs) -> str:
+            return "no_progress"
+
+    def next_target_s(swarm: SwarmController) -> float:
+        swarm._start_overtake(3.0, states["truck"], ["a0", "a1"])
+        swarm.progress = NoProgress()
+        swarm._overtake_step(4.0, states, ["a0", "a1"])
+        for i in range(41, 400):
             t = round(0.1 * i, 1)
-            if watch.update(t, slow) is not None:
+            if swarm.decider.decide(t, states, ["a0", "a1"]) is not None:
                 return t
         raise AssertionError("no target")
 
-    assert next_target_s(DEFAULT.cooldown_s) == pytest.approx(27.0)
-    assert next_target_s(SwarmSettings(cooldown_s=3.0).cooldown_s) == pytest.approx(15.0)
+    assert next_target_s(swarm_with(states)) == pytest.approx(21.0)
+    assert next_target_s(swarm_with(states, cooldown_s=5.0)) == pytest.approx(11.0)
 
 
 # ------------------------------------------------------------------ keeping right
