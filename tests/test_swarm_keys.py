@@ -24,6 +24,7 @@ from sumo_swarm.core.swarming.decision import (
     lane_pass_pace,
 )
 from tests.fakes import FakeSession, run_context
+from tests.test_swarming import car
 
 TESTS = Path(__file__).parent
 DEFAULT = SwarmSettings()
@@ -59,10 +60,6 @@ ELSEWHERE = {
 }
 
 
-def car(vid: str, s: float, lane: int, v: float, *, cav: bool = False, lat: float = 0.0):
-    return VehicleState(vid, s, lane, lat, v, 5.0, 0.0, cav, 1.8)
-
-
 def swarm_with(states, *, session_answers=None, **swarm) -> SwarmController:
     """A swarm of the CAVs in ``states`` on three 3.2 m lanes, its ``[swarm]`` keys replaced by
     ``swarm`` (the default scenario: cruise 20 m/s, cap 25 m/s, 15 m cells, 3 s intervals)."""
@@ -90,6 +87,15 @@ def target_at(states=None, **swarm) -> float | None:
     with ``swarm`` keys."""
     states = held_platoon() if states is None else states
     return first_target_s(swarm_with(states, **swarm), states, ["a0", "a1"])
+
+
+def behind_truck():
+    """Two CAVs at 12 m/s, 15 m behind a 12 m/s truck in their lane (lane 1 of 3)."""
+    return {
+        "truck": car("truck", 140.0, 1, 12.0),
+        "a0": car("a0", 120.0, 1, 12.0, cav=True),
+        "a1": car("a1", 105.0, 1, 12.0, cav=True),
+    }
 
 
 def held_platoon(slow_mps: float = 17.0):
@@ -139,11 +145,7 @@ def test_accelerating_mps2_sets_when_a_slow_vehicle_is_only_getting_up_to_speed(
 def test_horizon_s_sets_how_long_a_manoeuvre_has_to_pay():
     # Two CAVs behind a 12 m/s truck, both lanes beside free: over the default 20 s moving
     # past it pays; within 0.5 s (less than moving over takes) nothing does: the swarm follows.
-    states = {
-        "truck": car("truck", 140.0, 1, 12.0),
-        "a0": car("a0", 120.0, 1, 12.0, cav=True),
-        "a1": car("a1", 105.0, 1, 12.0, cav=True),
-    }
+    states = behind_truck()
     platoon = ["a0", "a1"]
     # (a truck that wants no more than its 12 m/s: it stays to be passed)
     answers = {"driver_model": lambda vid: DriverModel(desired_speed_mps=12.0)}
@@ -159,9 +161,7 @@ def test_others_weight_sets_what_a_metre_lost_by_the_others_counts():
     # lost): counted one for one (the default) the CAVs pass one by one (261, nobody loses);
     # with the others' metres counted at 0.05, the cells.
     states = {
-        "truck": car("truck", 140.0, 1, 12.0),
-        "a0": car("a0", 120.0, 1, 12.0, cav=True),
-        "a1": car("a1", 105.0, 1, 12.0, cav=True),
+        **behind_truck(),
         **{f"{v}{q}": car(f"{v}{q}", s, q, 25.0) for v, s in (("l", 80.0), ("m", 50.0))
            for q in (0, 2)},
     }  # fmt: skip
@@ -215,11 +215,7 @@ def test_lane_pass_stall_s_sets_how_long_a_lane_pass_may_go_without_progress():
     # A lane pass into lane 2 past a 12 m/s truck; neither CAV gets out of the truck's lane:
     # the swarm ends it as stalled (and hands the truck to the cells) once lane_pass_stall_s
     # has gone by, 15 s by default, 5 s here.
-    states = {
-        "truck": car("truck", 140.0, 1, 12.0),
-        "a0": car("a0", 120.0, 1, 12.0, cav=True),
-        "a1": car("a1", 105.0, 1, 12.0, cav=True),
-    }
+    states = behind_truck()
 
     def stalled_at(swarm: SwarmController) -> float:
         swarm._start_lane_pass(0.0, states["truck"], 2, ["a0", "a1"])
@@ -266,11 +262,7 @@ def test_cooldown_s_sets_how_long_no_target_is_taken_after_a_give_up():
     # The cells on a 12 m/s truck, given up at 4 s (no progress): the swarm names no target
     # until cooldown_s has gone by, then the truck again after trigger_after_s (2 s): at 21 s
     # by default (15 s), at 11 s with 5 s.
-    states = {
-        "truck": car("truck", 140.0, 1, 12.0),
-        "a0": car("a0", 120.0, 1, 12.0, cav=True),
-        "a1": car("a1", 105.0, 1, 12.0, cav=True),
-    }
+    states = behind_truck()
 
     class NoProgress:
         def update(self, *args, **kwargs) -> None:
