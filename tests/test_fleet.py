@@ -236,6 +236,19 @@ def test_a_platoon_for_which_nothing_together_pays_goes_back_to_sumo_gently(tmp_
     assert out["swarms"]["platoons_now"] == 0
 
 
+@pytest.mark.sumo
+def test_a_parted_cav_that_sumo_moves_over_is_handed_over_clear_of_both_lanes_leaders(tmp_path):
+    # The same road at 0.5 s steps (SUMO's seed 3): the platoon parts behind the truck and SUMO
+    # at once moves cav.1 towards the next lane, where a faster car is 11 m ahead. Straddling,
+    # it still follows the truck in its own lane: judged against the car alone it was handed
+    # to SUMO 37 m behind the truck at 21 m/s, and SUMO braked it at 4.4 m/s^2.
+    cfg = write_road("3-lane-cav-flow", tmp_path / "road", end_s=15.0, step_length_s=0.5)
+    out, events = _swarm_run(cfg, tmp_path / "swarm", seed=3)
+    assert any(e["event"] == "platoon_apart" for e in events), [e["event"] for e in events]
+    assert out["safety"]["collisions"] == 0
+    assert out["safety"]["hard_brakes_cav"] == 0
+
+
 MERGE = f"""<routes>
   <vType id="cav" sigma="0" maxSpeed="30"/>
   <vType id="truck" vClass="truck" maxSpeed="15"/>

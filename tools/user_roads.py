@@ -40,7 +40,8 @@ from sumo_swarm.sim.userroads import CAV_TYPE, ROADS, write_road  # noqa: E402
 
 CONTROLLERS = ("swarm", "cacc", "sumo-cacc", "sumo-lc")
 # Step lengths [s]; None is SUMO's default (1 s): the sumocfg does not name a step.
-STEPS: dict[str, float | None] = {"0.1": 0.1, "0.5": 0.5, "1 (default)": None}
+DEFAULT_STEP = "1 (default)"  # SUMO's own step: the configuration names none
+STEPS: dict[str, float | None] = {"0.1": 0.1, "0.5": 0.5, DEFAULT_STEP: None}
 EXIT_BAD_INPUT = 2
 # SUMO's warning for a collision: "Warning: Vehicle 'a'; collision with vehicle 'b', lane=...".
 COLLISION_WARNING = "collision with"
@@ -337,7 +338,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--roads", nargs="+", choices=sorted(ROADS), default=list(ROADS))
     ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
-    ap.add_argument("--steps", nargs="+", choices=list(STEPS), default=list(STEPS))
+    ap.add_argument("--steps", nargs="+", choices=list(STEPS), default=list(STEPS),
+                    type=lambda s: DEFAULT_STEP if s == "1" else s,
+                    help=f"SUMO step lengths [s] ({DEFAULT_STEP!r}, or 1: SUMO's own)")  # fmt: skip
     ap.add_argument("--end", type=float, default=90.0, help="simulated seconds per run")
     ap.add_argument(
         "--seeds", nargs="+", type=int, default=None,
