@@ -340,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
     ap.add_argument("--steps", nargs="+", choices=list(STEPS), default=list(STEPS),
                     type=lambda s: DEFAULT_STEP if s == "1" else s, metavar="STEP",
-                    help="SUMO step lengths [s]: 0.1, 0.5, or 1 for SUMO's own default")  # fmt: skip
+                    help="SUMO step lengths [s]: 0.1, 0.5, or 1 (SUMO's default)")  # fmt: skip
     ap.add_argument("--end", type=float, default=90.0, help="simulated seconds per run")
     ap.add_argument(
         "--seeds", nargs="+", type=int, default=None,
