@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
@@ -14,7 +15,13 @@ from sumo_swarm.config import load_scenario
 from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.metrics import EvaluationWindow
 from sumo_swarm.study.plots import FIGURES
-from sumo_swarm.study.reproduce import PROOF_WORK, ReproRun, default_scenario_path, reproduce
+from sumo_swarm.study.reproduce import (
+    PROOF_WORK,
+    ReproRun,
+    default_scenario_path,
+    reproduce,
+    swarm_changes,
+)
 from sumo_swarm.study.reproduce_rows import paired_upstream, targets
 from sumo_swarm.study.reproduce_text import capped_paragraph
 from tests.conftest import PAPER, ROOT
@@ -24,6 +31,9 @@ from tests.contract import assert_summary_contract
 SHORT = {"simulation": {"duration_s": 60.0}, "evaluation": {"end_s": 60.0}}
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 CONTROLLERS = ("swarm", "cacc", "sumo-cacc", "sumo-lc", "swarm-capped")  # the report's runs
+# The swarm's runs decide at the start, as the paper's (IV-E-1), where the scenario keeps the
+# swarm's own timing.
+AT_ZERO = {"swarm.start_after_s": 0.0, "swarm.trigger_after_s": 0.0}
 FORMULA = object()  # a row computed by a formula over summary values: checked on its own
 
 
@@ -216,9 +226,25 @@ def test_every_plan_of_the_paper_scene_is_proven_optimal(reproduction):
     # The reproduction gives the swarm the network search's proof budget (PROOF_WORK): with
     # the default budget the third plan of the paper scene stays 0.26 % above its bound.
     out, report = reproduction
-    assert report["runs"]["swarm"]["changes"] == {"planner.network_work": PROOF_WORK}
+    assert report["runs"]["swarm"]["changes"] == {"planner.network_work": PROOF_WORK, **AT_ZERO}
     statuses = _summary(out, "swarm")["planner"]["statuses"]
     assert statuses and set(statuses) == {"optimal"}
+
+
+@pytest.mark.sumo
+def test_the_swarm_decides_at_the_start_as_the_papers(reproduction):
+    # "At time 0s, the platoon makes an overtaking decision" (IV-E-1): the first step the
+    # controller acts on (the paper scene's step is 0.03 s), not after its own 1 s + 2 s.
+    out, _ = reproduction
+    for run in ("swarm", "swarm-capped"):
+        assert _summary(out, run)["overtake"]["t_start_s"] == pytest.approx(0.03)
+
+
+def test_a_scenario_with_its_own_decision_timing_keeps_it():
+    sc = load_scenario(PAPER)
+    assert swarm_changes(sc) == {**AT_ZERO, "planner.network_work": PROOF_WORK}
+    own = replace(sc, swarm=replace(sc.swarm, trigger_after_s=5.0))
+    assert swarm_changes(own) == {"planner.network_work": PROOF_WORK}
 
 
 @pytest.mark.sumo
@@ -227,7 +253,8 @@ def test_capped_run_is_a_column_with_what_the_cap_costs(reproduction):
     cruise = load_scenario(PAPER).cav.cruising_speed_mps
     run = report["runs"]["swarm-capped"]
     assert run["controller"] == "swarm"
-    assert run["changes"] == {"cav.max_speed_mps": cruise, "planner.network_work": PROOF_WORK}
+    assert run["changes"] == {"cav.max_speed_mps": cruise, "planner.network_work": PROOF_WORK,
+                              **AT_ZERO}  # fmt: skip
     record = json.loads((out / "runs" / "swarm-capped" / "record.json").read_text())
     assert record["overrides"]["cav"]["max_speed_mps"] == cruise
     rows = {r["key"]: r for r in report["rows"]}

@@ -25,7 +25,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from sumo_swarm.config import Scenario, load_scenario
+from sumo_swarm.config import Scenario, SwarmSettings, load_scenario
 from sumo_swarm.controllers import CONTROLLERS
 from sumo_swarm.core.planner import PlannerSettings
 from sumo_swarm.errors import ConfigError, RunInterrupted
@@ -92,12 +92,31 @@ def _proof(sc: Scenario) -> dict[str, Any]:
     return {"planner.network_work": PROOF_WORK}
 
 
+def _paper_decision(sc: Scenario) -> dict[str, Any]:
+    """The overtaking decision at the start, as the paper's: "At time 0s, the platoon makes an
+    overtaking decision" (IV-E-1), where the scenario keeps the swarm's own timing, made for
+    traffic it meets on the way (no decision in the first ``start_after_s``, a vehicle slow for
+    ``trigger_after_s`` first: at 3.03 s in the paper's scene). Decided at 0.03 s, the paper
+    scene's swarm run gained 17.80 % against 17.10 % and the capped run reached 19.37 against
+    19.32 m/s (`sumo-swarm reproduce`, `be0c262`)."""
+    sw, default = sc.swarm, SwarmSettings()
+    if (sw.start_after_s, sw.trigger_after_s) != (default.start_after_s, default.trigger_after_s):
+        return {}  # the scenario (or --set) chose the timing: keep it
+    return {"swarm.start_after_s": 0.0, "swarm.trigger_after_s": 0.0}
+
+
+def swarm_changes(sc: Scenario) -> dict[str, Any]:
+    """The keys the reproduction sets over scenario ``sc`` for the swarm's runs: the paper's
+    decision at the start and the proof budget, each where ``sc`` leaves it at its default."""
+    return {**_paper_decision(sc), **_proof(sc)}
+
+
 DEFAULT_RUNS = (
-    *(ReproRun(c, c, _proof if c == "swarm" else lambda sc: {}) for c in CONTROLLERS),
+    *(ReproRun(c, c, swarm_changes if c == "swarm" else lambda sc: {}) for c in CONTROLLERS),
     ReproRun(
         CAPPED,
         "swarm",
-        lambda sc: {"cav.max_speed_mps": sc.cav.cruising_speed_mps, **_proof(sc)},
+        lambda sc: {"cav.max_speed_mps": sc.cav.cruising_speed_mps, **swarm_changes(sc)},
     ),
 )
 
