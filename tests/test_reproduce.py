@@ -243,8 +243,9 @@ def test_the_swarm_decides_at_the_start_as_the_papers(reproduction):
 def test_a_scenario_with_its_own_decision_timing_keeps_it():
     sc = load_scenario(PAPER)
     assert swarm_changes(sc) == {**AT_ZERO, "planner.network_work": PROOF_WORK}
-    own = replace(sc, swarm=replace(sc.swarm, trigger_after_s=5.0))
-    assert swarm_changes(own) == {"planner.network_work": PROOF_WORK}
+    for key in ("start_after_s", "trigger_after_s"):  # either one set: both kept
+        own = replace(sc, swarm=replace(sc.swarm, **{key: 5.0}))
+        assert swarm_changes(own) == {"planner.network_work": PROOF_WORK}
 
 
 @pytest.mark.sumo

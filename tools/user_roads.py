@@ -334,12 +334,20 @@ def git_commit() -> str:
     return rev + ("+dirty" if dirty else "")
 
 
+def _step_name(text: str) -> str:
+    """``--steps``' name of a step: 1 (or 1.0) is SUMO's default."""
+    try:
+        return DEFAULT_STEP if float(text) == 1.0 else text
+    except ValueError:
+        return text
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--roads", nargs="+", choices=sorted(ROADS), default=list(ROADS))
     ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
     ap.add_argument("--steps", nargs="+", choices=list(STEPS), default=list(STEPS),
-                    type=lambda s: DEFAULT_STEP if s == "1" else s, metavar="STEP",
+                    type=_step_name, metavar="STEP",
                     help="SUMO step lengths [s]: 0.1, 0.5, or 1 (SUMO's default)")  # fmt: skip
     ap.add_argument("--end", type=float, default=90.0, help="simulated seconds per run")
     ap.add_argument(

@@ -894,11 +894,10 @@ class Fleet:
                 continue
             road = session.road_at(vid) or self.ctx.road
             leaders = self._leaders(vid, st, states, road)
-            roomy = all(
+            if st.speed_mps <= desired + HANDOVER_MPS and all(
                 gap >= session.alone_gap_m(vid, st.speed_mps, lead.speed_mps, lead.vehicle_id)
                 for lead, gap in leaders
-            )
-            if roomy and st.speed_mps <= desired + HANDOVER_MPS:
+            ):  # down to SUMO's speed and at SUMO's gap behind every leader: SUMO takes it
                 self._opening.discard(vid)
                 try:
                     session.release_speed(vid)
@@ -917,9 +916,11 @@ class Fleet:
     def _leaders(
         self, vid: str, st: VehicleState, states: Mapping[str, VehicleState], road: RoadSection
     ) -> list[tuple[VehicleState, float]]:
-        """Every vehicle ahead of CAV ``vid`` (state ``st``) that overlaps it sideways, with
-        the bumper gap: the leaders SUMO's sublane model has it follow once SUMO drives it,
-        within the gap SUMO wants behind a vehicle standing. Not only the nearest: a parted CAV
+        """Every vehicle ahead of CAV ``vid`` (state ``st``) on its road section that overlaps
+        it sideways, with the bumper gap: the leaders SUMO's sublane model has it follow there
+        once SUMO drives it, within the gap SUMO wants behind a vehicle standing (the leader
+        SUMO sees across a junction is not asked for: results-history, "A parted CAV's
+        leader"). Not only the nearest: a parted CAV
         that SUMO was moving over to the next lane had a faster car there 11 m ahead as its
         nearest, was handed to SUMO, and SUMO braked it at 4.4 m/s^2 for the truck it still
         followed in its own lane (users' road 3-lane-cav-flow at 0.5 s steps, seed 3)."""

@@ -94,11 +94,15 @@ def _proof(sc: Scenario) -> dict[str, Any]:
 
 def _paper_decision(sc: Scenario) -> dict[str, Any]:
     """The overtaking decision at the start, as the paper's: "At time 0s, the platoon makes an
-    overtaking decision" (IV-E-1), where the scenario keeps the swarm's own timing, made for
-    traffic it meets on the way (no decision in the first ``start_after_s``, a vehicle slow for
-    ``trigger_after_s`` first: at 3.03 s in the paper's scene). Decided at 0.03 s, the paper
-    scene's swarm run gained 17.80 % against 17.10 % and the capped run reached 19.37 against
-    19.32 m/s (`sumo-swarm reproduce`, `be0c262`)."""
+    overtaking decision" (IV-E-1), where the scenario keeps both keys of the swarm's own
+    timing at their defaults (compared by value: one written at its default counts as left),
+    made for traffic it meets on the way (no decision in the first ``start_after_s``, a vehicle
+    slow for ``trigger_after_s`` first: at 3.03 s in the paper's scene). ``trigger_after_s`` is
+    also how long any later target must persist and how often a platoon that follows or waits
+    weighs again: in the reproduction every decision is immediate (the paper scene's swarm
+    decides once). Decided at 0.03 s, the paper scene's swarm run gained 17.80 % against
+    17.10 % and the capped run reached 19.37 against 19.32 m/s (`sumo-swarm reproduce`,
+    `be0c262`)."""
     sw, default = sc.swarm, SwarmSettings()
     if (sw.start_after_s, sw.trigger_after_s) != (default.start_after_s, default.trigger_after_s):
         return {}  # the scenario (or --set) chose the timing: keep it
@@ -107,7 +111,8 @@ def _paper_decision(sc: Scenario) -> dict[str, Any]:
 
 def swarm_changes(sc: Scenario) -> dict[str, Any]:
     """The keys the reproduction sets over scenario ``sc`` for the swarm's runs: the paper's
-    decision at the start and the proof budget, each where ``sc`` leaves it at its default."""
+    decision at the start (both timing keys, where ``sc`` leaves both at their defaults) and the
+    proof budget (where ``sc`` leaves it at its default)."""
     return {**_paper_decision(sc), **_proof(sc)}
 
 
