@@ -920,10 +920,10 @@ class Fleet:
         it sideways, with the bumper gap: the leaders SUMO's sublane model has it follow there
         once SUMO drives it, within the gap SUMO wants behind a vehicle standing (the leader
         SUMO sees across a junction is not asked for: results-history, "A parted CAV's
-        leader"). Not only the nearest: a parted CAV
-        that SUMO was moving over to the next lane had a faster car there 11 m ahead as its
-        nearest, was handed to SUMO, and SUMO braked it at 4.4 m/s^2 for the truck it still
-        followed in its own lane (users' road 3-lane-cav-flow at 0.5 s steps, seed 3)."""
+        leader"). Not only the nearest: a parted CAV that SUMO was moving over to the next
+        lane had a faster car there 11 m ahead as its nearest, was handed to SUMO, and SUMO
+        braked it at 4.4 m/s^2 for the truck it still followed in its own lane (users' road
+        3-lane-cav-flow at 0.5 s steps, seed 3)."""
         snap = snapshot_of(states, road)
         reach = self.ctx.session.alone_gap_m(vid, st.speed_mps, 0.0) + snap.max_length_m
         y = road.y_of(st.lane, st.lat_m)
