@@ -153,10 +153,14 @@ def test_the_network_has_the_ramps_and_lanes_asked_for(tmp_path):
             [f"{after}_{k}"] for k in range(3)
         ]
     dec = net.getEdge("dec0")
-    # the deceleration lane leads to the off-ramp only; the rightmost lane feeds it and goes on
+    # the deceleration lane leads to the off-ramp only and is entered by a lane change along it:
+    # the lanes before it go straight on (none turns into it)
     assert _targets(dec.getLanes()[0]) == ["off0_0"]
     assert [_targets(dec.getLanes()[k]) for k in (1, 2, 3)] == [["m2_0"], ["m2_1"], ["m2_2"]]
-    assert _targets(net.getEdge("m1").getLanes()[0]) == ["dec0_0", "dec0_1"]
+    assert [_targets(lane) for lane in net.getEdge("m1").getLanes()] == [
+        ["dec0_1"], ["dec0_2"], ["dec0_3"]
+    ]
+    assert dec.getLanes()[0].getIncoming() == []
 
 
 def test_a_corridor_without_ramps_is_one_edge(tmp_path):

@@ -49,8 +49,17 @@ def test_motorway_ramps_have_an_acceleration_and_a_deceleration_lane(road_cfgs):
     ]
     assert acc.getLanes()[0].getOutgoing() == []
     assert [c.getToLane().getID() for c in acc.getLanes()[1].getOutgoing()] == ["mid_0"]
-    # The deceleration lane (lane 0 of dec) leads to the off-ramp only, and through lanes do not.
+    # The deceleration lane (lane 0 of dec) is entered by a lane change along it: no lane of the
+    # junction before it turns into it (two vehicles abreast took such a turn together and
+    # overlapped); the through lanes keep their order.
     dec = net.getEdge("dec")
+    assert dec.getLanes()[0].getIncoming() == []
+    assert [
+        (c.getFromLane().getIndex(), c.getToLane().getIndex())
+        for lane in net.getEdge("mid").getLanes()
+        for c in lane.getOutgoing()
+    ] == [(i, i + 1) for i in range(n)]
+    # It leads to the off-ramp only, and the through lanes do not.
     assert [c.getToLane().getID() for c in dec.getLanes()[0].getOutgoing()] == ["off_0"]
     assert all(
         c.getToLane().getEdge().getID() == "down"
