@@ -130,3 +130,28 @@ def test_a_sideways_move_stops_when_the_next_command_is_no_move(tmp_path):
             sumo.change_sublane(vid, 0.0)
             sumo.step()
             assert veh.getLateralLanePosition(vid) == moved and veh.getLaneIndex(vid) == lane
+
+
+def test_a_vehicle_in_an_acceleration_lane_is_beside_the_through_lanes_as_the_next_edge_counts(
+    tmp_path,
+):
+    # Seen from the edge after an on-ramp (its rightmost lane is the acceleration edge's lane
+    # 1), a vehicle in the acceleration lane (lane 0 of ``acc``, which ends) is in lane -1: to
+    # the right of lane 0, not in it. Counted as lane 0, a vehicle standing at the lane's end
+    # was taken to be ahead of a CAV in the through lane beside it, which braked to 1.4 m/s.
+    cfg = write_road("motorway-ramps", tmp_path / "road", end_s=60.0)
+    args = ["-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
+            "--collision.action", "warn"]  # fmt: skip
+    seen = 0
+    with SumoSession(args, is_cav=lambda vid, type_id: type_id.startswith("cav")) as sumo:
+        while sumo.time_s < 60.0 - 1e-6 and seen < 20:
+            sumo.step()
+            on_mid = [v for v, e in sumo.edges.items() if e == "mid"]
+            in_acc = {v: st for v, st in sumo.states.items() if sumo.edges[v] == "acc"}
+            if not on_mid or not any(st.lane == 0 for st in in_acc.values()):
+                continue
+            view = sumo.states_in_lanes_of(on_mid[0])
+            for vid, st in in_acc.items():
+                assert view[vid].lane == st.lane - 1, (sumo.time_s, vid, st.lane)
+                seen += st.lane == 0
+    assert seen >= 20  # acceleration-lane vehicles checked

@@ -383,9 +383,14 @@ class SumoSession(SessionBase):
         """:attr:`states` with every vehicle's lane index counted as on ``vid``'s edge (on a
         junction edge, the route edge it leaves: :meth:`RouteFrame.route_edge`), so that
         vehicles on either side of a place where lane indices shift (a lane drop, an on-ramp's
-        added lane) compare lanes; a vehicle off the route, or in a lane that does not exist on
-        that edge (one that ended, or begins later), keeps its own index. SUMO's outputs keep
-        SUMO's indices: this is the controllers' view only."""
+        added lane) compare lanes. A vehicle in a lane that does not exist on that edge (an
+        acceleration lane that ends, a lane that begins later) gets the index that lane would
+        have there, outside the edge's lanes (-1 beside lane 0): given its own index instead, a
+        CAV SUMO drove, standing at the end of an on-ramp's acceleration lane, was taken to be
+        in the lane beside it, and a platoon's CAV there braked to 1.4 m/s behind it and
+        stopped that lane (the 5-lane OSM road at 40 % CAVs, seed 6). A vehicle off the route
+        keeps its own index. SUMO's outputs keep SUMO's indices: this is the controllers' view
+        only."""
         frame = self.frame
         edge = self.edges.get(vid)
         if edge is None or not frame.lane_shifts_m:  # every edge numbers its lanes alike
@@ -401,7 +406,6 @@ class SumoSession(SessionBase):
 
     def _in_lanes_of(self, reference: str) -> dict[str, VehicleState]:
         frame = self.frame
-        n_lanes = frame.lane_count(reference)
         edges = self.edges
         out = {}
         for other, state in self.states.items():
@@ -410,7 +414,7 @@ class SumoSession(SessionBase):
                 out[other] = state
                 continue
             lane = frame.lane_as_on(state.lane, own, reference)
-            if lane is None or lane == state.lane or not 0 <= lane < n_lanes:
+            if lane is None or lane == state.lane:
                 out[other] = state
             else:
                 out[other] = VehicleState(
