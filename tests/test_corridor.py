@@ -158,7 +158,9 @@ def test_the_network_has_the_ramps_and_lanes_asked_for(tmp_path):
     assert _targets(dec.getLanes()[0]) == ["off0_0"]
     assert [_targets(dec.getLanes()[k]) for k in (1, 2, 3)] == [["m2_0"], ["m2_1"], ["m2_2"]]
     assert [_targets(lane) for lane in net.getEdge("m1").getLanes()] == [
-        ["dec0_1"], ["dec0_2"], ["dec0_3"]
+        ["dec0_1"],
+        ["dec0_2"],
+        ["dec0_3"],
     ]
     assert dec.getLanes()[0].getIncoming() == []
 

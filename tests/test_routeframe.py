@@ -210,10 +210,12 @@ def test_lane_shifts_where_lanes_are_added_or_dropped_on_the_right():
 
 def test_a_lane_that_fans_out_at_a_deceleration_lane_keeps_its_index_on_the_junction():
     """a (3 lanes) -> d (4 lanes, an off-ramp's deceleration lane added on the right), as
-    netconvert builds it (scenarios/corridor.toml's m1 -> dec0): a's lane 0 fans out into
-    junction lanes 0 and 1 (to d_0 and d_1), a_1 -> :j_0_2 -> d_2, a_2 -> :j_0_3 -> d_3. A CAV
-    in a's left lane is on junction lane 3: still a's lane 2 (the first junction lane's offset
-    for all made it lane 3, the swarm steered it 1.2 m right, into a car, in the study)."""
+    netconvert builds it from OpenStreetMap with --ramps.guess (and as scenarios/corridor.toml's
+    m1 -> dec0 was built before its deceleration lane was entered by a lane change): a's lane 0
+    fans out into junction lanes 0 and 1 (to d_0 and d_1), a_1 -> :j_0_2 -> d_2, a_2 -> :j_0_3
+    -> d_3. A CAV in a's left lane is on junction lane 3: still a's lane 2 (the first junction
+    lane's offset for all made it lane 3, the swarm steered it 1.2 m right, into a car, in the
+    study)."""
     lanes = {
         "a_0": (100.0, 3.5, STRAIGHT, [("d_0", ":j_0_0"), ("d_1", ":j_0_1")]),
         "a_1": (100.0, 3.5, STRAIGHT, [("d_2", ":j_0_2")]),

@@ -474,7 +474,10 @@ class SwarmController:
         self.progress = Progress(t_s)
         self.follower.new_manoeuvre()
         lane = self.planner_settings.regroup_lane
-        self.regroup_lane_used = target.lane if lane is None else lane
+        if lane is None:  # the target's, within the road (it may be beside it: lane -1 for an
+            # acceleration lane, as the swarm's states count lanes: SumoSession.states_in_lanes_of)
+            lane = min(max(target.lane, 0), self.ctx.road.n_lanes - 1)
+        self.regroup_lane_used = lane
         self.regroup_edge = self.reformer.edge  # whose lane numbering that lane is in
         self.reformer.prefer = None
         self.decider.new_target()

@@ -124,9 +124,10 @@ class RouteFrame:
             if base is not None and shifts:
                 self.lane_offset[edges[i + 1]] = base + shifts.most_common(1)[0][0]
             # A junction edge's lanes are one per connection: where a lane fans out into two
-            # (the first lane of an added deceleration lane) the edge has more lanes than the
-            # one it leaves, numbered as the edge it enters; its offset is its lanes' usual
-            # one, and each lane's own is in via_lane_offset.
+            # (the lane before an added off-ramp lane of an OSM road netconverted with
+            # --ramps.guess) the edge has more lanes than the one it leaves, numbered as the
+            # edge it enters; its offset is its lanes' usual one, and each lane's own is in
+            # via_lane_offset.
             for via_edge, counts in via_shifts.items():
                 self.lane_offset.setdefault(via_edge, base + counts.most_common(1)[0][0])
             if shifted or self._lane_counts[edges[i + 1]] != self._lane_counts[edge]:
