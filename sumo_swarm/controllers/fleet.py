@@ -622,14 +622,17 @@ class Fleet:
         snapshots = PassSnapshots()  # states hold still during the review
         for rear, front, _ in sorted(meetings, key=lambda p: p[2]):
             road = session.road_at(rear) or self.ctx.road
-            everyone = snapshots(states, road)  # sorted once per table and road
-            if any(straddled(states[v], everyone, road) for v in (rear, front)):
+            # Lanes counted as on rear's edge, as its road section counts them: near an
+            # on-ramp a car in the acceleration lane was taken to be in the lane beside it.
+            table = session.states_in_lanes_of(rear)
+            everyone = snapshots(table, road)  # sorted once per table and road
+            if any(straddled(table[v], everyone, road) for v in (rear, front)):
                 continue
             lead = front
             while lead in ahead:
                 lead = ahead[lead]
             if lead not in held:
-                held[lead] = self._held(lead, states, everyone, road)
+                held[lead] = self._held(lead, table, everyone, road)
             if held[lead]:
                 self._meet(t_s, rear, front, states)
         # Every other eligible CAV drives as a swarm of one; or, where the swarms leave a CAV
@@ -645,7 +648,8 @@ class Fleet:
             if len(platoon.members) > 1 and platoon.idle and platoon.controller.t_start_s is None:
                 lead = platoon.members[0]
                 road = session.road_at(lead) or self.ctx.road
-                if self._held(lead, states, snapshots(states, road), road):
+                table = session.states_in_lanes_of(lead)
+                if self._held(lead, table, snapshots(table, road), road):
                     self._free_since.pop(platoon.id, None)
                     continue
                 since = self._free_since.setdefault(platoon.id, t_s)
