@@ -24,7 +24,7 @@ from sumo_swarm.controllers.fleet import (
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import snapshot_of
 from sumo_swarm.errors import ConfigError
-from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
+from sumo_swarm.sim.netbuild import HighwaySpec, MotorwaySpec, build_highway, build_motorway
 from sumo_swarm.sim.runner import run_sumocfg
 from sumo_swarm.sim.userroads import write_road
 from tests.fakes import FakeSession, run_context
@@ -99,6 +99,27 @@ def test_a_swarm_sees_the_vehicles_within_its_view_only():
     ]  # fmt: skip
 
 
+def test_a_parted_cav_straddling_two_lanes_follows_the_leaders_of_both():
+    # The users' road 3-lane-cav-flow at 0.5 s steps, SUMO's seed 3 (the SUMO run below): SUMO
+    # moved a parted CAV half into the next lane, where a faster car was 11 m ahead, while it
+    # still followed a 15 m/s truck 37 m ahead in its own lane. Judged against the nearest alone
+    # it was handed to SUMO at 21 m/s, and SUMO braked it at 4.4 m/s^2: the hand-over waits for
+    # the gap behind each vehicle SUMO has it follow.
+    road = RoadSection((3.2, 3.2, 3.2))
+    cav = VehicleState("c", 100.0, 0, 1.5, 21.0, 5.0, is_cav=True)  # 1.5 m left of lane 0
+    states = {
+        "c": cav,
+        "car": VehicleState("car", 116.0, 1, 0.0, 25.0, 5.0, is_cav=False),  # 11 m ahead
+        "truck": VehicleState("truck", 153.5, 0, 0.0, 15.0, 16.5, is_cav=False),  # 37 m
+        "far": VehicleState("far", 400.0, 0, 0.0, 15.0, 5.0, is_cav=False),  # beyond reach
+        "right": VehicleState("right", 120.0, 2, 0.0, 25.0, 5.0, is_cav=False),  # lane 2
+    }
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(FakeSession(states), road=road)
+    leaders = {lead.vehicle_id: gap for lead, gap in fleet._leaders("c", cav, states, road)}
+    assert leaders == pytest.approx({"car": 11.0, "truck": 37.0})
+
+
 @pytest.mark.parametrize(
     "key, value, fragment",
     [
@@ -137,9 +158,12 @@ def _cavs(ids, lane, first_pos, speed, spacing=15.0):
     )
 
 
-def _config(folder: Path, spec: HighwaySpec, routes: str, end_s: float) -> Path:
+def _config(folder: Path, spec: HighwaySpec | MotorwaySpec, routes: str, end_s: float) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
-    build_highway(spec, folder, "road")
+    if isinstance(spec, MotorwaySpec):
+        build_motorway(spec, folder, "road")
+    else:
+        build_highway(spec, folder, "road")
     (folder / "user.rou.xml").write_text(routes, encoding="utf-8")
     cfg = folder / "user.sumocfg"
     cfg.write_text(
@@ -247,6 +271,30 @@ def test_a_parted_cav_that_sumo_moves_over_is_handed_over_clear_of_both_lanes_le
     assert any(e["event"] == "platoon_apart" for e in events), [e["event"] for e in events]
     assert out["safety"]["collisions"] == 0
     assert out["safety"]["hard_brakes_cav"] == 0
+
+
+BESIDE_THE_RAMP = f"""<routes>
+  <vType id="cav" sigma="0" maxSpeed="30"/>
+  <vType id="car" sigma="0" maxSpeed="30"/>
+  <route id="r" edges="up acc mid dec down"/>
+  <route id="ramp" edges="acc mid dec down"/>
+  <vehicle id="merging" type="car" route="ramp" depart="0" departLane="0" departPos="20"
+           departSpeed="0"/>
+{_cavs(["a0", "a1"], 0, 770, 8, spacing=18)}
+</routes>
+"""
+
+
+@pytest.mark.sumo
+def test_cavs_beside_an_acceleration_lane_are_not_held_by_a_car_standing_in_it(tmp_path):
+    # Two CAVs at 8 m/s in the rightmost through lane, 30 m before an on-ramp's acceleration
+    # lane where a car starts from a standstill. Counted in its own edge's numbering the car
+    # was in their lane (lane 0 of each edge), a slow vehicle holding them: they formed a
+    # platoon to get past it. Counted as the CAVs' edge numbers lanes, it is beside them.
+    cfg = _config(tmp_path / "net", MotorwaySpec(), BESIDE_THE_RAMP, 10.0)
+    out, events = _swarm_run(cfg, tmp_path / "swarm")
+    assert [e for e in events if e["event"] == "platoon_formed"] == []
+    assert out["safety"]["collisions"] == 0 and out["safety"]["hard_brakes_cav"] == 0
 
 
 MERGE = f"""<routes>
