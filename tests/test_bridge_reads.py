@@ -14,8 +14,8 @@ from sumo_swarm.sim.bridge import SumoSession
 from sumo_swarm.sim.userroads import write_road
 
 
-def _session(tmp_path: Path) -> SumoSession:
-    cfg = write_road("lane-drop", tmp_path / "road", end_s=60.0)
+def _session(tmp_path: Path, road: str = "lane-drop") -> SumoSession:
+    cfg = write_road(road, tmp_path / "road", end_s=60.0)
     args = ["-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
             "--collision.action", "warn"]  # fmt: skip
     return SumoSession(args, is_cav=lambda vid, type_id: type_id.startswith("cav"))
@@ -139,11 +139,8 @@ def test_a_vehicle_in_an_acceleration_lane_is_beside_the_through_lanes_as_the_ne
     # 1), a vehicle in the acceleration lane (lane 0 of ``acc``, which ends) is in lane -1: to
     # the right of lane 0, not in it. Counted as lane 0, a vehicle standing at the lane's end
     # was taken to be ahead of a CAV in the through lane beside it, which braked to 1.4 m/s.
-    cfg = write_road("motorway-ramps", tmp_path / "road", end_s=60.0)
-    args = ["-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
-            "--collision.action", "warn"]  # fmt: skip
     seen = 0
-    with SumoSession(args, is_cav=lambda vid, type_id: type_id.startswith("cav")) as sumo:
+    with _session(tmp_path, "motorway-ramps") as sumo:
         while sumo.time_s < 60.0 - 1e-6 and seen < 20:
             sumo.step()
             on_mid = [v for v, e in sumo.edges.items() if e == "mid"]

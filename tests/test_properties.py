@@ -156,6 +156,14 @@ def test_lane_centres_map_back_to_their_lane(widths):
         assert road.lane_of_y(road.lane_centre_y(lane) + 0.49 * widths[lane]) == lane
 
 
+@given(widths=widths, lane=st.integers(-3, 8))
+def test_the_nearest_lane_of_a_lane_beside_the_road_is_its_edge_lane(widths, lane):
+    # A lane counted beside the section (an acceleration lane is -1) is the outermost one on
+    # that side, as its centre maps back; a lane of the section is itself.
+    road = RoadSection(tuple(widths))
+    assert road.nearest_lane(lane) == road.lane_of_y(road.lane_centre_y(lane))
+
+
 @given(
     widths=widths,
     cell=st.floats(5.0, 30.0),

@@ -749,7 +749,7 @@ class Reformer:
         # A goal lane this road section does not have (a goal chosen on an edge with more
         # lanes): the nearest one it has. Beyond the road, the next lane's width was looked up
         # past the last and the controller failed (users' junctions road, 40 % CAVs).
-        lane = min(max(lane, 0), road.n_lanes - 1)
+        lane = road.nearest_lane(lane)
         step = sc.cav.max_lateral_speed_mps * step_s
         y = road.y_of(ego.lane, ego.lat_m)
         lane_now = road.lane_of_y(y)

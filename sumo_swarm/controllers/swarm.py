@@ -474,10 +474,9 @@ class SwarmController:
         self.progress = Progress(t_s)
         self.follower.new_manoeuvre()
         lane = self.planner_settings.regroup_lane
-        if lane is None:  # the target's, within the road (it may be beside it: lane -1 for an
-            # acceleration lane, as the swarm's states count lanes: SumoSession.states_in_lanes_of)
-            lane = min(max(target.lane, 0), self.ctx.road.n_lanes - 1)
-        self.regroup_lane_used = lane
+        # The target's lane, within the road: it may be beside it (an acceleration lane, as the
+        # swarm's states count lanes: SumoSession.states_in_lanes_of).
+        self.regroup_lane_used = self.ctx.road.nearest_lane(target.lane) if lane is None else lane
         self.regroup_edge = self.reformer.edge  # whose lane numbering that lane is in
         self.reformer.prefer = None
         self.decider.new_target()

@@ -102,6 +102,11 @@ class RoadSection:
             for lane, lat in zip(lanes, lats_m, strict=True)
         ]
 
+    def nearest_lane(self, lane: int) -> int:
+        """The lane of this section nearest to lane index ``lane``, which may lie beside it (a
+        lane counted on an edge with more lanes: an acceleration lane is -1)."""
+        return min(max(lane, 0), self.n_lanes - 1)
+
     def lane_of(self, vehicle: VehicleState) -> int:
         """Lane index whose band holds ``vehicle``'s centre (a vehicle half-way through a lane
         change counts in the lane it is mostly in, whatever SUMO's lane index says)."""
