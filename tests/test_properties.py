@@ -156,12 +156,19 @@ def test_lane_centres_map_back_to_their_lane(widths):
         assert road.lane_of_y(road.lane_centre_y(lane) + 0.49 * widths[lane]) == lane
 
 
-@given(widths=widths, lane=st.integers(-3, 8))
-def test_the_nearest_lane_of_a_lane_beside_the_road_is_its_edge_lane(widths, lane):
-    # A lane counted beside the section (an acceleration lane is -1) is the outermost one on
-    # that side, as its centre maps back; a lane of the section is itself.
+@given(widths=widths, lane=st.integers(-3, 8), within=st.floats(-0.49, 0.49))
+def test_a_lane_beside_the_road_maps_back_to_itself_and_its_nearest_is_the_edge_lane(
+    widths, lane, within
+):
+    # A lane counted beside the section (an acceleration lane is -1) has a band of the
+    # outermost lane's width there: a point in it maps back to that lane, not into the road
+    # (a car in an acceleration lane is not in lane 0); its nearest lane of the section is the
+    # outermost one on that side, and a lane of the section is itself.
     road = RoadSection(tuple(widths))
-    assert road.nearest_lane(lane) == road.lane_of_y(road.lane_centre_y(lane))
+    outer = widths[0] if lane < 0 else widths[-1] if lane >= road.n_lanes else widths[lane]
+    assert road.lane_of_y(road.lane_centre_y(lane) + within * outer) == lane
+    assert road.nearest_lane(lane) == min(max(lane, 0), road.n_lanes - 1)
+    assert 0 <= road.nearest_lane(road.lane_of_y(road.lane_centre_y(lane))) < road.n_lanes
 
 
 @given(

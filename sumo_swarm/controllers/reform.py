@@ -322,7 +322,7 @@ class Reformer:
         vehicle (:meth:`split_by`), that vehicle's lane."""
         slow = states.get(self.waiting[0]) if self.waiting is not None else None
         if slow is not None and road.lane_of(slow) not in ending:
-            held = road.lane_of(slow)
+            held = road.nearest_lane(road.lane_of(slow))
             if self.lane_id != held:
                 self.event("reform_lane", lane=held, lane_speeds_mps={}, wait=slow.vehicle_id)
             self.lane_id = held
@@ -336,7 +336,7 @@ class Reformer:
                 self.event("reform_lane", lane=self.move_to[0], lane_speeds_mps={})
             self.lane_id = self.move_to[0]
             return self.lane_id
-        count = Counter(road.lane_of(states[v]) for v in platoon)
+        count = Counter(road.nearest_lane(road.lane_of(states[v])) for v in platoon)
         if len(count) == 1 and self.lane_id in (None, *count) and not set(count) & set(ending):
             self.lane_id = next(iter(count))
             self.prefer = None  # one lane already: no lane change beats staying
@@ -438,7 +438,7 @@ class Reformer:
                 # Behind the vehicle the platoon waits at: ego keeps its lane and passes it as
                 # it can (merging behind it into its lane only to pass it again cost 10 m/s of
                 # speed to the CAVs and the HVs behind them: variant 39).
-                lane = road.lane_of(ego)
+                lane = road.nearest_lane(road.lane_of(ego))
             goals[vid] = lane
             passing = self.passing.get(vid)
             if passing is not None:
@@ -852,7 +852,7 @@ class Reformer:
         final = min(lane_speed, self.cav.cruising_speed_mps - MAX_LEADER_EASE_MPS)
         if final - ego.speed_mps < sw.min_speed_gain_mps:
             return None
-        change_s = road.lane_widths_m[next_lane] / sc.cav.max_lateral_speed_mps
+        change_s = road.lane_widths_m[road.nearest_lane(next_lane)] / sc.cav.max_lateral_speed_mps
         own = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
         if own is not None:
             closing = max(0.0, ego.speed_mps - own[0].speed_mps)
@@ -914,7 +914,7 @@ class Reformer:
             ego.speed_mps, slow.speed_mps, gap, lane_speed,
             desired_gap_m=sc.cav.desired_gap_m, accel_mps2=sc.cav.accel_max_mps2,
             brake_mps2=sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2,
-            change_s=road.lane_widths_m[next_lane] / sc.cav.max_lateral_speed_mps,
+            change_s=road.lane_widths_m[road.nearest_lane(next_lane)] / sc.cav.max_lateral_speed_mps,
             min_gain_mps=sw.min_speed_gain_mps, entry_ok=entry_ok,
         )  # fmt: skip
         if what == "run":

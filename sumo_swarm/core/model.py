@@ -16,6 +16,7 @@ Coordinates
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 
@@ -109,14 +110,20 @@ class RoadSection:
 
     def lane_of(self, vehicle: VehicleState) -> int:
         """Lane index whose band holds ``vehicle``'s centre (a vehicle half-way through a lane
-        change counts in the lane it is mostly in, whatever SUMO's lane index says)."""
+        change counts in the lane it is mostly in, whatever SUMO's lane index says); beside
+        the road, the index of the lane it is in there (an acceleration lane is -1)."""
         return self.lane_of_y(self.y_of(vehicle.lane, vehicle.lat_m))
 
     def lane_of_y(self, y_m: float) -> int:
-        """Lane index whose band contains the lateral position ``y_m`` (clipped to the road)."""
-        edge = -0.5 * self.lane_widths_m[0]
-        for lane, width in enumerate(self.lane_widths_m):
+        """Lane index whose band contains the lateral position ``y_m``; beside the road, the
+        bands go on at the outermost lanes' widths (-1 is the band right of lane 0, as
+        :meth:`lane_centre_y` places it). :meth:`nearest_lane` of it is a lane of the road."""
+        widths = self.lane_widths_m
+        edge = -0.5 * widths[0]
+        if y_m < edge:
+            return -math.ceil((edge - y_m) / widths[0])
+        for lane, width in enumerate(widths):
             edge += width
             if y_m < edge:
                 return lane
-        return self.n_lanes - 1
+        return self.n_lanes - 1 + math.ceil((y_m - edge) / widths[-1] + 1e-12)

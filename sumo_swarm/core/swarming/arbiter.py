@@ -267,7 +267,7 @@ def choose(
         cap_mps=cap, range_m=range_m, desired_of=desired_of, horizon_s=horizon_s
     )  # fmt: skip
     # The road ahead of the target, once the platoon is past it or it has gone.
-    beyond = lane_pace_mps(target.s_m, others, road, road.lane_of(target), **pace)
+    beyond = lane_pace_mps(target.s_m, others, road, road.nearest_lane(road.lane_of(target)), **pace)
     follow_mps = min(
         cap,
         mean_speed_mps(

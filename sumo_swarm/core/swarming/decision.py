@@ -304,7 +304,7 @@ def _right_lane(
     """The vehicles in the lane to the right of ``target`` (None: there is no such lane), the
     gap each needs judged as :func:`right_lane_free` says."""
     lane = road.lane_of(target)
-    if lane == 0:
+    if lane <= 0:  # (beside the road, right of it: an acceleration lane)
         return None
     v = target.speed_mps
     right = []
@@ -570,7 +570,7 @@ def passing_lane(
     for cav in cavs:
         y = road.y_of(cav.lane, cav.lat_m)
         lane = road.lane_of_y(y)
-        if abs(y - road.lane_centre_y(lane)) > tolerance_m:
+        if not 0 <= lane < road.n_lanes or abs(y - road.lane_centre_y(lane)) > tolerance_m:
             return None
         lanes.add(lane)
     if len(lanes) != 1:
