@@ -157,3 +157,18 @@ def test_build_grid_rows_ahead_and_leader_ahead_of_target():
     assert grid.n_rows == 5
     with pytest.raises(ConfigError):
         build_grid([], target, ROAD3, 0.0, 10.0, SETTINGS)
+
+
+def test_a_vehicle_beside_the_road_is_placed_at_the_edge_lane_of_the_grid():
+    # A CAV or HV still in an acceleration lane (SUMO's lane counted as -1 on the road's edge)
+    # is in no lane of the road; the grid places it in lane 0 beside which it drives: the CAV
+    # starts from a cell of the grid (not column -1, which no plan could start from), the HV
+    # claims lane 0's cells as it merges (not column -1, which the plan would ignore).
+    grid = fig7_grid()
+    assert ROAD3.lane_of(veh("c", 270.0, -1)) == -1
+    assert cav_cell(grid, veh("c", 270.0, -1), ROAD3, 0.0) == (3, 0)
+    assert cav_cell(grid, veh("c", 270.0, -1, lat=1.6), ROAD3, 0.0) == (3, 0)  # half in lane 0
+    merging = veh("m", 255.0, -1)
+    assert hv_blocked_cells(grid, merging, 0.0, SETTINGS) == {(2, 0), (3, 0)}
+    # A lane beyond the left edge (an edge with more lanes): the last column.
+    assert cav_cell(grid, veh("c", 270.0, 3), ROAD3, 0.0) == (3, 2)

@@ -53,6 +53,22 @@ def test_lane_is_the_fastest_one_the_cavs_are_in_and_sticks():
     assert r.lane(st, ["c0", "c1"], ROAD, ending={0}, cap_mps=25.0) == 1
 
 
+def test_a_cav_still_beside_the_road_is_counted_in_the_lane_it_merges_into():
+    # An acceleration lane is -1 of the road (beside lane 0): the platoon's lane is one of the
+    # road's, whichever CAV is still on the ramp, and so is the lane of a slow car it waits
+    # at there.
+    r = reformer()
+    st = states(car("c0", 200.0, 0, 18.0, cav=True), car("c1", 185.0, -1, 18.0, cav=True))
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 0
+    r.reset()
+    st = states(car("c0", 200.0, -1, 18.0, cav=True), car("c1", 185.0, -1, 18.0, cav=True))
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 0
+    r.reset()
+    r.waiting = ("slow",)
+    st["slow"] = car("slow", 230.0, -1, 5.0)
+    assert r.lane(st, ["c0", "c1"], ROAD, ending=(), cap_mps=25.0) == 0
+
+
 def test_all_in_one_lane_keeps_it_without_looking_around():
     r = reformer()
     st = states(car("c0", 200.0, 2, 18.0, cav=True), car("c1", 185.0, 2, 18.0, cav=True))

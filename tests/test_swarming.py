@@ -671,6 +671,25 @@ def test_a_cav_waits_for_a_swarm_cav_clearing_the_lane_it_enters():
                          [ego, passing], ROAD, **kw) is None  # fmt: skip
 
 
+def test_a_vehicle_beside_the_road_is_in_none_of_its_lanes():
+    # An acceleration lane counts as lane -1 of the road beside it (SumoSession numbers every
+    # vehicle's lane on the platoon leader's edge): a car merging from it is not in lane 0. It
+    # does not set lane 0's speed, it is no target's right-hand lane, and CAVs settled in it
+    # are in no lane to pass in.
+    leader = car("c0", 100.0, 0, 25.0, cav=True)
+    merging = car("merging", 130.0, -1, 12.0)
+    assert ROAD.lane_of(merging) == -1
+    assert ROAD.lane_of(dataclasses.replace(merging, lat_m=1.7)) == 0  # across the line: in
+    assert lane_speeds(leader, [merging], ROAD, [0, 1], range_m=100.0, cap_mps=25.0) == {
+        0: 25.0,
+        1: 25.0,
+    }
+    assert not free(car("truck", 200.0, -1, 15.0))  # nothing on its right, as in lane 0
+    truck = car("truck", 300.0, 0, 15.0)
+    beside = [car(f"c{i}", 290.0 - 15.0 * i, -1, 20.0, cav=True) for i in range(2)]
+    assert passing_lane(truck, beside, ROAD, tolerance_m=0.3) is None
+
+
 def test_passing_lane_is_one_settled_lane_that_is_not_the_targets():
     truck = car("truck", 300.0, 0, 15.0)
     kw = dict(tolerance_m=0.3)
