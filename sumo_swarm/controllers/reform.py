@@ -914,7 +914,8 @@ class Reformer:
             ego.speed_mps, slow.speed_mps, gap, lane_speed,
             desired_gap_m=sc.cav.desired_gap_m, accel_mps2=sc.cav.accel_max_mps2,
             brake_mps2=sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2,
-            change_s=road.lane_widths_m[road.nearest_lane(next_lane)] / sc.cav.max_lateral_speed_mps,
+            change_s=(road.lane_widths_m[road.nearest_lane(next_lane)]
+                      / sc.cav.max_lateral_speed_mps),
             min_gain_mps=sw.min_speed_gain_mps, entry_ok=entry_ok,
         )  # fmt: skip
         if what == "run":
