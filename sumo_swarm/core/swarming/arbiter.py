@@ -267,8 +267,8 @@ def choose(
         cap_mps=cap, range_m=range_m, desired_of=desired_of, horizon_s=horizon_s
     )  # fmt: skip
     # The road ahead of the target, once the platoon is past it or it has gone.
-    lane = road.nearest_lane(road.lane_of(target))  # (a target merging from beside the road)
-    beyond = lane_pace_mps(target.s_m, others, road, lane, **pace)
+    ahead_lane = road.nearest_lane(road.lane_of(target))  # (a target merging from beside the road)
+    beyond = lane_pace_mps(target.s_m, others, road, ahead_lane, **pace)
     follow_mps = min(
         cap,
         mean_speed_mps(
