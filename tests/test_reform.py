@@ -298,6 +298,27 @@ def test_no_pass_of_a_slow_vehicle_already_leaving_the_lane():
     assert "c1" not in r.passing and not events
 
 
+def test_a_slow_car_merging_from_beside_the_road_is_passed_as_one_in_the_lane():
+    # An acceleration lane is -1 of the road: a car standing at its end, leaning into lane 0
+    # (its body ahead of c1's), is in none of the road's lanes but merges into lane 0, where
+    # c1 is held behind it. c1 passes it in lane 1, and goes on passing it (not "gone": it is
+    # not two lanes from the passing lane, it merges beside it). (On the users' 5-lane road,
+    # 40 % CAVs, a platoon's CAV followed such a car down to 1.4 m/s, the lane stopping.)
+    events = []
+    r = reformer(events)
+    merging = car("merging", 240.0, -1, 1.0, lat=1.2)
+    st = states(
+        car("c0", 300.0, 0, 20.0, cav=True), merging, car("c1", 230.0, 0, 12.0, cav=True)
+    )  # fmt: skip
+    assert r.goals(0.0, st, ["c0", "c1"], ROAD, 0, cap_mps=25.0)["c1"] == 1
+    assert events == [("passing_start", {"vehicle": "c1", "slow": "merging", "lane": 1})]
+    assert r.goals(0.2, st, ["c0", "c1"], ROAD, 0, cap_mps=25.0)["c1"] == 1
+    assert "c1" in r.passing and len(events) == 1
+    # One that keeps to its lane beside the road (not reaching into lane 0) holds nobody.
+    r2, quiet = reformer([]), {**st, "merging": replace(merging, lat_m=0.0)}
+    assert r2.goals(0.0, quiet, ["c0", "c1"], ROAD, 0, cap_mps=25.0)["c1"] == 0
+
+
 def test_after_a_give_up_the_leader_too_passes_the_target_on_its_own():
     events = []
     r = reformer(events)

@@ -445,14 +445,16 @@ class Reformer:
                 slow_id, side, since = passing
                 slow = states.get(slow_id)
                 done = slow is None or self.past(ego, slow)
+                # (one beside the road is in the lane it merges into, as where the pass began)
+                slow_lane = None if done else road.nearest_lane(road.lane_of(slow))
                 # The slow vehicle moved over into the lane ego passes it in, ahead of it: ego
                 # would follow it there (a target keeping right had two CAVs behind it at its
                 # speed for 25 s beside the platoon's free lane, stress scene 51).
-                moved = not done and road.lane_of(slow) == side and slow.rear_s_m > ego.s_m
+                moved = not done and slow_lane == side and slow.rear_s_m > ego.s_m
                 # Or it left the lane ego passes it from, away from the passing lane (two lanes
                 # from it): nothing is left to pass, and a CAV held out of a lane of 25-28 m/s
                 # traffic kept trying for 30 s, 50 m behind its platoon (stress scene 39).
-                gone = not done and abs(road.lane_of(slow) - side) >= 2
+                gone = not done and abs(slow_lane - side) >= 2
                 # Out of time, but alongside it in the passing lane already: the pass goes on
                 # (given up there, a CAV past it 2 s later was recorded as not past).
                 alongside = not done and road.lane_of(ego) == side and ego.s_m > slow.rear_s_m
@@ -475,8 +477,11 @@ class Reformer:
                 slow_below += PASS_INTRUDER_MPS
             if slow.speed_mps > slow_below:
                 continue
-            if road.lane_of(slow) != road.lane_of(ego):
-                continue  # leaving ego's lane (its centre is out already): nothing to pass
+            if road.nearest_lane(road.lane_of(slow)) != road.lane_of(ego):
+                # Leaving ego's lane (its centre is out already): nothing to pass. One beside
+                # the road reaching into ego's lane ahead (an acceleration lane's car) merges
+                # into it: ego passes it as one in its lane.
+                continue
             train = None if i == 0 else self._train_lane(platoon[i - 1], slow.vehicle_id)
             if i == 0:
                 singly = self.singly
