@@ -269,3 +269,19 @@ def test_apart_is_taken_where_only_some_cavs_can_move_over():
     assert kinds["apart"].gain_m == pytest.approx(15.0 * 18.25 - 7.5)
     assert kinds["apart"].loss_m == 0.0
     assert choice.best.kind == "apart"
+
+
+def test_a_held_back_target_merging_from_beside_the_road_does_not_leave_into_the_platoons_lane():
+    # A truck still on the ramp (lane -1 of the road), leaning into lane 0 ahead of a platoon
+    # there, held back below its desired speed: lane 0 is the lane it merges into, not a
+    # faster lane beside it that it will leave for; only lane 1 (no faster) is beside it.
+    # Nothing to wait for: the platoon follows (or passes), it does not wait for it to leave.
+    from dataclasses import replace
+
+    view = platoon(n=3, lane=0, front_m=200.0, v=20.0)
+    truck = replace(car("truck", 240.0, -1, 10.0), lat_m=1.2)
+    others = [car("l1", 250.0, 1, 10.5), car("l1b", 215.0, 1, 10.5)]
+    choice = weigh(view, truck, others, desired={"truck": 25.0, "l1": 10.5, "l1b": 10.5},
+                   side_lanes=[1])  # fmt: skip
+    assert "wait" not in {o.kind for o in choice.weighed}
+    assert choice.best.kind == "follow"

@@ -797,6 +797,21 @@ def test_the_wait_ends_once_the_platoon_is_no_longer_split_or_its_time_is_up(cha
     assert r.split_by(10.0, st, platoon, ROAD) is None and r.wait_ends["gone"] == 1
 
 
+def test_cavs_past_a_slow_car_beside_the_road_wait_at_it_in_the_lane_it_merges_into():
+    # The platoon waits at a slow car still on the ramp (lane -1 of the road): the CAVs past
+    # it in lane 0, the lane it merges into, wait there at its speed (and the platoon's lane
+    # is lane 0); counted in "lane -1" none would be waiting, and they drove away.
+    r = reformer()
+    st = states(
+        car("c0", 300.0, 0, 18.0, cav=True), car("c1", 285.0, 0, 18.0, cav=True),
+        car("slow", 240.0, -1, 8.0), car("c2", 200.0, 0, 18.0, cav=True),
+    )  # fmt: skip
+    r.waiting = ("slow", 0.0, 30.0)
+    assert r.lane(st, ["c0", "c1", "c2"], ROAD, ending=(), cap_mps=25.0) == 0
+    held = r.wait_cruise(st, ["c0", "c1", "c2"], ROAD, st["slow"], 25.0)
+    assert set(held) == {"c0", "c1"} and all(8.0 <= v < 25.0 for v in held.values())
+
+
 def test_the_cavs_waiting_keep_the_room_the_others_need_ahead_of_the_target_and_no_more(
     monkeypatch,
 ):

@@ -203,7 +203,7 @@ class Reformer:
             how = "gone"
         elif t_s > until_s:
             how = "timeout"
-        elif road.lane_of(slow) in ending:
+        elif road.nearest_lane(road.lane_of(slow)) in ending:
             how = "lane_ends"
         else:
             past = [self.past(states[v], slow) for v in platoon]
@@ -287,7 +287,7 @@ class Reformer:
         to their speed beside the target, holding up the lane it leaves (variant 14: the HVs
         there then kept the CAV behind the target out of that lane for 26 s more)."""
         sc = self.scenario
-        lane = road.lane_of(slow)
+        lane = road.nearest_lane(road.lane_of(slow))  # (beside the road: where it merges)
         ahead = [v for v in platoon if self.past(states[v], slow)]
         waiting = [v for v in ahead if road.lane_of(states[v]) == lane]
         if not waiting:
@@ -321,8 +321,9 @@ class Reformer:
         ``edge``: the leader's edge, whose lane indices the choice is in). While it waits at a
         vehicle (:meth:`split_by`), that vehicle's lane."""
         slow = states.get(self.waiting[0]) if self.waiting is not None else None
-        if slow is not None and road.lane_of(slow) not in ending:
-            held = road.nearest_lane(road.lane_of(slow))
+        # (one beside the road: the lane it merges into)
+        held = None if slow is None else road.nearest_lane(road.lane_of(slow))
+        if held is not None and held not in ending:
             if self.lane_id != held:
                 self.event("reform_lane", lane=held, lane_speeds_mps={}, wait=slow.vehicle_id)
             self.lane_id = held
@@ -757,7 +758,9 @@ class Reformer:
         lane = road.nearest_lane(lane)
         step = sc.cav.max_lateral_speed_mps * step_s
         y = road.y_of(ego.lane, ego.lat_m)
-        lane_now = road.lane_of_y(y)
+        # A CAV still beside the road (on a ramp) is steered from the lane it merges into:
+        # centred into it, not held by the lane shift at the ramp's end.
+        lane_now = road.nearest_lane(road.lane_of_y(y))
         if lane_now == lane:
             centre = clip(road.lane_centre_y(lane) - y, step)
             escape = self.escape(ego, centre, step)

@@ -126,4 +126,4 @@ class RoadSection:
             edge += width
             if y_m < edge:
                 return lane
-        return self.n_lanes - 1 + math.ceil((y_m - edge) / widths[-1] + 1e-12)
+        return self.n_lanes + math.floor((y_m - edge) / widths[-1])

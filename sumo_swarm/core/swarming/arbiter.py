@@ -282,7 +282,7 @@ def choose(
     # desired speed, it takes a lane beside that is faster, as seen from it or from the
     # platoon's front, by HV_SPEED_GAIN_MPS; it leaves. Only a vehicle slow by its driver's own
     # choice stays to be passed.
-    here = road.lane_of(target)
+    here = ahead_lane
     held_back = desired_of(target) - target.speed_mps >= HV_SPEED_GAIN_MPS
     for q in (here - 1, here + 1):
         if not 0 <= q < road.n_lanes or not held_back:
