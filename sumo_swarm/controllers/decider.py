@@ -193,7 +193,7 @@ class Decider:
             cavs=tuple(sorted((states[v] for v in platoon), key=lambda st: -st.s_m)),
             cruise_mps=min(ctx.cav.cruising_speed_mps, self.cap_mps),
             lateral_speed_mps=sc.cav.max_lateral_speed_mps,
-            lane_width_m=road.lane_widths_m[road.nearest_lane(lane)],
+            lane_width_m=road.lane_width_m(lane),
         )  # fmt: skip
         members = set(platoon)
         # Predicted until the platoon's own road ends (or it leaves it), if that is sooner:

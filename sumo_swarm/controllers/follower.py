@@ -112,7 +112,7 @@ class PlanFollower:
             shift = self.lanes.shift_hold(ego, y, cmd.dlat_m)
             dlat = 0.0 if refusal or waits_for is not None else cmd.dlat_m
             if shift:  # back to the lane centre: never straddle two lanes near the junction
-                dlat = clip(road.lane_centre_y(road.nearest_lane(road.lane_of_y(y))) - y, step_m)
+                dlat = clip(road.lane_centre_y(road.road_lane_of_y(y)) - y, step_m)
                 if dlat and self._refusal(ego, y, dlat, others, road, dt) is not None:
                     dlat = 0.0  # not into a vehicle alongside (as the reformer's centring)
             self._count_hold(vid, refusal, road.lane_of_y(y + cmd.dlat_m), t_s)

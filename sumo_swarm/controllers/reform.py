@@ -203,7 +203,7 @@ class Reformer:
             how = "gone"
         elif t_s > until_s:
             how = "timeout"
-        elif road.nearest_lane(road.lane_of(slow)) in ending:
+        elif road.road_lane_of(slow) in ending:
             how = "lane_ends"
         else:
             past = [self.past(states[v], slow) for v in platoon]
@@ -287,7 +287,7 @@ class Reformer:
         to their speed beside the target, holding up the lane it leaves (variant 14: the HVs
         there then kept the CAV behind the target out of that lane for 26 s more)."""
         sc = self.scenario
-        lane = road.nearest_lane(road.lane_of(slow))  # (beside the road: where it merges)
+        lane = road.road_lane_of(slow)  # (beside the road: where it merges)
         ahead = [v for v in platoon if self.past(states[v], slow)]
         waiting = [v for v in ahead if road.lane_of(states[v]) == lane]
         if not waiting:
@@ -322,7 +322,7 @@ class Reformer:
         vehicle (:meth:`split_by`), that vehicle's lane."""
         slow = states.get(self.waiting[0]) if self.waiting is not None else None
         # (one beside the road: the lane it merges into)
-        held = None if slow is None else road.nearest_lane(road.lane_of(slow))
+        held = None if slow is None else road.road_lane_of(slow)
         if held is not None and held not in ending:
             if self.lane_id != held:
                 self.event("reform_lane", lane=held, lane_speeds_mps={}, wait=slow.vehicle_id)
@@ -337,7 +337,7 @@ class Reformer:
                 self.event("reform_lane", lane=self.move_to[0], lane_speeds_mps={})
             self.lane_id = self.move_to[0]
             return self.lane_id
-        count = Counter(road.nearest_lane(road.lane_of(states[v])) for v in platoon)
+        count = Counter(road.road_lane_of(states[v]) for v in platoon)
         if len(count) == 1 and self.lane_id in (None, *count) and not set(count) & set(ending):
             self.lane_id = next(iter(count))
             self.prefer = None  # one lane already: no lane change beats staying
@@ -439,7 +439,7 @@ class Reformer:
                 # Behind the vehicle the platoon waits at: ego keeps its lane and passes it as
                 # it can (merging behind it into its lane only to pass it again cost 10 m/s of
                 # speed to the CAVs and the HVs behind them: variant 39).
-                lane = road.nearest_lane(road.lane_of(ego))
+                lane = road.road_lane_of(ego)
             goals[vid] = lane
             passing = self.passing.get(vid)
             if passing is not None:
@@ -447,7 +447,7 @@ class Reformer:
                 slow = states.get(slow_id)
                 done = slow is None or self.past(ego, slow)
                 # (one beside the road is in the lane it merges into, as where the pass began)
-                slow_lane = None if done else road.nearest_lane(road.lane_of(slow))
+                slow_lane = None if done else road.road_lane_of(slow)
                 # The slow vehicle moved over into the lane ego passes it in, ahead of it: ego
                 # would follow it there (a target keeping right had two CAVs behind it at its
                 # speed for 25 s beside the platoon's free lane, stress scene 51).
@@ -478,7 +478,7 @@ class Reformer:
                 slow_below += PASS_INTRUDER_MPS
             if slow.speed_mps > slow_below:
                 continue
-            if road.nearest_lane(road.lane_of(slow)) != road.lane_of(ego):
+            if road.road_lane_of(slow) != road.lane_of(ego):
                 # Leaving ego's lane (its centre is out already): nothing to pass. One beside
                 # the road reaching into ego's lane ahead (an acceleration lane's car) merges
                 # into it: ego passes it as one in its lane.
@@ -760,7 +760,7 @@ class Reformer:
         y = road.y_of(ego.lane, ego.lat_m)
         # A CAV still beside the road (on a ramp) is steered from the lane it merges into:
         # centred into it, not held by the lane shift at the ramp's end.
-        lane_now = road.nearest_lane(road.lane_of_y(y))
+        lane_now = road.road_lane_of_y(y)
         if lane_now == lane:
             centre = clip(road.lane_centre_y(lane) - y, step)
             escape = self.escape(ego, centre, step)
@@ -860,7 +860,7 @@ class Reformer:
         final = min(lane_speed, self.cav.cruising_speed_mps - MAX_LEADER_EASE_MPS)
         if final - ego.speed_mps < sw.min_speed_gain_mps:
             return None
-        change_s = road.lane_widths_m[road.nearest_lane(next_lane)] / sc.cav.max_lateral_speed_mps
+        change_s = road.lane_width_m(next_lane) / sc.cav.max_lateral_speed_mps
         own = vehicle_ahead(ego, others, road, width_m=sc.cav.width_m)
         if own is not None:
             closing = max(0.0, ego.speed_mps - own[0].speed_mps)
@@ -922,8 +922,7 @@ class Reformer:
             ego.speed_mps, slow.speed_mps, gap, lane_speed,
             desired_gap_m=sc.cav.desired_gap_m, accel_mps2=sc.cav.accel_max_mps2,
             brake_mps2=sc.hvmodel.planner_share * sc.hvmodel.b_safe_mps2,
-            change_s=(road.lane_widths_m[road.nearest_lane(next_lane)]
-                      / sc.cav.max_lateral_speed_mps),
+            change_s=road.lane_width_m(next_lane) / sc.cav.max_lateral_speed_mps,
             min_gain_mps=sw.min_speed_gain_mps, entry_ok=entry_ok,
         )  # fmt: skip
         if what == "run":

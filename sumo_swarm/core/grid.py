@@ -149,7 +149,7 @@ class ConstantSpeedPredictor:
 def cav_cell(grid: MovingGrid, cav: VehicleState, road: RoadSection, t_s: float) -> Cell:
     """Cell ``(row, col)`` of a vehicle at ``t_s``: the row and the lane of its centre."""
     row = grid.row_of(cav.centre_s_m, t_s)
-    col = road.nearest_lane(road.lane_of(cav))  # a CAV still beside the road: its edge lane
+    col = road.road_lane_of(cav)  # a CAV still beside the road: the lane it merges into
     return row, col
 
 
@@ -183,7 +183,7 @@ def hv_columns(grid: MovingGrid, hv: VehicleState, settings: GridSettings) -> tu
     """Columns an HV claims: its own, plus the neighbour it leans into by > lateral_overlap_m."""
     road = grid.road
     y = road.y_of(hv.lane, hv.lat_m)
-    col = road.nearest_lane(road.lane_of_y(y))  # beside the road: it claims the edge lane
+    col = road.road_lane_of_y(y)  # beside the road: it claims the lane it merges into
     offset = y - grid.column_y(col)
     cols = [col]
     if offset > settings.lateral_overlap_m and col + 1 < grid.n_cols:

@@ -108,6 +108,20 @@ class RoadSection:
         lane counted on an edge with more lanes: an acceleration lane is -1)."""
         return min(max(lane, 0), self.n_lanes - 1)
 
+    def lane_width_m(self, lane: int) -> float:
+        """Width [m] of lane index ``lane``; beside the road, the outermost lane's on that side
+        (as :meth:`lane_centre_y` and :meth:`lane_of_y` extend the bands)."""
+        return self.lane_widths_m[self.nearest_lane(lane)]
+
+    def road_lane_of(self, vehicle: VehicleState) -> int:
+        """The lane of this section ``vehicle`` is in (:meth:`lane_of`), or, beside it (in an
+        acceleration lane), the one it merges into."""
+        return self.nearest_lane(self.lane_of(vehicle))
+
+    def road_lane_of_y(self, y_m: float) -> int:
+        """:meth:`road_lane_of` of the lateral position ``y_m``."""
+        return self.nearest_lane(self.lane_of_y(y_m))
+
     def lane_of(self, vehicle: VehicleState) -> int:
         """Lane index whose band holds ``vehicle``'s centre (a vehicle half-way through a lane
         change counts in the lane it is mostly in, whatever SUMO's lane index says); beside

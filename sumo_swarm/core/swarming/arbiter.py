@@ -267,7 +267,7 @@ def choose(
         cap_mps=cap, range_m=range_m, desired_of=desired_of, horizon_s=horizon_s
     )  # fmt: skip
     # The road ahead of the target, once the platoon is past it or it has gone.
-    ahead_lane = road.nearest_lane(road.lane_of(target))  # (a target merging from beside the road)
+    ahead_lane = road.road_lane_of(target)  # (a target merging from beside the road)
     beyond = lane_pace_mps(target.s_m, others, road, ahead_lane, **pace)
     follow_mps = min(
         cap,
