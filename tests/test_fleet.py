@@ -273,6 +273,23 @@ def test_a_parted_cav_that_sumo_moves_over_is_handed_over_clear_of_both_lanes_le
     assert out["safety"]["hard_brakes_cav"] == 0
 
 
+@pytest.mark.sumo
+def test_a_parted_cav_on_a_junction_is_handed_over_only_beyond_it(tmp_path):
+    # The motorway road with ramps at 0.5 s steps (SUMO's seed 6): the platoon parts at 33 m/s
+    # with 10 m gaps just before the on-ramp's junction, where the through lanes are numbered
+    # one higher on the next edge. On the junction a CAV's lane is the junction's: its leader,
+    # already on the next edge, was one lane off, the CAV was handed to SUMO 10 m behind it at
+    # 31 m/s, and SUMO braked it at 4.5 m/s^2 (the CAV behind it at 7.1).
+    cfg = write_road("motorway-ramps", tmp_path / "road", end_s=25.0, step_length_s=0.5)
+    out, events = _swarm_run(cfg, tmp_path / "swarm", seed=6)
+    assert any(e["event"] == "platoon_apart" for e in events), [e["event"] for e in events]
+    rows = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    crossed = rows[(rows.kind == "cav") & rows.edge.astype(str).str.startswith(":")]
+    assert (crossed.time_s > 20.0).any()  # parted CAVs crossed the junction
+    assert out["safety"]["collisions"] == 0
+    assert out["safety"]["hard_brakes_cav"] == 0
+
+
 BESIDE_THE_RAMP = f"""<routes>
   <vType id="cav" sigma="0" maxSpeed="30"/>
   <vType id="car" sigma="0" maxSpeed="30"/>

@@ -898,9 +898,15 @@ class Fleet:
                 continue
             road = session.road_at(vid) or self.ctx.road
             leaders = self._leaders(vid, st, states, road)
-            if st.speed_mps <= desired + HANDOVER_MPS and all(
-                gap >= session.alone_gap_m(vid, st.speed_mps, lead.speed_mps, lead.vehicle_id)
-                for lead, gap in leaders
+            # Not on a junction: there its lane is the junction's, not the road's, and a leader
+            # beyond it on the next edge (its lanes numbered afresh) is not seen as one.
+            if (
+                not _on_junction(session, vid)
+                and st.speed_mps <= desired + HANDOVER_MPS
+                and all(
+                    gap >= session.alone_gap_m(vid, st.speed_mps, lead.speed_mps, lead.vehicle_id)
+                    for lead, gap in leaders
+                )
             ):  # down to SUMO's speed and at SUMO's gap behind every leader: SUMO takes it
                 self._opening.discard(vid)
                 try:
