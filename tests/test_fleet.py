@@ -7,6 +7,7 @@ other never plan into the same space."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
@@ -118,6 +119,36 @@ def test_a_parted_cav_straddling_two_lanes_follows_the_leaders_of_both():
     fleet.ctx = run_context(FakeSession(states), road=road)
     leaders = {lead.vehicle_id: gap for lead, gap in fleet._leaders("c", cav, states, road)}
     assert leaders == pytest.approx({"car": 11.0, "truck": 37.0})
+
+
+def test_a_parted_cav_is_handed_over_clear_of_a_leader_whose_lanes_are_numbered_afresh():
+    # The 5-lane OSM road at 20 %, SUMO's seed 1: a platoon parted before an on-ramp; its front
+    # CAV crossed onto the edge where the ramp's lane is added on the right, so the lane both
+    # drive in is lane 1 there and lane 0 behind. Compared by its own edge's index, the CAV 6.7 m
+    # ahead was in the next lane: the rear CAV was handed to SUMO, which braked it at 9 m/s^2.
+    # Counted as on the rear CAV's edge (the session's states_in_lanes_of), it is its leader.
+    rear = VehicleState("rear", 889.4, 0, 0.0, 16.3, 5.0, is_cav=True)
+    mate = VehicleState("mate", 901.1, 1, 0.0, 14.3, 5.0, -4.0, is_cav=True)  # its own edge's
+    states = {"rear": rear, "mate": mate}
+    as_on_rear = {"rear": rear, "mate": replace(mate, lane=0)}
+    handed, speeds = [], {}
+    session = FakeSession(
+        states,
+        edges={"rear": "101", "mate": "102-AddedOnRampEdge"},
+        step_length_s=0.2,
+        states_in_lanes_of=lambda vid: as_on_rear,
+        speed_limits=lambda vid: (33.0, 33.0),
+        alone_gap_m=lambda vid, v, v_lead, lead_id=None: 30.0,
+        drive_alone=handed.append,
+        release_speed=lambda vid: None,
+        set_speed=speeds.__setitem__,
+    )
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(session, road=RoadSection((3.2,) * 5))
+    fleet._opening.add("rear")
+    fleet._open_gaps(states)
+    assert handed == [] and "rear" in fleet._opening
+    assert speeds["rear"] < rear.speed_mps  # still dropping back, under the fleet's command
 
 
 @pytest.mark.parametrize(

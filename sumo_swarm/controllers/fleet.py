@@ -897,7 +897,11 @@ class Fleet:
             except Exception:  # vanished this step
                 continue
             road = session.road_at(vid) or self.ctx.road
-            leaders = self._leaders(vid, st, states, road)
+            # Its leaders with every lane counted as on its own edge: past an on-ramp the lane
+            # it drives on is numbered one higher, and a CAV just beyond, 6.7 m ahead, was
+            # taken for one in the next lane; handed to SUMO, it braked at 9 m/s^2.
+            table = session.states_in_lanes_of(vid)
+            leaders = self._leaders(vid, table.get(vid, st), table, road)
             # Not on a junction: there its lane is the junction's, not the road's, and a leader
             # beyond it on the next edge (its lanes numbered afresh) is not seen as one.
             if (
