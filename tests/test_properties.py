@@ -131,7 +131,9 @@ def test_nan_in_a_scenario_file_names_key_and_file(tmp_path, key):
 
 @given(
     section=st.sampled_from(sorted(SECTIONS)),
-    key=st.text(min_size=1, max_size=12).filter(lambda k: k.isidentifier()),
+    # identifiers drawn as such: filtering random text for them failed Hypothesis's health
+    # check now and then (50 of 57 draws thrown away)
+    key=st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,11}", fullmatch=True),
 )
 def test_unknown_keys_are_always_named(section, key):
     if key in KNOWN[section]:
