@@ -151,6 +151,31 @@ def test_a_parted_cav_is_handed_over_clear_of_a_leader_whose_lanes_are_numbered_
     assert speeds["rear"] < rear.speed_mps  # still dropping back, under the fleet's command
 
 
+@pytest.mark.parametrize("speed, handed_over", [(12.0, False), (0.0, True)])
+def test_a_parted_cav_on_a_junction_is_handed_over_only_once_beyond_it_or_standing(
+    speed, handed_over
+):
+    # Driving across a junction it opens its gap on (its lane there is the junction's); one
+    # that stands there is handed over, else, commanded never to speed up, it would stand on.
+    cav = VehicleState("c", 500.0, 0, 0.0, speed, 5.0, is_cav=True)
+    handed = []
+    session = FakeSession(
+        {"c": cav},
+        edges={"c": ":J1_0"},
+        speed_limits=lambda vid: (30.0, 30.0),
+        alone_gap_m=lambda vid, v, v_lead, lead_id=None: 30.0,
+        drive_alone=handed.append,
+        release_speed=lambda vid: None,
+        set_speed=lambda vid, v: None,
+    )
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(session)
+    fleet._opening.add("c")
+    fleet._open_gaps({"c": cav})
+    assert (handed == ["c"]) is handed_over
+    assert ("c" in fleet._opening) is not handed_over
+
+
 @pytest.mark.parametrize(
     "key, value, fragment",
     [
@@ -305,7 +330,7 @@ def test_a_parted_cav_that_sumo_moves_over_is_handed_over_clear_of_both_lanes_le
 
 
 @pytest.mark.sumo
-def test_a_parted_cav_on_a_junction_is_handed_over_only_beyond_it(tmp_path):
+def test_a_platoon_parting_before_an_on_ramps_junction_hands_its_cavs_over_gently(tmp_path):
     # The motorway road with ramps at 0.5 s steps (SUMO's seed 6): the platoon parts at 33 m/s
     # with 10 m gaps just before the on-ramp's junction, where the through lanes are numbered
     # one higher on the next edge. On the junction a CAV's lane is the junction's: its leader,

@@ -157,6 +157,9 @@ OPEN_DECEL_MPS2 = 2.0
 # ...and is handed over once at most this much above the speed SUMO drives it at [m/s] (SUMO
 # brakes the rest at once: 1 m/s^2 at a 0.1 s step).
 HANDOVER_MPS = 0.1
+# ...and not while it drives across a junction (its lanes are the junction's there), unless it
+# stands: commanded never to speed up, a CAV stopped on a junction would stand there for good.
+STANDING_MPS = 0.1
 
 
 def can_follow(rear_mps: float, front_mps: float, gap_m: float) -> bool:
@@ -902,10 +905,11 @@ class Fleet:
             # taken for one in the next lane; handed to SUMO, it braked at 9 m/s^2.
             table = session.states_in_lanes_of(vid)
             leaders = self._leaders(vid, table.get(vid, st), table, road)
-            # Not on a junction: there its lane is the junction's, not the road's, and a leader
-            # beyond it on the next edge (its lanes numbered afresh) is not seen as one.
+            # Not while it drives across a junction, whose lanes off the route frame are not
+            # the road's: a leader beyond it on the next edge (its lanes numbered afresh) is
+            # not seen as one there. A CAV standing there is handed over (it would never move).
             if (
-                not _on_junction(session, vid)
+                (not _on_junction(session, vid) or st.speed_mps < STANDING_MPS)
                 and st.speed_mps <= desired + HANDOVER_MPS
                 and all(
                     gap >= session.alone_gap_m(vid, st.speed_mps, lead.speed_mps, lead.vehicle_id)
