@@ -77,7 +77,7 @@ from sumo_swarm.controllers.base import (
 )
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.replanner import PlanStats
-from sumo_swarm.controllers.session import SessionView
+from sumo_swarm.controllers.session import STANDING_MPS, SessionView
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import (
     PassSnapshots,
@@ -158,8 +158,8 @@ OPEN_DECEL_MPS2 = 2.0
 # brakes the rest at once: 1 m/s^2 at a 0.1 s step).
 HANDOVER_MPS = 0.1
 # ...and not while it drives across a junction (its lanes are the junction's there), unless it
-# stands: commanded never to speed up, a CAV stopped on a junction would stand there for good.
-STANDING_MPS = 0.1
+# stands (session.STANDING_MPS): commanded never to speed up, a CAV stopped on a junction would
+# stand there for good.
 
 
 def can_follow(rear_mps: float, front_mps: float, gap_m: float) -> bool:

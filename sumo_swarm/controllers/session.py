@@ -25,11 +25,12 @@ if TYPE_CHECKING:
     from sumo_swarm.core.routeframe import RouteFrame
 
 __all__ = [
-    "ALONE_DECEL_MPS2", "SESSION_DATA", "SESSION_METHODS", "SUMO_MIN_GAP_M", "SUMO_TAU_S",
-    "SessionBase", "SessionView",
+    "ALONE_DECEL_MPS2", "SESSION_DATA", "SESSION_METHODS", "STANDING_MPS", "SUMO_MIN_GAP_M",
+    "SUMO_TAU_S", "SessionBase", "SessionView",
 ]  # fmt: skip
 
 SUMO_TAU_S, SUMO_MIN_GAP_M = SUMO_DEFAULTS.tau_s, SUMO_DEFAULTS.min_gap_m  # [s], [m]
+STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 # How hard SUMO brakes a CAV it drives alone, or one that left its platoon [m/s^2]: the
 # contract's hard-brake line (sim.metrics.HARD_BRAKE_MPS2). One that left is still commanded by
 # our CACC for a while, down to [cav] accel_min_mps2 (-4), and SUMO holds a commanded speed's

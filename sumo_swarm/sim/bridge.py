@@ -24,6 +24,7 @@ from types import ModuleType
 from sumo_swarm.checks import unknown_name
 from sumo_swarm.controllers.session import (
     ALONE_DECEL_MPS2,
+    STANDING_MPS,
     SUMO_MIN_GAP_M,
     SUMO_TAU_S,
     SessionBase,
@@ -68,7 +69,6 @@ LCA_REASONS = LCA_STRATEGIC | LCA_COOPERATIVE | LCA_SPEEDGAIN | LCA_KEEPRIGHT
 LCA_BLOCKED = 0xF << 9
 # The rate of a keep-right build-up is taken between readings at most this far apart [s].
 KEEP_RIGHT_RATE_WINDOW_S = 1.0
-STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 LEADER_REACH_EXTRA_M = 30.0  # beyond a CAV's stopping reach, for a truck's length [m]
 SIDEWAYS_REACH_M = 60.0  # vehicles whose fronts are this near a CAV moving sideways [m]
 SIDEWAYS_CLEARANCE_M = 0.3  # what two bodies keep at the end of a step (guards' side_clearance)
