@@ -121,6 +121,23 @@ def test_a_parted_cav_straddling_two_lanes_follows_the_leaders_of_both():
     assert leaders == pytest.approx({"car": 11.0, "truck": 37.0})
 
 
+def _opening(states, vid, *, edges, road=None, **answers):
+    """One step of the fleet opening parted CAV ``vid``'s gap (``Fleet._open_gaps``) on a fake
+    session whose SUMO wants a 30 m gap at a 30 m/s desired speed; ``(fleet, handed over, speeds
+    commanded)``."""
+    handed, speeds = [], {}
+    session = FakeSession(
+        states, edges=edges, speed_limits=lambda v: (30.0, 30.0),
+        alone_gap_m=lambda v, speed, lead, lead_id=None: 30.0, drive_alone=handed.append,
+        release_speed=lambda v: None, set_speed=speeds.__setitem__, **answers,
+    )  # fmt: skip
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(session, road=road)
+    fleet._opening.add(vid)
+    fleet._open_gaps(states)
+    return fleet, handed, speeds
+
+
 def test_a_parted_cav_is_handed_over_clear_of_a_leader_whose_lanes_are_numbered_afresh():
     # The 5-lane OSM road at 20 %, SUMO's seed 1: a platoon parted before an on-ramp; its front
     # CAV crossed onto the edge where the ramp's lane is added on the right, so the lane both
@@ -131,22 +148,11 @@ def test_a_parted_cav_is_handed_over_clear_of_a_leader_whose_lanes_are_numbered_
     mate = VehicleState("mate", 901.1, 1, 0.0, 14.3, 5.0, -4.0, is_cav=True)  # its own edge's
     states = {"rear": rear, "mate": mate}
     as_on_rear = {"rear": rear, "mate": replace(mate, lane=0)}
-    handed, speeds = [], {}
-    session = FakeSession(
-        states,
-        edges={"rear": "101", "mate": "102-AddedOnRampEdge"},
-        step_length_s=0.2,
+    fleet, handed, speeds = _opening(
+        states, "rear", edges={"rear": "101", "mate": "102-AddedOnRampEdge"},
+        road=RoadSection((3.2,) * 5), step_length_s=0.2,
         states_in_lanes_of=lambda vid: as_on_rear,
-        speed_limits=lambda vid: (33.0, 33.0),
-        alone_gap_m=lambda vid, v, v_lead, lead_id=None: 30.0,
-        drive_alone=handed.append,
-        release_speed=lambda vid: None,
-        set_speed=speeds.__setitem__,
-    )
-    fleet = Fleet(lambda: None, name="x")
-    fleet.ctx = run_context(session, road=RoadSection((3.2,) * 5))
-    fleet._opening.add("rear")
-    fleet._open_gaps(states)
+    )  # fmt: skip
     assert handed == [] and "rear" in fleet._opening
     assert speeds["rear"] < rear.speed_mps  # still dropping back, under the fleet's command
 
@@ -158,20 +164,7 @@ def test_a_parted_cav_on_a_junction_is_handed_over_only_once_beyond_it_or_standi
     # Driving across a junction it opens its gap on (its lane there is the junction's); one
     # that stands there is handed over, else, commanded never to speed up, it would stand on.
     cav = VehicleState("c", 500.0, 0, 0.0, speed, 5.0, is_cav=True)
-    handed = []
-    session = FakeSession(
-        {"c": cav},
-        edges={"c": ":J1_0"},
-        speed_limits=lambda vid: (30.0, 30.0),
-        alone_gap_m=lambda vid, v, v_lead, lead_id=None: 30.0,
-        drive_alone=handed.append,
-        release_speed=lambda vid: None,
-        set_speed=lambda vid, v: None,
-    )
-    fleet = Fleet(lambda: None, name="x")
-    fleet.ctx = run_context(session)
-    fleet._opening.add("c")
-    fleet._open_gaps({"c": cav})
+    fleet, handed, _ = _opening({"c": cav}, "c", edges={"c": ":J1_0"})
     assert (handed == ["c"]) is handed_over
     assert ("c" in fleet._opening) is not handed_over
 
