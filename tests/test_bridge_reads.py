@@ -11,7 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from sumo_swarm.sim.bridge import SumoSession
-from sumo_swarm.sim.userroads import write_road
+from sumo_swarm.sim.userroads import write_osm_road, write_road
+
+OSM_DIR = Path(__file__).resolve().parent.parent / "networks" / "osm"
 
 
 def _session(tmp_path: Path, road: str = "lane-drop") -> SumoSession:
@@ -152,3 +154,38 @@ def test_a_vehicle_in_an_acceleration_lane_is_beside_the_through_lanes_as_the_ne
                 assert view[vid].lane == st.lane - 1, (sumo.time_s, vid, st.lane)
                 seen += st.lane == 0
     assert seen >= 20  # acceleration-lane vehicles checked
+
+
+def test_every_vehicle_is_renumbered_as_the_route_frame_maps_its_lane(tmp_path):
+    # The view is built edge by edge (one shift per edge, a junction edge's per lane); it must
+    # give each vehicle what RouteFrame.lane_as_on gives it alone, from every edge's side, and
+    # leave the rest of each state as it is. On an OpenStreetMap motorway netconverted with
+    # guessed ramps, a junction lane before an added deceleration lane fans out: its own
+    # offset differs from its edge's.
+    cfg = write_osm_road("osm-3-lane-drop", OSM_DIR, tmp_path, end_s=120.0)
+    args = ["-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
+            "--collision.action", "warn"]  # fmt: skip
+    checked = fanned = 0
+    with SumoSession(args, is_cav=lambda vid, type_id: type_id.startswith("cav")) as sumo:
+        frame = sumo.frame
+        while sumo.time_s < 120.0 - 1e-6:
+            sumo.step()
+            askers = {}
+            for vid, edge in sumo.edges.items():
+                askers.setdefault(frame.route_edge(edge), vid)
+            for reference, asker in askers.items():
+                view = sumo.states_in_lanes_of(asker)
+                assert list(view) == list(sumo.states)
+                for vid, st in sumo.states.items():
+                    edge = sumo.edges[vid]
+                    lane = frame.lane_as_on(st.lane, edge, reference)
+                    expected = st.lane if lane is None or edge == reference else lane
+                    seen = view[vid]
+                    assert seen.lane == expected, (sumo.time_s, vid, edge, reference)
+                    assert (seen.s_m, seen.lat_m, seen.speed_mps) == (
+                        st.s_m, st.lat_m, st.speed_mps,
+                    )  # fmt: skip
+                    checked += expected != st.lane
+                    own = frame.via_lane_offset.get(f"{edge}_{st.lane}")
+                    fanned += own is not None and own != frame.lane_offset.get(edge)
+    assert checked > 100 and fanned > 0  # renumbered vehicles, some on a fanning junction lane

@@ -301,6 +301,8 @@ class SumoSession(SessionBase):
         # states_in_lanes_of's tables of this step, per reference edge (of the table held)
         self._lane_views_of: dict[str, VehicleState] | None = None
         self._lane_views: dict[str, dict[str, VehicleState]] = {}
+        self._lane_views_by_edge: dict[str | None, list[str]] | None = None
+        self._lane_views_renumbered: dict[tuple[str, int], VehicleState] = {}
         self.collisions: list[Collision] = []
         self.teleports: int = 0
         self.departed: list[str] = []
@@ -399,28 +401,50 @@ class SumoSession(SessionBase):
         # One table per reference edge and step, whoever asks (many swarms share an edge).
         if self._lane_views_of is not self.states:
             self._lane_views_of, self._lane_views = self.states, {}
+            self._lane_views_by_edge = None
         out = self._lane_views.get(reference)
         if out is None:
             out = self._lane_views[reference] = self._in_lanes_of(reference)
         return out
 
     def _in_lanes_of(self, reference: str) -> dict[str, VehicleState]:
+        """:attr:`states` renumbered as on ``reference``: a copy with only the vehicles whose
+        lane index differs there replaced, found edge by edge (one lane offset per edge; a
+        junction edge's per lane)."""
         frame = self.frame
-        edges = self.edges
-        out = {}
-        for other, state in self.states.items():
-            own = edges.get(other)
+        states = self.states
+        if self._lane_views_by_edge is None:  # the vehicles of each edge, once per step
+            by_edge: dict[str | None, list[str]] = {}
+            edges = self.edges
+            for vid in states:
+                by_edge.setdefault(edges.get(vid), []).append(vid)
+            self._lane_views_by_edge = by_edge
+            self._lane_views_renumbered = {}
+        out = dict(states)
+        offset_ref = frame.lane_offset.get(reference)
+        for own, vids in self._lane_views_by_edge.items():
             if own is None or own == reference:
-                out[other] = state
                 continue
-            lane = frame.lane_as_on(state.lane, own, reference)
-            if lane is None or lane == state.lane:
-                out[other] = state
+            if own in frame.junction_from:  # each lane its own offset (via_lane_offset)
+                moved = [(vid, frame.lane_as_on(states[vid].lane, own, reference)) for vid in vids]
             else:
-                out[other] = VehicleState(
-                    state.vehicle_id, state.s_m, lane, state.lat_m, state.speed_mps,
-                    state.length_m, state.accel_mps2, state.is_cav, state.width_m,
-                )  # fmt: skip
+                offset = frame.lane_offset.get(own)
+                if offset is None or offset_ref is None or offset == offset_ref:
+                    continue
+                shift = offset - offset_ref
+                moved = [(vid, states[vid].lane + shift) for vid in vids]
+            renumbered = self._lane_views_renumbered
+            for vid, lane in moved:
+                state = states[vid]
+                if lane is None or lane == state.lane:
+                    continue
+                again = renumbered.get((vid, lane))
+                if again is None:  # made once per step, whichever edge's table asks
+                    again = renumbered[vid, lane] = VehicleState(
+                        state.vehicle_id, state.s_m, lane, state.lat_m, state.speed_mps,
+                        state.length_m, state.accel_mps2, state.is_cav, state.width_m,
+                    )  # fmt: skip
+                out[vid] = again
         return out
 
     def lanes_ending(self, edge: str, s_from_m: float, s_to_m: float) -> list[tuple[int, float]]:
