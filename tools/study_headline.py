@@ -3,9 +3,11 @@
 One row per CAV share and controller at one demand: the delay of each class (SUMO's tripinfo
 timeLoss, mean per vehicle), throughput, hard brakes per 1000 vehicle-km, SSM conflicts with a
 TTC below 1.5 s, CO2 per km of the cars, collisions and CAV hard brakes; a CAV share of 0 has
-one row (no CAV: every controller drives the same traffic).
+one row (no CAV: every controller drives the same traffic). Each figure is the mean over the
+runs of the row (``runs``: one per seed; batches of other seeds of the same sweep may be given
+together).
 
-Usage: python tools/study_headline.py DIR [--demand 1500] [--out docs/bench/penetration]
+Usage: python tools/study_headline.py DIR [DIR ...] [--demand 1500] [--out docs/bench/penetration]
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ def headline(results: pd.DataFrame, demand: float) -> pd.DataFrame:
             row = {
                 "CAVs [%]": round(100 * share),
                 "controller": controller if share > 0 else "(no CAV)",
+                "runs": len(run),
             }
             for column, heading in COLUMNS.items():
                 row[heading] = run[column].mean() if column in run else float("nan")
@@ -55,11 +58,13 @@ def headline(results: pd.DataFrame, demand: float) -> pd.DataFrame:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("batch", type=Path)
+    parser.add_argument("batch", type=Path, nargs="+", help="batch folders (seeds averaged)")
     parser.add_argument("--demand", type=float, default=1500.0)
     parser.add_argument("--out", type=Path, default=None, help="write OUT.md and OUT.csv")
     args = parser.parse_args(argv)
-    results = pd.read_parquet(args.batch / "results.parquet")
+    results = pd.concat(
+        [pd.read_parquet(folder / "results.parquet") for folder in args.batch], ignore_index=True
+    )
     table = headline(results, args.demand)
     md = table.to_markdown(index=False, floatfmt=".1f")
     print(md)
@@ -68,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
         table.to_csv(args.out.with_suffix(".csv"), index=False)
         head = (
             f"Penetration study, demand {args.demand:g} veh/h/lane: "
-            f"`python tools/study_headline.py {args.batch} --demand {args.demand:g}`\n\n"
+            f"`python tools/study_headline.py {' '.join(map(str, args.batch))} "
+            f"--demand {args.demand:g}`\n\n"
         )
         args.out.with_suffix(".md").write_text(head + md + "\n", encoding="utf-8")
     return 0
