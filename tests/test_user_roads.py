@@ -18,19 +18,20 @@ from sumo_swarm.errors import ConfigError
 from sumo_swarm.sim.metrics import hard_brake_events
 from sumo_swarm.sim.netbuild import MotorwaySpec
 from sumo_swarm.sim.runner import read_sumocfg_options, run_sumocfg
-from sumo_swarm.sim.userroads import CAV_COUNT, ROADS, write_road
+from sumo_swarm.sim.userroads import CAV_COUNT, MORE_ROADS, ROADS, write_road
 
 pytestmark = pytest.mark.sumo
 
 # Simulated seconds per run: long enough for the swarm to meet the truck and start to pass it.
 END_S = 40.0
+ALL_ROADS = [*ROADS, *MORE_ROADS]
 ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
 def road_cfgs(tmp_path_factory) -> dict[str, Path]:
     base = tmp_path_factory.mktemp("roads")
-    return {name: write_road(name, base / name, end_s=END_S) for name in ROADS}
+    return {name: write_road(name, base / name, end_s=END_S) for name in ALL_ROADS}
 
 
 def _net(cfg: Path) -> sumolib.net.Net:
@@ -95,7 +96,7 @@ def _cav_min_accel_mps2(run_dir: Path) -> tuple[float, pd.DataFrame]:
 
 
 @pytest.mark.parametrize("controller", ["sumo-lc", "sumo-cacc"])
-@pytest.mark.parametrize("name", list(ROADS))
+@pytest.mark.parametrize("name", ALL_ROADS)
 def test_sumo_models_drive_every_road_without_collision(road_cfgs, tmp_path, name, controller):
     summary = run_sumocfg(
         road_cfgs[name], "cav", controller, tmp_path, progress=False, notify=lambda _: None
@@ -107,7 +108,7 @@ def test_sumo_models_drive_every_road_without_collision(road_cfgs, tmp_path, nam
     assert options["collision.mingap-factor"] == "0"
 
 
-@pytest.mark.parametrize("name", list(ROADS))
+@pytest.mark.parametrize("name", ALL_ROADS)
 def test_swarm_drives_every_road_without_collision_or_cav_hard_brake(road_cfgs, tmp_path, name):
     summary = run_sumocfg(
         road_cfgs[name], "cav", "swarm", tmp_path, progress=False, notify=lambda _: None

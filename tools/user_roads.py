@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout: this tree's package, not an installed one
 
 from sumo_swarm.sim.metrics import hard_brake_events  # noqa: E402
-from sumo_swarm.sim.userroads import CAV_TYPE, ROADS, write_road  # noqa: E402
+from sumo_swarm.sim.userroads import CAV_TYPE, MORE_ROADS, ROADS, write_road  # noqa: E402
 
 CONTROLLERS = ("swarm", "cacc", "sumo-cacc", "sumo-lc")
 # Step lengths [s]; None is SUMO's default (1 s): the sumocfg does not name a step.
@@ -258,7 +258,7 @@ def markdown(df: pd.DataFrame, command: str, end_s: float) -> str:
     ]
     for (road, step, seed), rows in df.groupby(["road", "step_s", "seed"], sort=False):
         title = f"## {road}, step {step} s" + ("" if seed == "sumocfg" else f", seed {seed}")
-        out += [title, "", f"{ROADS[road].about}.", ""]
+        out += [title, "", f"{(ROADS.get(road) or MORE_ROADS[road]).about}.", ""]
         table = rows.reindex(columns=list(TABLE_COLUMNS)).rename(columns=TABLE_COLUMNS)
         out += [table.to_markdown(index=False, floatfmt=".2f"), ""]
         out += [", ".join(f"{k}: {v:.2f}" for k, v in ratios(rows).items()), ""]
@@ -344,7 +344,13 @@ def _step_name(text: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--roads", nargs="+", choices=sorted(ROADS), default=list(ROADS))
+    ap.add_argument(
+        "--roads",
+        nargs="+",
+        choices=sorted([*ROADS, *MORE_ROADS]),
+        default=list(ROADS),
+        help="default: the first set; the second (MORE_ROADS): " + " ".join(MORE_ROADS),
+    )
     ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
     ap.add_argument("--steps", nargs="+", choices=list(STEPS), default=list(STEPS),
                     type=_step_name, metavar="STEP",
