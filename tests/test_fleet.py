@@ -169,6 +169,26 @@ def test_a_parted_cav_on_a_junction_is_handed_over_only_once_beyond_it_or_standi
     assert ("c" in fleet._opening) is not handed_over
 
 
+def test_an_error_handing_a_parted_cav_to_sumo_is_not_swallowed():
+    # The session's hand-over calls leave a vanished vehicle alone without an error; anything
+    # else they raise is a defect and must reach the run loop (which stands the swarm down and
+    # says so), not vanish in a guard: one such guard hid a NameError for a whole run.
+    cav = VehicleState("c", 500.0, 0, 0.0, 20.0, 5.0, is_cav=True)
+
+    def broken(vid):
+        raise RuntimeError("a defect")
+
+    session = FakeSession(
+        {"c": cav}, edges={"c": "e"}, speed_limits=lambda v: (30.0, 30.0),
+        alone_gap_m=lambda v, speed, lead, lead_id=None: 30.0, drive_alone=broken,
+    )  # fmt: skip
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(session)
+    fleet._opening.add("c")
+    with pytest.raises(RuntimeError, match="a defect"):
+        fleet._open_gaps({"c": cav})
+
+
 @pytest.mark.parametrize(
     "key, value, fragment",
     [

@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import functools
 import itertools
-import logging
 import math
 from array import array
 from collections.abc import Callable, Iterable, Mapping
@@ -109,8 +108,6 @@ __all__ = [
     "straddled",
     "strung_out",
 ]
-
-log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------- pure parts
@@ -811,11 +808,8 @@ class Fleet:
         _forget(platoon.controller, vid)
         session = self.ctx.session
         if vid in session.states:
-            try:
-                session.release(vid)
-                self._handed.add(vid)
-            except Exception as exc:
-                log.debug("releasing %s: %s", vid, exc)
+            session.release(vid)  # (a vehicle that vanished: no error)
+            self._handed.add(vid)
 
     def _part(self, t_s: float, platoon: Platoon, states, embargo_s: float | None = None) -> None:
         """Nothing pays the CAVs of ``platoon`` doing together: SUMO drives each alone again,
@@ -830,10 +824,7 @@ class Fleet:
             self._apart_until[vid] = until
             if vid not in session.states:
                 continue
-            try:
-                session.release(vid)  # SUMO's lane changes at once
-            except Exception as exc:  # vanished meanwhile
-                log.debug("parting %s: %s", vid, exc)
+            session.release(vid)  # SUMO's lane changes at once (vanished: no error)
             self._opening.add(vid)
         self.counts.parted += 1
         self.ctx.event("platoon_apart", platoon=platoon.id, cavs=members)
@@ -917,11 +908,8 @@ class Fleet:
                 )
             ):  # down to SUMO's speed and at SUMO's gap behind every leader: SUMO takes it
                 self._opening.discard(vid)
-                try:
-                    session.release_speed(vid)
-                    session.drive_alone(vid)
-                except Exception as exc:  # vanished meanwhile
-                    log.debug("handing %s to SUMO: %s", vid, exc)
+                session.release_speed(vid)  # (a vehicle that vanished: no error)
+                session.drive_alone(vid)
                 continue
             accel = min(
                 (opening_accel(st.speed_mps, desired, (lead.speed_mps, gap), cav.min_gap_m)

@@ -151,7 +151,8 @@ class SessionView(Protocol):
         ...
 
     def release_speed(self, vid: str) -> None:
-        """Hand ``vid``'s speed back to SUMO's car-following model."""
+        """Hand ``vid``'s speed back to SUMO's car-following model (a vehicle that vanished:
+        nothing to do, no error)."""
         ...
 
     def change_sublane(self, vid: str, lateral_m: float) -> None:
@@ -164,12 +165,14 @@ class SessionView(Protocol):
         ...
 
     def release(self, vid: str) -> None:
-        """``vid`` leaves the swarm: SUMO changes its lanes again (its speed stays ours)."""
+        """``vid`` leaves the swarm: SUMO changes its lanes again (its speed stays ours; a
+        vehicle that vanished: no error)."""
         ...
 
     def drive_alone(self, vid: str) -> None:
         """SUMO drives CAV ``vid`` alone: at least SUMO's default headway and minGap, braking
-        within the hard-brake line, set on its vType too (the next CAVs are inserted so)."""
+        within the hard-brake line, set on its vType too (the next CAVs are inserted so; a
+        vehicle that vanished: no error)."""
         ...
 
     def alone_gap_m(
