@@ -158,17 +158,17 @@ def test_cavs_cut_off_by_a_slow_vehicle_pass_it_in_a_train():
     assert events[-1] == ("passing_start", {"vehicle": "c2", "slow": "slow", "lane": 0})
 
 
-def test_cavs_behind_an_hv_that_splits_the_platoon_pass_it(monkeypatch):
-    # An HV at 18.5 m/s between c0 (ahead, lane 1) and c1: not slow enough to be passed as a
+def test_cavs_behind_an_hv_that_splits_the_platoon_pass_it():
+    # An HV at 19.2 m/s between c0 (ahead, lane 1) and c1: not slow enough to be passed as a
     # slow vehicle (cruise 20 - gain 2 = 18), but it splits the platoon: c1 passes it in the
-    # free lane 0 (PASS_INTRUDER_MPS = 1: below 19 m/s).
+    # free lane 0, to re-form the platoon (below the cruise).
     events = []
     r = reformer(events)
     st = states(
-        car("c0", 330.0, 1, 18.5, cav=True),
-        car("hv", 250.0, 1, 18.5),
-        car("c1", 235.0, 1, 18.5, cav=True),
-        car("left", 400.0, 2, 18.5),
+        car("c0", 330.0, 1, 19.2, cav=True),
+        car("hv", 250.0, 1, 19.2),
+        car("c1", 235.0, 1, 19.2, cav=True),
+        car("left", 400.0, 2, 19.2),
     )  # fmt: skip
     platoon = ["c0", "c1"]
     assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0) == {"c0": 1, "c1": 0}
@@ -176,11 +176,11 @@ def test_cavs_behind_an_hv_that_splits_the_platoon_pass_it(monkeypatch):
     # The same HV with no platoon CAV ahead of it in its lane is not passed.
     events.clear()
     r = reformer(events)
-    st["c0"] = car("c0", 330.0, 2, 18.5, cav=True)
+    st["c0"] = car("c0", 330.0, 2, 19.2, cav=True)
     assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1 and events == []
-    # Without the PASS_INTRUDER_MPS allowance the split HV is not passed either.
-    st["c0"] = car("c0", 330.0, 1, 18.5, cav=True)
-    monkeypatch.setattr(reform, "PASS_INTRUDER_MPS", 0.0)
+    # Nor one splitting the platoon above the cruise: it is not what holds c1 back.
+    st["c0"] = car("c0", 330.0, 1, 20.5, cav=True)
+    st["hv"] = car("hv", 250.0, 1, 20.5)
     assert r.goals(0.0, st, platoon, ROAD, 1, cap_mps=25.0)["c1"] == 1 and events == []
 
 

@@ -57,9 +57,6 @@ PASS_SWITCH_S = 6.0
 # Held this long [s], it switches at once if the other side would take it now (the last CAV of
 # five sat 60 s behind a truck, held towards a stream while the other side's traffic had gone).
 PASS_OPEN_SIDE_S = 1.0
-# An HV between platoon CAVs is passed below the cruise less the gain plus this [m/s]: it
-# follows the platoon's eased front part, so it is never slow enough (stress scene 187).
-PASS_INTRUDER_MPS = 1.0
 # The lanes beside are judged over detect_range_m plus this long [s] at the cruise: a slower
 # vehicle just beyond detect_range_m would hold the passing CAV there.
 PASS_REACH_S = 5.0
@@ -475,7 +472,7 @@ class Reformer:
             slow = ahead[0]
             slow_below = self.cav.cruising_speed_mps - sw.min_speed_gain_mps
             if i > 0 and self._splits(slow, states, platoon[:i], road):
-                slow_below += PASS_INTRUDER_MPS
+                slow_below = self.cav.cruising_speed_mps  # passed to re-form the platoon
             if slow.speed_mps > slow_below:
                 continue
             if road.road_lane_of(slow) != road.lane_of(ego):
@@ -533,11 +530,13 @@ class Reformer:
     ) -> bool:
         """Does ``hv`` split the platoon: is one of the CAVs ``ahead`` (the platoon's CAVs in
         front of the one behind ``hv``) in ``hv``'s lane ahead of it, at any distance? The
-        CAVs behind such an HV pass it when it is slower than the cruise by
-        ``PASS_INTRUDER_MPS`` less than a slow vehicle must be: it follows the platoon's front
-        part, which eases off for the stretched platoon, so it was never slow enough to pass,
-        and five CAVs drove 85 m behind the other four for 15 s, the HV between them, the lane
-        beside free (stress scene 187)."""
+        CAVs behind such an HV pass it to re-form the platoon whenever it drives below the
+        cruise, not only when it is as slow as a target must be: it follows the platoon's
+        front part, which eases off for the stretched platoon. Passed only 1 m/s below what a
+        target must be, a car left between the CAVs after a one-by-one pass was held at
+        19.2 m/s behind the front part (cruise 20) for 120 s and the platoon never re-formed
+        (variant 7); at the target's line, five CAVs drove 85 m behind the other four for 15 s,
+        the HV between them, the lane beside free (stress scene 187)."""
         lane = road.lane_of(hv)
         return any(road.lane_of(states[v]) == lane and states[v].rear_s_m > hv.s_m for v in ahead)
 
