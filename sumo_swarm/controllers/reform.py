@@ -532,11 +532,11 @@ class Reformer:
         front of the one behind ``hv``) in ``hv``'s lane ahead of it, at any distance? The
         CAVs behind such an HV pass it to re-form the platoon whenever it drives below the
         cruise, not only when it is as slow as a target must be: it follows the platoon's
-        front part, which eases off for the stretched platoon. Passed only 1 m/s below what a
-        target must be, a car left between the CAVs after a one-by-one pass was held at
-        19.2 m/s behind the front part (cruise 20) for 120 s and the platoon never re-formed
-        (variant 7); at the target's line, five CAVs drove 85 m behind the other four for 15 s,
-        the HV between them, the lane beside free (stress scene 187)."""
+        front part, which eases off for the stretched platoon. Passed only below 19 m/s at a
+        cruise of 20 (1 m/s above a target's line), a car left between the CAVs after a
+        one-by-one pass was held at 19.2 m/s behind the front part for 120 s and the platoon
+        never re-formed (variant 7); at a target's line, five CAVs drove 85 m behind the other
+        four for 15 s, the HV between them, the lane beside free (stress scene 187)."""
         lane = road.lane_of(hv)
         return any(road.lane_of(states[v]) == lane and states[v].rear_s_m > hv.s_m for v in ahead)
 
