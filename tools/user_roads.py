@@ -36,7 +36,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout: this tree's package, not an installed one
 
 from sumo_swarm.sim.metrics import hard_brake_events  # noqa: E402
-from sumo_swarm.sim.userroads import CAV_TYPE, MORE_ROADS, ROADS, write_road  # noqa: E402
+from sumo_swarm.sim.userroads import (  # noqa: E402
+    CAV_TYPE,
+    MORE_ROADS,
+    ROADS,
+    user_road,
+    write_road,
+)
 
 CONTROLLERS = ("swarm", "cacc", "sumo-cacc", "sumo-lc")
 # Step lengths [s]; None is SUMO's default (1 s): the sumocfg does not name a step.
@@ -258,7 +264,7 @@ def markdown(df: pd.DataFrame, command: str, end_s: float) -> str:
     ]
     for (road, step, seed), rows in df.groupby(["road", "step_s", "seed"], sort=False):
         title = f"## {road}, step {step} s" + ("" if seed == "sumocfg" else f", seed {seed}")
-        out += [title, "", f"{(ROADS.get(road) or MORE_ROADS[road]).about}.", ""]
+        out += [title, "", f"{user_road(road).about}.", ""]
         table = rows.reindex(columns=list(TABLE_COLUMNS)).rename(columns=TABLE_COLUMNS)
         out += [table.to_markdown(index=False, floatfmt=".2f"), ""]
         out += [", ".join(f"{k}: {v:.2f}" for k, v in ratios(rows).items()), ""]

@@ -154,9 +154,6 @@ OPEN_DECEL_MPS2 = 2.0
 # ...and is handed over once at most this much above the speed SUMO drives it at [m/s] (SUMO
 # brakes the rest at once: 1 m/s^2 at a 0.1 s step).
 HANDOVER_MPS = 0.1
-# ...and not while it drives across a junction (its lanes are the junction's there), unless it
-# stands (session.STANDING_MPS): commanded never to speed up, a CAV stopped on a junction would
-# stand there for good.
 
 
 def can_follow(rear_mps: float, front_mps: float, gap_m: float) -> bool:

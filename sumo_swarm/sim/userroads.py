@@ -254,16 +254,22 @@ MORE_ROADS: dict[str, UserRoad] = {
 }
 
 
+def user_road(name: str) -> UserRoad:
+    """Road ``name`` of either set (ROADS, MORE_ROADS); ConfigError for an unknown name."""
+    road = ROADS.get(name) or MORE_ROADS.get(name)
+    if road is None:
+        known = ", ".join([*ROADS, *MORE_ROADS])
+        raise ConfigError(f"unknown road {name!r}; known: {known}")
+    return road
+
+
 def write_road(
     name: str, folder: Path, *, end_s: float = 90.0, step_length_s: float | None = 0.1
 ) -> Path:
     """Write road ``name`` (network, ``routes.rou.xml``, ``user.sumocfg``) into ``folder``;
     return the sumocfg. ``end_s`` ends the simulation and the flows [s]; ``step_length_s``
     None leaves the step to SUMO's default (1 s). ConfigError for an unknown name."""
-    road = ROADS.get(name) or MORE_ROADS.get(name)
-    if road is None:
-        known = ", ".join([*ROADS, *MORE_ROADS])
-        raise ConfigError(f"unknown road {name!r}; known: {known}")
+    road = user_road(name)
     folder.mkdir(parents=True, exist_ok=True)
     net, lines = road.write(folder, end_s)
     return _write_sumocfg(folder, net, [*VTYPES, *lines], end_s, step_length_s)
