@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from sumo_swarm.sim.bridge import SumoSession
 from sumo_swarm.sim.userroads import write_osm_road, write_road
 
@@ -75,6 +77,32 @@ def test_a_vehicle_taken_out_of_the_states_is_gone_until_the_next_read(tmp_path)
         assert not sumo.exists(vid) and vid in sumo.columns.ids  # the read itself is kept
         sumo.step()
         assert sumo.exists(vid) and vid in sumo.states
+
+
+def test_a_vehicle_that_left_is_answered_as_absent_and_a_defect_is_not(tmp_path):
+    # What the controllers ask of a vehicle that arrived in the step: the session's answers
+    # for a vehicle it does not know, no error. Only SUMO's "not known" is taken so: an id
+    # that is no id at all (a defect of the caller) raises.
+    from sumo_swarm.core.hvmodel import DriverModel
+
+    with _session(tmp_path) as sumo:
+        while not sumo.arrived:
+            sumo.step()
+        gone = sumo.arrived[0]
+        assert gone not in sumo.api.vehicle.getIDList()
+        assert sumo.speed_limits(gone) is None
+        assert sumo.driver_model(gone) == DriverModel(model="unknown")
+        assert sumo.keeps_right(gone) is False and sumo.wants_right(gone) is False
+        assert sumo.route_of(gone) is None and sumo.lane_change_need(gone) is None
+        assert sumo.lane_wish(gone) == (0, False)
+        sumo.drive_alone(gone)
+        sumo.release(gone)
+        here = next(iter(sumo.states))
+        assert sumo.speed_limits(here) is not None and sumo.keeps_right(here) is True
+        with pytest.raises(TypeError):
+            sumo.speed_limits(7)  # type: ignore[arg-type]
+        with pytest.raises(TypeError):
+            sumo.keeps_right(None)  # type: ignore[arg-type]
 
 
 def test_a_vehicle_removed_and_added_again_starts_afresh(tmp_path):

@@ -31,8 +31,10 @@ def test_the_interface_declares_what_the_controllers_use():
     assert {"states", "edges", "kinds", "released", "frame", "time_s"} <= set(SESSION_DATA)
     assert {"speed_limits", "lane_wish", "keeps_right", "keep_right_due_s", "lanes_ending",
             "near_lane_shift", "states_in_lanes_of", "reclaim", "miss_exit",
-            "set_speed"} <= set(SESSION_METHODS)  # fmt: skip
+            "set_speed", "configure_cav", "restore_gaps"} <= set(SESSION_METHODS)  # fmt: skip
     assert not set(SESSION_DATA) & set(SESSION_METHODS)
+    # No way around it: the vType commands a controller gives go through declared names too.
+    assert "api" not in SESSION_DATA and not hasattr(PlatoonSession, "api")
 
 
 def test_the_sumo_session_answers_every_declared_name_itself():
@@ -100,14 +102,16 @@ def test_speeds_that_follow_the_world_leave_the_scenario_as_configured():
     limits = {"c0": (40.0, 27.5), "c1": (26.0, 30.0)}
 
     def speed_limits(vid):
-        if vid == "gone":
-            raise KeyError(vid)  # SUMO's answer for a vehicle that vanished
-        return limits.get(vid)
+        if vid == "defect":
+            raise KeyError(vid)  # not a vehicle that vanished (that is None): a defect
+        return limits.get(vid)  # None: vanished, or SUMO cannot tell
 
     ctx = run_context(FakeSession(speed_limits=speed_limits), world)
     reformer = Reformer(world, lambda vid: DriverModel(), speeds=ctx.speeds)
     configured = world.cav
     ctx.follow_world_speeds(["c0", "gone", "nobody"])
+    with pytest.raises(KeyError):  # a defect is not taken for a vehicle that left
+        ctx.follow_world_speeds(["c0", "defect"])
     assert ctx.scenario is world and world.cav is configured  # never replaced
     assert ctx.cav.cruising_speed_mps == ctx.cav.max_speed_mps == 27.5
     assert reformer.cav is ctx.cav  # the reformer reads the same speeds

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import pytest
 
-from sumo_swarm.controllers.base import configure_cav
 from sumo_swarm.sim.bridge import SumoSession
 from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
 
@@ -78,7 +77,7 @@ def test_a_released_cav_still_commanded_brakes_at_the_controllers_floor(tmp_path
     with SumoSession(args, route_edges=["e0"], is_cav=lambda v, t: t == "cav") as s:
         veh = s.api.vehicle
         s.step()
-        configure_cav(s, "c", lane_change_mode=0)
+        s.configure_cav("c", lane_change_mode=0)
         s.release("c")
         veh.setSpeedMode("car", 0)
         while s.time_s < 8.0:

@@ -10,9 +10,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
-from sumo_swarm.controllers.session import SessionView
+from sumo_swarm.controllers.session import SPEED_MODE_SAFE, SessionView
 from sumo_swarm.core.model import RoadSection, VehicleState
-from sumo_swarm.core.stepsafe import CAV_TAU_S
 from sumo_swarm.core.swarming.guards import lateral_refusal
 from sumo_swarm.errors import ConfigError
 
@@ -30,16 +29,6 @@ LC_MODE_CONTROLLED = 0
 # platoon in the right lane of a lane drop: its front CAV stopped at the lane's end from
 # 25 m/s and the next one hit it (users' lane-drop road).
 LC_MODE_STRATEGIC = 0b10_00_00_00_01
-# Speed mode 31 (SUMO's default): commanded speeds still respect the safe speed towards the
-# vehicle ahead and the vType's accel/decel limits. A last safety net under our controllers.
-SPEED_MODE_SAFE = 31
-# lcAccelLat so high that per-step sublane moves are executed as commanded
-# (docs/closed-loop.md) [m/s^2]
-CAV_LC_ACCEL_LAT_MPS2 = 40.0
-# tau and minGap so small that SUMO's safe-speed check is a last-resort net binding only within
-# a few metres of the vehicle ahead [s], [m]; at longer SUMO steps than that tau the bridge caps
-# the commanded speeds itself (core.stepsafe)
-CAV_MIN_GAP_M = 0.5
 # [cav] speeds = "world": speed changes below this are ignored [m/s]
 WORLD_SPEED_TOLERANCE_MPS = 0.05
 WORLD_SPEED_SOURCE = "SUMO: min over the CAVs of min(vType maxSpeed, lane limit * speedFactor)"
@@ -114,12 +103,15 @@ class RunContext:
         self.events.append({"time_s": self.session.time_s, "event": kind, **data})
 
     def configure_cav(self, vid: str, lane_change_mode: int = LC_MODE_CONTROLLED) -> None:
-        """Hand CAV ``vid`` to the controllers: see :func:`configure_cav`."""
+        """Hand CAV ``vid`` to the controllers (:meth:`SessionView.configure_cav`): its
+        maxSpeedLat the trajectories' lateral speed, its braking within ``[cav]
+        accel_min_mps2``, and with ``[cav] speeds = "world"`` and ``speed_factor = "type"``
+        its vType's speedFactor."""
         cav = self.scenario.cav
-        configure_cav(
-            self.session, vid, lateral_speed_mps=cav.max_lateral_speed_mps,
+        self.session.configure_cav(
+            vid, lane_change_mode=lane_change_mode, lateral_speed_mps=cav.max_lateral_speed_mps,
             type_speed_factor=cav.speeds == "world" and cav.speed_factor == "type",
-            decel_mps2=-cav.accel_min_mps2, lane_change_mode=lane_change_mode,
+            decel_mps2=-cav.accel_min_mps2,
         )  # fmt: skip
 
     def follow_world_speeds(self, cav_ids: Sequence[str]) -> None:
@@ -131,10 +123,7 @@ class RunContext:
             return
         speed = math.inf
         for vid in cav_ids:
-            try:
-                limits = self.session.speed_limits(vid)
-            except Exception:  # vanished this step
-                continue
+            limits = self.session.speed_limits(vid)
             if limits is not None:
                 speed = min(speed, *limits)
         if not (math.isfinite(speed) and speed > 0.0):
@@ -333,7 +322,7 @@ def hand_back(session: SessionView, vid: str) -> None:
     """CAV ``vid`` driven by SUMO again: the lane changes its route needs, SUMO's speed mode,
     its speed left to SUMO's car-following, braking within ALONE_DECEL_MPS2
     (:meth:`SumoSession.release`).
-    Its minGap is its vType's again; its tau stays the short one of :func:`configure_cav`:
+    Its minGap is its vType's again; its tau stays the controllers' short one:
     with its vType's (1 s), SUMO braked the CAVs hard to open the gaps at once. A vehicle that
     vanished is left alone."""
     if not session.exists(vid):
@@ -343,20 +332,7 @@ def hand_back(session: SessionView, vid: str) -> None:
     # and braked CAVs beyond 4 m/s^2 (the paper scene, the swarm stood down at 3 s).
     session.set_modes(vid, SPEED_MODE_SAFE, LC_MODE_STRATEGIC)
     session.release_speed(vid)
-    restore_gaps(session, vid, tau=True)
-
-
-def restore_gaps(session: SessionView, vid: str, *, tau: bool = False) -> None:
-    """CAV ``vid``'s minGap (and, with ``tau``, its headway) its vType's again, the user's
-    vType, not SUMO's copy (cav@vid): a CAV SUMO drives keeps the gaps its type keeps (exiting
-    CAVs queued 0.5 m apart at an off-ramp with the controllers' minGap)."""
-    try:
-        type_id = session.api.vehicle.getTypeID(vid).split("@")[0]
-        if tau:
-            session.api.vehicle.setTau(vid, session.api.vehicletype.getTau(type_id))
-        session.api.vehicle.setMinGap(vid, session.api.vehicletype.getMinGap(type_id))
-    except Exception as exc:  # vanished meanwhile
-        log.debug("handing %s back to SUMO: %s", vid, exc)
+    session.restore_gaps(vid, tau=True)
 
 
 def close_controller(controller: Controller) -> None:
@@ -364,51 +340,6 @@ def close_controller(controller: Controller) -> None:
     close = getattr(controller, "close", None)
     if close is not None:
         close()
-
-
-def configure_cav(
-    session: SessionView,
-    vid: str,
-    *,
-    lateral_speed_mps: float | None = None,
-    type_speed_factor: bool = False,
-    decel_mps2: float | None = None,
-    lane_change_mode: int = LC_MODE_CONTROLLED,
-) -> None:
-    """Hand CAV ``vid`` to our controllers, whatever vType the user gave it: the controllers'
-    SUMO modes (:data:`SPEED_MODE_SAFE`, ``lane_change_mode``), lcAccelLat, tau and minGap
-    (module constants), the lateral speed the trajectories plan with as maxSpeedLat [m/s] (None:
-    the vType's), and with ``type_speed_factor`` its vType's speedFactor instead of SUMO's draw
-    for it (one platoon, one desired speed), and a vType decel above ``decel_mps2`` [m/s^2]
-    lowered to it, with the decel other vehicles assume of it (apparentDecel): our controllers
-    never brake harder, and SUMO's safe-speed net under them
-    brakes at the vType's decel (SUMO's default 4.5: a CAV cut in 17 m ahead of a CAV 3.3 m/s
-    faster at 32 m/s, within the guard's rule, braked its follower at 4.5 m/s^2). A vehicle
-    that vanished is left alone."""
-    if session.set_modes(vid, SPEED_MODE_SAFE, lane_change_mode):
-        vehicle = session.api.vehicle
-        vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", f"{CAV_LC_ACCEL_LAT_MPS2:g}")
-        vehicle.setTau(vid, CAV_TAU_S)
-        vehicle.setMinGap(vid, CAV_MIN_GAP_M)
-        if lateral_speed_mps is not None:
-            vehicle.setMaxSpeedLat(vid, lateral_speed_mps)
-        if decel_mps2 is not None and vehicle.getDecel(vid) > decel_mps2:
-            vehicle.setDecel(vid, decel_mps2)
-            # The decel the CAVs behind assume of it, too (SUMO's apparentDecel, left at the
-            # vType's 4.5 otherwise): a follower that can brake less than its leader is
-            # assumed to keeps a wider gap, and SUMO's safe speed held every follower 17 m
-            # behind at 28.7 m/s against the platoon's 10 m, so the leader eased off for good
-            # (users' roads: the platoon cruised at 28.7 m/s with lanes at 33.3).
-            vehicle.setApparentDecel(vid, decel_mps2)
-        if type_speed_factor:
-            type_id = vehicle.getTypeID(vid)  # its own copy (``cav@vid``) has the same factor
-            factor = session.api.vehicletype.getSpeedFactor(type_id)
-            # Never below the speed it drives now (a CAV that departed at "max" with a higher
-            # draw): SUMO would brake it to the new limit at its decel in one step.
-            limit = vehicle.getAllowedSpeed(vid) / max(vehicle.getSpeedFactor(vid), 1e-6)
-            if limit > 0.0:
-                factor = max(factor, vehicle.getSpeed(vid) / limit)
-            vehicle.setSpeedFactor(vid, factor)
 
 
 def lateral_guard(

@@ -93,11 +93,8 @@ class Decider:
         (``platoon``: the CAVs to ask; the leader alone while cruising)."""
         sources = {"cav.max_speed_mps": self.ctx.cav.max_speed_mps}
         for vid in platoon:
-            try:
-                limits = self.ctx.session.speed_limits(vid)
-            except Exception:  # vanished this step
-                continue
-            if limits is None:  # SUMO cannot tell
+            limits = self.ctx.session.speed_limits(vid)
+            if limits is None:  # vanished this step, or SUMO cannot tell
                 continue
             vtype_max, allowed = limits
             sources["vType maxSpeed"] = min(sources.get("vType maxSpeed", math.inf), vtype_max)
@@ -242,15 +239,12 @@ class Decider:
         if frame is None or route is None:
             return None
         edges, index = route
-        try:
-            parting = session.distance_to_parting_m(
-                vehicle.vehicle_id, edges, index, frozenset(frame.route_edges)
-            )
-            if parting is None:
-                position = session.lane_positions.get(vehicle.vehicle_id, 0.0)
-                parting = sum(frame.net.lane_length_m(f"{e}_0") for e in edges[index:]) - position
-        except Exception:  # vanished
-            return None
+        parting = session.distance_to_parting_m(
+            vehicle.vehicle_id, edges, index, frozenset(frame.route_edges)
+        )
+        if parting is None:
+            position = session.lane_positions.get(vehicle.vehicle_id, 0.0)
+            parting = sum(frame.net.lane_length_m(f"{e}_0") for e in edges[index:]) - position
         return max(parting, 0.0)
 
     def leader(self, states: States, platoon: list[str]) -> str:
@@ -387,10 +381,7 @@ class Decider:
     def _keeps_right(self, target: VehicleState) -> bool:
         """Does ``target``'s lane-change model keep right (read through libsumo)? False when
         it vanished or TraCI cannot tell."""
-        try:
-            return bool(self.ctx.session.keeps_right(target.vehicle_id))
-        except Exception:  # the vehicle left
-            return False
+        return self.ctx.session.keeps_right(target.vehicle_id)
 
     def must_change(self, vid: str, direction: int) -> bool:
         """Does vehicle ``vid`` need to move one lane ``direction`` (+1 left) for its route

@@ -72,7 +72,6 @@ from sumo_swarm.controllers.base import (
     RouteWatch,
     RunContext,
     close_controller,
-    restore_gaps,
 )
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.replanner import PlanStats
@@ -303,7 +302,6 @@ class PlatoonSession:
     kinds = _Same()
     released = _Same()
     frame = _Same()
-    api = _Same()
     edges = _Same()
     lane_positions = _Same()
     exists = _Same()
@@ -326,6 +324,8 @@ class PlatoonSession:
     release_speed = _Same()
     change_sublane = _Same()
     set_modes = _Same()
+    configure_cav = _Same()
+    restore_gaps = _Same()
     release = _Same()
     drive_alone = _Same()
     alone_gap_m = _Same()
@@ -669,10 +669,10 @@ class Fleet:
         st = states.get(lead)
         if st is None:
             return False
-        try:
-            world = min(self.ctx.session.speed_limits(lead))
-        except Exception:  # vanished this step
+        limits = self.ctx.session.speed_limits(lead)
+        if limits is None:  # vanished this step
             return False
+        world = min(limits)
         sc = self.ctx.scenario
         cav = sc.cav
         cruise = world if cav.speeds == "world" else cav.cruising_speed_mps
@@ -860,7 +860,7 @@ class Fleet:
             elif vid not in self._off_frame and not _on_junction(session, vid):
                 self._off_frame.add(vid)  # off the frame: SUMO's car-following drives it
                 session.release_speed(vid)
-                restore_gaps(session, vid)
+                session.restore_gaps(vid)
         if follow:
             # At SUMO's desired speed for them where they drive ([cav] speeds = "world"), as the
             # swarms: the fleet's own settings kept the config's 20 m/s, and a CAV leaving for
@@ -883,10 +883,10 @@ class Fleet:
             if st is None or self._platoon_of(vid) is not None:
                 self._opening.discard(vid)
                 continue
-            try:
-                desired = min(session.speed_limits(vid))
-            except Exception:  # vanished this step
+            limits = session.speed_limits(vid)
+            if limits is None:  # vanished this step
                 continue
+            desired = min(limits)
             road = session.road_at(vid) or self.ctx.road
             # Its leaders with every lane counted as on its own edge: past an on-ramp the lane
             # it drives on is numbered one higher, and a CAV just beyond, 6.7 m ahead, was

@@ -81,12 +81,9 @@ class LaneView:
         """Lanes of ``ego``'s own edge (the road's, where the session cannot tell)."""
         frame = self.ctx.session.frame
         edge = self.edge_of(ego.vehicle_id)
-        if frame is None or edge is None:
+        if frame is None or not edge:  # "": off the lanes
             return self.ctx.road.n_lanes
-        try:
-            return frame.lane_count(edge)
-        except Exception:  # an edge SUMO does not know ("" while off the lanes)
-            return self.ctx.road.n_lanes
+        return frame.lane_count(edge)
 
     def shift_hold(self, ego: VehicleState, y: float, dlat: float) -> bool:
         """Hold a lane change near a place where lane indices shift (a lane added or dropped

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from sumo_swarm.core.hvmodel import SUMO_DEFAULTS, DriverModel
 from sumo_swarm.core.model import RoadSection, VehicleState
@@ -25,8 +25,9 @@ if TYPE_CHECKING:
     from sumo_swarm.core.routeframe import RouteFrame
 
 __all__ = [
-    "ALONE_DECEL_MPS2", "SESSION_DATA", "SESSION_METHODS", "STANDING_MPS", "SUMO_MIN_GAP_M",
-    "SUMO_TAU_S", "SessionBase", "SessionView",
+    "ALONE_DECEL_MPS2", "CAV_LC_ACCEL_LAT_MPS2", "CAV_MIN_GAP_M", "SESSION_DATA",
+    "SESSION_METHODS", "SPEED_MODE_SAFE", "STANDING_MPS", "SUMO_MIN_GAP_M", "SUMO_TAU_S",
+    "SessionBase", "SessionView",
 ]  # fmt: skip
 
 SUMO_TAU_S, SUMO_MIN_GAP_M = SUMO_DEFAULTS.tau_s, SUMO_DEFAULTS.min_gap_m  # [s], [m]
@@ -37,6 +38,17 @@ STANDING_MPS = 0.1  # a vehicle slower than this stands [m/s]
 # braking to the vehicle's decel: at 3.5 m/s^2 a CAV just parted from a platoon, 9 m behind a
 # CAV braking at 4, ran into it (5-lane OSM motorway, 40 % CAVs, seed 8).
 ALONE_DECEL_MPS2 = 4.0
+# What SUMO is told of a CAV our controllers drive (SessionView.configure_cav). Speed mode 31
+# (SUMO's default): commanded speeds still respect the safe speed towards the vehicle ahead
+# and the vType's accel/decel limits, a last safety net under our controllers.
+SPEED_MODE_SAFE = 31
+# lcAccelLat so high that per-step sublane moves are executed as commanded
+# (docs/closed-loop.md) [m/s^2]
+CAV_LC_ACCEL_LAT_MPS2 = 40.0
+# tau (core.stepsafe.CAV_TAU_S) and minGap so small that SUMO's safe-speed check is a
+# last-resort net binding only within a few metres of the vehicle ahead [m]; at longer SUMO
+# steps than that tau the bridge caps the commanded speeds itself (core.stepsafe)
+CAV_MIN_GAP_M = 0.5
 
 
 @runtime_checkable
@@ -53,7 +65,6 @@ class SessionView(Protocol):
     kinds: dict[str, str]  # "cav" or "hv" of every vehicle seen
     released: set[str]  # CAVs handed back to SUMO (they left the swarm for their route)
     frame: RouteFrame | None  # the route coordinate and the network along it (None: no route)
-    api: Any  # libsumo or traci, for configure_cav's and hand_back's raw vType commands
 
     @property
     def states(self) -> dict[str, VehicleState]:
@@ -94,12 +105,13 @@ class SessionView(Protocol):
 
     # ---------------------------------------------------------------- each vehicle
     def driver_model(self, vid: str) -> DriverModel:
-        """How ``vid`` drives: its car-following model and parameters (raises if it vanished)."""
+        """How ``vid`` drives: its car-following model and parameters (one that vanished:
+        the cautious bound, ``DriverModel(model="unknown")``)."""
         ...
 
     def speed_limits(self, vid: str) -> tuple[float, float] | None:
-        """(vType maxSpeed, allowed speed on its lane with its speedFactor) [m/s]; None: SUMO
-        cannot tell (raises if it vanished)."""
+        """(vType maxSpeed, allowed speed on its lane with its speedFactor) [m/s]; None: it
+        vanished, or SUMO cannot tell."""
         ...
 
     def route_of(self, vid: str) -> tuple[tuple[str, ...], int] | None:
@@ -122,7 +134,8 @@ class SessionView(Protocol):
         ...
 
     def keeps_right(self, vid: str) -> bool:
-        """Does ``vid``'s lane-change model keep right (raises if it vanished)?"""
+        """Does ``vid``'s lane-change model keep right (False: it vanished, or SUMO cannot
+        tell)?"""
         ...
 
     def wants_right(self, vid: str) -> bool:
@@ -162,6 +175,29 @@ class SessionView(Protocol):
 
     def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> bool:
         """Set SUMO's speed and lane-change modes of ``vid`` (None: leave it); False: vanished."""
+        ...
+
+    def configure_cav(
+        self,
+        vid: str,
+        *,
+        lane_change_mode: int,
+        lateral_speed_mps: float | None = None,
+        type_speed_factor: bool = False,
+        decel_mps2: float | None = None,
+    ) -> None:
+        """Our controllers drive CAV ``vid``, whatever vType the user gave it: speed mode
+        :data:`SPEED_MODE_SAFE` and ``lane_change_mode``; lcAccelLat, tau and minGap
+        (:data:`CAV_LC_ACCEL_LAT_MPS2`, ``CAV_TAU_S``, :data:`CAV_MIN_GAP_M`);
+        ``lateral_speed_mps`` as its maxSpeedLat (None: its vType's); with
+        ``type_speed_factor`` its vType's speedFactor instead of SUMO's draw for it (one
+        platoon, one desired speed); its decel, and the decel the others assume of it, at most
+        ``decel_mps2`` (a vehicle that vanished: nothing to do, no error)."""
+        ...
+
+    def restore_gaps(self, vid: str, *, tau: bool = False) -> None:
+        """CAV ``vid``'s minGap (with ``tau``, its headway too) its user's vType's again (a
+        vehicle that vanished: nothing to do, no error)."""
         ...
 
     def release(self, vid: str) -> None:
@@ -232,7 +268,6 @@ class SessionBase:
         self.kinds: dict[str, str] = {}
         self.released: set[str] = set()
         self.frame: RouteFrame | None = None
-        self.api: Any = None
 
     @property
     def states(self) -> dict[str, VehicleState]:
@@ -314,6 +349,20 @@ class SessionBase:
 
     def set_modes(self, vid: str, speed_mode: int | None, lane_change_mode: int | None) -> bool:
         return False  # no vehicle to set them on
+
+    def configure_cav(
+        self,
+        vid: str,
+        *,
+        lane_change_mode: int,
+        lateral_speed_mps: float | None = None,
+        type_speed_factor: bool = False,
+        decel_mps2: float | None = None,
+    ) -> None:
+        self.set_modes(vid, SPEED_MODE_SAFE, lane_change_mode)  # the modes, as SUMO's session
+
+    def restore_gaps(self, vid: str, *, tau: bool = False) -> None:
+        pass
 
     def release(self, vid: str) -> None:
         self.released.add(vid)

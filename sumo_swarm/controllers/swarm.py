@@ -262,14 +262,8 @@ class SwarmController:
         cached = self._models.get(vid)
         if cached is not None and cached[0] == edge:
             return cached[1]
-        try:
-            model = session.driver_model(vid)
-        except Exception:  # vanished: a cautious default
-            model = DriverModel(model="unknown")
-        try:
-            limits = session.speed_limits(vid)
-        except Exception:  # vanished
-            limits = None
+        model = session.driver_model(vid)  # vanished: the cautious bound
+        limits = session.speed_limits(vid)
         allowed = math.inf if limits is None else limits[1]
         if math.isfinite(allowed) and allowed > 0.0:
             model = replace(model, desired_speed_mps=min(model.desired_speed_mps, allowed))

@@ -3,8 +3,8 @@
 It starts and stops SUMO, reads every vehicle's state in bulk through subscriptions, counts
 collisions and teleports, and applies the controllers' commands. Route positions come from the
 pure :mod:`sumo_swarm.core.routeframe` (fed from the running network), trajectories are recorded by
-:mod:`sumo_swarm.sim.recorder`, and the CAVs' driving parameters are set by the controllers
-(:func:`sumo_swarm.controllers.base.configure_cav`).
+:mod:`sumo_swarm.sim.recorder`, and the CAVs' driving parameters are set as the controllers ask
+(:meth:`SumoSession.configure_cav`).
 """
 
 from __future__ import annotations
@@ -24,6 +24,9 @@ from types import ModuleType
 from sumo_swarm.checks import unknown_name
 from sumo_swarm.controllers.session import (
     ALONE_DECEL_MPS2,
+    CAV_LC_ACCEL_LAT_MPS2,
+    CAV_MIN_GAP_M,
+    SPEED_MODE_SAFE,
     STANDING_MPS,
     SUMO_MIN_GAP_M,
     SUMO_TAU_S,
@@ -39,6 +42,7 @@ from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import PassSnapshots, overlapping_ahead, within
 from sumo_swarm.core.routeframe import RouteFrame
 from sumo_swarm.core.stepsafe import (
+    CAV_TAU_S,
     STEP_SAFE_MARGIN_M,
     Footprint,
     braking_short_m,
@@ -136,6 +140,15 @@ def _api(use_traci: bool) -> ModuleType:
     import libsumo
 
     return libsumo
+
+
+def traci_errors() -> tuple[type[Exception], ...]:
+    """What SUMO raises about a vehicle, lane or edge it does not know (a vehicle that left
+    among them): the ``TraCIException`` of libsumo and of traci, of those loaded. The session
+    catches these alone where a vehicle may have vanished; any other error is a defect and
+    goes on to the run loop's stand-down."""
+    modules = (sys.modules.get(name) for name in ("libsumo", "traci"))
+    return tuple(module.TraCIException for module in modules if module is not None)
 
 
 def _constants(api) -> ModuleType:
@@ -272,6 +285,7 @@ class SumoSession(SessionBase):
         self.gui = gui
         self.label = label
         self.api = _api(self.use_traci)
+        self.sumo_errors = traci_errors()  # a vehicle that vanished: see traci_errors
         self._vars = [getattr(_constants(self.api), f"VAR_{v}") for v in self.VARS]
         self._route_edges = list(route_edges)  # set on the frame once SUMO runs
         self.frame = RouteFrame(SumoNetwork(self.api))
@@ -331,6 +345,7 @@ class SumoSession(SessionBase):
         """A session on a simulation that is already running (libsumo module or traci)."""
         session = cls([], route_edges=route_edges, is_cav=is_cav)
         session.api = api
+        session.sumo_errors = traci_errors()
         session.frame = RouteFrame(SumoNetwork(api))
         session._vars = [getattr(_constants(api), f"VAR_{v}") for v in cls.VARS]
         session._owned = False
@@ -672,8 +687,8 @@ class SumoSession(SessionBase):
         """
         try:
             call(vid, *args)
-        except Exception as exc:
-            if type(exc).__name__ != "TraCIException" or not self._gone(vid):
+        except self.sumo_errors as exc:
+            if not self._gone(vid):
                 raise
             log.warning("vehicle %s vanished: %s", vid, exc)
             self.vanished.append((self.time_s, vid))
@@ -711,7 +726,7 @@ class SumoSession(SessionBase):
         vehicle = self.api.vehicle
         try:
             return tuple(vehicle.getRoute(vid)), int(vehicle.getRouteIndex(vid))
-        except Exception:
+        except self.sumo_errors:
             return None
 
     def distance_to_parting_m(
@@ -742,11 +757,11 @@ class SumoSession(SessionBase):
             # even one that left the swarm, stays inside the 4 m/s^2 hard-brake line.
             decel = self.api.vehicletype.getDecel(vehicle.getTypeID(vid))
             vehicle.setDecel(vid, min(decel, ALONE_DECEL_MPS2))
-        except Exception:  # vanished: nothing to hand back
+        except self.sumo_errors:  # vanished: nothing to hand back
             pass
 
     def drive_alone(self, vid: str) -> None:
-        """SUMO drives CAV ``vid`` alone until a platoon takes it (:func:`configure_cav`): it
+        """SUMO drives CAV ``vid`` alone until a platoon takes it (:meth:`configure_cav`): it
         keeps at least SUMO's default headway and minGap (SUMO_TAU_S, SUMO_MIN_GAP_M; its vType's
         where larger, a user's type as it is) and brakes at most at the hard-brake line
         (ALONE_DECEL_MPS2). Set on its vType too, once per vType, so that SUMO inserts the
@@ -765,7 +780,7 @@ class SumoSession(SessionBase):
                     vtypes.setDecel(base, ALONE_DECEL_MPS2)
             vehicle.setTau(vid, tau)
             vehicle.setMinGap(vid, min_gap)
-        except Exception:  # vanished: nothing to set
+        except self.sumo_errors:  # vanished: nothing to set
             pass
 
     def alone_gap_m(
@@ -780,11 +795,11 @@ class SumoSession(SessionBase):
         try:
             _, tau, min_gap = self._alone_gaps(vid)
             decel = min(vehicle.getDecel(vid), ALONE_DECEL_MPS2)
-        except Exception:  # vanished
+        except self.sumo_errors:  # vanished
             tau, min_gap, decel = SUMO_TAU_S, SUMO_MIN_GAP_M, ALONE_DECEL_MPS2
         lead_decel = SUMO_DEFAULTS.decel_mps2
         if lead_id:
-            with contextlib.suppress(Exception):  # vanished: SUMO's default
+            with contextlib.suppress(*self.sumo_errors):  # vanished: SUMO's default
                 lead_decel = vehicle.getApparentDecel(lead_id)
         return min_gap + secure_gap_m(tau, decel, speed_mps, lead_mps, lead_decel)
 
@@ -814,7 +829,7 @@ class SumoSession(SessionBase):
         lane = f"{edge}_{state.lane}"  # this step's read: no further call for it
         try:
             best = self.api.vehicle.getBestLanes(vid)
-        except Exception:  # vanished
+        except self.sumo_errors:  # vanished
             return None
         for lane_id, length, _, offset, _, _ in best:
             if lane_id == lane:  # (a junction lane is not among them)
@@ -844,7 +859,7 @@ class SumoSession(SessionBase):
             if was == edges[-1]:
                 return None
             vehicle.changeTarget(vid, edges[-1])
-        except Exception:  # vanished, or no route there from where it is
+        except self.sumo_errors:  # vanished, or no route there from where it is
             return None
         return was
 
@@ -882,7 +897,7 @@ class SumoSession(SessionBase):
             if decel is None:
                 try:
                     decel = decels[vid] = self.api.vehicle.getDecel(vid)
-                except Exception:  # vanished: it brakes as SUMO's default
+                except self.sumo_errors:  # vanished: it brakes as SUMO's default
                     decel = decels[vid] = SUMO_DEFAULTS.decel_mps2
             return decel
 
@@ -932,7 +947,7 @@ class SumoSession(SessionBase):
             # towards an off-ramp saw nobody, and at 1 s ran into a CAV standing beyond it).
             try:
                 sumo_leader = self.api.vehicle.getLeader(vid, reach)
-            except Exception:  # vanished
+            except self.sumo_errors:  # vanished
                 sumo_leader = None
             if sumo_leader and sumo_leader[0] in states:
                 # SUMO's gap is the bumper gap less ego's minGap: the smaller, the safer
@@ -958,7 +973,7 @@ class SumoSession(SessionBase):
             if move is None:
                 try:
                     move = lateral[vid] = self.api.vehicle.getLateralSpeed(vid) * dt
-                except Exception:  # vanished
+                except self.sumo_errors:  # vanished
                     move = lateral[vid] = 0.0
             return move
 
@@ -1019,6 +1034,59 @@ class SumoSession(SessionBase):
             return self._command(vid, vehicle.setLaneChangeMode, lane_change_mode)
         return True
 
+    def configure_cav(
+        self,
+        vid: str,
+        *,
+        lane_change_mode: int,
+        lateral_speed_mps: float | None = None,
+        type_speed_factor: bool = False,
+        decel_mps2: float | None = None,
+    ) -> None:
+        """Our controllers drive CAV ``vid``: see :meth:`SessionView.configure_cav`. The decel
+        lowered to ``decel_mps2``: our controllers never brake harder, and SUMO's safe-speed
+        net under them brakes at the vType's decel (SUMO's default 4.5: a CAV cut in 17 m
+        ahead of a CAV 3.3 m/s faster at 32 m/s, within the guard's rule, braked its follower
+        at 4.5 m/s^2)."""
+        if not self.set_modes(vid, SPEED_MODE_SAFE, lane_change_mode):
+            return  # vanished
+        vehicle = self.api.vehicle
+        vehicle.setParameter(vid, "laneChangeModel.lcAccelLat", f"{CAV_LC_ACCEL_LAT_MPS2:g}")
+        vehicle.setTau(vid, CAV_TAU_S)
+        vehicle.setMinGap(vid, CAV_MIN_GAP_M)
+        if lateral_speed_mps is not None:
+            vehicle.setMaxSpeedLat(vid, lateral_speed_mps)
+        if decel_mps2 is not None and vehicle.getDecel(vid) > decel_mps2:
+            vehicle.setDecel(vid, decel_mps2)
+            # The decel the CAVs behind assume of it, too (SUMO's apparentDecel, left at the
+            # vType's 4.5 otherwise): a follower that can brake less than its leader is
+            # assumed to keeps a wider gap, and SUMO's safe speed held every follower 17 m
+            # behind at 28.7 m/s against the platoon's 10 m, so the leader eased off for good
+            # (users' roads: the platoon cruised at 28.7 m/s with lanes at 33.3).
+            vehicle.setApparentDecel(vid, decel_mps2)
+        if type_speed_factor:
+            type_id = vehicle.getTypeID(vid)  # its own copy (``cav@vid``) has the same factor
+            factor = self.api.vehicletype.getSpeedFactor(type_id)
+            # Never below the speed it drives now (a CAV that departed at "max" with a higher
+            # draw): SUMO would brake it to the new limit at its decel in one step.
+            limit = vehicle.getAllowedSpeed(vid) / max(vehicle.getSpeedFactor(vid), 1e-6)
+            if limit > 0.0:
+                factor = max(factor, vehicle.getSpeed(vid) / limit)
+            vehicle.setSpeedFactor(vid, factor)
+
+    def restore_gaps(self, vid: str, *, tau: bool = False) -> None:
+        """CAV ``vid``'s minGap (with ``tau``, its headway too) its vType's again: the user's
+        vType, not SUMO's copy of it (``cav@vid``). A CAV SUMO drives keeps the gaps its type
+        keeps (exiting CAVs queued 0.5 m apart at an off-ramp with the controllers' minGap)."""
+        vehicle, vtypes = self.api.vehicle, self.api.vehicletype
+        try:
+            type_id = vehicle.getTypeID(vid).split("@")[0]
+            if tau:
+                vehicle.setTau(vid, vtypes.getTau(type_id))
+            vehicle.setMinGap(vid, vtypes.getMinGap(type_id))
+        except self.sumo_errors:  # vanished
+            pass
+
     def _keep_right_params(self, vid: str) -> tuple[float, float]:
         """(lcKeepRight, lcSpeedGain) of ``vid``'s lane-change model, read once per vehicle
         (0 and 1 where the model has no such parameter)."""
@@ -1039,11 +1107,16 @@ class SumoSession(SessionBase):
 
     def keeps_right(self, vid: str) -> bool:
         """Does ``vid``'s lane-change model keep right: its lcKeepRight above 0 and its
-        lane-change mode allowing right-drive changes (bits 6-7)? Read once per vehicle."""
+        lane-change mode allowing right-drive changes (bits 6-7)? Read once per vehicle; False
+        for one that vanished."""
         cached = self._keeps_right.get(vid)
         if cached is None:
-            eager = self._keep_right_params(vid)[0]
-            cached = eager > 0.0 and (self.api.vehicle.getLaneChangeMode(vid) >> 6) & 3 != 0
+            try:
+                eager = self._keep_right_params(vid)[0]
+                mode = self.api.vehicle.getLaneChangeMode(vid)
+            except self.sumo_errors:  # vanished
+                return False
+            cached = eager > 0.0 and (mode >> 6) & 3 != 0
             self._keeps_right[vid] = cached
         return cached
 
@@ -1053,7 +1126,7 @@ class SumoSession(SessionBase):
         wish a keep-right driver shows while the right lane is taken)? False when it vanished."""
         try:
             state = self.api.vehicle.getLaneChangeState(vid, -1)[0]
-        except Exception:  # the vehicle left, or a TraCI without the call
+        except self.sumo_errors:  # the vehicle left, or a TraCI without the call
             return False
         return state & LCA_RIGHT != 0 and state & LCA_KEEPRIGHT != 0
 
@@ -1066,7 +1139,7 @@ class SumoSession(SessionBase):
                 state = self.api.vehicle.getLaneChangeState(vid, direction)[0]
                 if state & side and state & LCA_REASONS:
                     return direction, bool(state & LCA_BLOCKED)
-        except Exception:  # the vehicle left, or a TraCI without the call
+        except self.sumo_errors:  # the vehicle left, or a TraCI without the call
             pass
         return 0, False
 
@@ -1076,7 +1149,7 @@ class SumoSession(SessionBase):
         False when it vanished."""
         try:
             state = self.api.vehicle.getLaneChangeState(vid, direction)[0]
-        except Exception:  # the vehicle left, or a TraCI without the call
+        except self.sumo_errors:  # the vehicle left, or a TraCI without the call
             return False
         side = LCA_LEFT if direction > 0 else LCA_RIGHT
         return state & side != 0 and state & LCA_STRATEGIC != 0
@@ -1093,7 +1166,7 @@ class SumoSession(SessionBase):
                 return None
             probability = float(reading)
             keep_right, speed_gain = self._keep_right_params(vid)
-        except Exception:  # the vehicle left, or a lane-change model without these
+        except self.sumo_errors:  # the vehicle left, or a lane-change model without these
             return None
         before = self._keep_right_seen.get(vid)
         if before is None or self.time_s - before[0] > KEEP_RIGHT_RATE_WINDOW_S:
@@ -1104,10 +1177,14 @@ class SumoSession(SessionBase):
             probability, before, self.time_s, keep_right=keep_right, speed_gain=speed_gain
         )
 
-    def speed_limits(self, vid: str) -> tuple[float, float]:
-        """(vType maxSpeed, speed allowed on its lane with its speedFactor) of a vehicle [m/s]."""
+    def speed_limits(self, vid: str) -> tuple[float, float] | None:
+        """(vType maxSpeed, speed allowed on its lane with its speedFactor) of a vehicle [m/s];
+        None for one that vanished."""
         vehicle = self.api.vehicle
-        return vehicle.getMaxSpeed(vid), vehicle.getAllowedSpeed(vid)
+        try:
+            return vehicle.getMaxSpeed(vid), vehicle.getAllowedSpeed(vid)
+        except self.sumo_errors:  # vanished
+            return None
 
     def first_road(self) -> RoadSection:
         """The road section where the route starts; two 3.2 m lanes while it is not known."""
@@ -1130,10 +1207,14 @@ class SumoSession(SessionBase):
         Read once per vType (a vehicle whose parameters were changed has its own copy, e.g.
         ``hv@x``) and once per vehicle for its speedFactor. ``desired_speed_mps`` is SUMO's
         vehicle maxSpeed; on a lane SUMO takes ``min(maxSpeed, limit * speedFactor)``
-        (:meth:`DriverModel.desired_speed_on`).
+        (:meth:`DriverModel.desired_speed_on`). A vehicle that vanished: the cautious bound,
+        ``DriverModel(model="unknown")``.
         """
         vehicle = self.api.vehicle
-        type_id = vehicle.getTypeID(vehicle_id)
+        try:
+            type_id = vehicle.getTypeID(vehicle_id)
+        except self.sumo_errors:  # vanished
+            return DriverModel(model="unknown")
         cached = self._driver_models.get(vehicle_id)
         if cached is not None and cached[0] == type_id:
             return cached[1]
