@@ -86,8 +86,9 @@ def test_a_vehicle_that_left_is_answered_as_absent_and_a_defect_is_not(tmp_path)
     from sumo_swarm.core.hvmodel import DriverModel
 
     with _session(tmp_path) as sumo:
-        while not sumo.arrived:
+        while not sumo.arrived and sumo.time_s < 60.0 - 1e-6:
             sumo.step()
+        assert sumo.arrived, "no vehicle arrived within the road's minute"
         gone = sumo.arrived[0]
         assert gone not in sumo.api.vehicle.getIDList()
         assert sumo.speed_limits(gone) is None
@@ -97,6 +98,8 @@ def test_a_vehicle_that_left_is_answered_as_absent_and_a_defect_is_not(tmp_path)
         assert sumo.lane_wish(gone) == (0, False)
         sumo.drive_alone(gone)
         sumo.release(gone)
+        sumo.restore_gaps(gone, tau=True)
+        sumo.configure_cav(gone, lane_change_mode=0)
         here = next(iter(sumo.states))
         assert sumo.speed_limits(here) is not None and sumo.keeps_right(here) is True
         with pytest.raises(TypeError):

@@ -30,13 +30,13 @@ from dataclasses import dataclass
 
 from sumo_swarm.core.model import VehicleState
 
-# The controllers' CAVs' SUMO tau [s] (controllers.base.configure_cav): so short that SUMO's
+# The controllers' CAVs' SUMO tau [s] (SessionView.configure_cav): so short that SUMO's
 # safe-speed check binds only within a few metres of the vehicle ahead. At steps up to it that
 # check holds within the step, and the net is not applied (the paper's 0.1 s runs, the corridor
 # studies' 0.2 s, stay as they were); at longer steps it is.
 CAV_TAU_S = 0.2
 # What a commanded CAV keeps to the vehicle ahead once both stopped [m]: the controllers' SUMO
-# minGap (controllers.base.CAV_MIN_GAP_M), under which SUMO's own check would brake it anyway
+# minGap (controllers.session.CAV_MIN_GAP_M), under which SUMO's own check would brake it anyway
 STEP_SAFE_MARGIN_M = 0.5
 
 

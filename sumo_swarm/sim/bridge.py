@@ -143,11 +143,15 @@ def _api(use_traci: bool) -> ModuleType:
 
 
 def traci_errors() -> tuple[type[Exception], ...]:
-    """What SUMO raises about a vehicle, lane or edge it does not know (a vehicle that left
-    among them): the ``TraCIException`` of libsumo and of traci, of those loaded. The session
-    catches these alone where a vehicle may have vanished; any other error is a defect and
-    goes on to the run loop's stand-down."""
-    modules = (sys.modules.get(name) for name in ("libsumo", "traci"))
+    """What SUMO raises for a call it cannot serve: the ``TraCIException`` of libsumo, traci
+    and libtraci, of those loaded. A vehicle that left is one such call; so are a parameter
+    its lane-change model lacks and a destination it has no route to, which the session's
+    reads answer as SUMO not telling. The session catches these alone: anything else (a
+    defect of ours, SUMO itself gone: ``FatalTraCIError``) goes on to the run loop's
+    stand-down. ``traci.TraCIException``, not ``traci.exceptions.TraCIException``: importing
+    libsumo rebinds the latter to libsumo's class, while a traci connection raises the
+    former."""
+    modules = (sys.modules.get(name) for name in ("libsumo", "traci", "libtraci"))
     return tuple(module.TraCIException for module in modules if module is not None)
 
 
@@ -1126,7 +1130,7 @@ class SumoSession(SessionBase):
         wish a keep-right driver shows while the right lane is taken)? False when it vanished."""
         try:
             state = self.api.vehicle.getLaneChangeState(vid, -1)[0]
-        except self.sumo_errors:  # the vehicle left, or a TraCI without the call
+        except self.sumo_errors:  # the vehicle left
             return False
         return state & LCA_RIGHT != 0 and state & LCA_KEEPRIGHT != 0
 
@@ -1139,7 +1143,7 @@ class SumoSession(SessionBase):
                 state = self.api.vehicle.getLaneChangeState(vid, direction)[0]
                 if state & side and state & LCA_REASONS:
                     return direction, bool(state & LCA_BLOCKED)
-        except self.sumo_errors:  # the vehicle left, or a TraCI without the call
+        except self.sumo_errors:  # the vehicle left
             pass
         return 0, False
 
@@ -1149,7 +1153,7 @@ class SumoSession(SessionBase):
         False when it vanished."""
         try:
             state = self.api.vehicle.getLaneChangeState(vid, direction)[0]
-        except self.sumo_errors:  # the vehicle left, or a TraCI without the call
+        except self.sumo_errors:  # the vehicle left
             return False
         side = LCA_LEFT if direction > 0 else LCA_RIGHT
         return state & side != 0 and state & LCA_STRATEGIC != 0
