@@ -164,7 +164,7 @@ class Decider:
         # builds up (SUMO's keep-right model, read through libsumo), moves there.
         keeps_right = (
             road.lane_of(target) > 0
-            and self._keeps_right(target)
+            and self.ctx.session.keeps_right(target.vehicle_id)
             and self._right_lane_free(target, states)
         )
         if keeps_right and not wish:
@@ -332,7 +332,7 @@ class Decider:
         leftmost = self.ctx.road.lane_of(target) == self.ctx.road.n_lanes - 1
         if sc.swarm.keep_right_middle != "wait" and not leftmost:
             return False  # passed at once (on its left only, with "left")
-        if not self._keeps_right(target):
+        if not self.ctx.session.keeps_right(target.vehicle_id):
             return False
         free = self._right_lane_free(target, states)
         if free and self._keep_right_target != target.vehicle_id:
@@ -364,7 +364,8 @@ class Decider:
             return None  # no lane on its right, or the leftmost lane (waited for instead)
         if t_s - started_s > sw.keep_right_wait_s:
             return None
-        if not self._keeps_right(target) or not self._right_lane_free(target, states):
+        keeps_right = self.ctx.session.keeps_right(target.vehicle_id)
+        if not keeps_right or not self._right_lane_free(target, states):
             return None
         return lane - 1
 
@@ -377,11 +378,6 @@ class Decider:
         if 0 < lane < road.n_lanes - 1 and self.moves_right_soon(vehicle, states, t_s):
             return lane - 1
         return None
-
-    def _keeps_right(self, target: VehicleState) -> bool:
-        """Does ``target``'s lane-change model keep right (read through libsumo)? False when
-        it vanished or TraCI cannot tell."""
-        return self.ctx.session.keeps_right(target.vehicle_id)
 
     def must_change(self, vid: str, direction: int) -> bool:
         """Does vehicle ``vid`` need to move one lane ``direction`` (+1 left) for its route
@@ -397,7 +393,7 @@ class Decider:
         if seen is not None and 0.0 <= t_s - seen[0] < RECHECK_S:
             return seen[1]
         answer = (
-            self._keeps_right(target)
+            self.ctx.session.keeps_right(target.vehicle_id)
             and self.wants_right(target)
             and self._right_lane_opens(target, states)
         )

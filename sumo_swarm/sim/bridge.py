@@ -349,7 +349,6 @@ class SumoSession(SessionBase):
         """A session on a simulation that is already running (libsumo module or traci)."""
         session = cls([], route_edges=route_edges, is_cav=is_cav)
         session.api = api
-        session.sumo_errors = traci_errors()
         session.frame = RouteFrame(SumoNetwork(api))
         session._vars = [getattr(_constants(api), f"VAR_{v}") for v in cls.VARS]
         session._owned = False
@@ -811,12 +810,17 @@ class SumoSession(SessionBase):
         """``(its user's vType, headway [s], minGap [m])`` of CAV ``vid`` driving alone: at
         least SUMO's defaults, its vType's where larger."""
         vtypes = self.api.vehicletype
-        base = self.api.vehicle.getTypeID(vid).split("@")[0]
+        base = self._user_type(vid)
         return (
             base,
             max(vtypes.getTau(base), SUMO_TAU_S),
             max(vtypes.getMinGap(base), SUMO_MIN_GAP_M),
         )
+
+    def _user_type(self, vid: str) -> str:
+        """The user's vType of ``vid``, not SUMO's copy of it (``cav@vid``, made when one of
+        its parameters was set for ``vid`` alone)."""
+        return self.api.vehicle.getTypeID(vid).split("@")[0]
 
     def reclaim(self, vid: str) -> None:
         """``vid``, released before, is a swarm's CAV again (a platoon took it in: its
@@ -1080,11 +1084,11 @@ class SumoSession(SessionBase):
 
     def restore_gaps(self, vid: str, *, tau: bool = False) -> None:
         """CAV ``vid``'s minGap (with ``tau``, its headway too) its vType's again: the user's
-        vType, not SUMO's copy of it (``cav@vid``). A CAV SUMO drives keeps the gaps its type
-        keeps (exiting CAVs queued 0.5 m apart at an off-ramp with the controllers' minGap)."""
+        vType (:meth:`_user_type`). A CAV SUMO drives keeps the gaps its type keeps (exiting
+        CAVs queued 0.5 m apart at an off-ramp with the controllers' minGap)."""
         vehicle, vtypes = self.api.vehicle, self.api.vehicletype
         try:
-            type_id = vehicle.getTypeID(vid).split("@")[0]
+            type_id = self._user_type(vid)
             if tau:
                 vehicle.setTau(vid, vtypes.getTau(type_id))
             vehicle.setMinGap(vid, vtypes.getMinGap(type_id))
