@@ -196,7 +196,7 @@ def test_every_vehicle_is_renumbered_as_the_route_frame_maps_its_lane(tmp_path):
     cfg = write_osm_road("osm-3-lane-drop", OSM_DIR, tmp_path, end_s=120.0)
     args = ["-c", str(cfg), "--lateral-resolution", "0.5", "--no-step-log", "true",
             "--collision.action", "warn"]  # fmt: skip
-    checked = fanned = 0
+    checked = fanned = shared = 0
     with SumoSession(args, is_cav=lambda vid, type_id: type_id.startswith("cav")) as sumo:
         frame = sumo.frame
         while sumo.time_s < 120.0 - 1e-6:
@@ -204,8 +204,10 @@ def test_every_vehicle_is_renumbered_as_the_route_frame_maps_its_lane(tmp_path):
             askers = {}
             for vid, edge in sumo.edges.items():
                 askers.setdefault(frame.route_edge(edge), vid)
+            tables: dict[int | None, list[int]] = {}  # lane numbering -> its askers' tables
             for reference, asker in askers.items():
                 view = sumo.states_in_lanes_of(asker)
+                tables.setdefault(frame.lane_offset.get(reference), []).append(id(view))
                 assert list(view) == list(sumo.states)
                 for vid, st in sumo.states.items():
                     edge = sumo.edges[vid]
@@ -219,4 +221,8 @@ def test_every_vehicle_is_renumbered_as_the_route_frame_maps_its_lane(tmp_path):
                     checked += expected != st.lane
                     own = frame.via_lane_offset.get(f"{edge}_{st.lane}")
                     fanned += own is not None and own != frame.lane_offset.get(edge)
+            # edges that number their lanes alike share one table in a step
+            assert all(len(set(ids)) == 1 for ids in tables.values()), (sumo.time_s, tables)
+            shared += any(len(ids) > 1 for ids in tables.values())
     assert checked > 100 and fanned > 0  # renumbered vehicles, some on a fanning junction lane
+    assert shared > 0  # steps where two edges of one numbering asked

@@ -192,6 +192,43 @@ def test_the_bridge_coordinate_is_the_replays(tmp_path):
     assert ending_ahead == [(ending, frame.lane_ends[0][2])]
 
 
+@pytest.mark.sumo
+def test_the_network_reads_each_lane_count_and_length_from_sumo_once(tmp_path):
+    """They do not change while SUMO runs; the fleet measures the road ahead of every CAV
+    with them at each membership review."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    import libsumo
+
+    from sumo_swarm.sim.bridge import SumoNetwork, sumo_binary
+    from sumo_swarm.sim.netbuild import HighwaySpec, build_highway
+
+    calls: Counter[str] = Counter()
+
+    class Counted:  # libsumo's domain, each call counted
+        def __init__(self, domain) -> None:
+            self.domain = domain
+
+        def __getattr__(self, name):
+            def call(*args):
+                calls[name] += 1
+                return getattr(self.domain, name)(*args)
+
+            return call
+
+    net_file = build_highway(HighwaySpec(length_m=1000, lanes=(3, 2), edges=2), tmp_path)
+    libsumo.start([sumo_binary(), "-n", str(net_file), "--no-step-log", "true"])
+    try:
+        net = SumoNetwork(SimpleNamespace(lane=Counted(libsumo.lane), edge=Counted(libsumo.edge)))
+        for _ in range(3):
+            assert net.lane_count("e0") == 3 and net.lane_count("e1") == 2
+            assert net.lane_length_m("e0_0") == libsumo.lane.getLength("e0_0")
+    finally:
+        libsumo.close()
+    assert calls == {"getLaneNumber": 2, "getLength": 1}
+
+
 def test_lane_shifts_where_lanes_are_added_or_dropped_on_the_right():
     # a -> b: lanes map 0 -> 0, 1 -> 1 (no shift); b -> c: 2 lanes become 1 (a lane drop).
     frame = RouteFrame(network(), ["a", "b", "c"])

@@ -608,7 +608,7 @@ class Fleet:
                     self.ctx.event("platoon_split", platoon=platoon.id, parts=parts)
         # Meeting in a lane: joins and merges, nearest first, where a slow vehicle holds the
         # column of CAVs they drive in (its front CAV): there is something to decide together.
-        placed = [p for p in (self._placed(v, states) for v in states) if p is not None]
+        placed = self._placed_all(states)
         meetings = [
             (rear, front, gap) for rear, front, gap in in_lane_neighbours(placed)
             if gap <= st.join_gap_m and rear in eligible and front in eligible
@@ -741,15 +741,18 @@ class Fleet:
         lane = states[vid].lane
         return edges[-1], None, all(i != lane or ends_at[end] >= n_lanes for i, end in ending)
 
-    def _placed(self, vid: str, states) -> Placed | None:
+    def _placed_all(self, states) -> list[Placed]:
+        """Every vehicle of ``states`` on an edge of the route frame, placed in the frame's
+        lane numbering (one pass over the step's states: a corridor's 600 vehicles at each
+        membership review)."""
         session = self.ctx.session
-        edge = session.edges.get(vid)
-        frame = session.frame
-        offset = frame.lane_offset.get(edge) if edge is not None else None
-        if offset is None:
-            return None
-        st = states[vid]
-        return Placed(vid, st.s_m, st.length_m, st.lane + offset)
+        edges = session.edges
+        offsets = session.frame.lane_offset
+        return [
+            Placed(vid, st.s_m, st.length_m, st.lane + offset)
+            for vid, st in states.items()
+            if (offset := offsets.get(edges.get(vid))) is not None
+        ]
 
     # ------------------------------------------------------------------ platoons
     def _new(self, t_s: float, members: list[str], states) -> Platoon:

@@ -214,16 +214,26 @@ class Collision:
 
 class SumoNetwork:
     """The network data of :class:`~sumo_swarm.core.routeframe.RouteFrame`, read from a running
-    simulation (libsumo module, traci module or traci connection)."""
+    simulation (libsumo module, traci module or traci connection). Lane counts and lengths are
+    read once each: the road ahead of every CAV is measured at each membership review (a
+    corridor's 70 CAVs, each over the edges left of its route, every second)."""
 
     def __init__(self, api) -> None:
         self.api = api
+        self._lane_counts: dict[str, int] = {}
+        self._lane_lengths: dict[str, float] = {}
 
     def lane_count(self, edge: str) -> int:
-        return self.api.edge.getLaneNumber(edge)
+        count = self._lane_counts.get(edge)
+        if count is None:
+            count = self._lane_counts[edge] = self.api.edge.getLaneNumber(edge)
+        return count
 
     def lane_length_m(self, lane_id: str) -> float:
-        return self.api.lane.getLength(lane_id)
+        length = self._lane_lengths.get(lane_id)
+        if length is None:
+            length = self._lane_lengths[lane_id] = self.api.lane.getLength(lane_id)
+        return length
 
     def lane_width_m(self, lane_id: str) -> float:
         return self.api.lane.getWidth(lane_id)
@@ -316,9 +326,9 @@ class SumoSession(SessionBase):
         self._positions: dict[str, tuple[float, float]] | None = None
         self._edges: dict[str, str] | None = None
         self._lane_positions: dict[str, float] | None = None
-        # states_in_lanes_of's tables of this step, per reference edge (of the table held)
+        # states_in_lanes_of's tables of this step, per lane numbering (of the table held)
         self._lane_views_of: dict[str, VehicleState] | None = None
-        self._lane_views: dict[str, dict[str, VehicleState]] = {}
+        self._lane_views: dict[int | None, dict[str, VehicleState]] = {}
         self._lane_views_by_edge: dict[str | None, list[str]] | None = None
         self._lane_views_renumbered: dict[tuple[str, int], VehicleState] = {}
         self.collisions: list[Collision] = []
@@ -416,13 +426,16 @@ class SumoSession(SessionBase):
         if edge is None or not frame.lane_shifts_m:  # every edge numbers its lanes alike
             return self.states
         reference = frame.route_edge(edge)
-        # One table per reference edge and step, whoever asks (many swarms share an edge).
+        # One table per lane numbering and step, whoever asks (many swarms share an edge, and
+        # the edges between two lane shifts number their lanes alike: the table renumbers
+        # every vehicle by its edge's lane offset less the reference's, nothing else).
         if self._lane_views_of is not self.states:
             self._lane_views_of, self._lane_views = self.states, {}
             self._lane_views_by_edge = None
-        out = self._lane_views.get(reference)
+        numbering = frame.lane_offset.get(reference)
+        out = self._lane_views.get(numbering)
         if out is None:
-            out = self._lane_views[reference] = self._in_lanes_of(reference)
+            out = self._lane_views[numbering] = self._in_lanes_of(reference)
         return out
 
     def _in_lanes_of(self, reference: str) -> dict[str, VehicleState]:
