@@ -226,3 +226,43 @@ def test_every_vehicle_is_renumbered_as_the_route_frame_maps_its_lane(tmp_path):
             shared += any(len(ids) > 1 for ids in tables.values())
     assert checked > 100 and fanned > 0  # renumbered vehicles, some on a fanning junction lane
     assert shared > 0  # steps where two edges of one numbering asked
+
+
+def test_a_vehicle_that_vanishes_mid_step_leaves_every_renumbered_table_made_after():
+    # Lanes shift from a to b (a's lane 0 ends) and again on c (b's lane 0 ends): three lane
+    # numberings. A
+    # vehicle SUMO no longer knows is forgotten during the controllers' step (SumoSession's
+    # commands do so); a table asked for afterwards, of the numbering already made or of
+    # another, neither holds it nor fails over it (the vehicles of each edge, gathered once per
+    # step, still named it: a KeyError).
+    from sumo_swarm.core.model import VehicleState
+    from sumo_swarm.core.routeframe import RouteFrame
+    from tests.test_routeframe import STRAIGHT, TableNetwork
+
+    lanes = {
+        "a_0": (100.0, 3.2, STRAIGHT, []),
+        "a_1": (100.0, 3.2, STRAIGHT, [("b_0", ":j1_0_0")]),
+        "a_2": (100.0, 3.2, STRAIGHT, [("b_1", ":j1_0_1")]),
+        ":j1_0_0": (5.0, 3.2, STRAIGHT, [("b_0", "")]),
+        ":j1_0_1": (5.0, 3.2, STRAIGHT, [("b_1", "")]),
+        "b_0": (100.0, 3.2, STRAIGHT, []),
+        "b_1": (100.0, 3.2, STRAIGHT, [("c_0", ":j2_0_0")]),
+        ":j2_0_0": (5.0, 3.2, STRAIGHT, [("c_0", "")]),
+        "c_0": (100.0, 3.2, STRAIGHT, []),
+    }
+    session = SumoSession([])  # not started: its views over hand-made states
+    session.frame = RouteFrame(TableNetwork(lanes), ["a", "b", "c"])
+    where = {"va": ("a", 2), "vb": ("b", 1), "vc": ("c", 0)}
+    session.states = {
+        vid: VehicleState(vid, 100.0 * i, lane, 0.0, 20.0, 5.0, 0.0, False, 1.8)
+        for i, (vid, (_, lane)) in enumerate(where.items())
+    }
+    session._edges = {vid: edge for vid, (edge, _) in where.items()}
+    frame = session.frame
+    assert len({frame.lane_offset[e] for e in "abc"}) == 3  # three numberings
+    assert session.states_in_lanes_of("vb")["va"].lane == 1  # a's lane 2 is b's lane 1
+    session._forget("va")
+    for asker in ("vb", "vc"):
+        table = session.states_in_lanes_of(asker)
+        assert "va" not in table and list(table) == ["vb", "vc"], asker
+    assert session.states_in_lanes_of("vb")["vc"].lane == 1  # c's lane 0 is b's lane 1

@@ -618,9 +618,6 @@ class Fleet:
         held: dict[str, bool] = {}
         snapshots = PassSnapshots()  # states hold still during the review
         for rear, front, _ in sorted(meetings, key=lambda p: p[2]):
-            rears = self._platoon_of(rear)
-            if rears is not None and rears is self._platoon_of(front):
-                continue  # one platoon already: _meet would leave it so
             road = session.road_at(rear) or self.ctx.road
             # Lanes counted as on rear's edge, as its road section counts them: near an
             # on-ramp a car in the acceleration lane was taken to be in the lane beside it.

@@ -216,7 +216,9 @@ class SumoNetwork:
     """The network data of :class:`~sumo_swarm.core.routeframe.RouteFrame`, read from a running
     simulation (libsumo module, traci module or traci connection). Lane counts and lengths are
     read once each: the road ahead of every CAV is measured at each membership review (a
-    corridor's 70 CAVs, each over the edges left of its route, every second)."""
+    corridor's 70 CAVs, each over the edges left of its route, every second). A lane length a
+    user's script changes during the run (TraCI's ``lane.setLength``) is not seen, as the route
+    frame's positions, fixed when the route is set, do not see it either."""
 
     def __init__(self, api) -> None:
         self.api = api
@@ -733,6 +735,7 @@ class SumoSession(SessionBase):
         (its speed for the acceleration, its route position on a junction): a vehicle of the
         same id read later starts afresh, as one that departs."""
         self.states.pop(vid, None)
+        self._lane_views_of = None  # the step's renumbered tables are made again without it
         self._speeds.pop(vid, None)
         self._moving_sideways.discard(vid)
         self._forgotten.add(vid)
