@@ -237,14 +237,10 @@ def test_a_vehicle_that_vanishes_mid_step_leaves_every_renumbered_table_made_aft
     # step, still named it: a KeyError).
     from sumo_swarm.core.model import VehicleState
     from sumo_swarm.core.routeframe import RouteFrame
-    from tests.test_routeframe import STRAIGHT, TableNetwork
+    from tests.test_routeframe import A_DROPS_INTO_B, STRAIGHT, TableNetwork
 
     lanes = {
-        "a_0": (100.0, 3.2, STRAIGHT, []),
-        "a_1": (100.0, 3.2, STRAIGHT, [("b_0", ":j1_0_0")]),
-        "a_2": (100.0, 3.2, STRAIGHT, [("b_1", ":j1_0_1")]),
-        ":j1_0_0": (5.0, 3.2, STRAIGHT, [("b_0", "")]),
-        ":j1_0_1": (5.0, 3.2, STRAIGHT, [("b_1", "")]),
+        **A_DROPS_INTO_B,
         "b_0": (100.0, 3.2, STRAIGHT, []),
         "b_1": (100.0, 3.2, STRAIGHT, [("c_0", ":j2_0_0")]),
         ":j2_0_0": (5.0, 3.2, STRAIGHT, [("c_0", "")]),

@@ -106,15 +106,22 @@ def test_road_sections_and_an_unknown_route():
     assert frame.lane_ends == []  # the route ends at b: nothing to connect to
 
 
+# a (3 lanes) -> b: a's right lane ends, a's lanes 1 and 2 go on as b's 0 and 1 (netconvert's
+# lane drop, through the junction j1)
+A_DROPS_INTO_B = {
+    "a_0": (100.0, 3.2, STRAIGHT, []),
+    "a_1": (100.0, 3.2, STRAIGHT, [("b_0", ":j1_0_0")]),
+    "a_2": (100.0, 3.2, STRAIGHT, [("b_1", ":j1_0_1")]),
+    ":j1_0_0": (5.0, 3.2, STRAIGHT, [("b_0", "")]),
+    ":j1_0_1": (5.0, 3.2, STRAIGHT, [("b_1", "")]),
+}
+
+
 def test_lane_indices_across_a_dropped_right_lane():
     """a (3 lanes) -> b (2 lanes): a's right lane ends, a's lanes 1 and 2 go on as b's 0 and
     1 (netconvert's lane drop); then b -> c keeps its two lanes."""
     lanes = {
-        "a_0": (100.0, 3.2, STRAIGHT, []),
-        "a_1": (100.0, 3.2, STRAIGHT, [("b_0", ":j1_0_0")]),
-        "a_2": (100.0, 3.2, STRAIGHT, [("b_1", ":j1_0_1")]),
-        ":j1_0_0": (5.0, 3.2, STRAIGHT, [("b_0", "")]),
-        ":j1_0_1": (5.0, 3.2, STRAIGHT, [("b_1", "")]),
+        **A_DROPS_INTO_B,
         "b_0": (100.0, 3.2, STRAIGHT, [("c_0", ":j2_0_0")]),
         "b_1": (100.0, 3.2, STRAIGHT, [("c_1", ":j2_0_1")]),
         ":j2_0_0": (5.0, 3.2, STRAIGHT, [("c_0", "")]),
