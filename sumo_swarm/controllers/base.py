@@ -152,7 +152,11 @@ class RunContext:
 
 
 class Controller(Protocol):
-    """A controller is attached once, then called after every SUMO step."""
+    """A controller is attached once, then called after every SUMO step.
+
+    One that reads no vehicle's state at any step (SUMO drives them all) says so with a
+    class attribute ``reads_vehicles = False``: SUMO then records the run's trajectories
+    itself (:mod:`sumo_swarm.sim.fcd`) and the session reads nothing per vehicle."""
 
     name: str
 

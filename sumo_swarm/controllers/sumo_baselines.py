@@ -18,6 +18,10 @@ class SumoModelController:
     overtakes on its own, the "disengage and change lanes one by one" strategy.
     """
 
+    # It reads no vehicle at any step (SUMO drives them all): SUMO records the run itself
+    # (sim/fcd.py).
+    reads_vehicles = False
+
     def __init__(self, name: str, lane_changes: bool) -> None:
         self.name = name
         self.lane_changes = lane_changes

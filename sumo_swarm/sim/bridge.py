@@ -265,6 +265,14 @@ class SumoSession(SessionBase):
 
     :meth:`attached` wraps a simulation someone else started and steps (the plugin API): then
     call :meth:`refresh` after each step instead of :meth:`step`.
+
+    ``fcd_path``: SUMO writes every vehicle at every step there itself (its FCD output in
+    Parquet, ``args`` holding :func:`~sumo_swarm.sim.fcd.fcd_args`, in the run's saved
+    configuration too) and the session reads no vehicle's state: for a
+    controller that reads nothing (SUMO drives every vehicle), :attr:`states` stay empty, and
+    :meth:`exists` answers from the departures and arrivals; the lanes' edges, indices and
+    widths are read at the start (:attr:`lane_table`), for the table made of the file once SUMO
+    has closed.
     """
 
     # Every variable costs SUMO and the conversion to Python about the same for every vehicle
@@ -295,7 +303,9 @@ class SumoSession(SessionBase):
         use_traci: bool = False,
         gui: bool = False,
         label: str | None = None,
+        fcd_path: Path | None = None,
     ) -> None:
+        self.fcd_path = fcd_path
         self.args = list(args)
         self.use_traci = use_traci or gui
         self.gui = gui
@@ -348,6 +358,9 @@ class SumoSession(SessionBase):
         self.vanished: list[tuple[float, str]] = []
         self._open = False
         self._owned = True
+        self._present: set[str] = set()  # with fcd_path: departed, not arrived
+        # with fcd_path: every lane's edge, index and width, read at the start
+        self.lane_table: dict[str, tuple[str, int, float]] = {}
         self._driver_types: dict[str, DriverModel] = {}
         self._keeps_right: dict[str, bool] = {}
         self._keep_right_seen: dict[str, tuple[float, float]] = {}
@@ -398,6 +411,8 @@ class SumoSession(SessionBase):
         self.step_length_s = self.api.simulation.getDeltaT()
         self.time_s = self.api.simulation.getTime()
         self._set_route(self._route_edges)
+        if self.fcd_path is not None:
+            self.lane_table = {lane: self._lane_of(lane) for lane in self.api.lane.getIDList()}
 
     def _set_route(self, edges: Iterable[str]) -> None:
         self._route_edges = list(edges)
@@ -544,6 +559,11 @@ class SumoSession(SessionBase):
             for c in api.simulation.getCollisions():
                 self.collisions.append(Collision(self.time_s, c.collider, c.victim, c.type))
             self.teleports += api.simulation.getStartingTeleportNumber()
+            if self.fcd_path is not None:  # SUMO records: nothing read of the vehicles
+                self._present.update(self.departed)
+                self._present.difference_update(self.arrived)
+                self.columns = StepColumns(self.time_s)
+                return
             results = api.vehicle.getAllSubscriptionResults()
         except Exception as exc:
             raise SimulationError(f"SUMO stopped at t = {self.time_s:.2f} s: {exc}") from None
@@ -554,7 +574,8 @@ class SumoSession(SessionBase):
         if vid in self.kinds:
             for hook in self.on_id_reused:
                 hook()
-        api.vehicle.subscribe(vid, self._vars)
+        if self.fcd_path is None:
+            api.vehicle.subscribe(vid, self._vars)
         type_id = api.vehicle.getTypeID(vid)
         self.types[vid] = type_id
         self.vehicle_classes[vid] = self._type_class(type_id)
@@ -737,6 +758,7 @@ class SumoSession(SessionBase):
         self.states.pop(vid, None)
         self._lane_views_of = None  # the step's renumbered tables are made again without it
         self._speeds.pop(vid, None)
+        self._present.discard(vid)
         self._moving_sideways.discard(vid)
         self._forgotten.add(vid)
 
@@ -1221,7 +1243,10 @@ class SumoSession(SessionBase):
         return self.road_section(edge) if edge is not None else None
 
     def exists(self, vid: str) -> bool:
-        """Whether ``vid`` was in the last read (and has not vanished since)."""
+        """Whether ``vid`` was in the last read (and has not vanished since); with
+        ``fcd_path``, whether it departed and has not arrived."""
+        if self.fcd_path is not None:
+            return vid in self._present
         return vid in (self._speeds if self._states is None else self._states)
 
     # ------------------------------------------------------------------ driver models

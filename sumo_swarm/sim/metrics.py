@@ -613,6 +613,19 @@ class HardBrakeCounter:
             hard |= {v for v in self._last_hard if v not in present}
         self._last_hard = hard
 
+    def update_steps(
+        self, times: np.ndarray, ids: np.ndarray, accels: np.ndarray, kinds: Mapping[str, str]
+    ) -> None:
+        """Whole steps in time order (row ``i``: vehicle ``ids[i]`` at ``times[i]`` [s],
+        acceleration ``accels[i]`` [m/s^2]), as :meth:`update` step by step; a step without a
+        hard sample, after one without, changes nothing and is passed over."""
+        starts = np.flatnonzero(np.diff(times)) + 1
+        hard = accels < self.limit_mps2
+        bounds = zip(np.r_[0, starts], np.r_[starts, len(times)], strict=True)
+        for a, b in bounds:
+            if self._last_hard or hard[a:b].any():
+                self.update(ids[a:b].tolist(), accels[a:b].tolist(), kinds)
+
     def count(self, kind: str | None = None) -> int:
         """Vehicles (of ``kind``, or any) that ever braked hard (:func:`hard_brakes`)."""
         return sum(1 for k in self.vehicles.values() if kind is None or k == kind)

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
 from pandas.api.types import union_categoricals
 
 from sumo_swarm.config import OutputSettings
@@ -28,6 +29,7 @@ from sumo_swarm.controllers.base import Controller, StandDown, close_controller
 from sumo_swarm.files import write_json_atomic, write_parquet_atomic
 from sumo_swarm.sim import metrics
 from sumo_swarm.sim.conflicts import TtcConflictCounter
+from sumo_swarm.sim.fcd import FcdReading, fcd_chunks
 from sumo_swarm.sim.metrics import HardBrakeCounter
 from sumo_swarm.sim.network import mean_speed_field, speed_field
 from sumo_swarm.sim.streamed import TrajectoryFile, rows_between_cavs, streamed_measures
@@ -163,6 +165,13 @@ def _near_cavs(
     return np.flatnonzero(d2 <= range_m * range_m).tolist()
 
 
+def records_every_row(outputs: OutputSettings) -> bool:
+    """Whether a run with these outputs records every vehicle at every step (as SUMO's FCD
+    output does)."""
+    o = outputs
+    return o.trajectories == "all" and o.record_from_s <= 0.0 and o.record_to_s is None
+
+
 def with_completeness(summary: dict[str, Any], incomplete_reason: str | None) -> dict[str, Any]:
     """``summary`` with ``complete`` and ``incomplete_reason`` after ``seed`` (the contract's
     order): complete unless a reason is given."""
@@ -222,7 +231,8 @@ class RunRecorder:
         # of the table, not made a second time (None: not kept, or rows went to disk).
         self._pairs: list[pd.DataFrame] | None = [] if self._whole_steps else None
         # Kind, length and width are taken per vehicle when rows are packed: rows of a vehicle
-        # id that departs again are packed before the new one's values replace the old.
+        # id that departs again are packed before the new one's values replace the old. (Rows
+        # SUMO records are packed at the end: a reused id's rows take its last vehicle's.)
         hooks = getattr(session, "on_id_reused", None)
         if hooks is not None:
             hooks.append(self._pack)
@@ -244,12 +254,22 @@ class RunRecorder:
         # come (sim/streamed.py); without out_dir they all stay in memory.
         self._file = TrajectoryFile(out_dir / TRAJECTORIES) if out_dir is not None else None
         self._held_rows = 0
+        # SUMO records every vehicle at every step into this file (sim/fcd.py); its rows are
+        # taken once SUMO has closed. Only for a run that records every vehicle at every step.
+        self._fcd_path: Path | None = getattr(session, "fcd_path", None)
+        self.hard_brakes_unread = False  # SUMO's FCD output could not be read whole
+        if self._fcd_path is not None and not records_every_row(self.outputs):
+            raise ValueError("SUMO's FCD output records every vehicle at every step")
 
     def record(self) -> None:
-        """Append the session's vehicles as they are after the last step (one row each)."""
+        """Append the session's vehicles as they are after the last step (one row each); a
+        session whose steps SUMO records itself (its ``fcd_path``) gives its rows at the end
+        (:meth:`finish`)."""
         s = self.session
         if self._t0_s is None:
             self._t0_s = s.time_s - s.step_length_s
+        if self._fcd_path is not None:
+            return
         c = s.columns
         self.hard_brakes.update(c.ids, c.accel_mps2, s.kinds)
         o = self.outputs
@@ -279,6 +299,49 @@ class RunRecorder:
         if self._steps.rows >= CHUNK_ROWS:
             self._pack()
 
+    def _take_fcd(self) -> str | None:
+        """The rows SUMO recorded (its FCD output, once it closed), packed as the recorder's
+        own, the file removed after (its rows are in trajectories.parquet). A file that cannot
+        be read whole (SUMO failed before closing it, or the configuration thinned it out)
+        stays as SUMO left it; returns why (None: read whole, or nothing to read)."""
+        path, self._fcd_path = self._fcd_path, None
+        if path is None:
+            return None
+        s = self.session
+        if not path.exists():
+            return f"{path}: SUMO wrote no FCD output" if s.kinds else None
+        reading = FcdReading(s.lane_table, s.frame, self._vehicle_info, s.step_length_s,
+                             RECORD_COLUMNS)  # fmt: skip
+        seen: set[str] = set()
+        try:
+            # rows beyond what is held in memory go to disk from the first chunk on (the file
+            # says how many there are)
+            to_disk = self._file is not None and (
+                pq.ParquetFile(path).metadata.num_rows > self.memory_rows
+            )
+            for chunk in fcd_chunks(path, reading, CHUNK_ROWS):
+                times = chunk["time_s"].to_numpy()
+                if self._first_time_s is None:
+                    self._first_time_s = float(times[0])
+                self._last_time_s = float(times[-1])
+                vehicles = chunk["vehicle"]
+                seen.update(vehicles.cat.categories)
+                self.hard_brakes.update_steps(
+                    times, vehicles.to_numpy(), chunk["accel_mps2"].to_numpy(), s.kinds
+                )
+                self._add_chunk(chunk)
+                if to_disk:
+                    self._spill()
+            missing = len(set(s.kinds) - seen)
+            if missing:  # a vehicle or type without SUMO's FCD device (has.fcd.device)
+                raise ValueError(f"{missing} vehicles that drove are not in it")
+        except Exception as exc:  # a damaged output costs its rows, never the run
+            why = f"{path}: SUMO's FCD output not read whole: {type(exc).__name__}: {exc}"
+            log.warning("%s", why)
+            return why
+        path.unlink()
+        return None
+
     def _vehicle_info(self, vid: str) -> tuple[str, float, float]:
         """Kind, length [m] and width [m] of ``vid``, as the session registered it when it
         departed (they do not change)."""
@@ -300,15 +363,22 @@ class RunRecorder:
         past ``outputs.memory_rows`` held, write the tables held to the trajectory file."""
         if self._steps.rows:
             chunk = self._steps.table(self._vehicle_info)
-            if self.conflicts is not None and self._whole_steps:
-                self._count_conflicts()  # steps before these, recorded in part or not at all
-                pairs = metrics.gaps(chunk)
-                self.conflicts.add(pairs)
-                if self._pairs is not None:
-                    self._pairs.append(pairs)
-            self._chunks.append(chunk)
-            self._held_rows += len(chunk)
             self._steps = _Steps()
+            self._add_chunk(chunk)
+        elif self._file is not None and (self._file.open or self._held_rows > self.memory_rows):
+            self._spill()
+
+    def _add_chunk(self, chunk: pd.DataFrame) -> None:
+        """Hold ``chunk`` (whole steps, after those held), its pairs counted for conflicts;
+        past ``outputs.memory_rows`` held, write the tables held to the trajectory file."""
+        if self.conflicts is not None and self._whole_steps:
+            self._count_conflicts()  # steps before these, recorded in part or not at all
+            pairs = metrics.gaps(chunk)
+            self.conflicts.add(pairs)
+            if self._pairs is not None:
+                self._pairs.append(pairs)
+        self._chunks.append(chunk)
+        self._held_rows += len(chunk)
         if self._file is not None and (self._file.open or self._held_rows > self.memory_rows):
             self._spill()
 
@@ -470,6 +540,7 @@ class RunRecorder:
         (:func:`~sumo_swarm.sim.network.network_options`), read into the ``network`` block and
         the network tables once everything else is written; if they cannot be read, the block
         is None, ``network_error`` says why, and the rest of the run stays."""
+        unread = self._take_fcd()  # the recording's cost is the run's, as step by step
         self._wall_end = self._wall_end or time.perf_counter()
         self._cpu_end = self._cpu_end or time.process_time()
         self.close_controller()
@@ -492,6 +563,11 @@ class RunRecorder:
 
         wanted = field_of if network_files is not None else None
         summary, fields = self._summary(scenario, df, controller_summary, wanted)
+        if unread is not None:  # the measures of the rows are of the rows read
+            summary.setdefault("errors", {})["trajectories"] = unread
+            incomplete_reason = incomplete_reason or unread
+            self.conflicts = None  # the network block's TTC and hard brakes: not counted
+            self.hard_brakes_unread = True
         summary = with_completeness(summary, incomplete_reason)
         write_json_atomic(out / "summary.json", summary)
         if network_files is not None:
@@ -544,6 +620,8 @@ class RunRecorder:
                 ttc_events=self.conflicts.events if self.conflicts is not None else None,
                 exits_missed=exits_missed,
             )
+            if self.hard_brakes_unread:
+                summary["network"]["hard_brakes_per_1000_vkm"] = None
         except Exception as exc:  # a damaged output costs the block, never the run
             log.warning("network measures not read: %s", exc)
             summary["network"] = None

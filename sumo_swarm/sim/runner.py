@@ -9,7 +9,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -17,7 +17,7 @@ from typing import Any
 from tqdm import tqdm
 
 from sumo_swarm.checks import SEED_MAX, require_number
-from sumo_swarm.config import Scenario
+from sumo_swarm.config import OutputSettings, Scenario
 from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext, StandDown
 from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
@@ -29,9 +29,10 @@ from sumo_swarm.sim.demand import (
     read_demand,
     write_shared_demand,
 )
+from sumo_swarm.sim.fcd import FCD_FILE, fcd_args
 from sumo_swarm.sim.gui import attach_plan_drawer
 from sumo_swarm.sim.network import network_options
-from sumo_swarm.sim.recorder import RunRecorder
+from sumo_swarm.sim.recorder import RunRecorder, records_every_row
 from sumo_swarm.sim.runfolder import RunFolder, StopRequest, stop_on_signals
 from sumo_swarm.sim.scene import (
     CAV_TYPE,
@@ -104,9 +105,15 @@ def run_scenario(
 
     def run(out: Path, stop: StopRequest) -> _Ending:
         net_args, net_files = _network_args(scenario, out / "sumo")
+        recorded = _recorded_by_sumo(out, controller, scenario.outputs, fcd=fcd, gui=gui)
         # The configuration holds every option and output of the run (sumo -c runs the same
         # simulation with the same SUMO outputs: tools/bench_plumbing.py's yardstick).
-        cfg, scene = write_sumo_inputs(scenario, controller_name, out / "sumo", net_args)
+        cfg, scene = write_sumo_inputs(
+            scenario,
+            controller_name,
+            out / "sumo",
+            [*net_args, *(fcd_args(recorded) if recorded else [])],
+        )
         args = ["-c", str(cfg), *_fcd_args(out, fcd)]
         sim = scenario.simulation
         session = SumoSession(
@@ -114,6 +121,7 @@ def run_scenario(
             route_edges=route_edges(scenario),
             is_cav=lambda vid, type_id: is_of_type(type_id, CAV_TYPE),
             gui=gui,
+            fcd_path=recorded,
         )
         if scene is None:  # a corridor: the CAVs are those SUMO inserts, as on a user's sumocfg
             scene = LiveScene(session, controller)
@@ -236,7 +244,11 @@ def run_sumocfg(
         if "--additional-files" in net_args and "--additional-files" in sumo_args:
             at = sumo_args.index("--additional-files")  # the network outputs' option lists them
             del sumo_args[at : at + 2]
-        args = ["-c", str(cfg.resolve()), *added, *sumo_args, "--no-step-log", "true", *net_args]
+        recorded = _recorded_by_sumo(
+            out, controller, settings.outputs, fcd=fcd, gui=gui, given=given
+        )
+        args = ["-c", str(cfg.resolve()), *added, *sumo_args, "--no-step-log", "true", *net_args,
+                *(fcd_args(recorded) if recorded else [])]  # fmt: skip
         # The record of what ran, in SUMO's own words: the user's inputs by absolute path and
         # every option, so sumo-gui -c sumo/scenario.sumocfg shows the same scene.
         save_sumo_configuration(cfg, args, out / "sumo" / "scenario.sumocfg")
@@ -244,6 +256,7 @@ def run_sumocfg(
             [*args, *_fcd_args(out, fcd)],
             is_cav=lambda vid, type_id: is_of_type(type_id, cav_type),
             gui=gui,
+            fcd_path=recorded,
         )
         return _drive(
             session,
@@ -466,6 +479,33 @@ def _network_args(
     if not scenario.outputs.network:
         return [], None
     return network_options(folder, scenario.outputs, given)
+
+
+def _recorded_by_sumo(
+    out: Path,
+    controller: Controller,
+    outputs: OutputSettings,
+    *,
+    fcd: bool,
+    gui: bool,
+    given: Mapping[str, str] | None = None,
+) -> Path | None:
+    """Where SUMO writes the run's trajectories itself (:mod:`sumo_swarm.sim.fcd`): for a
+    controller that reads no vehicle at any step (SUMO drives them all: ``reads_vehicles``
+    False) in a run that records every vehicle at every step; else None (the session reads
+    them). Not in sumo-gui (TraCI would read every lane at the start, and a window closed
+    leaves the file unfinished), not when the run is asked for fcd.xml (``fcd``: SUMO writes
+    one FCD output), nor when the user's configuration (``given``) has an FCD output of its
+    own, sets up SUMO's FCD device (which vehicles and steps it writes) or prefixes its
+    outputs."""
+    if getattr(controller, "reads_vehicles", True) or not records_every_row(outputs):
+        return None
+    if fcd or gui:
+        return None
+    theirs = ("fcd-output", "device.fcd", "output-prefix")
+    if given and any(name.startswith(theirs) for name in given):
+        return None
+    return (out / "sumo" / FCD_FILE).resolve()  # SUMO reads a relative one from the config's
 
 
 def _fcd_args(out: Path, fcd: bool) -> list[str]:
