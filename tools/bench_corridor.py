@@ -4,24 +4,23 @@ On ``scenarios/corridor.toml`` (6 km, 3 lanes, ramps, 1500 veh/h/lane, one flow 
 destination and class), three ways of running the same traffic, each in its own process,
 alternated point by point so that each sees the same machine load:
 
-- ``sumo``: the sumo binary on the configuration a ``sumo-swarm run`` under sumo-cacc saved
-  (``sumo/scenario.sumocfg`` of one untimed run per point: the same network, flows, step,
-  sublane model, collision options and network outputs, tripinfo with emissions and edge
-  data): the yardstick;
-- ``sumo-fcd``: the same, with the run's own outputs: a sumo-swarm run also writes every
-  vehicle at every step (``trajectories.parquet``); the sumo binary writes the same as its FCD
-  output in Parquet (``--fcd-output fcd.parquet`` with FCD_ATTRIBUTES: position, lane,
-  position along and across it, speed and acceleration): the yardstick of "the same
-  configuration and outputs";
-- ``libsumo``: the same configuration stepped through libsumo, nothing read, with the one
+- ``sumo-fcd``: the sumo binary on the configuration a ``sumo-swarm run`` under sumo-cacc
+  saved (``sumo/scenario.sumocfg`` of one untimed run per point: the same network, flows, step,
+  sublane model, collision options and outputs: tripinfo with emissions, edge data, and every
+  vehicle at every step as SUMO's FCD output in Parquet, which the run makes its
+  trajectories.parquet of): the yardstick of "the same configuration and outputs";
+- ``sumo``: the same without the FCD output (a copy of the configuration beside it without
+  its ``fcd-output`` options): SUMO's cost before any trajectory is written;
+- ``libsumo``: the saved configuration stepped through libsumo, nothing read, with the one
   command per CAV that defines sumo-cacc (its lane-change mode: SUMO's strategic changes
-  only; tools/libsumo_plain.py). This is the same simulation as sumo-cacc's; ``sumo`` is not
-  (its CAVs change lanes to gain speed and cooperate too: over the hour sumo-cacc's CAVs jam
-  the corridor and ``sumo``'s do not);
-- ``libsumo-reads``: the same, reading every vehicle's state at every step as the bridge does
-  (``libsumo_plain.py --reads``): the least a run that records trajectories costs;
-- ``sumo-cacc``: ``sumo-swarm run ... --controller sumo-cacc``: SUMO drives, the project reads,
-  records and summarises (the plumbing);
+  only; tools/libsumo_plain.py), SUMO writing its FCD output: the floor of a sumo-cacc run.
+  This is the same simulation as sumo-cacc's; the sumo binary's is not (its CAVs change lanes
+  to gain speed and cooperate too: over the hour sumo-cacc's CAVs jam the corridor and the
+  binary's do not);
+- ``libsumo-reads``: the same, also reading every vehicle's state at every step as the bridge
+  does for the swarm (``libsumo_plain.py --reads``);
+- ``sumo-cacc``: ``sumo-swarm run ... --controller sumo-cacc``: SUMO drives and records (its FCD
+  output), the project makes the trajectories and the summary of it (the plumbing);
 - ``swarm``: ``sumo-swarm run ... --controller swarm``;
 - ``cacc``, ``sumo-lc``: the other two controllers, likewise (not run unless named in
   ``--modes``: with ``--times 300,1200`` they give the peak memory of every controller, a long
@@ -68,9 +67,6 @@ MODES = ("sumo", "sumo-fcd", "libsumo", "libsumo-reads", "sumo-cacc", "swarm", "
 DEFAULT_MODES = ("sumo", "sumo-fcd", "libsumo", "sumo-cacc", "swarm")
 # The modes that run the saved configuration without sumo-swarm (no summary to read).
 PLAIN_MODES = ("sumo", "sumo-fcd", "libsumo", "libsumo-reads")
-# The FCD attributes that hold what trajectories.parquet holds of each vehicle at each step
-# (its edge and lane are SUMO's lane id; the distance along the route is the project's own).
-FCD_ATTRIBUTES = "x,y,lane,pos,posLat,speed,acceleration"
 
 
 def scenario_file(folder: Path, duration_s: float, share: float) -> Path:
@@ -94,17 +90,24 @@ def command(mode: str, scenario: Path, work: Path, reference: Path) -> list[str]
     """The process of ``mode``; ``reference``: the untimed sumo-cacc run of the point, whose
     saved configuration the sumo and libsumo modes run."""
     if mode in PLAIN_MODES:
-        cfg = str(reference / "sumo" / "scenario.sumocfg")
+        saved = reference / "sumo" / "scenario.sumocfg"
+        cfg = str(saved)
         if mode == "sumo":
-            return [sumo_binary(), "-c", cfg]
+            return [sumo_binary(), "-c", str(without_fcd(saved))]
         if mode == "sumo-fcd":
-            work.mkdir(parents=True, exist_ok=True)
-            return [sumo_binary(), "-c", cfg, "--fcd-output", str(work / "fcd.parquet"),
-                    "--fcd-output.attributes", FCD_ATTRIBUTES]  # fmt: skip
+            return [sumo_binary(), "-c", cfg]
         plain = ROOT / "tools" / "libsumo_plain.py"
         reads = ["--reads"] if mode == "libsumo-reads" else []
         return [sys.executable, str(plain), *reads, CAV_TYPE, str(LC_MODE_STRATEGIC), "-c", cfg]
     return run_command(mode, scenario, work)
+
+
+def without_fcd(cfg: Path) -> Path:
+    """A copy of SUMO configuration ``cfg`` beside it, without its FCD output."""
+    copy = cfg.with_name(f"{cfg.stem}-without-fcd.sumocfg")
+    lines = cfg.read_text(encoding="utf-8").splitlines(keepends=True)
+    copy.write_text("".join(x for x in lines if "<fcd-output" not in x), encoding="utf-8")
+    return copy
 
 
 def what_it_did(mode: str, work: Path) -> dict[str, float]:
@@ -185,10 +188,10 @@ def main(argv: list[str] | None = None) -> int:
                 table.append({**head, "mode": mode, "measure": measure,
                               **stats(sub[(column, mode)])})  # fmt: skip
         ratios = (
-            ("sumo-cacc", "sumo", "the sumo binary's"),
             ("sumo-cacc", "sumo-fcd", "the sumo binary's with FCD"),
-            ("libsumo", "sumo", "the sumo binary's"),
-            ("libsumo-reads", "sumo", "the sumo binary's"),
+            ("sumo-cacc", "sumo", "the sumo binary's without FCD"),
+            ("libsumo", "sumo-fcd", "the sumo binary's with FCD"),
+            ("libsumo-reads", "sumo-fcd", "the sumo binary's with FCD"),
             ("sumo-cacc", "libsumo", "libsumo's"),
             ("sumo-cacc", "libsumo-reads", "libsumo-reads'"),
             ("swarm", "sumo-cacc", "sumo-cacc's"),

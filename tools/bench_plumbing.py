@@ -17,16 +17,15 @@ outputs. One untimed sumo-cacc run of each kind writes the configurations the su
   command per CAV that defines sumo-cacc (tools/libsumo_plain.py): the same simulation as
   sumo-cacc's (the sumo binary's CAVs also change lanes to gain speed);
 - ``libsumo reads + outputs``: the same, reading every vehicle's state at every step as the
-  bridge does (``libsumo_plain.py --reads``): the least a run that records trajectories through
-  libsumo costs;
+  bridge does for the swarm (``libsumo_plain.py --reads``);
 - ``sumo-cacc``: ``sumo-swarm run --sumocfg ... --controller sumo-cacc`` with ``[outputs]
-  network = false``: the plumbing alone (bulk reads, recording, summary);
+  network = false``: the plumbing alone (SUMO's FCD made the trajectories, the summary);
 - ``sumo-cacc + outputs``: the same with the network outputs read into the summary (the
   default).
 
-Not in the yardstick: trajectories.parquet (one row per vehicle per step), which no option of
-the configuration writes; SUMO's closest output is its fcd-output (``sumo-swarm run --fcd``
-adds it), which a study of the network outputs does not ask for.
+A sumo-cacc run has SUMO write every vehicle at every step (its FCD output in Parquet, which
+the run makes trajectories.parquet of: sumo_swarm/sim/fcd.py), and the saved configuration
+holds that output too: every sumo and libsumo mode here writes it, as the runs do.
 
 Prints and saves a table of process wall time, CPU time and peak memory (median, p95, max)
 and the ratios of each mode's wall and CPU time to the sumo binary's with the same outputs, run

@@ -1,12 +1,14 @@
-"""SUMO through libsumo with nothing read and nothing recorded, and one command per CAV: the
-lane-change mode sumo-cacc sets (SUMO's strategic changes only). The same simulation as
-``sumo-swarm run ... --controller sumo-cacc``, without the project's plumbing: what that run
-costs is compared with this (tools/bench_corridor.py). The sumo binary on the configuration
-alone is not the same simulation: its CAVs change lanes to gain speed and cooperate too.
+"""SUMO through libsumo with nothing read by Python, and one command per CAV: the lane-change
+mode sumo-cacc sets (SUMO's strategic changes only). The same simulation as ``sumo-swarm run
+... --controller sumo-cacc``, without the project's plumbing: what that run costs is compared
+with this (tools/bench_corridor.py). On a sumo-cacc run's saved configuration SUMO also writes
+the run's FCD output (the trajectories the run makes its table of): the floor of such a run.
+The sumo binary on the configuration alone is not the same simulation: its CAVs change lanes
+to gain speed and cooperate too.
 
-``--reads``: also read every vehicle's state at every step as sumo-swarm's bridge does (the same
-variables by subscription, ``vehicle.getAllSubscriptionResults``), and nothing else: what reading
-the trajectories through libsumo costs at the least.
+``--reads``: also read every vehicle's state at every step as sumo-swarm's bridge does for the
+swarm (the same variables by subscription, ``vehicle.getAllSubscriptionResults``), and nothing
+else: what reading the trajectories through libsumo costs at the least.
 
 Usage: python tools/libsumo_plain.py [--reads] CAV_TYPE LANE_CHANGE_MODE SUMO_ARGS...
 """
