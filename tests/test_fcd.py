@@ -141,6 +141,14 @@ def test_a_file_that_skips_steps_is_refused(tmp_path):
         chunks(path)
 
 
+def test_a_vehicle_on_no_lane_is_refused(tmp_path):
+    path = tmp_path / FCD_FILE
+    write_fcd(path, [(0.0, "car", 0.0, 0.0, 8.0, 1.0, None, 0.0, 0.0),
+                     (0.0, "cav", 0.0, 0.0, 8.0, 9.0, "a_0", 0.0, 0.0)])  # fmt: skip
+    with pytest.raises(ValueError, match="on no lane"):
+        chunks(path)
+
+
 def test_sumo_records_only_what_reads_no_vehicle_and_records_every_row(tmp_path):
     from sumo_swarm.config import OutputSettings
     from sumo_swarm.controllers import make_controller

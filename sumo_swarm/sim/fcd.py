@@ -146,9 +146,9 @@ def _table(table: pa.Table, reading: FcdReading, carry: _Carry) -> pd.DataFrame:
     # SUMO writes a step's states under the time the step began; read after the step, they
     # are the states at its end (SUMO's times are whole milliseconds)
     times = np.round((table.column(_TIME).to_numpy() + step_s) * 1000.0) / 1000.0
-    ids = table.column(_COLUMN["id"]).to_numpy(zero_copy_only=False)
-    vehicle = pd.Categorical(ids)
-    lane = pd.Categorical(table.column(_COLUMN["lane"]).to_numpy(zero_copy_only=False))
+    vehicle = _categorical(table.column(_COLUMN["id"]))
+    ids = vehicle.categories.to_numpy()[vehicle.codes]
+    lane = _categorical(table.column(_COLUMN["lane"]))
     lane_codes = lane.codes
     if (lane_codes < 0).any():
         raise ValueError("SUMO's FCD output has a vehicle on no lane")
@@ -186,6 +186,22 @@ def _table(table: pa.Table, reading: FcdReading, carry: _Carry) -> pd.DataFrame:
         "lane_width_m": np.array([w[2] for w in where], dtype=float)[lane_codes],
     }
     return pd.DataFrame({name: data[name] for name in reading.columns})
+
+
+def _categorical(column: pa.ChunkedArray) -> pd.Categorical:
+    """``column`` (strings) as a categorical of sorted categories, as ``pd.Categorical`` of
+    its values makes it (Arrow's dictionary encoding: a tenth of the time); a null value gets
+    code -1."""
+    encoded = column.combine_chunks().dictionary_encode()
+    names = np.array(encoded.dictionary.to_pylist(), dtype=object)
+    order = np.argsort(names)
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    indices = encoded.indices.to_numpy(zero_copy_only=False)
+    valid = ~np.isnan(indices) if indices.dtype.kind == "f" else np.ones(len(indices), bool)
+    codes = np.full(len(indices), -1, dtype=np.int64)
+    codes[valid] = rank[indices[valid].astype(np.int64)]
+    return pd.Categorical.from_codes(codes, categories=names[order])
 
 
 def _route_positions(

@@ -5,7 +5,9 @@ starts SUMO itself) and ``attach()`` (:mod:`sumo_swarm.sim.plugin`, on a simulat
 steps). After every SUMO step, before the controller acts, :meth:`RunRecorder.record` appends
 one row per vehicle; :meth:`RunRecorder.summary` builds summary.json from what was recorded at
 any time; :meth:`RunRecorder.finish` closes the controller and writes ``trajectories.parquet``,
-``events.jsonl`` and ``summary.json``.
+``events.jsonl`` and ``summary.json``. A run whose controller reads no vehicle (sumo-cacc,
+sumo-lc) has SUMO write the rows itself (:mod:`sumo_swarm.sim.fcd`): :meth:`RunRecorder.finish`
+packs them then, the same way, into the same tables.
 """
 
 from __future__ import annotations
