@@ -245,34 +245,9 @@ def test_an_fcd_file_that_cannot_be_read_costs_the_rows_not_the_run(tmp_path, mo
     summary = run_scenario(sc, "sumo-cacc", tmp_path, progress=False)
     assert summary == json.loads((tmp_path / "summary.json").read_text())
     assert "magic bytes" in summary["errors"]["trajectories"]
+    assert summary["complete"] is False and "magic bytes" in summary["incomplete_reason"]
+    assert summary["network"]["hard_brakes_per_1000_vkm"] is None  # not counted, not 0
+    assert summary["network"]["ttc_below_1_5s_events"] is None
     assert (tmp_path / "sumo" / FCD_FILE).is_file()  # kept, as SUMO left it
     assert summary["network"]["vehicles"] > 0  # the rest of the run stays
     assert pd.read_parquet(tmp_path / "trajectories.parquet").empty
-
-
-@pytest.mark.sumo
-def test_a_long_run_recorded_by_sumo_goes_to_disk_with_the_summary_of_one_held(
-    tmp_path, monkeypatch
-):
-    import sumo_swarm.sim.recorder as recorder
-    from tests.conftest import PAPER
-
-    sc = load_scenario(PAPER)
-    sc = replace(sc, simulation=replace(sc.simulation, duration_s=40.0),
-                 evaluation=replace(sc.evaluation, end_s=40.0))  # fmt: skip
-    held = run_scenario(sc, "sumo-cacc", tmp_path / "held", progress=False)
-    monkeypatch.setattr(recorder, "CHUNK_ROWS", 600)
-    small = replace(sc, outputs=replace(sc.outputs, memory_rows=1000))
-    disk = run_scenario(small, "sumo-cacc", tmp_path / "disk", progress=False)
-    assert {k: v for k, v in disk.items() if k != "timing"} == {
-        k: v for k, v in held.items() if k != "timing"
-    }
-    for name in ("trajectories.parquet", "network_speed_field.parquet"):
-        pd.testing.assert_frame_equal(
-            pd.read_parquet(tmp_path / "disk" / name),
-            pd.read_parquet(tmp_path / "held" / name),
-            check_categorical=False,
-        )
-    rows = len(pd.read_parquet(tmp_path / "disk" / "trajectories.parquet"))
-    assert rows > 5 * 600  # many slices
-    assert [p.name for p in (tmp_path / "disk").iterdir() if p.name.startswith(".")] == []
