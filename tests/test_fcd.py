@@ -251,3 +251,22 @@ def test_an_fcd_file_that_cannot_be_read_costs_the_rows_not_the_run(tmp_path, mo
     assert (tmp_path / "sumo" / FCD_FILE).is_file()  # kept, as SUMO left it
     assert summary["network"]["vehicles"] > 0  # the rest of the run stays
     assert pd.read_parquet(tmp_path / "trajectories.parquet").empty
+
+
+@pytest.mark.sumo
+def test_vehicles_left_out_of_sumos_fcd_leave_the_run_incomplete(tmp_path):
+    # A user's type without SUMO's FCD device (has.fcd.device false): its vehicles drove but
+    # are not in the file; the rows are not the run's, and the summary says so.
+    from sumo_swarm.sim.netbuild import HighwaySpec
+    from sumo_swarm.sim.runner import run_sumocfg
+    from tests.usercases import write_user_case
+
+    cfg = write_user_case(tmp_path / "net", HighwaySpec(length_m=1500, lanes=3), end_s=10.0)
+    routes = tmp_path / "net" / "routes.rou.xml"
+    quiet = '<vType id="x" length="4.5"><param key="has.fcd.device" value="false"/></vType>'
+    text = routes.read_text(encoding="utf-8").replace('type="car"', 'type="x"')
+    routes.write_text(text.replace("<routes>", "<routes>\n  " + quiet), encoding="utf-8")
+    summary = run_sumocfg(cfg, "cav", "sumo-cacc", tmp_path / "out", progress=False)
+    assert summary["complete"] is False
+    assert "not in it" in summary["errors"]["trajectories"]
+    assert (tmp_path / "out" / "sumo" / FCD_FILE).is_file()

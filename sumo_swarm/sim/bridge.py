@@ -359,6 +359,8 @@ class SumoSession(SessionBase):
         self._open = False
         self._owned = True
         self._present: set[str] = set()  # with fcd_path: departed, not arrived
+        # with fcd_path: every vehicle on the road at the end of a step (in SUMO's FCD output)
+        self.drove: set[str] = set()
         # with fcd_path: every lane's edge, index and width, read at the start
         self.lane_table: dict[str, tuple[str, int, float]] = {}
         self._driver_types: dict[str, DriverModel] = {}
@@ -562,6 +564,7 @@ class SumoSession(SessionBase):
             if self.fcd_path is not None:  # SUMO records: nothing read of the vehicles
                 self._present.update(self.departed)
                 self._present.difference_update(self.arrived)
+                self.drove.update(set(self.departed).difference(self.arrived))
                 self.columns = StepColumns(self.time_s)
                 return
             results = api.vehicle.getAllSubscriptionResults()

@@ -311,7 +311,7 @@ class RunRecorder:
             return None
         s = self.session
         if not path.exists():
-            return f"{path}: SUMO wrote no FCD output" if s.kinds else None
+            return f"{path}: SUMO wrote no FCD output" if s.drove else None
         reading = FcdReading(s.lane_table, s.frame, self._vehicle_info, s.step_length_s,
                              RECORD_COLUMNS)  # fmt: skip
         seen: set[str] = set()
@@ -334,7 +334,7 @@ class RunRecorder:
                 self._add_chunk(chunk)
                 if to_disk:
                     self._spill()
-            missing = len(set(s.kinds) - seen)
+            missing = len(s.drove - seen)
             if missing:  # a vehicle or type without SUMO's FCD device (has.fcd.device)
                 raise ValueError(f"{missing} vehicles that drove are not in it")
         except Exception as exc:  # a damaged output costs its rows, never the run
