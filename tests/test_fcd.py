@@ -270,3 +270,26 @@ def test_vehicles_left_out_of_sumos_fcd_leave_the_run_incomplete(tmp_path):
     assert summary["complete"] is False
     assert "not in it" in summary["errors"]["trajectories"]
     assert (tmp_path / "out" / "sumo" / FCD_FILE).is_file()
+
+
+@pytest.mark.parametrize(
+    ("version", "parquet"),
+    [
+        ("SUMO 1.24.0", False),
+        ("SUMO 1.25.0", True),
+        ("SUMO 1.28.0", True),
+        ("SUMO v1_30_0+0421-5c7b0a1", True),
+        ("SUMO", False),
+    ],
+)
+def test_sumo_records_with_a_libsumo_that_writes_parquet(monkeypatch, version, parquet):
+    import libsumo
+
+    from sumo_swarm.sim import bridge
+
+    monkeypatch.setattr(libsumo, "getVersion", lambda: (22, version))
+    bridge.writes_parquet.cache_clear()
+    try:
+        assert bridge.writes_parquet() is parquet
+    finally:
+        bridge.writes_parquet.cache_clear()

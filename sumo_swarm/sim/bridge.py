@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import os
+import re
 import socket
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -140,6 +142,21 @@ def _api(use_traci: bool) -> ModuleType:
     import libsumo
 
     return libsumo
+
+
+# libsumo writes SUMO's outputs in Parquet from 1.25 on (its wheels bring Arrow); 1.24 writes
+# XML whatever the file's name (measured: CI's oldest-releases pass).
+PARQUET_SINCE = (1, 25)
+
+
+@functools.cache
+def writes_parquet() -> bool:
+    """Whether the libsumo in use writes SUMO's outputs in Parquet (``getVersion``: "SUMO
+    1.28.0"; a version it cannot read: no)."""
+    import libsumo
+
+    found = re.findall(r"\d+", libsumo.getVersion()[1])
+    return len(found) >= 2 and (int(found[0]), int(found[1])) >= PARQUET_SINCE
 
 
 def traci_errors() -> tuple[type[Exception], ...]:

@@ -22,7 +22,13 @@ from sumo_swarm.controllers import make_controller
 from sumo_swarm.controllers.base import Controller, RunContext, StandDown
 from sumo_swarm.errors import ConfigError, RunInterrupted, SimulationError
 from sumo_swarm.files import writable_folder
-from sumo_swarm.sim.bridge import SumoSession, is_of_type, sumo_binary, unknown_vtype
+from sumo_swarm.sim.bridge import (
+    SumoSession,
+    is_of_type,
+    sumo_binary,
+    unknown_vtype,
+    writes_parquet,
+)
 from sumo_swarm.sim.demand import (
     Demand,
     check_share_applies,
@@ -494,13 +500,14 @@ def _recorded_by_sumo(
     controller that reads no vehicle at any step (SUMO drives them all: ``reads_vehicles``
     False) in a run that records every vehicle at every step; else None (the session reads
     them). Not in sumo-gui (TraCI would read every lane at the start, and a window closed
-    leaves the file unfinished), not when the run is asked for fcd.xml (``fcd``: SUMO writes
-    one FCD output), nor when the user's configuration (``given``) has an FCD output of its
+    leaves the file unfinished), not with a libsumo that writes no Parquet (before 1.25), not
+    when the run is asked for fcd.xml (``fcd``: SUMO writes one FCD output), nor when the
+    user's configuration (``given``) has an FCD output of its
     own, sets up SUMO's FCD device (which vehicles and steps it writes) or prefixes its
     outputs."""
     if getattr(controller, "reads_vehicles", True) or not records_every_row(outputs):
         return None
-    if fcd or gui:
+    if fcd or gui or not writes_parquet():
         return None
     theirs = ("fcd-output", "device.fcd", "output-prefix")
     if given and any(name.startswith(theirs) for name in given):
