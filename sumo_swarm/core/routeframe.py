@@ -56,6 +56,13 @@ def lane_curvature(shape: Sequence[tuple[float, float]]) -> float:
     return turn / length if length > 0 else 0.0
 
 
+def carried_route_s(pos_m: float, speed_mps: float, was_m: float | None, step_s: float) -> float:
+    """Route position [m] of a vehicle on an edge the route frame does not place (a junction
+    edge off the route): its position one step before, ``was_m``, carried on at its speed
+    over the step; for a vehicle that was not there one step before, its lane position."""
+    return pos_m if was_m is None else was_m + speed_mps * step_s
+
+
 class RouteFrame:
     """Route positions, lane ends and road sections of one route on a network.
 

@@ -42,7 +42,7 @@ from sumo_swarm.core.hvmodel import (
 )
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import PassSnapshots, overlapping_ahead, within
-from sumo_swarm.core.routeframe import RouteFrame
+from sumo_swarm.core.routeframe import RouteFrame, carried_route_s
 from sumo_swarm.core.stepsafe import (
     CAV_TAU_S,
     STEP_SAFE_MARGIN_M,
@@ -636,8 +636,7 @@ class SumoSession(SessionBase):
                 if o is None:
                     x = route_s(edges[i], lanes[i], lane_pos[i])
                     if x is None:  # a junction edge off the route: integrate the speed
-                        was = previous.get(ids[i])
-                        x = lane_pos[i] if was is None else was + speed[i] * dt
+                        x = carried_route_s(lane_pos[i], speed[i], previous.get(ids[i]), dt)
                     s[i] = x
         # SUMO's acceleration from the speeds one step apart (see VARS); else SUMO's answer
         # (before the first read the columns are empty, and so are the speeds)

@@ -34,6 +34,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from sumo_swarm.core.routeframe import carried_route_s
+
 # What trajectories.parquet holds of each vehicle at each step, as SUMO's FCD attributes.
 FCD_ATTRIBUTES = ("x", "y", "lane", "pos", "posLat", "speed", "acceleration")
 FCD_FILE = "fcd.parquet"
@@ -147,13 +149,14 @@ def _table(table: pa.Table, reading: FcdReading, carry: _Carry) -> pd.DataFrame:
     # are the states at its end (SUMO's times are whole milliseconds)
     times = np.round((table.column(_TIME).to_numpy() + step_s) * 1000.0) / 1000.0
     vehicle = _categorical(table.column(_COLUMN["id"]))
-    ids = vehicle.categories.to_numpy()[vehicle.codes]
+    names = vehicle.categories.to_numpy()
+    codes = vehicle.codes
     lane = _categorical(table.column(_COLUMN["lane"]))
     lane_codes = lane.codes
     if (lane_codes < 0).any():
         raise ValueError("SUMO's FCD output has a vehicle on no lane")
     where = [reading.lanes[name] for name in lane.categories]
-    edges = np.array([w[0] for w in where], dtype=object)
+    edges = np.array([w[0] for w in where], dtype=object)[lane_codes]
     offsets = reading.frame.edge_offset_m
     pos = column(_COLUMN["pos"])
     speed = column(_COLUMN["speed"])
@@ -161,18 +164,17 @@ def _table(table: pa.Table, reading: FcdReading, carry: _Carry) -> pd.DataFrame:
     index = np.array([w[1] for w in where], dtype=np.int16)[lane_codes]
     off_frame = np.flatnonzero(np.isnan(s))
     if off_frame.size:
-        _route_positions(s, off_frame, times, ids, vehicle.codes, edges[lane_codes], index, pos,
-                         speed, reading, carry)  # fmt: skip
+        _route_positions(s, off_frame, times, names, codes, edges, index, pos, speed, reading,
+                         carry)  # fmt: skip
     last = times == times[-1]
     carry.time_s = float(times[-1])
-    carry.s_m = dict(zip(ids[last], s[last], strict=True))
-    static = list(zip(*map(reading.info, vehicle.categories), strict=True))
-    codes = vehicle.codes
+    carry.s_m = dict(zip(names[codes[last]], s[last], strict=True))
+    static = list(zip(*map(reading.info, names), strict=True))
     data = {
         "time_s": times,
         "vehicle": vehicle,
         "kind": pd.Categorical(np.array(static[0], dtype=object)[codes]),
-        "edge": pd.Categorical(edges[lane_codes]),
+        "edge": pd.Categorical(edges),
         "lane": index,
         "x_m": column(_COLUMN["x"]),
         "y_m": column(_COLUMN["y"]),
@@ -208,7 +210,7 @@ def _route_positions(
     s: np.ndarray,
     rows: np.ndarray,
     times: np.ndarray,
-    ids: np.ndarray,
+    names: np.ndarray,
     codes: np.ndarray,
     edges: np.ndarray,
     lanes: np.ndarray,
@@ -219,8 +221,8 @@ def _route_positions(
 ) -> None:
     """Fill ``s[rows]``, rows on edges that are not the route's own, as ``SumoSession._read``
     does step by step: a junction lane of the route measured back from the next edge's start;
-    elsewhere the vehicle's route position one step before carried on at its speed, or, for a
-    vehicle that was not there one step before, its lane position."""
+    elsewhere :func:`~sumo_swarm.core.routeframe.carried_route_s` from the vehicle's row one
+    step before (``names[codes[i]]``: row ``i``'s vehicle)."""
     step_s = reading.step_s
     route_s = reading.frame.route_s
     prior = _previous_rows(times, codes, step_s)
@@ -233,10 +235,12 @@ def _route_positions(
         if x is None:
             j = prior[i]
             if j >= 0:
-                x = s[j] + speed[i] * step_s
+                was = s[j]
+            elif one_step_on and times[i] == first_time:
+                was = carry.s_m.get(names[codes[i]])
             else:
-                was = carry.s_m.get(ids[i]) if one_step_on and times[i] == first_time else None
-                x = pos[i] if was is None else was + speed[i] * step_s
+                was = None
+            x = carried_route_s(pos[i], speed[i], was, step_s)
         s[i] = x
 
 
