@@ -430,7 +430,7 @@ def speed_field(
     :data:`SPEED_FIELD_COLUMNS`: each cell's start in time and along the route, its speed and
     how many samples it holds (the weight for averaging fields of several runs)."""
     if route_edges and not df.empty:
-        df = df[df["edge"].astype(str).isin(set(route_edges))]
+        df = df[df["edge"].isin(set(route_edges))]  # a categorical column as it is
     if df.empty:
         return pd.DataFrame(columns=list(SPEED_FIELD_COLUMNS))
     cells = pd.DataFrame(
