@@ -169,6 +169,55 @@ def test_a_parted_cav_on_a_junction_is_handed_over_only_once_beyond_it_or_standi
     assert ("c" in fleet._opening) is not handed_over
 
 
+@pytest.mark.parametrize(
+    "accel, car_lane, car_lat, taken",
+    [
+        (-4.0, 2, -0.75, True),  # moving into its lane, SUMO braking at the line
+        (-1.0, 2, -0.75, False),  # ... SUMO braking less
+        (-4.0, 2, 0.0, False),  # keeping to its lane
+        (-4.0, 2, 0.75, False),  # moving away
+        (-4.0, 1, 0.0, True),  # in its lane already, closer than SUMO's gap
+    ],
+)
+def test_a_cav_sumo_drives_at_its_decel_behind_a_car_cutting_in_is_the_fleets_again(
+    accel, car_lane, car_lat, taken
+):
+    # The users' road cav-flow-1800 at 0.5 s steps (SUMO's seed 1): SUMO drove cav.3 alone at
+    # 31 m/s, a car in the lane to its left moving over into its lane 7.6 m ahead; SUMO let it
+    # in by braking at the CAV's decel every other step and, once the car overlapped it, braked
+    # at 4.47 m/s^2. Braking at the line behind a vehicle cutting in closer than SUMO's gap, the
+    # CAV is the fleet's again until it has opened that gap; not while it brakes less, nor
+    # behind a car that keeps to its lane or moves away.
+    road = RoadSection((3.2, 3.2, 3.2))
+    cav = VehicleState("c", 100.0, 1, 0.0, 31.0, 5.0, accel, is_cav=False)  # SUMO drives it
+    car = VehicleState("car", 112.6, car_lane, car_lat, 31.7, 5.0, 0.0, is_cav=False)
+    states = {"c": cav, "car": car}
+    session = FakeSession(states, alone_gap_m=lambda v, speed, lead, lead_id=None: 30.0)
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(session, road=road)
+    fleet._to_sumo.add("c")
+    fleet._watch_alone(states)
+    assert ("c" in fleet._opening) is taken
+    assert ("c" in fleet._to_sumo) is not taken
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("road, seed, end_s", [("3-lane-truck-left", 3, 20.0)])
+def test_a_cav_sumo_drives_is_not_braked_beyond_the_line_by_a_vehicle_cutting_in(
+    tmp_path, road, seed, end_s
+):
+    # The users' road 3-lane-truck-left at 0.5 s steps (SUMO's seed 3): the platoon parted,
+    # SUMO drove c0 11 m behind the truck moving over into its lane, and braked it at 4.56
+    # m/s^2 when the truck came in at 18 s.
+    cfg = write_road(road, tmp_path / "road", end_s=end_s, step_length_s=0.5)
+    out, events = _swarm_run(cfg, tmp_path / "swarm", seed=seed)
+    assert any(e["event"] == "platoon_apart" for e in events), [e["event"] for e in events]
+    rows = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
+    assert rows[rows.kind == "cav"].accel_mps2.min() >= -4.0 - 1e-6
+    assert out["safety"]["collisions"] == 0
+    assert out["safety"]["hard_brakes_cav"] == 0
+
+
 def test_an_error_handing_a_parted_cav_to_sumo_is_not_swallowed():
     # The session's hand-over calls leave a vanished vehicle alone without an error; anything
     # else they raise is a defect and must reach the run loop (which stands the swarm down and

@@ -75,7 +75,7 @@ from sumo_swarm.controllers.base import (
 )
 from sumo_swarm.controllers.cacc import command_cacc
 from sumo_swarm.controllers.replanner import PlanStats
-from sumo_swarm.controllers.session import STANDING_MPS, SessionView
+from sumo_swarm.controllers.session import ALONE_DECEL_MPS2, STANDING_MPS, SessionView
 from sumo_swarm.core.model import RoadSection, VehicleState
 from sumo_swarm.core.neighbours import (
     PassSnapshots,
@@ -419,6 +419,7 @@ class Fleet:
         self._apart_until: dict[str, float] = {}  # CAVs parted: no platoon until then [s]
         self._free_since: dict[int, float] = {}  # platoons held by nothing since [s]
         self._opening: set[str] = set()  # CAVs parted, opening their gap to SUMO's
+        self._to_sumo: set[str] = set()  # CAVs the fleet handed to SUMO to drive alone
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:
@@ -466,6 +467,7 @@ class Fleet:
                 if vid in states and states[vid].is_cav and vid not in self._alone:
                     self._alone.add(vid)
                     session.drive_alone(vid)  # until a platoon takes it (configure_cav)
+                    self._to_sumo.add(vid)
         new = any(vid in states and self._platoon_of(vid) is None for vid in session.departed)
         if new or t_s - self._reviewed_s >= self.settings.review_every_s - 1e-9:
             self._reviewed_s = t_s
@@ -798,6 +800,7 @@ class Fleet:
         """``vid`` joins a platoon: the controllers' modes are set again (by the platoon)."""
         self._handed.discard(vid)
         self._off_frame.discard(vid)
+        self._to_sumo.discard(vid)
         self.ctx.session.reclaim(vid)
         for platoon in self.platoons:
             if vid in platoon.session.members:  # moving from another platoon
@@ -853,6 +856,7 @@ class Fleet:
         """CAVs once in a platoon and now in none follow by CACC while on the route frame;
         those parted open their gap to SUMO's first (:meth:`_open_gaps`)."""
         session = self.ctx.session
+        self._watch_alone(states)
         self._open_gaps(states)
         follow = []
         for vid in list(self._handed):
@@ -871,6 +875,36 @@ class Fleet:
             self.ctx.follow_world_speeds(follow)
             road = session.road_at(follow[0]) or self.ctx.road
             command_cacc(replace(self.ctx, road=road), follow)
+
+    def _watch_alone(self, states: Mapping[str, VehicleState]) -> None:
+        """A CAV SUMO drives alone is the fleet's again where SUMO brakes it at the hard-brake
+        line (its decel, :data:`ALONE_DECEL_MPS2`) while a vehicle ahead that overlaps it or is
+        cutting in (:func:`overlapping_ahead`: a vehicle moving over counts early) is closer
+        than SUMO's gap (:meth:`SessionView.alone_gap_m`): it opens that gap, then SUMO drives
+        it again (:meth:`_open_gaps`, as when it left its platoon). The hand-over's condition,
+        checked again whenever SUMO is one step from braking beyond the line. SUMO's sublane
+        model follows a vehicle only once it overlaps: at 0.5 s steps a CAV SUMO drove 7.6 m
+        behind a car moving into its lane at 31 m/s let it in by braking at its decel every
+        other step, and braked at 4.47 m/s^2 when it came in (users' roads, 2 runs of 72)."""
+        if not self._to_sumo:
+            return
+        session = self.ctx.session
+        for vid in list(self._to_sumo):
+            st = states.get(vid)
+            if st is None:  # gone (a platoon that takes it claims it: _claim)
+                self._to_sumo.discard(vid)
+                continue
+            if st.accel_mps2 > -ALONE_DECEL_MPS2 + 1e-6:
+                continue
+            road = session.road_at(vid) or self.ctx.road
+            table = session.states_in_lanes_of(vid)
+            me = table.get(vid, st)
+            if any(
+                gap < session.alone_gap_m(vid, me.speed_mps, lead.speed_mps, lead.vehicle_id)
+                for lead, gap in self._leaders(vid, me, table, road)
+            ):
+                self._to_sumo.discard(vid)
+                self._opening.add(vid)
 
     def _open_gaps(self, states: Mapping[str, VehicleState]) -> None:
         """The CAVs of a platoon that parted first drop back from its short gaps to the gap
@@ -910,6 +944,7 @@ class Fleet:
                 self._opening.discard(vid)
                 session.release_speed(vid)  # (a vehicle that vanished: no error)
                 session.drive_alone(vid)
+                self._to_sumo.add(vid)
                 continue
             accel = min(
                 (opening_accel(st.speed_mps, desired, (lead.speed_mps, gap), cav.min_gap_m)
