@@ -170,29 +170,36 @@ def test_a_parted_cav_on_a_junction_is_handed_over_only_once_beyond_it_or_standi
 
 
 @pytest.mark.parametrize(
-    "accel, car_lane, car_lat, taken",
+    "accel, car_lane, car_lat, gap, taken",
     [
-        (-4.0, 2, -0.75, True),  # moving into its lane, SUMO braking at the line
-        (-1.0, 2, -0.75, False),  # ... SUMO braking less
-        (-4.0, 2, 0.0, False),  # keeping to its lane
-        (-4.0, 2, 0.75, False),  # moving away
-        (-4.0, 1, 0.0, True),  # in its lane already, closer than SUMO's gap
+        (-4.0, 2, -0.75, 7.6, True),  # moving into its lane, SUMO braking at the line
+        (-1.0, 2, -0.75, 7.6, False),  # ... SUMO braking less
+        (-4.0, 2, 0.0, 7.6, False),  # keeping to its lane
+        (-4.0, 2, 0.75, 7.6, False),  # moving away
+        (-4.0, 1, 0.0, 7.6, True),  # in its lane already
+        # closer than SUMO's gap at the CAV's 31 m/s (31 m), not at the 29 m/s a step at the
+        # line leaves it (29 m): SUMO follows it braking no harder than the line
+        (-4.0, 2, -0.75, 30.0, False),
+        (-4.0, 2, -0.75, 28.0, True),
     ],
 )
 def test_a_cav_sumo_drives_at_its_decel_behind_a_car_cutting_in_is_the_fleets_again(
-    accel, car_lane, car_lat, taken
+    accel, car_lane, car_lat, gap, taken
 ):
     # The users' road cav-flow-1800 at 0.5 s steps (SUMO's seed 1): SUMO drove cav.3 alone at
     # 31 m/s, a car in the lane to its left moving over into its lane 7.6 m ahead; SUMO let it
     # in by braking at the CAV's decel every other step and, once the car overlapped it, braked
-    # at 4.47 m/s^2. Braking at the line behind a vehicle cutting in closer than SUMO's gap, the
-    # CAV is the fleet's again until it has opened that gap; not while it brakes less, nor
-    # behind a car that keeps to its lane or moves away.
+    # at 4.47 m/s^2. Braking at the line behind a vehicle so close that SUMO following it would
+    # brake beyond the line, the CAV is the fleet's again until it has opened SUMO's gap; not
+    # while it brakes less, nor behind a car that keeps to its lane or moves away.
     road = RoadSection((3.2, 3.2, 3.2))
     cav = VehicleState("c", 100.0, 1, 0.0, 31.0, 5.0, accel, is_cav=False)  # SUMO drives it
-    car = VehicleState("car", 112.6, car_lane, car_lat, 31.7, 5.0, 0.0, is_cav=False)
+    car = VehicleState("car", 105.0 + gap, car_lane, car_lat, 31.7, 5.0, 0.0, is_cav=False)
     states = {"c": cav, "car": car}
-    session = FakeSession(states, alone_gap_m=lambda v, speed, lead, lead_id=None: 30.0)
+    # SUMO's gap: a 1 s headway, nothing else; steps of 0.5 s
+    session = FakeSession(
+        states, step_length_s=0.5, alone_gap_m=lambda v, speed, lead, lead_id=None: speed
+    )
     fleet = Fleet(lambda: None, name="x")
     fleet.ctx = run_context(session, road=road)
     fleet._to_sumo.add("c")

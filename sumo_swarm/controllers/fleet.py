@@ -879,13 +879,15 @@ class Fleet:
     def _watch_alone(self, states: Mapping[str, VehicleState]) -> None:
         """A CAV SUMO drives alone is the fleet's again where SUMO brakes it at the hard-brake
         line (its decel, :data:`ALONE_DECEL_MPS2`) while a vehicle ahead that overlaps it or is
-        cutting in (:func:`overlapping_ahead`: a vehicle moving over counts early) is closer
-        than SUMO's gap (:meth:`SessionView.alone_gap_m`): it opens that gap, then SUMO drives
-        it again (:meth:`_open_gaps`, as when it left its platoon). The hand-over's condition,
-        checked again whenever SUMO is one step from braking beyond the line. SUMO's sublane
-        model follows a vehicle only once it overlaps: at 0.5 s steps a CAV SUMO drove 7.6 m
-        behind a car moving into its lane at 31 m/s let it in by braking at its decel every
-        other step, and braked at 4.47 m/s^2 when it came in (users' roads, 2 runs of 72)."""
+        cutting in (:func:`overlapping_ahead`: a vehicle moving over counts early) is so close
+        that SUMO, following it, would brake beyond the line within a step (closer than SUMO's
+        gap, :meth:`SessionView.alone_gap_m`, at the speed one more step at the line leaves):
+        it opens SUMO's gap, then SUMO drives it again (:meth:`_open_gaps`, as when it left its
+        platoon). SUMO's sublane model follows a vehicle only once it overlaps: at 0.5 s steps
+        a CAV SUMO drove 7.6 m behind a car moving into its lane at 31 m/s let it in by braking
+        at its decel every other step, and braked at 4.47 m/s^2 when it came in (users' roads,
+        2 runs of 72). Taken back wherever it was closer than SUMO's gap at its own speed, the
+        CAVs gave way to every merging car at 0.5 s steps, and the others' delay rose."""
         if not self._to_sumo:
             return
         session = self.ctx.session
@@ -899,8 +901,11 @@ class Fleet:
             road = session.road_at(vid) or self.ctx.road
             table = session.states_in_lanes_of(vid)
             me = table.get(vid, st)
+            # SUMO's gap at the speed one more step at the line leaves: closer than that, SUMO
+            # following the vehicle brakes beyond the line within a step.
+            after = max(0.0, me.speed_mps - ALONE_DECEL_MPS2 * self.ctx.dt_s)
             if any(
-                gap < session.alone_gap_m(vid, me.speed_mps, lead.speed_mps, lead.vehicle_id)
+                gap < session.alone_gap_m(vid, after, lead.speed_mps, lead.vehicle_id)
                 for lead, gap in self._leaders(vid, me, table, road)
             ):
                 self._to_sumo.discard(vid)
