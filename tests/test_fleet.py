@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import pandas as pd
 import pytest
@@ -181,6 +182,7 @@ def test_a_parted_cav_on_a_junction_is_handed_over_only_once_beyond_it_or_standi
         # line leaves it (29 m): SUMO follows it braking no harder than the line
         (-4.0, 2, -0.75, 30.0, False),
         (-4.0, 2, -0.75, 28.0, True),
+        (-3.99, 2, -0.75, 7.6, False),  # just inside the line
     ],
 )
 def test_a_cav_sumo_drives_at_its_decel_behind_a_car_cutting_in_is_the_fleets_again(
@@ -198,14 +200,37 @@ def test_a_cav_sumo_drives_at_its_decel_behind_a_car_cutting_in_is_the_fleets_ag
     states = {"c": cav, "car": car}
     # SUMO's gap: a 1 s headway, nothing else; steps of 0.5 s
     session = FakeSession(
-        states, step_length_s=0.5, alone_gap_m=lambda v, speed, lead, lead_id=None: speed
-    )
+        states, edges={"c": "e0", "car": "e0"}, frame=SimpleNamespace(edge_offset_m={"e0": 0.0}),
+        step_length_s=0.5, alone_gap_m=lambda v, speed, lead, lead_id=None: speed,
+    )  # fmt: skip
     fleet = Fleet(lambda: None, name="x")
     fleet.ctx = run_context(session, road=road)
     fleet._to_sumo.add("c")
     fleet._watch_alone(states)
     assert ("c" in fleet._opening) is taken
     assert ("c" in fleet._to_sumo) is not taken
+    taken_back = [e for e in fleet.ctx.events if e["event"] == "cav_taken_back"]
+    assert [(e["vehicle"], e["leader"]) for e in taken_back] == ([("c", "car")] if taken else [])
+
+
+def test_a_cav_sumo_drives_off_the_route_frame_is_not_watched_and_one_a_platoon_claims_is_dropped():
+    # Off the route frame (a ramp, a junction) its lanes are not the road's: not watched there.
+    road = RoadSection((3.2, 3.2, 3.2))
+    cav = VehicleState("c", 100.0, 1, 0.0, 31.0, 5.0, -4.0, is_cav=False)
+    car = VehicleState("car", 112.6, 1, 0.0, 31.7, 5.0, 0.0, is_cav=False)
+    states = {"c": cav, "car": car}
+    session = FakeSession(
+        states, edges={"c": ":J1_0", "car": "e0"}, frame=SimpleNamespace(edge_offset_m={"e0": 0.0}),
+        step_length_s=0.5, alone_gap_m=lambda v, speed, lead, lead_id=None: speed,
+    )  # fmt: skip
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(session, road=road)
+    fleet._to_sumo.add("c")
+    fleet._watch_alone(states)
+    assert "c" in fleet._to_sumo and "c" not in fleet._opening
+    # a platoon taking it in claims it: SUMO no longer drives it alone
+    fleet._claim("c")
+    assert "c" not in fleet._to_sumo
 
 
 @pytest.mark.sumo
@@ -219,6 +244,8 @@ def test_a_cav_sumo_drives_is_not_braked_beyond_the_line_by_a_vehicle_cutting_in
     cfg = write_road(road, tmp_path / "road", end_s=end_s, step_length_s=0.5)
     out, events = _swarm_run(cfg, tmp_path / "swarm", seed=seed)
     assert any(e["event"] == "platoon_apart" for e in events), [e["event"] for e in events]
+    taken = [e for e in events if e["event"] == "cav_taken_back"]
+    assert "c0" in {e["vehicle"] for e in taken}, taken  # behind the truck moving over
     rows = pd.read_parquet(tmp_path / "swarm" / "trajectories.parquet")
     assert rows[rows.kind == "cav"].accel_mps2.min() >= -4.0 - 1e-6
     assert out["safety"]["collisions"] == 0

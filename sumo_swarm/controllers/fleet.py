@@ -419,7 +419,7 @@ class Fleet:
         self._apart_until: dict[str, float] = {}  # CAVs parted: no platoon until then [s]
         self._free_since: dict[int, float] = {}  # platoons held by nothing since [s]
         self._opening: set[str] = set()  # CAVs parted, opening their gap to SUMO's
-        self._to_sumo: set[str] = set()  # CAVs the fleet handed to SUMO to drive alone
+        self._to_sumo: set[str] = set()  # CAVs the fleet gave SUMO to drive (drive_alone)
 
     # ------------------------------------------------------------------ set-up
     def attach(self, ctx: RunContext) -> None:
@@ -878,16 +878,19 @@ class Fleet:
 
     def _watch_alone(self, states: Mapping[str, VehicleState]) -> None:
         """A CAV SUMO drives alone is the fleet's again where SUMO brakes it at the hard-brake
-        line (its decel, :data:`ALONE_DECEL_MPS2`) while a vehicle ahead that overlaps it or is
-        cutting in (:func:`overlapping_ahead`: a vehicle moving over counts early) is so close
-        that SUMO, following it, would brake beyond the line within a step (closer than SUMO's
-        gap, :meth:`SessionView.alone_gap_m`, at the speed one more step at the line leaves):
-        it opens SUMO's gap, then SUMO drives it again (:meth:`_open_gaps`, as when it left its
-        platoon). SUMO's sublane model follows a vehicle only once it overlaps: at 0.5 s steps
-        a CAV SUMO drove 7.6 m behind a car moving into its lane at 31 m/s let it in by braking
-        at its decel every other step, and braked at 4.47 m/s^2 when it came in (users' roads,
-        2 runs of 72). Taken back wherever it was closer than SUMO's gap at its own speed, the
-        CAVs gave way to every merging car at 0.5 s steps, and the others' delay rose."""
+        line (its decel, :data:`ALONE_DECEL_MPS2`) while a vehicle ahead that overlaps it, or
+        is off its lane's centre and moving (:func:`overlapping_ahead`, the guards' wider band
+        for a vehicle that may be cutting in), is so close that SUMO, following it, would
+        brake beyond the line within a step (closer than SUMO's gap,
+        :meth:`SessionView.alone_gap_m`, at the speed one more step at the line leaves): it
+        opens SUMO's gap, then SUMO drives it again (:meth:`_open_gaps`, as when it left its
+        platoon; a ``cav_taken_back`` event). SUMO's sublane model follows a vehicle only once
+        it overlaps: at 0.5 s steps a CAV SUMO drove 7.6 m behind a car moving into its lane
+        at 31 m/s let it in by braking at its decel every other step, and braked at 4.47
+        m/s^2 when it came in (users' roads, 2 runs of 72). Taken back wherever it was closer
+        than SUMO's gap at its own speed, the CAVs gave way to every merging car at 0.5 s
+        steps, and the others' delay rose. On the route frame only (off a junction), and for
+        a CAV whose decel is the line: one whose user's type brakes less is not watched."""
         if not self._to_sumo:
             return
         session = self.ctx.session
@@ -898,18 +901,25 @@ class Fleet:
                 continue
             if st.accel_mps2 > -ALONE_DECEL_MPS2 + 1e-6:
                 continue
+            # Only on the route frame, off a junction: its lanes are the road's there (as
+            # _drive_free does).
+            if session.edges.get(vid) not in session.frame.edge_offset_m:
+                continue
             road = session.road_at(vid) or self.ctx.road
             table = session.states_in_lanes_of(vid)
             me = table.get(vid, st)
             # SUMO's gap at the speed one more step at the line leaves: closer than that, SUMO
             # following the vehicle brakes beyond the line within a step.
             after = max(0.0, me.speed_mps - ALONE_DECEL_MPS2 * self.ctx.dt_s)
-            if any(
-                gap < session.alone_gap_m(vid, after, lead.speed_mps, lead.vehicle_id)
-                for lead, gap in self._leaders(vid, me, table, road)
-            ):
-                self._to_sumo.discard(vid)
-                self._opening.add(vid)
+            for lead, gap in self._leaders(vid, me, table, road):
+                if gap < session.alone_gap_m(vid, after, lead.speed_mps, lead.vehicle_id):
+                    self._to_sumo.discard(vid)
+                    self._opening.add(vid)
+                    self.ctx.event(
+                        "cav_taken_back", vehicle=vid, leader=lead.vehicle_id,
+                        gap_m=round(gap, 2), speed_mps=round(me.speed_mps, 2),
+                    )  # fmt: skip
+                    break
 
     def _open_gaps(self, states: Mapping[str, VehicleState]) -> None:
         """The CAVs of a platoon that parted first drop back from its short gaps to the gap
