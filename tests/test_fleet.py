@@ -170,6 +170,22 @@ def test_a_parted_cav_on_a_junction_is_handed_over_only_once_beyond_it_or_standi
     assert ("c" in fleet._opening) is not handed_over
 
 
+def _watching(states, cav_edge: str = "e0"):
+    """One step of the fleet watching CAV "c", which SUMO drives alone (``Fleet._watch_alone``),
+    on a 3-lane road of a fake session whose route frame is edge e0, in 0.5 s steps, SUMO's gap
+    a 1 s headway and nothing else; the fleet."""
+    session = FakeSession(
+        states, edges={"c": cav_edge, "car": "e0"},
+        frame=SimpleNamespace(edge_offset_m={"e0": 0.0}), step_length_s=0.5,
+        alone_gap_m=lambda v, speed, lead, lead_id=None: speed,
+    )  # fmt: skip
+    fleet = Fleet(lambda: None, name="x")
+    fleet.ctx = run_context(session, road=RoadSection((3.2, 3.2, 3.2)))
+    fleet._to_sumo.add("c")
+    fleet._watch_alone(states)
+    return fleet
+
+
 @pytest.mark.parametrize(
     "accel, car_lane, car_lat, gap, taken",
     [
@@ -194,19 +210,9 @@ def test_a_cav_sumo_drives_at_its_decel_behind_a_car_cutting_in_is_the_fleets_ag
     # at 4.47 m/s^2. Braking at the line behind a vehicle so close that SUMO following it would
     # brake beyond the line, the CAV is the fleet's again until it has opened SUMO's gap; not
     # while it brakes less, nor behind a car that keeps to its lane or moves away.
-    road = RoadSection((3.2, 3.2, 3.2))
     cav = VehicleState("c", 100.0, 1, 0.0, 31.0, 5.0, accel, is_cav=False)  # SUMO drives it
     car = VehicleState("car", 105.0 + gap, car_lane, car_lat, 31.7, 5.0, 0.0, is_cav=False)
-    states = {"c": cav, "car": car}
-    # SUMO's gap: a 1 s headway, nothing else; steps of 0.5 s
-    session = FakeSession(
-        states, edges={"c": "e0", "car": "e0"}, frame=SimpleNamespace(edge_offset_m={"e0": 0.0}),
-        step_length_s=0.5, alone_gap_m=lambda v, speed, lead, lead_id=None: speed,
-    )  # fmt: skip
-    fleet = Fleet(lambda: None, name="x")
-    fleet.ctx = run_context(session, road=road)
-    fleet._to_sumo.add("c")
-    fleet._watch_alone(states)
+    fleet = _watching({"c": cav, "car": car})
     assert ("c" in fleet._opening) is taken
     assert ("c" in fleet._to_sumo) is not taken
     taken_back = [e for e in fleet.ctx.events if e["event"] == "cav_taken_back"]
@@ -215,18 +221,9 @@ def test_a_cav_sumo_drives_at_its_decel_behind_a_car_cutting_in_is_the_fleets_ag
 
 def test_a_cav_sumo_drives_off_the_route_frame_is_not_watched_and_one_a_platoon_claims_is_dropped():
     # Off the route frame (a ramp, a junction) its lanes are not the road's: not watched there.
-    road = RoadSection((3.2, 3.2, 3.2))
     cav = VehicleState("c", 100.0, 1, 0.0, 31.0, 5.0, -4.0, is_cav=False)
     car = VehicleState("car", 112.6, 1, 0.0, 31.7, 5.0, 0.0, is_cav=False)
-    states = {"c": cav, "car": car}
-    session = FakeSession(
-        states, edges={"c": ":J1_0", "car": "e0"}, frame=SimpleNamespace(edge_offset_m={"e0": 0.0}),
-        step_length_s=0.5, alone_gap_m=lambda v, speed, lead, lead_id=None: speed,
-    )  # fmt: skip
-    fleet = Fleet(lambda: None, name="x")
-    fleet.ctx = run_context(session, road=road)
-    fleet._to_sumo.add("c")
-    fleet._watch_alone(states)
+    fleet = _watching({"c": cav, "car": car}, cav_edge=":J1_0")
     assert "c" in fleet._to_sumo and "c" not in fleet._opening
     # a platoon taking it in claims it: SUMO no longer drives it alone
     fleet._claim("c")
